@@ -1,0 +1,34 @@
+# baarda — two commands set everything up on a fresh machine: `make demo` and `make test`.
+PYTHON ?= python3
+VENV   ?= .venv
+PY      = $(VENV)/bin/python
+BAARDA  = $(VENV)/bin/baarda
+STAMP   = $(VENV)/.installed
+RUN    ?= runs/demo
+
+.PHONY: demo test test-slow bench venv clean
+
+$(STAMP): pyproject.toml
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e '.[test]'
+	touch $(STAMP)
+
+venv: $(STAMP)
+
+demo: $(STAMP)
+	$(BAARDA) run fixtures/paper000/data1.toml --out $(RUN)
+	@echo
+	@echo "Run directory: $(RUN)   (inspect with: $(BAARDA) review $(RUN))"
+
+test: $(STAMP)
+	$(PY) -m pytest -q
+
+test-slow: $(STAMP)
+	$(PY) -m pytest -q -m slow
+
+bench: $(STAMP)
+	$(PY) -m pytest -q -s -m benchmark
+
+clean:
+	rm -rf $(VENV) runs .pytest_cache

@@ -1,0 +1,70 @@
+"""Errors a user can act on.
+
+Every mistake in a user's input raises :class:`InputError`, which names the file, the line and
+the field.  The command line prints ``str(error)`` as one line and exits with status 2; it never
+shows a traceback for these.  :class:`AdjustmentError` is raised when an adjustment cannot be
+solved (singular or under-determined normal equations, no convergence); its message says which
+datum or parameter is missing.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class BaardaError(Exception):
+    """Base class of all errors the command line reports without a traceback."""
+
+
+class InputError(BaardaError):
+    """A user's input is wrong: a file, a line, a field.
+
+    Parameters
+    ----------
+    message : str
+        What is wrong, in the user's words (``"expected a number, got 'l2.5'"``).
+    path : str or Path, optional
+        The file.
+    line : int, optional
+        1-based line number in that file.
+    field : str, optional
+        The field, column or option name.
+    """
+
+    def __init__(self, message: str, path: str | Path | None = None,
+                 line: int | None = None, field: str | None = None):
+        self.message = message
+        self.path = None if path is None else str(path)
+        self.line = line
+        self.field = field
+        super().__init__(str(self))
+
+    def __str__(self) -> str:
+        where = ""
+        if self.path is not None:
+            where = self.path
+            if self.line is not None:
+                where += f":{self.line}"
+        parts = [p for p in (where, f"field '{self.field}'" if self.field else "") if p]
+        prefix = ", ".join(parts)
+        return f"{prefix}: {self.message}" if prefix else self.message
+
+
+class AdjustmentError(BaardaError):
+    """An adjustment cannot be computed: singular system, missing datum, no convergence.
+
+    ``state`` may carry the last iterate so that the caller can save it.
+    """
+
+    def __init__(self, message: str, state: object | None = None):
+        self.state = state
+        super().__init__(message)
+
+
+class StageError(BaardaError):
+    """A stage failed; wraps the cause with the stage's name."""
+
+    def __init__(self, stage: str, cause: BaseException):
+        self.stage = stage
+        self.cause = cause
+        super().__init__(f"stage '{stage}' failed: {cause}")

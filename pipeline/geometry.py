@@ -1,0 +1,66 @@
+"""Rotations and small geometric helpers, exactly as ``docs/conventions.md`` fixes them.
+
+``R_cam_from_world = R3(kappa) @ R2(phi) @ R1(omega)``; ``p_cam = R_cam_from_world @ (X - X0)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def _r1(a):
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, s], [0.0, -s, c]])
+
+
+def _r2(a):
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, c]])
+
+
+def _r3(a):
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def rotation_from_opk(omega: float, phi: float, kappa: float) -> np.ndarray:
+    """``R_cam_from_world`` (3, 3) from ω, φ, κ in radians."""
+    return _r3(kappa) @ _r2(phi) @ _r1(omega)
+
+
+def rotation_from_opk_many(opk: np.ndarray) -> np.ndarray:
+    """Vectorised :func:`rotation_from_opk`: ``opk (m, 3)`` → ``(m, 3, 3)``."""
+    opk = np.asarray(opk, dtype=float).reshape(-1, 3)
+    so, co = np.sin(opk[:, 0]), np.cos(opk[:, 0])
+    sp, cp = np.sin(opk[:, 1]), np.cos(opk[:, 1])
+    sk, ck = np.sin(opk[:, 2]), np.cos(opk[:, 2])
+    R = np.empty((opk.shape[0], 3, 3))
+    R[:, 0, 0] = cp * ck
+    R[:, 0, 1] = co * sk + so * sp * ck
+    R[:, 0, 2] = so * sk - co * sp * ck
+    R[:, 1, 0] = -cp * sk
+    R[:, 1, 1] = co * ck - so * sp * sk
+    R[:, 1, 2] = so * ck + co * sp * sk
+    R[:, 2, 0] = sp
+    R[:, 2, 1] = -so * cp
+    R[:, 2, 2] = co * cp
+    return R
+
+
+def opk_from_rotation(R_cam_from_world: np.ndarray) -> np.ndarray:
+    """ω, φ, κ (radians, shape (3,)) of a rotation matrix; φ in [−π/2, π/2].
+
+    Inverse of :func:`rotation_from_opk` away from the gimbal lock φ = ±90°.
+    """
+    R = np.asarray(R_cam_from_world, dtype=float)
+    phi = np.arcsin(np.clip(R[2, 0], -1.0, 1.0))
+    omega = np.arctan2(-R[2, 1], R[2, 2])
+    kappa = np.arctan2(-R[1, 0], R[0, 0])
+    return np.array([omega, phi, kappa])
+
+
+def project(X: np.ndarray, X0: np.ndarray, R_cam_from_world: np.ndarray, c: float,
+            xp: float = 0.0, yp: float = 0.0) -> np.ndarray:
+    """Ideal collinearity projection (no additional parameters) of points ``X (n, 3)`` → ``(n, 2)`` mm."""
+    d = (np.asarray(X, float) - np.asarray(X0, float)) @ np.asarray(R_cam_from_world, float).T
+    return np.column_stack([xp - c * d[:, 0] / d[:, 2], yp - c * d[:, 1] / d[:, 2]])

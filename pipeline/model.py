@@ -1,0 +1,320 @@
+"""The photogrammetric data model: arrays with index arrays, never object graphs.
+
+A :class:`Block` holds five tables — cameras, photos, object points, image observations and
+stereo pairs — each a frozen dataclass of equally long numpy arrays.  Arrays are made read-only
+when a table is built, so a stage cannot modify its input by accident; a stage that changes
+something builds a new table with :meth:`Table.replace` (or :func:`dataclasses.replace`).
+
+Units and signs follow ``docs/conventions.md``: image coordinates in mm, object coordinates in
+the block's ``object_unit``, angles in radians, ``R_cam_from_world = R3(κ) R2(φ) R1(ω)``.
+
+A-priori standard deviations use three kinds of value: a positive number (observed with that
+sigma: a weighted constraint), ``0`` (fixed, not estimated) and ``inf`` (free, unknown).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+
+ROLES = ("full", "xy", "z", "check", "tie")
+"""Object-point roles: full XYZ control, planimetric control, height control, check, tie."""
+
+FREE = np.inf
+FIXED = 0.0
+
+
+def _frozen(a, dtype=None) -> np.ndarray:
+    arr = np.array(a, dtype=dtype, copy=True)
+    arr.flags.writeable = False
+    return arr
+
+
+class Table:
+    """Common behaviour of the column tables: validation, length, ``replace`` and selection."""
+
+    _columns: ClassVar[dict[str, tuple[Any, tuple[int, ...]]]] = {}
+
+    def __post_init__(self):
+        n = None
+        for name, (dtype, tail) in self._columns.items():
+            arr = _frozen(getattr(self, name), dtype)
+            if arr.ndim == 0 or arr.shape[1:] != tail:
+                if arr.size == 0:
+                    arr = _frozen(np.zeros((0,) + tail), dtype)
+                else:
+                    raise ValueError(
+                        f"{type(self).__name__}.{name}: expected shape (n, {', '.join(map(str, tail))}) "
+                        f"got {arr.shape}".replace(", )", ")"))
+            object.__setattr__(self, name, arr)
+            if n is None:
+                n = arr.shape[0]
+            elif arr.shape[0] != n:
+                raise ValueError(f"{type(self).__name__}.{name}: length {arr.shape[0]} != {n}")
+
+    def __len__(self) -> int:
+        first = next(iter(self._columns))
+        return int(getattr(self, first).shape[0])
+
+    def replace(self, **changes):
+        """A copy with some columns replaced (validated and frozen again)."""
+        return dataclasses.replace(self, **changes)
+
+    def take(self, index) -> "Table":
+        """Rows ``index`` (bool mask or integer array) as a new table of the same kind."""
+        return dataclasses.replace(self, **{k: getattr(self, k)[index] for k in self._columns})
+
+    def index_of(self, ids) -> np.ndarray:
+        """Row indices of the given ids (``KeyError`` naming the first unknown id)."""
+        lookup = {v: i for i, v in enumerate(self.ids)}
+        out = []
+        for v in np.atleast_1d(ids):
+            try:
+                out.append(lookup[str(v)])
+            except KeyError:
+                raise KeyError(f"unknown id {v!r} in {type(self).__name__}") from None
+        return np.array(out, dtype=int)
+
+
+@dataclass(frozen=True, eq=False)
+class Cameras(Table):
+    """Interior orientation and additional-parameter model of each camera.
+
+    ids (k,) str; c, xp, yp (k,) mm; ap_model (k,) name of a registered AP model (``"none"``,
+    ``"ebner12"``, ``"brown"``, ``"aicon"``); ap (k, p) parameter values, ``p`` the largest
+    parameter count in use (unused columns 0); sigma_iop (k, 3) a-priori sigmas of c, xp, yp;
+    sigma_ap (k, p); format_mm (k, 2) width and height of the format; pixel_mm (k,) pixel
+    pitch for digital cameras (nan for film); resolution (k, 2) pixels (0 for film).
+    """
+
+    ids: np.ndarray
+    c: np.ndarray
+    xp: np.ndarray
+    yp: np.ndarray
+    ap_model: np.ndarray
+    ap: np.ndarray
+    sigma_iop: np.ndarray
+    sigma_ap: np.ndarray
+    format_mm: np.ndarray
+    pixel_mm: np.ndarray
+    resolution: np.ndarray
+
+    _columns: ClassVar = {
+        "ids": (str, ()), "c": (float, ()), "xp": (float, ()), "yp": (float, ()),
+        "ap_model": (str, ()), "sigma_iop": (float, (3,)),
+        "format_mm": (float, (2,)), "pixel_mm": (float, ()), "resolution": (int, (2,)),
+    }
+
+    def __post_init__(self):
+        super().__post_init__()
+        n = len(self.ids)
+        for name in ("ap", "sigma_ap"):
+            arr = np.array(getattr(self, name), dtype=float)
+            if arr.size == 0:
+                arr = np.zeros((n, 0))
+            if arr.ndim != 2 or arr.shape[0] != n:
+                raise ValueError(f"Cameras.{name}: expected shape ({n}, p), got {arr.shape}")
+            object.__setattr__(self, name, _frozen(arr))
+        if self.sigma_ap.shape != self.ap.shape:
+            raise ValueError("Cameras.sigma_ap must have the shape of Cameras.ap")
+
+    def take(self, index):
+        out = super().take(index)
+        return dataclasses.replace(out, ap=self.ap[index], sigma_ap=self.sigma_ap[index])
+
+    @classmethod
+    def make(cls, ids, c, xp=None, yp=None, *, ap_model=None, ap=None, sigma_iop=None,
+             sigma_ap=None, format_mm=None, pixel_mm=None, resolution=None) -> "Cameras":
+        """Build with defaults: no APs, IOP fixed (sigma 0), format unknown (nan)."""
+        ids = [str(i) for i in np.atleast_1d(ids)]
+        k = len(ids)
+        full = lambda v, d, shape=(): np.broadcast_to(np.asarray(d if v is None else v, float), (k,) + shape)
+        return cls(
+            ids=np.array(ids, dtype=str),
+            c=full(c, 0.0), xp=full(xp, 0.0), yp=full(yp, 0.0),
+            ap_model=np.array(["none"] * k if ap_model is None
+                              else np.broadcast_to(np.asarray(ap_model, dtype=object), (k,)), dtype=str),
+            ap=np.zeros((k, 0)) if ap is None else np.atleast_2d(ap),
+            sigma_iop=full(sigma_iop, FIXED, (3,)),
+            sigma_ap=(np.zeros((k, 0)) if ap is None else np.zeros_like(np.atleast_2d(ap)))
+            if sigma_ap is None else np.atleast_2d(sigma_ap),
+            format_mm=full(format_mm, np.nan, (2,)), pixel_mm=full(pixel_mm, np.nan),
+            resolution=np.broadcast_to(np.asarray(0 if resolution is None else resolution, int), (k, 2)),
+        )
+
+
+@dataclass(frozen=True, eq=False)
+class Photos(Table):
+    """Exterior orientation of each photo.
+
+    ids (m,) str; camera (m,) index into :class:`Cameras`; X0 (m, 3) projection centre (nan when
+    unknown); opk (m, 3) ω, φ, κ radians (nan when unknown); sigma_eo (m, 6) a-priori sigmas of
+    X0, Y0, Z0, ω, φ, κ (``inf`` free, ``0`` fixed, else a weighted constraint).
+    """
+
+    ids: np.ndarray
+    camera: np.ndarray
+    X0: np.ndarray
+    opk: np.ndarray
+    sigma_eo: np.ndarray
+
+    _columns: ClassVar = {
+        "ids": (str, ()), "camera": (int, ()), "X0": (float, (3,)), "opk": (float, (3,)),
+        "sigma_eo": (float, (6,)),
+    }
+
+    @classmethod
+    def make(cls, ids, camera=0, X0=None, opk=None, sigma_eo=None) -> "Photos":
+        ids = [str(i) for i in np.atleast_1d(ids)]
+        m = len(ids)
+        return cls(
+            ids=np.array(ids, dtype=str),
+            camera=np.broadcast_to(np.asarray(camera, int), (m,)),
+            X0=np.broadcast_to(np.asarray(np.nan if X0 is None else X0, float), (m, 3)),
+            opk=np.broadcast_to(np.asarray(np.nan if opk is None else opk, float), (m, 3)),
+            sigma_eo=np.broadcast_to(np.asarray(FREE if sigma_eo is None else sigma_eo, float), (m, 6)),
+        )
+
+    @property
+    def has_orientation(self) -> np.ndarray:
+        """(m,) bool: both X0 and ω φ κ are known."""
+        return np.isfinite(self.X0).all(axis=1) & np.isfinite(self.opk).all(axis=1)
+
+
+@dataclass(frozen=True, eq=False)
+class Points(Table):
+    """Object points.
+
+    ids (n,) str; XYZ (n, 3) coordinates (surveyed for control/check, approximate or nan for tie);
+    role (n,) one of :data:`ROLES`; sigma (n, 3) a-priori sigmas of X, Y, Z as they enter the
+    adjustment (``0`` fixed control, positive weighted control, ``inf`` unknown).
+    """
+
+    ids: np.ndarray
+    XYZ: np.ndarray
+    role: np.ndarray
+    sigma: np.ndarray
+
+    _columns: ClassVar = {
+        "ids": (str, ()), "XYZ": (float, (3,)), "role": (str, ()), "sigma": (float, (3,)),
+    }
+
+    def __post_init__(self):
+        super().__post_init__()
+        bad = sorted(set(self.role.tolist()) - set(ROLES))
+        if bad:
+            raise ValueError(f"Points.role: unknown role(s) {bad}; expected one of {ROLES}")
+
+    @classmethod
+    def make(cls, ids, XYZ=None, role="tie", sigma=None) -> "Points":
+        ids = [str(i) for i in np.atleast_1d(ids)]
+        n = len(ids)
+        role_arr = np.array(np.broadcast_to(np.asarray(role, dtype=object), (n,)), dtype=str)
+        if sigma is None:
+            sigma = np.full((n, 3), FREE)
+            sigma[role_arr == "full"] = FIXED
+            sigma[role_arr == "xy", :2] = FIXED
+            sigma[role_arr == "z", 2] = FIXED
+        return cls(ids=np.array(ids, dtype=str),
+                   XYZ=np.broadcast_to(np.asarray(np.nan if XYZ is None else XYZ, float), (n, 3)),
+                   role=role_arr, sigma=np.broadcast_to(np.asarray(sigma, float), (n, 3)))
+
+
+@dataclass(frozen=True, eq=False)
+class Observations(Table):
+    """Image observations: one row per measured point in a photo.
+
+    photo (k,) index into photos; point (k,) index into points; xy (k, 2) image coordinates mm;
+    cov (k, 2, 2) a-priori covariance mm² (x, y may be correlated); active (k,) bool — inactive
+    rows are kept (so decisions are reported) but not used.
+    """
+
+    photo: np.ndarray
+    point: np.ndarray
+    xy: np.ndarray
+    cov: np.ndarray
+    active: np.ndarray
+
+    _columns: ClassVar = {
+        "photo": (int, ()), "point": (int, ()), "xy": (float, (2,)), "cov": (float, (2, 2)),
+        "active": (bool, ()),
+    }
+
+    @classmethod
+    def make(cls, photo, point, xy, sigma=None, cov=None, active=True) -> "Observations":
+        """Build from indices and coordinates; ``sigma`` (scalar or (k,) or (k, 2)) gives a diagonal cov."""
+        photo = np.asarray(photo, int).reshape(-1)
+        k = photo.shape[0]
+        if cov is None:
+            s = np.broadcast_to(np.asarray(1.0 if sigma is None else sigma, float), (k,) if np.ndim(sigma) <= 1 else (k, 2))
+            s2 = np.column_stack([s, s]) if s.ndim == 1 else s
+            cov = np.zeros((k, 2, 2))
+            cov[:, 0, 0] = s2[:, 0] ** 2
+            cov[:, 1, 1] = s2[:, 1] ** 2
+        return cls(photo=photo, point=np.asarray(point, int).reshape(-1),
+                   xy=np.asarray(xy, float).reshape(-1, 2), cov=cov,
+                   active=np.broadcast_to(np.asarray(active, bool), (k,)))
+
+
+@dataclass(frozen=True, eq=False)
+class Pairs(Table):
+    """Stereo pairs: left and right photo indices."""
+
+    left: np.ndarray
+    right: np.ndarray
+
+    _columns: ClassVar = {"left": (int, ()), "right": (int, ())}
+
+
+@dataclass(frozen=True, eq=False)
+class Block:
+    """Everything one adjustment needs, plus provenance.
+
+    ``meta`` records the object unit, the source file of each photo (for error messages and
+    reports) and anything a source stage wants later stages to know (e.g. comparator
+    interior-orientation results).  ``source_lines`` maps ``(photo index, point index)`` of an
+    observation to ``(file, line)`` for messages; it may be empty.
+    """
+
+    cameras: Cameras
+    photos: Photos
+    points: Points
+    observations: Observations
+    pairs: Pairs = field(default_factory=lambda: Pairs(left=np.zeros(0, int), right=np.zeros(0, int)))
+    object_unit: str = "m"
+    meta: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        obs = self.observations
+        if len(obs):
+            if obs.photo.min() < 0 or obs.photo.max() >= len(self.photos):
+                raise ValueError("Observations.photo index out of range")
+            if obs.point.min() < 0 or obs.point.max() >= len(self.points):
+                raise ValueError("Observations.point index out of range")
+        if len(self.photos) and (self.photos.camera.min() < 0 or self.photos.camera.max() >= len(self.cameras)):
+            raise ValueError("Photos.camera index out of range")
+        for name in ("left", "right"):
+            idx = getattr(self.pairs, name)
+            if len(idx) and (idx.min() < 0 or idx.max() >= len(self.photos)):
+                raise ValueError(f"Pairs.{name} index out of range")
+
+    def replace(self, **changes) -> "Block":
+        return dataclasses.replace(self, **changes)
+
+    def observation_ids(self) -> list[tuple[str, str]]:
+        """(photo id, point id) of each observation row."""
+        return list(zip(self.photos.ids[self.observations.photo].tolist(),
+                        self.points.ids[self.observations.point].tolist()))
+
+    def summary(self) -> dict:
+        """Counts for reports."""
+        roles = {r: int((self.points.role == r).sum()) for r in ROLES}
+        return {
+            "cameras": len(self.cameras), "photos": len(self.photos), "points": len(self.points),
+            "observations": len(self.observations),
+            "active_observations": int(self.observations.active.sum()),
+            "pairs": len(self.pairs), "roles": roles, "object_unit": self.object_unit,
+        }

@@ -1,0 +1,161 @@
+"""Typed stage options: a dataclass per stage, validated from the project file.
+
+A stage declares ``Options`` as a (frozen) dataclass; every field has a default and a docstring-like
+``metadata={"doc": "..."}``.  :func:`parse_options` turns the TOML table of a stage into an
+instance, rejecting unknown keys and values of the wrong type with an :class:`InputError` that
+names the project file, the line and the key.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import types
+import typing
+from pathlib import Path
+from typing import Any, Literal, get_args, get_origin
+
+from .errors import InputError
+
+
+@dataclasses.dataclass(frozen=True)
+class NoOptions:
+    """The stage takes no options."""
+
+
+def option(default: Any, doc: str, **kw) -> Any:
+    """A documented option field: ``x: float = option(1.0, "what x does")``."""
+    if isinstance(default, (list, dict, set)):
+        return dataclasses.field(default_factory=lambda: type(default)(default), metadata={"doc": doc}, **kw)
+    return dataclasses.field(default=default, metadata={"doc": doc}, **kw)
+
+
+def describe(options_cls: type) -> list[dict]:
+    """Name, type, default and doc of every option (for ``baarda stages --verbose`` and docs)."""
+    hints = typing.get_type_hints(options_cls)
+    out = []
+    for f in dataclasses.fields(options_cls):
+        default = f.default if f.default is not dataclasses.MISSING else (
+            f.default_factory() if f.default_factory is not dataclasses.MISSING else None)
+        out.append({"name": f.name, "type": _type_name(hints[f.name]), "default": default,
+                    "doc": f.metadata.get("doc", "")})
+    return out
+
+
+def _type_name(tp) -> str:
+    origin = get_origin(tp)
+    if origin is Literal:
+        return " | ".join(repr(a) for a in get_args(tp))
+    if origin in (typing.Union, types.UnionType):
+        return " | ".join(_type_name(a) for a in get_args(tp))
+    if origin in (list, tuple):
+        args = get_args(tp)
+        return f"list[{_type_name(args[0])}]" if args else "list"
+    if origin is dict:
+        return "table"
+    return getattr(tp, "__name__", str(tp))
+
+
+def _coerce(value: Any, tp, name: str, where: dict) -> Any:
+    origin = get_origin(tp)
+    if tp is Any:
+        return value
+    if origin is Literal:
+        if value not in get_args(tp):
+            raise InputError(f"must be one of {', '.join(repr(a) for a in get_args(tp))}, got {value!r}",
+                             field=name, **where)
+        return value
+    if origin in (typing.Union, types.UnionType):
+        args = get_args(tp)
+        if value is None and type(None) in args:
+            return None
+        errors = []
+        for a in args:
+            if a is type(None):
+                continue
+            try:
+                return _coerce(value, a, name, where)
+            except InputError as e:
+                errors.append(e.message)
+        raise InputError(f"expected {_type_name(tp)}, got {value!r}", field=name, **where)
+    if origin in (list, tuple):
+        if not isinstance(value, (list, tuple)):
+            raise InputError(f"expected a list, got {value!r}", field=name, **where)
+        args = get_args(tp)
+        inner = args[0] if args else Any
+        out = [_coerce(v, inner, name, where) for v in value]
+        return tuple(out) if origin is tuple else out
+    if origin is dict:
+        if not isinstance(value, dict):
+            raise InputError(f"expected a table, got {value!r}", field=name, **where)
+        return dict(value)
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise InputError(f"expected true or false, got {value!r}", field=name, **where)
+        return value
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise InputError(f"expected an integer, got {value!r}", field=name, **where)
+        return value
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise InputError(f"expected a number, got {value!r}", field=name, **where)
+        return float(value)
+    if tp is str:
+        if not isinstance(value, str):
+            raise InputError(f"expected a string, got {value!r}", field=name, **where)
+        return value
+    if tp is Path:
+        if not isinstance(value, str):
+            raise InputError(f"expected a path string, got {value!r}", field=name, **where)
+        return Path(value)
+    if dataclasses.is_dataclass(tp):
+        if not isinstance(value, dict):
+            raise InputError(f"expected a table, got {value!r}", field=name, **where)
+        return parse_options(tp, value, prefix=f"{name}.", **where)
+    return value
+
+
+def parse_options(options_cls: type, raw: dict | None, *, path=None, line=None,
+                  locate=None, prefix: str = "") -> Any:
+    """Validate ``raw`` (a TOML table) against ``options_cls``.
+
+    ``locate(key) -> line`` may be given to point errors at the exact line of a key.
+    """
+    raw = dict(raw or {})
+    hints = typing.get_type_hints(options_cls)
+    fields = {f.name: f for f in dataclasses.fields(options_cls)}
+
+    def where(key):
+        ln = locate(key) if locate else None
+        return {"path": path, "line": ln or line}
+
+    unknown = sorted(set(raw) - set(fields))
+    if unknown:
+        known = ", ".join(sorted(fields)) or "(none)"
+        raise InputError(f"unknown option '{prefix}{unknown[0]}'; this stage accepts: {known}",
+                         field=prefix + unknown[0], **where(unknown[0]))
+    values = {}
+    for key, value in raw.items():
+        values[key] = _coerce(value, hints[key], prefix + key, where(key))
+    missing = [n for n, f in fields.items() if n not in values
+               and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING]
+    if missing:
+        raise InputError(f"required option '{prefix}{missing[0]}' is missing", field=prefix + missing[0],
+                         **where(None))
+    try:
+        return options_cls(**values)
+    except (ValueError, TypeError) as e:  # __post_init__ checks of the options class
+        raise InputError(str(e), **where(None)) from None
+
+
+def to_plain(obj: Any) -> Any:
+    """Options (or anything) as JSON/TOML-friendly plain values."""
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return {f.name: to_plain(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+    if isinstance(obj, Path):
+        return str(obj)
+    if isinstance(obj, (list, tuple)):
+        return [to_plain(v) for v in obj]
+    if isinstance(obj, dict):
+        return {str(k): to_plain(v) for k, v in obj.items()}
+    return obj

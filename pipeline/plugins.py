@@ -1,0 +1,83 @@
+"""The plugin manager: stages are found through the entry-point group ``baarda.stages``.
+
+Built-in stages register through that same group in baarda's own ``pyproject.toml``; a
+third-party package adds ``[project.entry-points."baarda.stages"] my-stage = "pkg.mod:MyStage"``
+and is found the same way.  Nothing is discovered at import time: a :class:`PluginManager` is
+created by the runner (or by a test, with discovery blocked — see :mod:`pipeline.testing`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from importlib.metadata import entry_points
+
+from .errors import BaardaError
+from .stage import check_stage_class
+
+GROUP = "baarda.stages"
+
+
+@dataclass(frozen=True)
+class StageInfo:
+    name: str
+    cls: type
+    package: str
+    value: str
+
+    @property
+    def summary(self) -> str:
+        return str(getattr(self.cls, "summary", "")).strip().splitlines()[0] if getattr(self.cls, "summary", "") else ""
+
+
+class PluginManager:
+    """Registry of stage classes by name."""
+
+    def __init__(self, discover: bool = True, group: str = GROUP):
+        self.group = group
+        self._stages: dict[str, StageInfo] = {}
+        self.load_errors: dict[str, str] = {}
+        if discover:
+            self.discover()
+
+    def discover(self) -> None:
+        """Load every entry point of the group; a broken plugin is recorded, not fatal."""
+        for ep in entry_points(group=self.group):
+            try:
+                cls = ep.load()
+            except Exception as e:  # a third-party plugin that fails to import
+                self.load_errors[ep.name] = f"{type(e).__name__}: {e}"
+                continue
+            package = ep.dist.name if ep.dist is not None else ep.module.split(".")[0]
+            self._register(ep.name, cls, package, ep.value)
+
+    def register(self, name: str, cls: type, package: str = "(registered in code)") -> None:
+        """Register a stage class directly (tests, notebooks)."""
+        self._register(name, cls, package, f"{cls.__module__}:{cls.__qualname__}")
+
+    def _register(self, name, cls, package, value):
+        problems = check_stage_class(cls, name)
+        if problems:
+            self.load_errors[name] = "; ".join(problems)
+            return
+        if name in self._stages and self._stages[name].value != value:
+            self.load_errors[name] = (f"stage name '{name}' registered twice: {self._stages[name].value} "
+                                      f"and {value}; keeping the first")
+            return
+        self._stages[name] = StageInfo(name, cls, package, value)
+
+    def get(self, name: str) -> StageInfo:
+        try:
+            return self._stages[name]
+        except KeyError:
+            hint = f" ({self.load_errors[name]})" if name in self.load_errors else ""
+            known = ", ".join(sorted(self._stages)) or "(none installed)"
+            raise BaardaError(f"no stage named '{name}'{hint}; installed stages: {known}") from None
+
+    def names(self) -> list[str]:
+        return sorted(self._stages)
+
+    def __iter__(self):
+        return iter(self._stages[n] for n in self.names())
+
+    def __contains__(self, name) -> bool:
+        return name in self._stages

@@ -1,0 +1,162 @@
+"""The stage protocol.
+
+A stage is a class with
+
+* ``summary`` — one line: what it does (``baarda stages`` prints it);
+* ``reads`` / ``writes`` — the names of the artefacts it takes and produces (``"block"``,
+  ``"screening"``, ``"adjustment"``, …).  A name ending in ``?`` is optional input;
+* ``Options`` — a dataclass of typed, documented options (see :mod:`pipeline.options`);
+* ``run(inputs, options, ctx) -> StageResult`` — the work.  Pure with respect to its inputs:
+  it returns new artefacts, never modifies what it was given;
+* ``log(result, rec, ctx)`` (optional) — writes the stage's rerun recording.  Logging lives here,
+  never in ``run`` and never in numerical code.
+
+Stages are found through the entry-point group ``baarda.stages`` (see :mod:`pipeline.plugins`).
+The runner gives each stage a :class:`Context` with the project directory, a seeded random
+generator, progress reporting and a place for warnings.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, ClassVar, Iterable, Iterator, Mapping
+
+import numpy as np
+
+from .options import NoOptions
+
+
+@dataclass
+class TableData:
+    """A table for CSV output: ordered columns of equal length, plus a one-line description."""
+
+    columns: dict[str, Any]
+    description: str = ""
+
+    def __post_init__(self):
+        lengths = {k: len(v) for k, v in self.columns.items()}
+        if len(set(lengths.values())) > 1:
+            raise ValueError(f"TableData columns of unequal length: {lengths}")
+
+    def __len__(self):
+        return len(next(iter(self.columns.values()))) if self.columns else 0
+
+    def rows(self) -> Iterator[dict]:
+        keys = list(self.columns)
+        for i in range(len(self)):
+            yield {k: self.columns[k][i] for k in keys}
+
+
+@dataclass
+class StageResult:
+    """What a stage returns.
+
+    artefacts : named outputs (must cover the stage's ``writes``).
+    summary : JSON-friendly dict for ``results.json``.
+    report : Markdown for the stage's section of ``report.md`` (no heading; the runner adds it).
+    tables : CSV tables, written as ``<stage id>_<name>.csv``.
+    figures : PNG bytes, written as ``<stage id>_<name>.png`` and linked from the report.
+    data : anything the stage's ``log`` needs (not serialised).
+    """
+
+    artefacts: dict[str, Any] = field(default_factory=dict)
+    summary: dict = field(default_factory=dict)
+    report: str = ""
+    tables: dict[str, TableData] = field(default_factory=dict)
+    figures: dict[str, bytes] = field(default_factory=dict)
+    data: Any = None
+
+
+class Progress:
+    """Progress on long work, printed to stderr (quiet when not a terminal unless forced)."""
+
+    def __init__(self, stage_id: str, stream=None, enabled: bool | None = None):
+        self.stage_id = stage_id
+        self.stream = stream or sys.stderr
+        self.enabled = self.stream.isatty() if enabled is None else enabled
+        self._last = 0.0
+
+    def message(self, text: str) -> None:
+        if self.enabled:
+            print(f"  [{self.stage_id}] {text}", file=self.stream, flush=True)
+
+    def track(self, iterable: Iterable, total: int | None = None, what: str = "") -> Iterator:
+        """Yield from ``iterable`` while printing ``what i/total`` at most every 0.5 s."""
+        total = total if total is not None else (len(iterable) if hasattr(iterable, "__len__") else None)
+        for i, item in enumerate(iterable):
+            now = time.monotonic()
+            if self.enabled and (now - self._last > 0.5 or (total and i + 1 == total)):
+                self._last = now
+                frac = f"{i + 1}/{total}" if total else f"{i + 1}"
+                print(f"\r  [{self.stage_id}] {what} {frac}", end="", file=self.stream, flush=True)
+            yield item
+        if self.enabled:
+            print(file=self.stream, flush=True)
+
+
+@dataclass
+class Context:
+    """What the runner gives a stage besides its inputs and options."""
+
+    stage_id: str
+    project_dir: Path
+    run_dir: Path | None = None
+    seed: int = 0
+    progress: Progress = None  # type: ignore[assignment]
+    warnings: list[str] = field(default_factory=list)
+    project_file: Path | None = None
+
+    def __post_init__(self):
+        if self.progress is None:
+            self.progress = Progress(self.stage_id, enabled=False)
+
+    @property
+    def rng(self) -> np.random.Generator:
+        """A generator seeded from the project seed and the stage id (reproducible per stage)."""
+        digest = sum((i + 1) * ord(ch) for i, ch in enumerate(self.stage_id))
+        return np.random.default_rng([self.seed, digest])
+
+    def resolve(self, path: str | Path) -> Path:
+        """A path from the project file, relative to the project's directory."""
+        p = Path(path).expanduser()
+        return p if p.is_absolute() else (self.project_dir / p)
+
+    def warn(self, text: str) -> None:
+        self.warnings.append(text)
+        self.progress.message(f"warning: {text}")
+
+
+class Stage:
+    """Base class of stages (subclassing is optional; the runner checks the attributes)."""
+
+    summary: ClassVar[str] = ""
+    reads: ClassVar[tuple[str, ...]] = ()
+    writes: ClassVar[tuple[str, ...]] = ()
+    Options: ClassVar[type] = NoOptions
+
+    def run(self, inputs: Mapping[str, Any], options: Any, ctx: Context) -> StageResult:
+        raise NotImplementedError  # pragma: no cover - the protocol's abstract method
+
+    def log(self, result: StageResult, rec: Any, ctx: Context) -> None:
+        """Write the stage's recording (default: nothing beyond the runner's summary)."""
+
+
+REQUIRED_ATTRS = ("summary", "reads", "writes", "Options", "run")
+
+
+def check_stage_class(cls: type, name: str) -> list[str]:
+    """Problems with a stage class (empty when it follows the protocol)."""
+    import dataclasses
+
+    problems = []
+    for attr in REQUIRED_ATTRS:
+        if not hasattr(cls, attr):
+            problems.append(f"stage '{name}' ({cls!r}) has no '{attr}'")
+    if hasattr(cls, "Options") and not dataclasses.is_dataclass(cls.Options):
+        problems.append(f"stage '{name}': Options must be a dataclass")
+    if hasattr(cls, "summary") and not str(cls.summary).strip():
+        problems.append(f"stage '{name}': summary is empty")
+    return problems

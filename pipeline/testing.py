@@ -1,0 +1,4 @@
+"""Test helpers for plugin authors (also loaded as a pytest plugin, ``-p baarda``).
+
+Filled in below; see ``docs/plugins.md``.
+"""
