@@ -1,0 +1,31 @@
+"""Shared fixtures: the location of ../shared/data (real data sets)."""
+
+import os
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _shared_data() -> Path:
+    env = os.environ.get("BAARDA_SHARED_DATA")
+    candidates = [Path(env)] if env else []
+    candidates += [ROOT.parent / "shared" / "data", Path("/work/shared/data")]
+    for c in candidates:
+        if c.is_dir():
+            return c
+    return candidates[0]
+
+
+@pytest.fixture(scope="session")
+def shared_data() -> Path:
+    p = _shared_data()
+    if not p.is_dir():
+        pytest.skip(f"shared data folder not found (looked at {p}); set BAARDA_SHARED_DATA")
+    return p
+
+
+@pytest.fixture(scope="session")
+def repo_root() -> Path:
+    return ROOT
