@@ -1,0 +1,185 @@
+"""Project files: TOML naming the inputs and the ordered stages with their options.
+
+    [project]
+    name = "Paper 000, stereo pair, Data 1"
+    description = "..."          # optional
+    seed = 0                     # optional: seeds every stage's rng
+    object_unit = "m"            # optional
+
+    [[stage]]
+    use = "comparator"           # the stage's entry-point name (``baarda stages`` lists them)
+    id = "source"                # optional; default: the ``use`` name (must be unique)
+    [stage.options]
+    path = "data1.cmp"           # paths are relative to the project file
+
+Validation (``baarda validate``) checks the file, that every stage is installed, every option is
+known and of the right type, and that every artefact a stage reads is written by an earlier one.
+Every mistake is an :class:`~pipeline.errors.InputError` naming the file, the line and the key.
+"""
+
+from __future__ import annotations
+
+import re
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from .errors import InputError
+from .options import parse_options
+from .plugins import PluginManager
+
+PROJECT_KEYS = {"name", "description", "seed", "object_unit"}
+STAGE_KEYS = {"use", "id", "options", "enabled"}
+
+
+@dataclass
+class StageSpec:
+    id: str
+    use: str
+    cls: type
+    options: Any
+    raw_options: dict
+    line: int | None
+    package: str = ""
+
+
+@dataclass
+class Project:
+    path: Path
+    name: str
+    description: str
+    seed: int
+    object_unit: str
+    stages: list[StageSpec] = field(default_factory=list)
+    text: str = ""
+
+    @property
+    def directory(self) -> Path:
+        return self.path.parent
+
+    def resolved(self) -> dict:
+        """The project with every option's default filled in (written to the run directory)."""
+        from .options import to_plain
+
+        return {
+            "project": {"name": self.name, "description": self.description, "seed": self.seed,
+                        "object_unit": self.object_unit, "file": str(self.path)},
+            "stage": [{"use": s.use, "id": s.id, "package": s.package, "options": to_plain(s.options)}
+                      for s in self.stages],
+        }
+
+
+class _Locator:
+    """Line numbers of ``[[stage]]`` tables and their keys in the raw TOML text."""
+
+    def __init__(self, text: str):
+        self.lines = text.splitlines()
+        self.stage_lines = [i + 1 for i, ln in enumerate(self.lines) if re.match(r"\s*\[\[\s*stage\s*\]\]", ln)]
+
+    def stage(self, k: int) -> int | None:
+        return self.stage_lines[k] if k < len(self.stage_lines) else None
+
+    def key(self, k: int, key: str | None) -> int | None:
+        start = self.stage(k)
+        if start is None:
+            return None
+        if key is None:
+            return start
+        end = self.stage_lines[k + 1] if k + 1 < len(self.stage_lines) else len(self.lines) + 1
+        pat = re.compile(rf"\s*[\"']?{re.escape(key)}[\"']?\s*=")
+        for ln in range(start, end):
+            if pat.match(self.lines[ln - 1]):
+                return ln
+        return start
+
+    def top_key(self, key: str) -> int | None:
+        pat = re.compile(rf"\s*{re.escape(key)}\s*=")
+        for i, ln in enumerate(self.lines):
+            if pat.match(ln):
+                return i + 1
+        return None
+
+
+def load_project(path: str | Path, plugins: PluginManager) -> Project:
+    """Read and validate a project file (stages resolved, options parsed, data flow checked)."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("project file not found" if not path.exists() else "not a file", path=path)
+    text = path.read_text(encoding="utf-8")
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        m = re.search(r"line (\d+)", str(e))
+        raise InputError(f"not valid TOML: {e}", path=path, line=int(m.group(1)) if m else None) from None
+    loc = _Locator(text)
+
+    unknown_top = sorted(set(data) - {"project", "stage"})
+    if unknown_top:
+        raise InputError(f"unknown table '{unknown_top[0]}' (expected [project] and [[stage]])",
+                         path=path, line=loc.top_key(unknown_top[0]), field=unknown_top[0])
+    proj = data.get("project", {})
+    if not isinstance(proj, dict):
+        raise InputError("[project] must be a table", path=path, field="project")
+    bad = sorted(set(proj) - PROJECT_KEYS)
+    if bad:
+        raise InputError(f"unknown key '{bad[0]}' in [project]; known: {', '.join(sorted(PROJECT_KEYS))}",
+                         path=path, line=loc.top_key(bad[0]), field=f"project.{bad[0]}")
+    seed = proj.get("seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, int):
+        raise InputError(f"seed must be an integer, got {seed!r}", path=path, line=loc.top_key("seed"),
+                         field="project.seed")
+    unit = proj.get("object_unit", "m")
+    if unit not in ("m", "mm", "cm", "ft"):
+        raise InputError(f"object_unit must be one of m, mm, cm, ft; got {unit!r}", path=path,
+                         line=loc.top_key("object_unit"), field="project.object_unit")
+    project = Project(path=path.resolve(), name=str(proj.get("name", path.stem)),
+                      description=str(proj.get("description", "")), seed=seed, object_unit=unit, text=text)
+
+    stages = data.get("stage", [])
+    if not isinstance(stages, list) or not stages:
+        raise InputError("the project has no [[stage]] tables", path=path)
+    seen_ids: dict[str, int] = {}
+    available: dict[str, str] = {}
+    for k, st in enumerate(stages):
+        line = loc.stage(k)
+        bad = sorted(set(st) - STAGE_KEYS)
+        if bad:
+            raise InputError(f"unknown key '{bad[0]}' in [[stage]] (known: {', '.join(sorted(STAGE_KEYS))})",
+                             path=path, line=loc.key(k, bad[0]), field=bad[0])
+        if st.get("enabled", True) is False:
+            continue
+        use = st.get("use")
+        if not isinstance(use, str) or not use:
+            raise InputError("[[stage]] needs use = \"<stage name>\"", path=path, line=line, field="use")
+        if use not in plugins:
+            try:
+                plugins.get(use)
+            except Exception as e:
+                raise InputError(str(e), path=path, line=loc.key(k, "use"), field="use") from None
+        info = plugins.get(use)
+        sid = st.get("id", use)
+        if not isinstance(sid, str) or not re.fullmatch(r"[A-Za-z0-9_.-]+", sid):
+            raise InputError(f"stage id must be letters, digits, '-', '_' or '.', got {sid!r}", path=path,
+                             line=loc.key(k, "id"), field="id")
+        if sid in seen_ids:
+            raise InputError(f"stage id '{sid}' used twice (first at line {seen_ids[sid]}); give one an id = \"...\"",
+                             path=path, line=line, field="id")
+        seen_ids[sid] = line or 0
+        raw = st.get("options", {})
+        if not isinstance(raw, dict):
+            raise InputError("options must be a table ([stage.options])", path=path, line=line, field="options")
+        options = parse_options(info.cls.Options, raw, path=path, line=line,
+                                locate=lambda key, k=k: loc.key(k, key))
+        for name in info.cls.reads:
+            if name.endswith("?"):
+                continue
+            if name not in available:
+                have = ", ".join(f"'{a}' (from {s})" for a, s in available.items()) or "nothing yet"
+                raise InputError(f"stage '{sid}' ({use}) reads '{name}', which no earlier stage writes; "
+                                 f"available: {have}", path=path, line=line, field="use")
+        for name in info.cls.writes:
+            available[name] = sid
+        project.stages.append(StageSpec(id=sid, use=use, cls=info.cls, options=options, raw_options=raw,
+                                        line=line, package=info.package))
+    return project

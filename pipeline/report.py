@@ -1,0 +1,140 @@
+"""Writing a run directory: ``report.md``, ``results.json``, CSV tables, figures.
+
+Files are written as soon as a stage finishes (``report.md`` and ``results.json`` are rewritten
+after every stage), so a failing stage never loses the results of the stages before it.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .stage import TableData
+
+
+def jsonable(obj: Any) -> Any:
+    """Numpy and friends → plain JSON values (nan/inf become null / strings)."""
+    if isinstance(obj, dict):
+        return {str(k): jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return jsonable(obj.tolist())
+    if isinstance(obj, (np.bool_,)):
+        return bool(obj)
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        f = float(obj)
+        if math.isnan(f):
+            return None
+        if math.isinf(f):
+            return "inf" if f > 0 else "-inf"
+        return f
+    if isinstance(obj, Path):
+        return str(obj)
+    return obj
+
+
+def _cell(v: Any) -> Any:
+    if isinstance(v, (np.bool_, bool)):
+        return "true" if v else "false"
+    if isinstance(v, (float, np.floating)):
+        f = float(v)
+        if math.isnan(f):
+            return ""
+        return repr(f) if abs(f) >= 1e-4 or f == 0 else f"{f:.6e}"
+    if isinstance(v, np.integer):
+        return int(v)
+    return v
+
+
+def write_table(path: Path, table: TableData) -> None:
+    with open(path, "w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh)
+        w.writerow(list(table.columns))
+        for row in table.rows():
+            w.writerow([_cell(v) for v in row.values()])
+
+
+def write_json(path: Path, data: Any) -> None:
+    path.write_text(json.dumps(jsonable(data), indent=2, allow_nan=False) + "\n", encoding="utf-8")
+
+
+def write_toml(path: Path, data: dict) -> None:
+    """A small TOML writer for the resolved project (tables, arrays of tables, plain values)."""
+    lines: list[str] = []
+
+    def val(v):
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        if isinstance(v, (int,)) and not isinstance(v, bool):
+            return str(v)
+        if isinstance(v, float):
+            if math.isinf(v):
+                return "inf" if v > 0 else "-inf"
+            if math.isnan(v):
+                return "nan"
+            return repr(v)
+        if isinstance(v, (list, tuple)):
+            if v and all(isinstance(x, dict) for x in v):
+                return "[" + ", ".join(inline(x) for x in v) + "]"
+            return "[" + ", ".join(val(x) for x in v) + "]"
+        if isinstance(v, dict):
+            return inline(v)
+        if v is None:
+            return '""'
+        return json.dumps(str(v))
+
+    def inline(d):
+        return "{ " + ", ".join(f"{_key(k)} = {val(x)}" for k, x in d.items()) + " }"
+
+    def table(name, d, array=False):
+        lines.append(f"[[{name}]]" if array else f"[{name}]")
+        subs = []
+        for k, v in d.items():
+            if isinstance(v, dict):
+                subs.append((k, v))
+            else:
+                lines.append(f"{_key(k)} = {val(v)}")
+        for k, v in subs:
+            lines.append(f"[{name}.{_key(k)}]")
+            for kk, vv in v.items():
+                lines.append(f"{_key(kk)} = {val(vv)}")
+        lines.append("")
+
+    for k, v in data.items():
+        if isinstance(v, list) and v and all(isinstance(x, dict) for x in v):
+            for item in v:
+                table(k, item, array=True)
+        elif isinstance(v, dict):
+            table(k, v)
+        else:
+            lines.append(f"{_key(k)} = {val(v)}")
+    path.write_text("\n".join(lines), encoding="utf-8")
+
+
+def _key(k: str) -> str:
+    import re
+
+    return k if re.fullmatch(r"[A-Za-z0-9_-]+", k) else json.dumps(k)
+
+
+def markdown_table(header: list[str], rows: list[list[Any]], floatfmt: str = ".4f") -> str:
+    """A Markdown table; floats formatted with ``floatfmt``."""
+
+    def fmt(v):
+        if isinstance(v, (float, np.floating)):
+            return "—" if not np.isfinite(v) else format(float(v), floatfmt)
+        if isinstance(v, (bool, np.bool_)):
+            return "yes" if v else ""
+        return str(v)
+
+    out = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    out += ["| " + " | ".join(fmt(v) for v in r) + " |" for r in rows]
+    return "\n".join(out)
