@@ -175,3 +175,17 @@ def test_cli_exit_codes(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.startswith("baarda: error:") and "missing.toml" in err and err.count("\n") == 1
     assert main(["stages"]) == 0
+
+
+def test_review_reads_recordings_back(tmp_path, pm, capsys):
+    out = run_project_text(PROJECT, tmp_path, plugins=pm)
+    assert main(["review", str(out.run_dir)]) == 0
+    text = capsys.readouterr().out
+    assert "numbers.rrd: stage 'numbers'" in text and "mean.rrd: stage 'mean'" in text
+    assert "/numbers/value  rows=4 over iteration" in text
+    assert "share recording id" in text and "*.rrd" in text
+
+
+def test_review_of_a_directory_without_recordings(tmp_path, capsys):
+    assert main(["review", str(tmp_path)]) == 2
+    assert "no .rrd recordings" in capsys.readouterr().err
