@@ -43,7 +43,14 @@ class Snapshot:
     labels : (n,) str, e.g. ``"x 5"`` / ``"photo 11 point 506 y"``.
     group : (n,) int, rows that belong to one image point share a group id (x and y), for
         the joint 2-D test; ``-1`` for rows without a partner.
-    PQvvP_blocks : optional dict ``group -> (2, 2)`` block of ``P Qvv P`` for the joint test.
+    PQvvP_blocks : optional dict ``group -> (2, 2)`` block of ``P Qvv P`` for the joint test
+        (rows of a group in increasing row order).
+    meta : dict, free-form extras of the adjustment.
+    v_pred : optional (n,) ``l − f(x̂)`` for *every* row: equal to ``v`` on active rows, the
+        predicted residual (the observation against the adjustment without it) on inactive rows.
+    sigma_v_pred : optional (n,) standard deviation of ``v_pred`` on inactive rows (σ0-scaled,
+        ``σ0 √(Σ_ii + a_i Qxx a_iᵀ − 2 …)``); ``v_pred / sigma_v_pred`` is the w a removed
+        observation would have if it were added back alone.  nan on active rows.
     """
 
     v: np.ndarray
@@ -59,6 +66,8 @@ class Snapshot:
     group: np.ndarray | None = None
     PQvvP_blocks: dict | None = None
     meta: dict = field(default_factory=dict)
+    v_pred: np.ndarray | None = None
+    sigma_v_pred: np.ndarray | None = None
 
     def __post_init__(self):
         n = np.asarray(self.v).shape[0]
@@ -76,6 +85,13 @@ class Snapshot:
         set_("labels", labels)
         grp = np.full(n, -1, int) if self.group is None else np.array(self.group, int)
         set_("group", grp)
+        for k in ("v_pred", "sigma_v_pred"):
+            if getattr(self, k) is not None:
+                a = np.array(getattr(self, k), dtype=float).reshape(-1)
+                if a.shape[0] != n:
+                    raise ValueError(f"Snapshot.{k}: length {a.shape[0]} != {n}")
+                a.flags.writeable = False
+                set_(k, a)
 
     @property
     def n(self) -> int:

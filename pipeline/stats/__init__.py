@@ -1,0 +1,35 @@
+"""baarda's statistics library: testing theory for every adjustment (see docs/statistics.md).
+
+Every adjustment reports a :class:`Snapshot`; the tests below work on snapshots only, O(n).
+:class:`LinearModel` is the reference linear Gauss–Markov adjustment (small/medium, dense).
+"""
+
+from pipeline.stats import tau_distribution
+from pipeline.stats.arrays import snapshot_from_arrays
+from pipeline.stats.baarda import (DataSnoopingResult, ExternalReliability, GlobalTestResult,
+                                   controlled, data_snooping, estimated_errors,
+                                   external_reliability, global_test, mdb, w_test)
+from pipeline.stats.critical import (alpha_prime, critical_normal, delta0, global_power,
+                                     w_power)
+from pipeline.stats.ids import IDSResult, IDSStep, iterated_data_snooping
+from pipeline.stats.joint import JointTestResult, joint_test_2d
+from pipeline.stats.linear import LinearAdjustment, LinearModel, factor_normal_equations
+from pipeline.stats.pope import (PopeIteratedResult, PopeResult, PopeStep, pope_iterated,
+                                 pope_test)
+from pipeline.stats.rrr import RRRResult, recursive_residuals, rrr
+from pipeline.stats.snapshot import Refittable, Snapshot
+from pipeline.stats.tau_distribution import critical_max as tau_critical_max
+from pipeline.stats.tau_distribution import tau_critical
+
+__all__ = [
+    "Snapshot", "Refittable", "snapshot_from_arrays",
+    "LinearModel", "LinearAdjustment", "factor_normal_equations",
+    "delta0", "critical_normal", "alpha_prime", "global_power", "w_power",
+    "GlobalTestResult", "global_test", "w_test", "estimated_errors", "mdb", "controlled",
+    "DataSnoopingResult", "data_snooping", "ExternalReliability", "external_reliability",
+    "tau_distribution", "tau_critical", "tau_critical_max",
+    "PopeResult", "PopeStep", "PopeIteratedResult", "pope_test", "pope_iterated",
+    "IDSResult", "IDSStep", "iterated_data_snooping",
+    "RRRResult", "rrr", "recursive_residuals",
+    "JointTestResult", "joint_test_2d",
+]

@@ -1,0 +1,221 @@
+"""Baarda's testing theory on a :class:`~pipeline.stats.snapshot.Snapshot` (O(n), vectorised).
+
+References: Baarda (1968) *A testing procedure for use in geodetic networks*; Förstner (1985)
+*The reliability of block triangulation*; paper 000 eqs. (1)–(6).
+
+    global test   T = vᵀPv / (dof σ0²)  ~ F(dof, ∞) = χ²(dof)/dof        reject if T > F(1−α; dof, ∞)
+    w-test        w_i  = (Pv)_i / (σ0 √(PQvvP)_ii)  ~ N(0, 1)             (diag P: v_i / (σ0 √(Qvv)_ii))
+    gross error   ∇̂l_i = (Pv)_i / (PQvvP)_ii                            (diag P: v_i / r_i)
+    MDB           ∇0l_i = δ0 σ0 / √(PQvvP)_ii                              (diag P: σ_li δ0 / √r_i)
+    external      ∇0x_i = N⁻¹ Aᵀ P e_i ∇0l_i,  δ̄0_i = √(∇0x_iᵀ N ∇0x_i) / σ0  (diag P: √((1−r_i)/r_i) δ0)
+
+Rows that are inactive, or whose residual is not controlled (``r_i ≈ 0``), get ``w = 0``,
+``∇̂l = 0`` and ``∇0l = inf`` (inactive: nan).  With ``include_inactive=True`` the w-test and the
+estimated errors of removed rows are taken from the predicted residuals (``Snapshot.v_pred``):
+the value the row would have if it were put back alone.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import numpy as np
+from scipy import stats
+
+from pipeline.stats.critical import alpha_prime, critical_normal
+from pipeline.stats.critical import delta0 as _delta0
+from pipeline.stats.snapshot import Snapshot
+
+__all__ = [
+    "GlobalTestResult", "DataSnoopingResult", "ExternalReliability",
+    "global_test", "w_test", "estimated_errors", "mdb", "data_snooping", "external_reliability",
+    "controlled",
+]
+
+#: redundancy below which a residual counts as uncontrolled (no test possible)
+R_MIN = 1e-10
+
+
+def controlled(snap: Snapshot) -> np.ndarray:
+    """(n,) bool: active rows whose residual is controlled by the others (r_i > 1e-10).
+
+    Uses the dimensionless ``(PQvvP)_ii σ_li² / σ0²`` (= r_i for diagonal P).
+    """
+    rel = snap.PQvvP * (snap.sigma_l / snap.sigma0) ** 2
+    return snap.active & (rel > R_MIN)
+
+
+@dataclass(frozen=True)
+class GlobalTestResult:
+    """Global (overall model) test, paper 000 eq. (1)."""
+
+    T: float  # vᵀPv / (dof σ0²) = σ̂0² / σ0²
+    critical: float  # F(1 − α; dof, ∞) = χ²(1 − α; dof) / dof
+    p_value: float
+    rejected: bool
+    alpha: float
+    dof: int
+    vtpv: float
+    sigma0: float
+    sigma0_hat: float
+
+    def summary(self) -> dict:
+        return {k: getattr(self, k) for k in self.__dataclass_fields__}
+
+
+def global_test(snap: Snapshot, alpha: float | None = None, alpha0: float = 0.001,
+                beta0: float = 0.80) -> GlobalTestResult:
+    """Global test ``T = vᵀPv/(dof σ0²)`` against ``F(1−α; dof, ∞)``.
+
+    ``alpha=None`` uses the B-method level ``α′ = alpha_prime(alpha0, beta0, dof)``.
+    With ``dof = 0`` nothing can be tested: T and the p-value are nan and ``rejected`` is False.
+    """
+    dof = int(snap.dof)
+    if dof <= 0:
+        return GlobalTestResult(float("nan"), float("nan"), float("nan"), False,
+                                float("nan") if alpha is None else float(alpha), dof,
+                                float(snap.vtpv), snap.sigma0, float("nan"))
+    a = alpha_prime(alpha0, beta0, dof) if alpha is None else float(alpha)
+    T = float(snap.vtpv) / (dof * snap.sigma0 ** 2)
+    crit = float(stats.chi2.isf(a, dof) / dof)
+    p = float(stats.chi2.sf(T * dof, dof))
+    return GlobalTestResult(T, crit, p, bool(T > crit), a, dof, float(snap.vtpv), snap.sigma0,
+                            snap.sigma0_hat)
+
+
+def _ratio(num: np.ndarray, den: np.ndarray, mask: np.ndarray, fill: float) -> np.ndarray:
+    out = np.full(num.shape, fill, dtype=float)
+    np.divide(num, den, out=out, where=mask)
+    return out
+
+
+def _predicted(snap: Snapshot, w: np.ndarray, kind: str) -> np.ndarray:
+    if snap.v_pred is None:
+        return w
+    out_rows = ~snap.active
+    if kind == "w":
+        if snap.sigma_v_pred is None:
+            return w
+        ok = out_rows & (snap.sigma_v_pred > 0) & np.isfinite(snap.sigma_v_pred)
+        return np.where(ok, _ratio(snap.v_pred, snap.sigma_v_pred, ok, 0.0), w)
+    return np.where(out_rows, snap.v_pred, w)
+
+
+def w_test(snap: Snapshot, include_inactive: bool = False) -> np.ndarray:
+    """(n,) standardized residuals ``w_i = (Pv)_i / (σ0 √(PQvvP)_ii)`` (Baarda), ~N(0,1) under H0.
+
+    0 on inactive/uncontrolled rows unless ``include_inactive`` (then removed rows get
+    ``v_pred / sigma_v_pred``).
+    """
+    ok = controlled(snap)
+    w = _ratio(snap.Pv, snap.sigma0 * np.sqrt(np.where(ok, snap.PQvvP, 1.0)), ok, 0.0)
+    return _predicted(snap, w, "w") if include_inactive else w
+
+
+def estimated_errors(snap: Snapshot, include_inactive: bool = False) -> np.ndarray:
+    """(n,) estimated gross errors ``∇̂l_i = (Pv)_i / (PQvvP)_ii`` (= v_i / r_i for diagonal P).
+
+    This is the predicted residual of row i (the observation minus its prediction from all the
+    others); removed rows get their predicted residual ``v_pred`` if ``include_inactive``.
+    """
+    ok = controlled(snap)
+    e = _ratio(snap.Pv, snap.PQvvP, ok, 0.0)
+    return _predicted(snap, e, "e") if include_inactive else e
+
+
+def mdb(snap: Snapshot, delta0: float | None = None) -> np.ndarray:
+    """(n,) minimal detectable biases ``∇0l_i = δ0 σ0 / √(PQvvP)_ii`` (internal reliability).
+
+    ``delta0`` defaults to δ0(0.1 %, 80 %) = 4.13.  inf for uncontrolled rows, nan for inactive.
+    """
+    d0 = _delta0() if delta0 is None else float(delta0)
+    ok = controlled(snap)
+    out = _ratio(np.full(snap.n, d0 * snap.sigma0), np.sqrt(np.where(ok, snap.PQvvP, 1.0)), ok,
+                 np.inf)
+    out[~snap.active] = np.nan
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class DataSnoopingResult:
+    """Data snooping (Baarda): all rows tested with the w-test at one critical value."""
+
+    w: np.ndarray
+    critical: float
+    flagged: np.ndarray  # |w| > critical
+    nabla_hat: np.ndarray
+    mdb: np.ndarray
+    r: np.ndarray
+    largest: int | None  # row index of the largest |w| among controlled rows (None if none)
+    alpha0: float
+    beta0: float
+    delta0: float
+    labels: np.ndarray = field(repr=False)
+
+    @property
+    def flagged_labels(self) -> list[str]:
+        return [str(s) for s in self.labels[self.flagged]]
+
+    def summary(self) -> dict:
+        i = self.largest
+        return {
+            "critical": self.critical, "alpha0": self.alpha0, "beta0": self.beta0,
+            "delta0": self.delta0, "n_flagged": int(self.flagged.sum()),
+            "flagged": self.flagged_labels,
+            "largest": None if i is None else {"row": i, "label": str(self.labels[i]),
+                                               "w": float(self.w[i])},
+        }
+
+
+def data_snooping(snap: Snapshot, alpha0: float = 0.001, beta0: float = 0.80,
+                  critical: float | None = None) -> DataSnoopingResult:
+    """w-test of every row; ``critical`` defaults to ``Φ⁻¹(1 − α0/2)`` (3.29 for 0.1 %).
+
+    The MDBs use ``δ0(alpha0, beta0)``.  Pass ``critical=delta0()``-style values (4.13) to use
+    Baarda's B-method value as the paper mentions.
+    """
+    k = critical_normal(alpha0) if critical is None else float(critical)
+    d0 = _delta0(alpha0, beta0)
+    w = w_test(snap)
+    ok = controlled(snap)
+    largest = int(np.argmax(np.where(ok, np.abs(w), -1.0))) if ok.any() else None
+    return DataSnoopingResult(
+        w=w, critical=k, flagged=ok & (np.abs(w) > k), nabla_hat=estimated_errors(snap),
+        mdb=mdb(snap, d0), r=np.array(snap.r), largest=largest, alpha0=float(alpha0),
+        beta0=float(beta0), delta0=d0, labels=snap.labels)
+
+
+class ExternalReliability(NamedTuple):
+    """Effect of each undetected MDB on the unknowns (external reliability)."""
+
+    dx: np.ndarray  # (n, u): ∇0x for a bias ∇0l_i in row i (zero rows for inactive rows)
+    bar_delta0: np.ndarray  # (n,): δ̄0_i = √(∇0x_iᵀ N ∇0x_i) / σ0
+    df: np.ndarray | None  # (n, k): F ∇0x_i if a (k, u) matrix F was given
+
+
+def external_reliability(model, adjustment, mdb, F=None) -> ExternalReliability:
+    """External reliability of a :class:`~pipeline.stats.linear.LinearModel` adjustment.
+
+    ``∇0x_i = N⁻¹ Aᵀ P e_i ∇0l_i`` for every active row i (Baarda 1968, Förstner 1985) and
+    Baarda's scalar summary ``δ̄0_i = √(∇0x_iᵀ N ∇0x_i)/σ0`` which equals ``√((1−r_i)/r_i) δ0``
+    for uncorrelated observations; ``σ0 δ̄0_i`` bounds the effect on any function f of the unknowns
+    in units of its standard deviation, ``|∇0 f| ≤ δ̄0_i σ_f``.  ``mdb`` is the (n,) output of
+    :func:`mdb` (or any vector of biases).  ``F`` (k, u) maps the unknowns to derived quantities
+    (e.g. object coordinates); then ``df = ∇0x Fᵀ``.  Rows with an infinite MDB get nan.
+    """
+    act = np.asarray(adjustment.active, bool)
+    B = model.weighted_design(act)  # (n, u), P_a A_a scattered
+    bias = np.array(mdb, dtype=float).reshape(-1)
+    if bias.shape[0] != B.shape[0]:
+        raise ValueError(f"mdb has {bias.shape[0]} entries, model has {B.shape[0]} rows")
+    scale = np.where(act, bias, 0.0)
+    bad = act & ~np.isfinite(scale)
+    scale = np.where(bad, np.nan, np.nan_to_num(scale, nan=0.0, posinf=0.0))
+    BQ = B @ adjustment.Qxx
+    dx = BQ * scale[:, None]
+    q = np.einsum("ij,ij->i", BQ, B)  # b_i Qxx b_iᵀ ;  ∇xᵀ N ∇x = bias² q
+    bar = np.abs(scale) * np.sqrt(np.maximum(q, 0.0)) / adjustment.snapshot.sigma0
+    bar[~act] = np.nan
+    df = None if F is None else dx @ np.asarray(F, dtype=float).T
+    return ExternalReliability(dx=dx, bar_delta0=bar, df=df)
