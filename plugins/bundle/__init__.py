@@ -1,0 +1,21 @@
+"""Self-calibrating bundle block adjustment (numerics in submodules, the stage in ``stage.py``).
+
+Public API::
+
+    from plugins.bundle import adjust, BundleSettings, Distance, BundleResult
+    from plugins.bundle import resection, intersection, initial_values
+    from plugins.bundle import register_ap_model, get_ap_model, APModel, LinearAPModel
+    from plugins.bundle import project_observations
+"""
+
+from .adjust import BundleResult, adjust, check_point_rmse
+from .apmodels import APModel, LinearAPModel, ap_model_names, get_ap_model, register_ap_model
+from .collinearity import project_observations, rotation_and_derivatives
+from .initial import initial_values, intersection, resection
+from .solver import BundleSettings, BundleState, Distance
+
+__all__ = [
+    "adjust", "BundleResult", "BundleSettings", "BundleState", "Distance", "check_point_rmse",
+    "APModel", "LinearAPModel", "register_ap_model", "get_ap_model", "ap_model_names",
+    "project_observations", "rotation_and_derivatives", "resection", "intersection", "initial_values",
+]

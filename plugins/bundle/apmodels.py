@@ -1,0 +1,374 @@
+"""Additional-parameter (camera distortion) models and their registry.
+
+Every model describes the image error ``(Δx, Δy)`` that is **added** to the ideal collinearity
+projection (``docs/conventions.md``)::
+
+    x = xp + x̄ + Δx(x̄, ȳ; ap),   y = yp + ȳ + Δy(x̄, ȳ; ap),   x̄ = −c U/W,  ȳ = −c V/W
+
+``x̄, ȳ`` are the *ideal* reduced image coordinates (projected, relative to the principal point,
+mm).  Evaluating the model at the projected rather than the observed coordinates keeps the
+adjustment a pure Gauss–Markov model; the difference is second order in the distortion.
+
+The principal distance ``c`` and the principal point ``xp, yp`` are not additional parameters:
+they are the interior-orientation unknowns every camera has (Ebner's dc, dxp, dyp are these).
+
+A model is any object with
+
+* ``name`` and ``params`` (tuple of parameter names) and ``default_sigma`` (a-priori sigmas,
+  ``inf`` free, ``0`` fixed — used when a camera gives no sigma of its own);
+* ``distortion(xbar, ybar, params, c, meta) -> (dx, dy)`` — vectorised: ``xbar, ybar (n,)``,
+  ``params (n, p)`` (one row per point, so cameras can be mixed), ``c (n,)``;
+* optionally ``jacobian_params(...) -> (n, 2, p)``, ``jacobian_xy(...) -> (n, 2, 2)``
+  (``[[∂Δx/∂x̄, ∂Δx/∂ȳ], [∂Δy/∂x̄, ∂Δy/∂ȳ]]``) and ``jacobian_c(...) -> (n, 2)`` (the partial
+  derivative w.r.t. ``c`` at fixed x̄, ȳ; zero unless the model uses c).  :class:`APModel`
+  supplies central-difference fallbacks, so a third-party model needs only ``distortion``.
+
+Register with :func:`register_ap_model`; look up with :func:`get_ap_model`.  Formulas and units of
+the built-in models: ``docs/camera-models.md``.
+"""
+
+from __future__ import annotations
+
+from typing import Mapping
+
+import numpy as np
+
+__all__ = [
+    "APModel", "LinearAPModel", "NoAP", "Ebner12", "Brown", "Aicon",
+    "register_ap_model", "get_ap_model", "ap_model_names",
+]
+
+
+class APModel:
+    """Base class: numeric derivatives for models that give only :meth:`distortion`."""
+
+    name: str = ""
+    params: tuple[str, ...] = ()
+    default_sigma: tuple[float, ...] = ()
+
+    @property
+    def n_params(self) -> int:
+        return len(self.params)
+
+    def distortion(self, xbar, ybar, params, c, meta: Mapping):  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    # -- numeric fallbacks -------------------------------------------------------------------
+    def jacobian_params(self, xbar, ybar, params, c, meta):
+        params = np.asarray(params, float)
+        n, p = params.shape
+        out = np.zeros((n, 2, p))
+        for j in range(p):
+            h = 1e-6 * np.maximum(1.0, np.abs(params[:, j]))
+            pp, pm = params.copy(), params.copy()
+            pp[:, j] += h
+            pm[:, j] -= h
+            dxp, dyp = self.distortion(xbar, ybar, pp, c, meta)
+            dxm, dym = self.distortion(xbar, ybar, pm, c, meta)
+            out[:, 0, j] = (dxp - dxm) / (2 * h)
+            out[:, 1, j] = (dyp - dym) / (2 * h)
+        return out
+
+    def jacobian_xy(self, xbar, ybar, params, c, meta):
+        xbar = np.asarray(xbar, float)
+        ybar = np.asarray(ybar, float)
+        h = 1e-6 * np.maximum(1.0, np.abs(xbar) + np.abs(ybar))
+        out = np.zeros((xbar.shape[0], 2, 2))
+        a = self.distortion(xbar + h, ybar, params, c, meta)
+        b = self.distortion(xbar - h, ybar, params, c, meta)
+        out[:, 0, 0] = (a[0] - b[0]) / (2 * h)
+        out[:, 1, 0] = (a[1] - b[1]) / (2 * h)
+        a = self.distortion(xbar, ybar + h, params, c, meta)
+        b = self.distortion(xbar, ybar - h, params, c, meta)
+        out[:, 0, 1] = (a[0] - b[0]) / (2 * h)
+        out[:, 1, 1] = (a[1] - b[1]) / (2 * h)
+        return out
+
+    def jacobian_c(self, xbar, ybar, params, c, meta):
+        return np.zeros((np.asarray(xbar).shape[0], 2))
+
+    def __repr__(self):
+        return f"<AP model {self.name!r}: {', '.join(self.params) or 'no parameters'}>"
+
+
+class LinearAPModel(APModel):
+    """A model linear in its parameters: ``Δ = basis(x̄, ȳ) @ params``.
+
+    Subclasses give ``basis(xbar, ybar, c, meta) -> (n, 2, p)`` and
+    ``basis_xy(xbar, ybar, c, meta) -> (n, 2, 2, p)`` (derivatives of the basis w.r.t. x̄, ȳ);
+    distortion and all Jacobians follow exactly.
+    """
+
+    def basis(self, xbar, ybar, c, meta):  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def basis_xy(self, xbar, ybar, c, meta):  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def distortion(self, xbar, ybar, params, c, meta):
+        B = self.basis(np.asarray(xbar, float), np.asarray(ybar, float), c, meta)
+        d = np.einsum("kip,kp->ki", B, _rows(params, B.shape[0], B.shape[2]))
+        return d[:, 0], d[:, 1]
+
+    def jacobian_params(self, xbar, ybar, params, c, meta):
+        return self.basis(np.asarray(xbar, float), np.asarray(ybar, float), c, meta)
+
+    def jacobian_xy(self, xbar, ybar, params, c, meta):
+        Bxy = self.basis_xy(np.asarray(xbar, float), np.asarray(ybar, float), c, meta)
+        return np.einsum("kijp,kp->kij", Bxy, _rows(params, Bxy.shape[0], Bxy.shape[3]))
+
+
+def _rows(params, n, p):
+    params = np.asarray(params, float)
+    if params.ndim == 1:
+        params = np.broadcast_to(params, (n, params.shape[0]))
+    return params[:, :p]
+
+
+class NoAP(LinearAPModel):
+    """No additional parameters (pure collinearity with c, xp, yp)."""
+
+    name = "none"
+    params = ()
+    default_sigma = ()
+
+    def basis(self, xbar, ybar, c, meta):
+        return np.zeros((np.asarray(xbar).shape[0], 2, 0))
+
+    def basis_xy(self, xbar, ybar, c, meta):
+        return np.zeros((np.asarray(xbar).shape[0], 2, 2, 0))
+
+
+class Ebner12(LinearAPModel):
+    """Ebner's 12 orthogonal parameters b1 … b12 (SPEC §2); ``meta['b']`` is the image base (mm).
+
+    ``k = x̄² − 2b²/3``, ``l = ȳ² − 2b²/3``::
+
+        Δx =  b1 x̄ + b2 ȳ − b3 (2x̄² − 4b²/3) + b4 x̄ȳ + b5 l + b7 x̄ l + b9 ȳ k + b11 k l
+        Δy = −b1 ȳ + b2 x̄ + b3 x̄ȳ − b4 (2ȳ² − 4b²/3) + b6 k + b8 ȳ k + b10 x̄ l + b12 k l
+    """
+
+    name = "ebner12"
+    params = tuple(f"b{i}" for i in range(1, 13))
+    default_sigma = (np.inf,) * 12
+
+    @staticmethod
+    def _b(meta, n):
+        b = meta.get("b") if meta is not None else None
+        if b is None:
+            raise ValueError("ebner12 needs the image base b (mm) in the camera's AP meta "
+                             "(option 'ebner_b' or block.meta['ap_meta'][camera]['b'])")
+        return np.broadcast_to(np.asarray(b, float), (n,))
+
+    def basis(self, xbar, ybar, c, meta):
+        x, y = xbar, ybar
+        n = x.shape[0]
+        b = self._b(meta, n)
+        q = 2.0 * b * b / 3.0
+        k = x * x - q
+        l = y * y - q
+        B = np.zeros((n, 2, 12))
+        B[:, 0, 0], B[:, 1, 0] = x, -y
+        B[:, 0, 1], B[:, 1, 1] = y, x
+        B[:, 0, 2], B[:, 1, 2] = -2.0 * k, x * y
+        B[:, 0, 3], B[:, 1, 3] = x * y, -2.0 * l
+        B[:, 0, 4] = l
+        B[:, 1, 5] = k
+        B[:, 0, 6] = x * l
+        B[:, 1, 7] = y * k
+        B[:, 0, 8] = y * k
+        B[:, 1, 9] = x * l
+        B[:, 0, 10] = k * l
+        B[:, 1, 11] = k * l
+        return B
+
+    def basis_xy(self, xbar, ybar, c, meta):
+        x, y = xbar, ybar
+        n = x.shape[0]
+        b = self._b(meta, n)
+        q = 2.0 * b * b / 3.0
+        k = x * x - q
+        l = y * y - q
+        D = np.zeros((n, 2, 2, 12))  # [k, component, d/dx or d/dy, param]
+        one = np.ones(n)
+        # b1
+        D[:, 0, 0, 0] = one
+        D[:, 1, 1, 0] = -one
+        # b2
+        D[:, 0, 1, 1] = one
+        D[:, 1, 0, 1] = one
+        # b3: Δx = −2k, Δy = xy
+        D[:, 0, 0, 2] = -4.0 * x
+        D[:, 1, 0, 2] = y
+        D[:, 1, 1, 2] = x
+        # b4: Δx = xy, Δy = −2l
+        D[:, 0, 0, 3] = y
+        D[:, 0, 1, 3] = x
+        D[:, 1, 1, 3] = -4.0 * y
+        # b5: Δx = l
+        D[:, 0, 1, 4] = 2.0 * y
+        # b6: Δy = k
+        D[:, 1, 0, 5] = 2.0 * x
+        # b7: Δx = x l
+        D[:, 0, 0, 6] = l
+        D[:, 0, 1, 6] = 2.0 * x * y
+        # b8: Δy = y k
+        D[:, 1, 0, 7] = 2.0 * x * y
+        D[:, 1, 1, 7] = k
+        # b9: Δx = y k
+        D[:, 0, 0, 8] = 2.0 * x * y
+        D[:, 0, 1, 8] = k
+        # b10: Δy = x l
+        D[:, 1, 0, 9] = l
+        D[:, 1, 1, 9] = 2.0 * x * y
+        # b11: Δx = k l
+        D[:, 0, 0, 10] = 2.0 * x * l
+        D[:, 0, 1, 10] = 2.0 * y * k
+        # b12: Δy = k l
+        D[:, 1, 0, 11] = 2.0 * x * l
+        D[:, 1, 1, 11] = 2.0 * y * k
+        return D
+
+
+class _RadialDecentringAffine(LinearAPModel):
+    """Shared algebra of Brown/Fraser and AICON: 3 radial, 2 decentring, 2 affinity terms.
+
+    ``Δx = x̄ Σ Ki (r^(2i) − r0^(2i)) + P1 (r² + 2x̄²) + 2 P2 x̄ȳ + B1 x̄ + B2 ȳ``,
+    ``Δy = ȳ Σ Ki (r^(2i) − r0^(2i)) + P2 (r² + 2ȳ²) + 2 P1 x̄ȳ``; ``r0 = 0`` for Brown.
+    """
+
+    def _r0(self, meta, n):
+        return np.zeros(n)
+
+    def basis(self, xbar, ybar, c, meta):
+        x, y = xbar, ybar
+        n = x.shape[0]
+        r0sq = self._r0(meta, n) ** 2
+        r2 = x * x + y * y
+        B = np.zeros((n, 2, 7))
+        for i in range(3):
+            rad = r2 ** (i + 1) - r0sq ** (i + 1)
+            B[:, 0, i] = x * rad
+            B[:, 1, i] = y * rad
+        B[:, 0, 3] = r2 + 2 * x * x
+        B[:, 1, 3] = 2 * x * y
+        B[:, 0, 4] = 2 * x * y
+        B[:, 1, 4] = r2 + 2 * y * y
+        B[:, 0, 5] = x
+        B[:, 0, 6] = y
+        return B
+
+    def basis_xy(self, xbar, ybar, c, meta):
+        x, y = xbar, ybar
+        n = x.shape[0]
+        r0sq = self._r0(meta, n) ** 2
+        r2 = x * x + y * y
+        D = np.zeros((n, 2, 2, 7))
+        for i in range(3):
+            e = i + 1
+            rad = r2 ** e - r0sq ** e
+            drad = e * r2 ** (e - 1)  # d rad / d r²
+            D[:, 0, 0, i] = rad + 2 * x * x * drad
+            D[:, 0, 1, i] = 2 * x * y * drad
+            D[:, 1, 0, i] = 2 * x * y * drad
+            D[:, 1, 1, i] = rad + 2 * y * y * drad
+        D[:, 0, 0, 3] = 6 * x
+        D[:, 0, 1, 3] = 2 * y
+        D[:, 1, 0, 3] = 2 * y
+        D[:, 1, 1, 3] = 2 * x
+        D[:, 0, 0, 4] = 2 * y
+        D[:, 0, 1, 4] = 2 * x
+        D[:, 1, 0, 4] = 2 * x
+        D[:, 1, 1, 4] = 6 * y
+        D[:, 0, 0, 5] = 1.0
+        D[:, 0, 1, 6] = 1.0
+        return D
+
+
+class Brown(_RadialDecentringAffine):
+    """Brown/Fraser physical model: K1 K2 K3 (radial), P1 P2 (decentring), B1 B2 (affinity, shear).
+
+    Units with x̄, ȳ, r in mm: K1 mm⁻², K2 mm⁻⁴, K3 mm⁻⁶, P1 P2 mm⁻¹, B1 B2 dimensionless.
+    """
+
+    name = "brown"
+    params = ("K1", "K2", "K3", "P1", "P2", "B1", "B2")
+    default_sigma = (np.inf,) * 7
+
+
+class Aicon(_RadialDecentringAffine):
+    """AICON 3D Studio's model: A1 A2 A3 (radial, balanced at r0 = ``meta['r0']`` mm),
+    B1 B2 (decentring), C1 C2 (affinity, shear)."""
+
+    name = "aicon"
+    params = ("A1", "A2", "A3", "B1", "B2", "C1", "C2")
+    default_sigma = (np.inf,) * 7
+
+    def _r0(self, meta, n):
+        r0 = 0.0 if meta is None else meta.get("r0", 0.0)
+        return np.broadcast_to(np.asarray(r0, float), (n,))
+
+
+_REGISTRY: dict[str, APModel] = {}
+
+
+def register_ap_model(name: str, model: APModel, *, replace: bool = False) -> None:
+    """Make ``model`` available as ``Cameras.ap_model == name``.
+
+    Raises ``ValueError`` if the name is taken (pass ``replace=True`` to override) or the model
+    lacks ``params`` / ``distortion``.
+    """
+    if not name or not isinstance(name, str):
+        raise ValueError("AP model name must be a non-empty string")
+    if name in _REGISTRY and not replace:
+        raise ValueError(f"AP model {name!r} is already registered")
+    for attr in ("params", "distortion"):
+        if not hasattr(model, attr):
+            raise ValueError(f"AP model {name!r} has no '{attr}'")
+    if not isinstance(model, APModel):
+        model = _Adapter(model)
+    sig = tuple(getattr(model, "default_sigma", ()) or ())
+    if len(sig) != len(model.params):
+        model.default_sigma = (np.inf,) * len(model.params)
+    _REGISTRY[name] = model
+
+
+class _Adapter(APModel):
+    """Wraps a duck-typed third-party model so missing Jacobians fall back to differences."""
+
+    def __init__(self, inner):
+        self._inner = inner
+        self.name = getattr(inner, "name", "")
+        self.params = tuple(inner.params)
+        self.default_sigma = tuple(getattr(inner, "default_sigma", (np.inf,) * len(self.params)))
+
+    def distortion(self, xbar, ybar, params, c, meta):
+        return self._inner.distortion(xbar, ybar, params, c, meta)
+
+    def jacobian_params(self, *a):
+        f = getattr(self._inner, "jacobian_params", None)
+        return f(*a) if f else super().jacobian_params(*a)
+
+    def jacobian_xy(self, *a):
+        f = getattr(self._inner, "jacobian_xy", None)
+        return f(*a) if f else super().jacobian_xy(*a)
+
+    def jacobian_c(self, *a):
+        f = getattr(self._inner, "jacobian_c", None)
+        return f(*a) if f else super().jacobian_c(*a)
+
+
+def get_ap_model(name: str) -> APModel:
+    """The registered model ``name`` (``KeyError`` listing the known names)."""
+    try:
+        return _REGISTRY[str(name)]
+    except KeyError:
+        raise KeyError(f"unknown AP model {name!r}; registered: {', '.join(sorted(_REGISTRY))}") from None
+
+
+def ap_model_names() -> list[str]:
+    return sorted(_REGISTRY)
+
+
+for _m in (NoAP(), Ebner12(), Brown(), Aicon()):
+    register_ap_model(_m.name, _m)

@@ -1,0 +1,106 @@
+"""Precision and reliability of a converged bundle: cofactor matrices of every unknown and the
+2×2 blocks of ``Qvv`` per image point, without forming a dense inverse of the whole system.
+
+With the points eliminated (``K`` the reduced system incl. any inner-constraint rows,
+``B = [W; Cpᵀ] V^{-1/2}``, ``V_p = L_p L_pᵀ``)::
+
+    Qcc    = K⁻¹                                   (global unknowns; n_x × n_x)
+    Qcp_p  = −K⁻¹ B_p L_p⁻¹                        (global × point p)
+    Qpp_p  = L_p⁻ᵀ (I + B_pᵀ K⁻¹ B_p) L_p⁻¹        (point p, 3×3)
+
+and for an image point k with whitened Jacobian rows ``[Jc_k | Jp_k]``
+``H_k = J̃_k Qxx J̃_kᵀ`` (2×2) from the blocks above; ``Qvv P = L⁻¹ (I − H) L``,
+``P Qvv P = Lᵀ (I − H) L`` with ``LᵀL = P``.  Points are processed in chunks, so memory stays
+bounded (n_x × 3·chunk).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.linalg as sla
+
+from .solver import BundleProblem, _solve_reduced
+
+
+def reduced_inverse(prob: BundleProblem, red, st) -> np.ndarray:
+    """``K⁻¹`` (n_x × n_x) from the scaled factorisation."""
+    n_x = prob.n_g + prob.n_c
+    if n_x == 0:
+        return np.zeros((0, 0))
+    if "factor" not in red:
+        _solve_reduced(prob, red, st)
+    kind, fac = red["factor"]
+    s = red["scale"]
+    eye = np.eye(n_x)
+    Ki = sla.cho_solve(fac, eye, check_finite=False) if kind == "chol" else sla.lu_solve(fac, eye, check_finite=False)
+    Ki = 0.5 * (Ki + Ki.T)
+    return Ki * s[:, None] * s[None, :]
+
+
+def precision(prob: BundleProblem, lin, red, st, chunk_bytes: float = 6.4e7):
+    """Cofactors and per-observation hat-matrix blocks.
+
+    Returns dict with ``Qx`` (n_x × n_x, global part incl. constraint rows), ``Qpp`` (n_e, 3, 3)
+    and ``H`` (k, 2, 2) for the active observations (whitened).
+    """
+    Qx = reduced_inverse(prob, red, st)
+    n_g, n_e = prob.n_g, prob.n_e
+    n_x = Qx.shape[0]
+    k = len(prob.oi)
+    Jc, Jp = lin["Jc"], lin["Jp"]
+    Qg = np.zeros((n_g + 1, n_g + 1))
+    Qg[:n_g, :n_g] = Qx[:n_g, :n_g]
+    cidx = prob.cidx
+    # camera–camera part for every observation
+    Qcc_k = Qg[cidx[:, :, None], cidx[:, None, :]]
+    H = np.einsum("kiq,kqr,kjr->kij", Jc, Qcc_k, Jc)
+    del Qcc_k
+    Qpp = np.zeros((n_e, 3, 3))
+    if n_e:
+        Li = red["Li"]
+        B = red["B"]
+        order = np.argsort(prob.pidx, kind="stable")
+        pts_sorted = prob.pidx[order]
+        c = max(1, int(chunk_bytes / (24.0 * max(n_x, 1))))
+        for p0 in range(0, n_e, c):
+            p1 = min(n_e, p0 + c)
+            Bc = B.cols(3 * p0, 3 * p1)                           # (n_x, 3c)
+            M = Qx @ Bc if n_x else np.zeros((0, 3 * (p1 - p0)))  # K⁻¹ B_p
+            nc = p1 - p0
+            T = np.einsum("rpa,rpb->pab", Bc.reshape(n_x, nc, 3), M.reshape(n_x, nc, 3))
+            T[:, [0, 1, 2], [0, 1, 2]] += 1.0
+            Lc = Li[p0:p1]
+            Qpp[p0:p1] = np.einsum("pba,pbc,pcd->pad", Lc, T, Lc)
+            a, b = np.searchsorted(pts_sorted, [p0, p1])
+            ob = order[a:b]
+            if ob.size == 0:
+                continue
+            Mpad = np.vstack([M[:n_g], np.zeros((1, 3 * nc))])
+            loc = prob.pidx[ob] - p0
+            Mk = Mpad[cidx[ob][:, :, None], 3 * loc[:, None, None] + np.arange(3)]   # (kb, q, 3)
+            Qcp = -np.einsum("kqa,kab->kqb", Mk, Li[prob.pidx[ob]])
+            X = np.einsum("kiq,kqa,kja->kij", Jc[ob], Qcp, Jp[ob])
+            H[ob] += X + np.transpose(X, (0, 2, 1))
+            H[ob] += np.einsum("kia,kab,kjb->kij", Jp[ob], Qpp[prob.pidx[ob]], Jp[ob])
+        # fixed coordinates of partly controlled points are not unknowns
+        Qpp *= prob.elim_free[:, :, None] & prob.elim_free[:, None, :]
+    return dict(Qx=Qx, Qpp=Qpp, H=H)
+
+
+def reliability_rows(prob: BundleProblem, H: np.ndarray):
+    """Per active observation: ``r`` (k, 2) = diag(Qvv P), ``PQvvP`` (k, 2, 2) blocks."""
+    L = prob.L
+    R = np.eye(2)[None] - H
+    ra = prob.row_active[prob.oi]
+    both = ra.all(axis=1)
+    r = np.zeros((len(L), 2))
+    PQ = np.einsum("kji,kjl,klm->kim", L, R, L)
+    if both.any():
+        Linv = np.linalg.inv(L[both])
+        r[both] = np.einsum("kij,kjl,kli->ki", Linv, R[both], L[both])
+    for c in (0, 1):
+        only = ra[:, c] & ~ra[:, 1 - c]
+        r[only, c] = R[only, c, c]
+    r *= ra
+    PQ *= ra[:, :, None] & ra[:, None, :]
+    return r, PQ

@@ -1,0 +1,786 @@
+"""Self-calibrating bundle block adjustment: Gauss–Newton / Levenberg–Marquardt on sparse normal
+equations with the object points eliminated (Schur complement).
+
+Unknowns
+    global (the "reduced camera system"): free camera parameters ``[c, xp, yp, ap…]`` per
+    camera, free exterior orientation ``[X0, Y0, Z0, ω, φ, κ]`` per photo, and the coordinates of
+    the few object points that couple to other points (scale bars);
+    eliminated: every other object point (3×3 blocks).
+Observations
+    image points (2×2 weight ``P = σ0² Σ⁻¹`` each, x/y may be correlated), weighted constraints on
+    any unknown (``0 < σ < inf``), distances between object points (scale bars).
+Datum
+    ``"control"``: by control points / weighted constraints — the reduced system must be regular;
+    ``"free"``: inner constraints (minimum norm) on the chosen points or on the projection
+    centres, appended as Lagrange rows to the reduced system; the scale comes from a distance when
+    one is given.
+
+Everything is vectorised over observations; the reduced system is dense (``cho_factor`` /
+``lu_factor``).  See ``docs/bundle.md``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass, field
+from typing import Any, Literal, Mapping, Sequence
+
+import numpy as np
+import scipy.linalg as sla
+import scipy.sparse as sp
+
+from pipeline.errors import AdjustmentError, InputError
+from pipeline.model import Block
+
+from .apmodels import get_ap_model
+from .collinearity import EO_NAMES, IOP_NAMES, project_observations, rotation_and_derivatives
+
+__all__ = ["Distance", "BundleSettings", "BundleState", "BundleProblem", "solve_bundle"]
+
+
+@dataclass(frozen=True)
+class Distance:
+    """A measured distance between two object points (scale bar), object units."""
+
+    a: str
+    b: str
+    distance: float
+    sigma: float
+
+
+@dataclass(frozen=True)
+class BundleSettings:
+    """Numerical settings of :func:`solve_bundle` (the stage maps its options onto these)."""
+
+    datum: Literal["control", "free"] = "control"
+    datum_points: tuple[str, ...] | None = None
+    """free network: ids of the points that carry the inner constraints (None = every tie and
+    check point that is observed)."""
+    datum_centres: bool = False
+    """free network: put the inner constraints on the projection centres instead of points."""
+    sigma0: float = 1.0
+    max_iter: int = 30
+    tol_obs: float = 1e-5
+    """converged when the last correction moves no observation by more than tol_obs × its σ."""
+    tol_rel: float = 1e-12
+    """... or when vᵀPv changes by less than this fraction."""
+    damping: bool = True
+    """Levenberg–Marquardt damping when a Gauss–Newton step does not reduce vᵀPv."""
+    distances: tuple[Distance, ...] = ()
+    on_weak: Literal["error", "drop"] = "error"
+    """photos with < 3 points / points in < 2 photos: raise, or drop them with a warning."""
+    ap_meta: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    """camera id -> AP-model meta overrides (``b`` for ebner12, ``r0`` for aicon)."""
+    covariance: bool = True
+
+
+@dataclass
+class BundleState:
+    """The parameters of one iterate (all arrays copies, never views of the block)."""
+
+    cam_params: np.ndarray  # (K, 3 + p)  c, xp, yp, ap...
+    X0: np.ndarray          # (m, 3)
+    opk: np.ndarray         # (m, 3)
+    XYZ: np.ndarray         # (n, 3)
+
+    def copy(self) -> "BundleState":
+        return BundleState(self.cam_params.copy(), self.X0.copy(), self.opk.copy(), self.XYZ.copy())
+
+
+def _dup(ids, what):
+    ids = np.asarray(ids, str)
+    u, inv, cnt = np.unique(ids, return_inverse=True, return_counts=True)
+    if (cnt > 1).any():
+        bad = u[np.argmax(cnt > 1)]
+        rows = np.flatnonzero(ids == bad) + 1
+        raise InputError(f"duplicate {what} id {bad!r} (rows {', '.join(map(str, rows))}); ids must be unique",
+                         field=f"{what} id")
+
+
+def camera_meta(block: Block, settings: BundleSettings) -> list[dict]:
+    """AP-model meta per camera: block.meta['ap_meta'][id] updated by settings.ap_meta[id];
+    ebner12 without ``b`` gets ``b = 0.4 × format width`` (the base of 60 % forward overlap)."""
+    cams = block.cameras
+    base = block.meta.get("ap_meta", {}) if isinstance(block.meta, dict) else {}
+    out = []
+    for j, cid in enumerate(cams.ids.tolist()):
+        m = dict(base.get(cid, {}))
+        m.update(settings.ap_meta.get(cid, {}))
+        if cams.ap_model[j] == "ebner12" and m.get("b") is None:
+            w = float(cams.format_mm[j, 0])
+            if np.isfinite(w) and w > 0:
+                m["b"] = 0.4 * w
+        out.append(m)
+    return out
+
+
+class BundleProblem:
+    """Index bookkeeping of one adjustment: which parameters are unknown, observed or fixed,
+    where every unknown sits in the global vector, the whitening of each observation.
+
+    Built once per (block, active set, settings); the iteration only changes the state.
+    """
+
+    def __init__(self, block: Block, settings: BundleSettings, obs_active: np.ndarray | None = None,
+                 row_active: np.ndarray | None = None):
+        self.block = block
+        self.settings = settings
+        cams, photos, points, obs = block.cameras, block.photos, block.points, block.observations
+        _dup(cams.ids, "camera")
+        _dup(photos.ids, "photo")
+        _dup(points.ids, "point")
+        K, m, n = len(cams), len(photos), len(points)
+        self.K, self.m, self.n = K, m, n
+        try:
+            self.models = [get_ap_model(name) for name in cams.ap_model.tolist()]
+        except KeyError as e:
+            raise InputError(str(e.args[0]), field="ap_model") from None
+        self.pmax = max([mdl.n_params for mdl in self.models] + [0])
+        self.meta = camera_meta(block, settings)
+        for j, mdl in enumerate(self.models):
+            if mdl.name == "ebner12" and self.meta[j].get("b") is None:
+                raise InputError(f"camera {cams.ids[j]!r}: ebner12 needs the image base b (mm): set option "
+                                 "'ebner_b' or give the camera's format", field="ebner_b")
+        P = 3 + self.pmax
+        cp0 = np.zeros((K, P))
+        cp0[:, 0], cp0[:, 1], cp0[:, 2] = cams.c, cams.xp, cams.yp
+        csig = np.zeros((K, P))
+        csig[:, :3] = cams.sigma_iop
+        for j, mdl in enumerate(self.models):
+            p = mdl.n_params
+            given = min(p, cams.ap.shape[1])
+            cp0[j, 3:3 + given] = cams.ap[j, :given]
+            csig[j, 3:3 + given] = cams.sigma_ap[j, :given]
+            csig[j, 3 + given:3 + p] = np.asarray(mdl.default_sigma, float)[given:p]
+        self.cam_params0 = cp0
+        self.cam_sigma = csig
+
+        # ---- which observations, photos, points take part ------------------------------------
+        act = np.asarray(obs.active, bool).copy() if obs_active is None else np.asarray(obs_active, bool).copy()
+        if row_active is not None:
+            ra = np.asarray(row_active, bool).reshape(-1, 2)
+            act &= ra.any(axis=1)
+            self.row_active = ra & act[:, None]
+        else:
+            self.row_active = np.repeat(act[:, None], 2, axis=1)
+        dist = tuple(settings.distances) + tuple(_block_distances(block))
+        self.distances = dist
+        self.dist_a = points.index_of([d.a for d in dist]) if dist else np.zeros(0, int)
+        self.dist_b = points.index_of([d.b for d in dist]) if dist else np.zeros(0, int)
+        self.dist_l = np.array([d.distance for d in dist], float)
+        self.dist_s = np.array([d.sigma for d in dist], float)
+        if (self.dist_s <= 0).any() or not np.isfinite(self.dist_s).all():
+            raise InputError("a distance (scale bar) needs a positive, finite sigma", field="sigma")
+        self.warnings: list[str] = []
+        act = self._check_weak(act)
+        self.obs_active = act
+        self.row_active &= act[:, None]
+        oi = np.flatnonzero(act)
+        self.oi = oi
+        self.obs_photo = obs.photo[oi]
+        self.obs_point = obs.point[oi]
+        self.obs_cam = photos.camera[self.obs_photo]
+        self.l = obs.xy[oi].copy()
+        self.photo_used = np.zeros(m, bool)
+        self.photo_used[self.obs_photo] = True
+        self.point_used = np.zeros(n, bool)
+        self.point_used[self.obs_point] = True
+        self.point_used[self.dist_a] = True
+        self.point_used[self.dist_b] = True
+        self.cam_used = np.zeros(K, bool)
+        self.cam_used[photos.camera[self.photo_used]] = True
+
+        # ---- whitening: e = L (l − f), LᵀL = P = σ0² Σ⁻¹ (rows switched off get weight 0) -----
+        cov = obs.cov[oi]
+        s0 = settings.sigma0
+        ra = self.row_active[oi]
+        L = np.zeros((len(oi), 2, 2))
+        both = ra.all(axis=1)
+        if both.any():
+            Pm = s0 * s0 * np.linalg.inv(cov[both])
+            try:
+                Lc = np.linalg.cholesky(Pm)
+            except np.linalg.LinAlgError:
+                bad = oi[both][np.argmin(np.linalg.det(cov[both]))]
+                raise InputError(f"observation {bad + 1} (photo {photos.ids[obs.photo[bad]]!r}, point "
+                                 f"{points.ids[obs.point[bad]]!r}) has a covariance that is not positive definite",
+                                 field="cov") from None
+            L[both] = np.transpose(Lc, (0, 2, 1))
+        for r in (0, 1):
+            only = ra[:, r] & ~ra[:, 1 - r]
+            L[only, r, r] = s0 / np.sqrt(cov[only, r, r])
+        if not np.isfinite(L).all():
+            raise InputError("an image observation has a zero or invalid variance", field="cov")
+        self.L = L
+
+        # ---- global unknowns ---------------------------------------------------------------------
+        nx = 0
+        self.g_cam = np.full((K, P), -1)
+        free_c = (csig != 0) & self.cam_used[:, None]
+        for j, mdl in enumerate(self.models):
+            free_c[j, 3 + mdl.n_params:] = False
+        cnt = int(free_c.sum())
+        self.g_cam[free_c] = np.arange(nx, nx + cnt)
+        nx += cnt
+        self.g_eo = np.full((m, 6), -1)
+        free_e = (photos.sigma_eo != 0) & self.photo_used[:, None]
+        cnt = int(free_e.sum())
+        self.g_eo[free_e] = np.arange(nx, nx + cnt)
+        nx += cnt
+        pt_free = (points.sigma != 0) & self.point_used[:, None]
+        self.pt_free = pt_free
+        glob_pts = np.zeros(n, bool)
+        glob_pts[self.dist_a] = True
+        glob_pts[self.dist_b] = True
+        self.g_pt = np.full((n, 3), -1)
+        gp_free = pt_free & glob_pts[:, None]
+        cnt = int(gp_free.sum())
+        self.g_pt[gp_free] = np.arange(nx, nx + cnt)
+        nx += cnt
+        self.n_g = nx
+        elim = self.point_used & ~glob_pts & pt_free.any(axis=1)
+        self.elim_points = np.flatnonzero(elim)
+        self.n_e = len(self.elim_points)
+        self.elim_of = np.full(n, -1)
+        self.elim_of[self.elim_points] = np.arange(self.n_e)
+        self.elim_free = pt_free[self.elim_points]                    # (n_e, 3)
+        self.n_unknowns = self.n_g + int(self.elim_free.sum())
+
+        # per-observation column layout: [cam (P) | eo (6) | global point (3)], dummy = n_g
+        groups = []
+        if (self.g_cam[self.obs_cam] >= 0).any():
+            groups.append(("cam", P))
+        groups.append(("eo", 6))
+        if (self.g_pt[self.obs_point] >= 0).any():
+            groups.append(("pt", 3))
+        self.col_groups = groups
+        cols = []
+        for name, _ in groups:
+            cols.append({"cam": self.g_cam[self.obs_cam], "eo": self.g_eo[self.obs_photo],
+                         "pt": self.g_pt[self.obs_point]}[name])
+        cidx = np.concatenate(cols, axis=1) if cols else np.zeros((len(oi), 0), int)
+        self.col_mask = cidx >= 0
+        cidx = np.where(self.col_mask, cidx, self.n_g)
+        self.cidx = cidx
+        self.q = cidx.shape[1]
+        pidx = self.elim_of[self.obs_point]
+        self.obs_elim = pidx >= 0
+        self.pidx = np.where(self.obs_elim, pidx, self.n_e)
+        self.pt_mask = np.zeros((len(oi), 3), bool)
+        self.pt_mask[self.obs_elim] = self.elim_free[pidx[self.obs_elim]]
+        # flat indices for the assembly of U (upper+lower, symmetric)
+        ng1 = self.n_g + 1
+        self.flatU = (cidx[:, :, None] * ng1 + cidx[:, None, :]).ravel()
+
+        # ---- weighted constraints (priors) -------------------------------------------------------
+        self._setup_priors()
+        # ---- datum -------------------------------------------------------------------------------
+        self._setup_datum()
+        self.n_obs_rows = int(self.row_active[oi].sum())
+        self.dof = (self.n_obs_rows + len(self.prior_g_idx) + len(self.prior_p_idx) + len(self.dist_l)
+                    + self.n_c - self.n_unknowns)
+
+    # ------------------------------------------------------------------------------------------
+    def _check_weak(self, act):
+        """Photos with < 3 observed points and free points in < 2 photos: error or drop."""
+        blk = self.block
+        obs, photos, points = blk.observations, blk.photos, blk.points
+        for _ in range(100):
+            oi = np.flatnonzero(act)
+            # duplicate (photo, point) pairs
+            key = obs.photo[oi].astype(np.int64) * (len(points) + 1) + obs.point[oi]
+            u, cnt = np.unique(key, return_counts=True)
+            if (cnt > 1).any():
+                k = u[np.argmax(cnt > 1)]
+                ph, pt = divmod(int(k), len(points) + 1)
+                raise InputError(f"point {points.ids[pt]!r} is measured twice in photo {photos.ids[ph]!r}; "
+                                 "keep one measurement (or switch one off)", field="observations")
+            n_pts_photo = np.bincount(obs.photo[oi], minlength=len(photos))
+            eo_free = (photos.sigma_eo != 0).any(axis=1)
+            weak_ph = np.flatnonzero((n_pts_photo > 0) & (n_pts_photo < 3) & eo_free)
+            rays = np.bincount(obs.point[oi], minlength=len(points))
+            indist = np.zeros(len(points), bool)
+            indist[self.dist_a] = True
+            indist[self.dist_b] = True
+            free_all = np.isinf(points.sigma).all(axis=1)
+            weak_pt = np.flatnonzero((rays == 1) & free_all & ~indist)
+            if weak_ph.size == 0 and weak_pt.size == 0:
+                return act
+            if self.settings.on_weak == "error":
+                if weak_ph.size:
+                    i = weak_ph[0]
+                    raise AdjustmentError(
+                        f"photo {photos.ids[i]!r} has only {n_pts_photo[i]} observed point(s); its orientation needs "
+                        "at least 3 (better 4 or more) — add points, fix its orientation, or set on_weak = 'drop'")
+                p = weak_pt[0]
+                ph = obs.photo[oi][obs.point[oi] == p][0]
+                raise AdjustmentError(
+                    f"point {points.ids[p]!r} is observed in only one photo ({photos.ids[ph]!r}) and has no control: "
+                    "it cannot be determined — add a measurement in another photo, remove it, or set on_weak = 'drop'")
+            drop = np.isin(obs.photo, weak_ph) | np.isin(obs.point, weak_pt)
+            for i in weak_ph:
+                self.warnings.append(f"photo {photos.ids[i]!r} dropped: only {n_pts_photo[i]} observed point(s)")
+            for p in weak_pt:
+                self.warnings.append(f"point {points.ids[p]!r} dropped: observed in only one photo")
+            act = act & ~drop
+        return act  # pragma: no cover
+
+    def _setup_priors(self):
+        blk = self.block
+        gi, w, given, ang = [], [], [], []
+        s0 = self.settings.sigma0
+        # cameras
+        m = (self.g_cam >= 0) & np.isfinite(self.cam_sigma) & (self.cam_sigma > 0)
+        gi.append(self.g_cam[m]); w.append((s0 / self.cam_sigma[m]) ** 2); given.append(self.cam_params0[m])
+        ang.append(np.zeros(int(m.sum()), bool))
+        # exterior orientation
+        se = blk.photos.sigma_eo
+        m = (self.g_eo >= 0) & np.isfinite(se) & (se > 0)
+        val = np.concatenate([blk.photos.X0, blk.photos.opk], axis=1)
+        if np.isnan(val[m]).any():
+            raise InputError("an exterior-orientation element has an a-priori sigma but no value", field="sigma_eo")
+        gi.append(self.g_eo[m]); w.append((s0 / se[m]) ** 2); given.append(val[m])
+        ang.append(np.broadcast_to(np.arange(6) >= 3, se.shape)[m])
+        # global points
+        ps = blk.points.sigma
+        m = (self.g_pt >= 0) & np.isfinite(ps) & (ps > 0)
+        gi.append(self.g_pt[m]); w.append((s0 / ps[m]) ** 2); given.append(blk.points.XYZ[m])
+        ang.append(np.zeros(int(m.sum()), bool))
+        self.prior_g_idx = np.concatenate(gi).astype(int)
+        self.prior_g_w = np.concatenate(w)
+        self.prior_g_val = np.concatenate(given)
+        self.prior_g_ang = np.concatenate(ang)
+        # eliminated points
+        ep = self.elim_points
+        s = ps[ep]
+        m = self.elim_free & np.isfinite(s) & (s > 0)
+        pe, pc = np.nonzero(m)
+        self.prior_p_idx = pe
+        self.prior_p_coord = pc
+        self.prior_p_w = (s0 / s[m]) ** 2
+        self.prior_p_val = blk.points.XYZ[ep][m]
+        if np.isnan(self.prior_p_val).any() or np.isnan(self.prior_g_val).any():
+            raise InputError("a control point has an a-priori sigma but no coordinate", field="XYZ")
+
+    def _setup_datum(self):
+        st = self.settings
+        self.n_c = 0
+        self.datum_elim = np.zeros(0, int)
+        self.datum_glob_pts = np.zeros(0, int)
+        self.datum_photos = np.zeros(0, int)
+        if st.datum != "free":
+            return
+        self.scale_free = len(self.dist_l) == 0
+        self.n_c = 7 if self.scale_free else 6
+        pts = self.block.points
+        if st.datum_centres:
+            self.datum_photos = np.flatnonzero(self.photo_used & (self.g_eo[:, :3] >= 0).all(axis=1))
+            if len(self.datum_photos) < 3:
+                raise AdjustmentError("free network on projection centres needs at least 3 photos with free positions")
+            return
+        if st.datum_points is None:
+            sel = self.point_used & np.isin(pts.role, ("tie", "check"))
+        else:
+            sel = np.zeros(self.n, bool)
+            sel[pts.index_of(list(st.datum_points))] = True
+            unused = sel & ~self.point_used
+            if unused.any():
+                raise InputError(f"datum point {pts.ids[np.argmax(unused)]!r} is not observed", field="datum_points")
+        sel &= self.pt_free.all(axis=1)
+        if sel.sum() < 3:
+            raise AdjustmentError("free network: the inner constraints need at least 3 observed points with free "
+                                  "coordinates (option datum_points)")
+        self.datum_elim = self.elim_of[sel & (self.elim_of >= 0)]
+        self.datum_glob_pts = np.flatnonzero(sel & (self.g_pt >= 0).all(axis=1))
+
+    # ------------------------------------------------------------------------------------------
+    def initial_state(self, block: Block | None = None) -> BundleState:
+        b = block or self.block
+        return BundleState(self.cam_params0.copy(), np.array(b.photos.X0, float),
+                           np.array(b.photos.opk, float), np.array(b.points.XYZ, float))
+
+    def global_vector(self, st: BundleState) -> np.ndarray:
+        x = np.zeros(self.n_g)
+        m = self.g_cam >= 0
+        x[self.g_cam[m]] = st.cam_params[m]
+        eo = np.concatenate([st.X0, st.opk], axis=1)
+        m = self.g_eo >= 0
+        x[self.g_eo[m]] = eo[m]
+        m = self.g_pt >= 0
+        x[self.g_pt[m]] = st.XYZ[m]
+        return x
+
+    def apply(self, st: BundleState, dx_g: np.ndarray, dp: np.ndarray) -> BundleState:
+        out = st.copy()
+        m = self.g_cam >= 0
+        out.cam_params[m] += dx_g[self.g_cam[m]]
+        m = self.g_eo >= 0
+        eo = np.concatenate([out.X0, out.opk], axis=1)
+        eo[m] += dx_g[self.g_eo[m]]
+        out.X0, out.opk = eo[:, :3].copy(), eo[:, 3:].copy()
+        m = self.g_pt >= 0
+        out.XYZ[m] += dx_g[self.g_pt[m]]
+        if self.n_e:
+            out.XYZ[self.elim_points] += np.where(self.elim_free, dp, 0.0)
+        return out
+
+    # ------------------------------------------------------------------------------------------
+    def project(self, st: BundleState, jacobians: bool):
+        return project_observations(self.obs_photo, self.obs_point, st.XYZ, st.X0, st.opk,
+                                    self.block.photos.camera, st.cam_params,
+                                    self.block.cameras.ap_model, self.meta, jacobians=jacobians)
+
+    def residual_parts(self, st: BundleState, proj=None):
+        """Whitened image residuals e (k, 2), prior residuals (global, points), distances."""
+        proj = proj or self.project(st, False)
+        v = self.l - proj.xy
+        e = np.einsum("kij,kj->ki", self.L, v)
+        xg = self.global_vector(st)
+        dg = self.prior_g_val - xg[self.prior_g_idx]
+        dg = np.where(self.prior_g_ang, _wrap(dg), dg)
+        dpv = self.prior_p_val - st.XYZ[self.elim_points[self.prior_p_idx], self.prior_p_coord]
+        dd = self.dist_l - np.linalg.norm(st.XYZ[self.dist_a] - st.XYZ[self.dist_b], axis=1)
+        return v, e, dg, dpv, dd, proj
+
+    def cost(self, st: BundleState, parts=None) -> float:
+        v, e, dg, dpv, dd, _ = parts or self.residual_parts(st)
+        s0 = self.settings.sigma0
+        return float(np.sum(e * e) + np.sum(self.prior_g_w * dg * dg) + np.sum(self.prior_p_w * dpv * dpv)
+                     + np.sum((s0 * dd / self.dist_s) ** 2)) if len(e) or len(dg) else 0.0
+
+    # ------------------------------------------------------------------------------------------
+    def linearize(self, st: BundleState):
+        """Whitened Jacobians and normal-equation pieces at ``st``."""
+        t0 = time.perf_counter()
+        proj = self.project(st, True)
+        parts = self.residual_parts(st, proj)
+        v, e, dg, dpv, dd, _ = parts
+        L = self.L
+        blocks = []
+        for name, _ in self.col_groups:
+            blocks.append({"cam": proj.J_cam, "eo": proj.J_eo, "pt": proj.J_point}[name])
+        Jc = np.concatenate(blocks, axis=2) if blocks else np.zeros((len(e), 2, 0))
+        Jc = np.einsum("kij,kjq->kiq", L, Jc)
+        Jc *= self.col_mask[:, None, :]
+        Jp = np.einsum("kij,kjq->kiq", L, proj.J_point)
+        Jp *= self.pt_mask[:, None, :]
+        ng1 = self.n_g + 1
+        outer = np.einsum("kia,kib->kab", Jc, Jc)
+        U = np.bincount(self.flatU, outer.ravel(), minlength=ng1 * ng1).reshape(ng1, ng1)[:-1, :-1]
+        g = np.bincount(self.cidx.ravel(), np.einsum("kia,ki->ka", Jc, e).ravel(), minlength=ng1)[:-1]
+        ne1 = self.n_e + 1
+        Vflat = np.einsum("kia,kib->kab", Jp, Jp).reshape(-1, 9)
+        V = np.stack([np.bincount(self.pidx, Vflat[:, t], minlength=ne1) for t in range(9)], axis=1)
+        V = V.reshape(ne1, 3, 3)[:-1]
+        bp = np.stack([np.bincount(self.pidx, np.einsum("kia,ki->ka", Jp, e)[:, t], minlength=ne1)
+                       for t in range(3)], axis=1)[:-1]
+        Wk = np.einsum("kiq,kia->kqa", Jc, Jp)
+        # priors
+        np.add.at(U, (self.prior_g_idx, self.prior_g_idx), self.prior_g_w)
+        np.add.at(g, self.prior_g_idx, self.prior_g_w * dg)
+        if len(self.prior_p_idx):
+            np.add.at(V, (self.prior_p_idx, self.prior_p_coord, self.prior_p_coord), self.prior_p_w)
+            np.add.at(bp, (self.prior_p_idx, self.prior_p_coord), self.prior_p_w * dpv)
+        # distances (all their points are global unknowns)
+        if len(self.dist_l):
+            s0 = self.settings.sigma0
+            diff = st.XYZ[self.dist_a] - st.XYZ[self.dist_b]
+            unit = diff / np.linalg.norm(diff, axis=1, keepdims=True)
+            wd = s0 / self.dist_s
+            cols = np.concatenate([self.g_pt[self.dist_a], self.g_pt[self.dist_b]], axis=1)
+            Jd = np.concatenate([unit, -unit], axis=1) * wd[:, None]
+            ok = cols >= 0
+            cols = np.where(ok, cols, self.n_g)
+            Jd = Jd * ok
+            Uext = np.zeros((ng1, ng1))
+            np.add.at(Uext, (cols[:, :, None], cols[:, None, :]), Jd[:, :, None] * Jd[:, None, :])
+            U = U + Uext[:-1, :-1]
+            gext = np.zeros(ng1)
+            np.add.at(gext, cols, Jd * (wd * dd)[:, None])
+            g = g + gext[:-1]
+        # free coordinates that no observation touches stay fixed
+        if self.n_e:
+            fixed = ~self.elim_free
+            pi, ci = np.nonzero(fixed)
+            V[pi, ci, ci] = 1.0
+            bp[fixed] = 0.0
+        return dict(U=U, g=g, V=V, bp=bp, Wk=Wk, Jc=Jc, Jp=Jp, e=e, v=v, parts=parts, proj=proj,
+                    t=time.perf_counter() - t0)
+
+    # ------------------------------------------------------------------------------------------
+    def constraint_rows(self, st: BundleState):
+        """Inner constraints Gᵀ Δ = 0: (Cg (n_g, n_c), Cp (n_e, 3, n_c))."""
+        n_c = self.n_c
+        Cg = np.zeros((self.n_g, n_c))
+        Cp = np.zeros((self.n_e, 3, n_c))
+        if n_c == 0:
+            return Cg, Cp
+        pos, where = [], []
+        if len(self.datum_photos):
+            pos.append(st.X0[self.datum_photos])
+        if len(self.datum_elim):
+            pos.append(st.XYZ[self.elim_points[self.datum_elim]])
+        if len(self.datum_glob_pts):
+            pos.append(st.XYZ[self.datum_glob_pts])
+        allpos = np.concatenate(pos)
+        ctr = allpos.mean(axis=0)
+        scale = np.sqrt(np.mean(np.sum((allpos - ctr) ** 2, axis=1))) or 1.0
+
+        def G(X):
+            Xr = (X - ctr) / scale
+            out = np.zeros((len(X), 3, n_c))
+            out[:, [0, 1, 2], [0, 1, 2]] = 1.0
+            # rotation: ΔX = ε × X → columns of −[X]×
+            out[:, 1, 3], out[:, 2, 3] = -Xr[:, 2], Xr[:, 1]
+            out[:, 0, 4], out[:, 2, 4] = Xr[:, 2], -Xr[:, 0]
+            out[:, 0, 5], out[:, 1, 5] = -Xr[:, 1], Xr[:, 0]
+            if n_c == 7:
+                out[:, :, 6] = Xr
+            return out
+
+        if len(self.datum_photos):
+            Gx = G(st.X0[self.datum_photos])
+            Cg[self.g_eo[self.datum_photos, :3].ravel()] = Gx.reshape(-1, n_c)
+        if len(self.datum_glob_pts):
+            Gx = G(st.XYZ[self.datum_glob_pts])
+            Cg[self.g_pt[self.datum_glob_pts].ravel()] = Gx.reshape(-1, n_c)
+        if len(self.datum_elim):
+            Cp[self.datum_elim] = G(st.XYZ[self.elim_points[self.datum_elim]])
+        return Cg, Cp
+
+    # ------------------------------------------------------------------------------------------
+    def reduced_system(self, lin, st: BundleState, lam: float = 0.0):
+        """Schur complement: K (n_x, n_x), rhs (n_x,), the factors needed to back-substitute."""
+        U, g, V, bp, Wk = lin["U"], lin["g"], lin["V"], lin["bp"], lin["Wk"]
+        n_g, n_e, n_c = self.n_g, self.n_e, self.n_c
+        if lam > 0:
+            U = U + lam * np.diag(np.diag(U))
+            V = V + lam * np.einsum("pii->pi", V)[:, :, None] * np.eye(3)
+        Lp = _chol3(V, self)
+        Li = np.linalg.inv(Lp)                                     # (n_e, 3, 3) lower
+        Li1 = np.concatenate([Li, np.eye(3)[None]], axis=0)        # dummy point for global-point obs
+        Bk = np.einsum("kqa,kba->kqb", Wk, Li1[self.pidx])         # W_k L⁻ᵀ
+        Cg, Cp = self.constraint_rows(st)
+        n_x = n_g + n_c
+        Bc = np.einsum("pac,pba->pcb", Cp, Li) if n_c else None   # (n_e, n_c, 3) = Cpᵀ L⁻ᵀ
+        B = _BMatrix(self, Bk, Bc)
+        K = np.zeros((n_x, n_x))
+        K[:n_g, :n_g] = U
+        if n_c:
+            K[:n_g, n_g:] = Cg
+            K[n_g:, :n_g] = Cg.T
+        K -= B.gram()
+        z = np.einsum("pab,pb->pa", Li, bp)                         # L⁻¹ b_p
+        rhs = np.concatenate([g, np.zeros(n_c)]) - B.matvec(z)
+        return dict(K=K, rhs=rhs, Li=Li, z=z, B=B)
+
+    def back_substitute(self, red, dx):
+        """Δp = L⁻ᵀ (z − B_pᵀ Δx) for every eliminated point."""
+        if self.n_e == 0:
+            return np.zeros((0, 3))
+        t = red["z"] - red["B"].rmatvec(dx)
+        return np.einsum("pba,pb->pa", red["Li"], t)
+
+
+def _wrap(a):
+    return (a + np.pi) % (2 * np.pi) - np.pi
+
+
+def _block_distances(block: Block):
+    out = []
+    for d in (block.meta.get("distances", []) if isinstance(block.meta, dict) else []):
+        if isinstance(d, Distance):
+            out.append(d)
+        else:
+            out.append(Distance(str(d["from"]), str(d["to"]), float(d["distance"]), float(d["sigma"])))
+    return out
+
+
+def _chol3(V, prob):
+    try:
+        return np.linalg.cholesky(V)
+    except np.linalg.LinAlgError:
+        det = np.linalg.det(V)
+        tr = np.einsum("pii->p", V)
+        bad = int(np.argmin(det / np.maximum(tr, 1e-300) ** 3))
+        pid = prob.block.points.ids[prob.elim_points[bad]]
+        raise AdjustmentError(f"point {pid!r} cannot be determined: its rays are (nearly) parallel or it is "
+                              "seen from one photo only — remove it or add observations") from None
+
+
+class _BMatrix:
+    """``B = [W V^{-1/2}; Cpᵀ V^{-1/2}]`` (n_x × 3 n_e), dense or sparse, whichever is cheaper."""
+
+    def __init__(self, prob: BundleProblem, Bk, Bc):
+        self.prob = prob
+        n_g, n_e, n_c = prob.n_g, prob.n_e, prob.n_c
+        self.n_x = n_g + n_c
+        ncol = 3 * (n_e + 1)
+        rows = np.broadcast_to(prob.cidx[:, :, None], Bk.shape)
+        cols = np.broadcast_to(3 * prob.pidx[:, None, None] + np.arange(3), Bk.shape)
+        # nnz per column ≈ obs per point × q (camera rows merge); dense cost n_x² · 3 n_e
+        dense_bytes = 8.0 * (n_g + 1) * ncol
+        obs_per_pt = np.bincount(prob.pidx, minlength=n_e + 1)[:-1]
+        nnz_col = np.minimum(obs_per_pt * prob.q, n_g)
+        sparse_cost = 3.0 * float(np.sum(nnz_col.astype(float) ** 2))
+        dense_cost = float(self.n_x) ** 2 * 3 * n_e / 40.0
+        self.dense = dense_bytes < 4e8 and dense_cost < sparse_cost
+        if self.dense:
+            flat = (rows * ncol + cols).ravel()
+            D = np.bincount(flat, Bk.ravel(), minlength=(n_g + 1) * ncol).reshape(n_g + 1, ncol)
+            D = D[:n_g, :3 * n_e]
+            if n_c:
+                D = np.vstack([D, np.transpose(Bc, (1, 0, 2)).reshape(n_c, 3 * n_e)])
+            self.M = D
+        else:
+            S = sp.csr_matrix((Bk.ravel(), (rows.ravel(), cols.ravel())), shape=(n_g + 1, ncol))
+            S = S[:n_g, :3 * n_e]
+            if n_c:
+                C = sp.csr_matrix(np.transpose(Bc, (1, 0, 2)).reshape(n_c, 3 * n_e))
+                S = sp.vstack([S, C], format="csr")
+            self.M = S
+
+    def gram(self):
+        if self.dense:
+            return self.M @ self.M.T
+        return (self.M @ self.M.T).toarray()
+
+    def matvec(self, z):
+        return self.M @ z.reshape(-1)
+
+    def rmatvec(self, x):
+        return (self.M.T @ x).reshape(-1, 3)
+
+    def times_dense_cols(self, Q, c0, c1):
+        """``Q @ B[:, c0:c1]`` (dense)."""
+        if self.dense:
+            return Q @ self.M[:, c0:c1]
+        return np.asarray((self.M[:, c0:c1].T @ Q.T).T)
+
+    def cols(self, c0, c1):
+        if self.dense:
+            return self.M[:, c0:c1]
+        return self.M[:, c0:c1].toarray()
+
+
+def solve_bundle(block: Block, settings: BundleSettings | None = None, *, obs_active=None, row_active=None,
+                 start: BundleState | None = None, problem: BundleProblem | None = None):
+    """Run the adjustment (see :func:`plugins.bundle.adjust` for the public entry point).
+
+    Returns ``(problem, state, info)``; ``info`` holds the history, the final linearisation and
+    reduced system, the factorisation and timings.
+    """
+    settings = settings or BundleSettings()
+    t0 = time.perf_counter()
+    prob = problem or BundleProblem(block, settings, obs_active=obs_active, row_active=row_active)
+    st = (start or prob.initial_state()).copy()
+    _check_initial(prob, st)
+    timings = {"setup": time.perf_counter() - t0, "linearize": 0.0, "solve": 0.0}
+    history = []
+    lam = 0.0
+    parts = prob.residual_parts(st)
+    cost = prob.cost(st, parts)
+    history.append({"iteration": 0, "vtpv": cost, "lambda": 0.0, "max_step_sigma": float("nan")})
+    converged = False
+    it = 0
+    eps_cost = 1e-12 * max(1, prob.n_obs_rows)
+    for it in range(1, settings.max_iter + 1):
+        lin = prob.linearize(st)
+        timings["linearize"] += lin["t"]
+        while True:
+            ts = time.perf_counter()
+            red = prob.reduced_system(lin, st, lam)
+            dx, fac = _solve_reduced(prob, red, st, diagnose=(it == 1 and lam == 0.0))
+            dp = prob.back_substitute(red, dx)
+            timings["solve"] += time.perf_counter() - ts
+            # predicted change of each observation in units of its sigma
+            max_step = _max_pred(prob, lin, dx, dp)
+            new = prob.apply(st, dx[:prob.n_g], dp)
+            new_parts = prob.residual_parts(new)
+            new_cost = prob.cost(new, new_parts)
+            if not np.isfinite(new_cost):
+                new_cost = np.inf
+            if new_cost <= cost * (1 + 1e-10) + eps_cost or not settings.damping:
+                break
+            if lam == 0.0 and max_step < settings.tol_obs:
+                new, new_parts, new_cost = st, parts, cost    # at the minimum already
+                break
+            lam = 1e-3 if lam == 0 else lam * 10
+            if lam > 1e12:
+                raise AdjustmentError(
+                    f"the adjustment diverges: no damped step reduces vᵀPv (= {cost:.6g}) at iteration {it}; "
+                    "check the initial values and the datum", state=st)
+        rel = abs(cost - new_cost) / max(cost, 1e-300)
+        st, parts, cost = new, new_parts, new_cost
+        history.append({"iteration": it, "vtpv": cost, "lambda": lam, "max_step_sigma": max_step})
+        if lam == 0.0 and (max_step < settings.tol_obs or rel < settings.tol_rel):
+            converged = True
+            break
+        lam = 0.0 if lam <= 1e-6 else lam / 10
+    if not converged:
+        raise AdjustmentError(
+            f"no convergence after {settings.max_iter} iterations: vᵀPv = {cost:.6g}, last correction moved an "
+            f"observation by {history[-1]['max_step_sigma']:.3g} σ (threshold {settings.tol_obs:g}); "
+            "raise max_iter, check the initial values, or look for gross errors", state=st)
+    ts = time.perf_counter()
+    lin = prob.linearize(st)
+    red = prob.reduced_system(lin, st, 0.0)
+    timings["linearize"] += time.perf_counter() - ts
+    info = dict(history=history, iterations=it, lin=lin, red=red, timings=timings, vtpv=cost)
+    return prob, st, info
+
+
+def _max_pred(prob, lin, dx, dp) -> float:
+    pred = np.einsum("kiq,kq->ki", lin["Jc"], np.append(dx[:prob.n_g], 0.0)[prob.cidx])
+    if prob.n_e:
+        pred += np.einsum("kia,ka->ki", lin["Jp"], np.vstack([dp, np.zeros((1, 3))])[prob.pidx])
+    return float(np.max(np.abs(pred))) if pred.size else 0.0
+
+
+def _check_initial(prob: BundleProblem, st: BundleState):
+    bad = prob.photo_used & ~np.isfinite(np.concatenate([st.X0, st.opk], axis=1)).all(axis=1)
+    if bad.any():
+        raise AdjustmentError(f"photo {prob.block.photos.ids[np.argmax(bad)]!r} has no initial orientation "
+                              "(compute initial values first)")
+    bad = prob.point_used & ~np.isfinite(st.XYZ).all(axis=1)
+    if bad.any():
+        raise AdjustmentError(f"point {prob.block.points.ids[np.argmax(bad)]!r} has no initial coordinates "
+                              "(compute initial values first)")
+
+
+def _solve_reduced(prob: BundleProblem, red, st, diagnose=False):
+    """Solve K Δ = rhs with Jacobi scaling; on singularity raise a datum / parameter diagnosis."""
+    K, rhs = red["K"], red["rhs"]
+    n_g, n_c = prob.n_g, prob.n_c
+    if n_g == 0:
+        return np.zeros(n_c), None
+    d = np.sqrt(np.abs(np.diag(K)[:n_g]))
+    zero = d == 0
+    if zero.any():
+        from .diagnose import raise_rank_defect
+        raise_rank_defect(prob, red, st)
+    s = np.ones(n_g + n_c)
+    s[:n_g] = 1.0 / d
+    if n_c:
+        s[n_g:] = 1.0 / np.maximum(np.linalg.norm(K[:n_g, n_g:] * s[:n_g, None], axis=0), 1e-300)
+    Ks = K * s[:, None] * s[None, :]
+    try:
+        if n_c == 0:
+            fac = ("chol", sla.cho_factor(Ks, lower=False, check_finite=False))
+            piv = np.diag(fac[1][0]) ** 2
+            if piv.min() < 1e-11:
+                raise np.linalg.LinAlgError
+            y = sla.cho_solve(fac[1], rhs * s, check_finite=False)
+        else:
+            fac = ("lu", sla.lu_factor(Ks, check_finite=False))
+            u = np.abs(np.diag(fac[1][0]))
+            if u.min() < 1e-11 * u.max():
+                raise np.linalg.LinAlgError
+            y = sla.lu_solve(fac[1], rhs * s, check_finite=False)
+    except (np.linalg.LinAlgError, ValueError):
+        from .diagnose import raise_rank_defect
+        raise_rank_defect(prob, red, st)
+    red["factor"] = fac
+    red["scale"] = s
+    return y * s, fac
