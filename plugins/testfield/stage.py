@@ -1,0 +1,199 @@
+"""Source stage ``testfield``: the simulated test field of paper 001 as a block.
+
+Numerics in :mod:`.simulate`; this stage wires options to :func:`~.simulate.simulate_testfield`,
+writes the geometry summary and logs cameras and targets to the recording.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Literal
+
+import numpy as np
+
+from pipeline.errors import InputError
+from pipeline.geometry import rotation_from_opk_many
+from pipeline.options import option
+from pipeline.report import markdown_table
+from pipeline.stage import Context, Stage, StageResult, TableData
+
+from .simulate import (CONTROL_CASES, TestFieldConfig, constraint_count, control_configuration,
+                       degrees_of_freedom, simulate_testfield)
+
+ROLE_COLORS = {"full": (230, 50, 40), "xy": (240, 150, 20), "z": (40, 110, 230),
+               "check": (40, 170, 60), "tie": (150, 150, 150)}
+"""Colours of object points by role in the recordings."""
+
+
+@dataclasses.dataclass(frozen=True)
+class TestFieldOptions:
+    __test__ = False
+
+    case: int = option(5, "control configuration 1–6 (docs/testfield.md): 1 minimal outline, 2 interior "
+                          "stiffening, 3 the same count on the outline, 4–6 many points")
+    block: Literal["block", "single-model"] = option(
+        "block", "'block': 2 strips × 5 photos at 1.4 m; 'single-model': the pair A, B at 4.0 m")
+    with_ap_errors: bool = option(True, "add the known systematic image errors (radial, decentring, "
+                                        "affinity, c/xp/yp offsets; docs/testfield.md)")
+    sigma_image_um: float = option(4.0, "image measurement noise per coordinate, µm (also the a-priori "
+                                        "sigma); ≈ 40 reproduces the paper's σ̂0 level")
+    sigma_control_mm: float = option(0.2, "control survey noise per coordinate, mm (also the a-priori "
+                                          "sigma of weighted control)")
+    control_weighted: bool = option(True, "control points enter as weighted constraints (true) or fixed")
+    ap_model: Literal["none", "ebner12", "brown"] = option(
+        "none", "additional-parameter model the block's camera carries for the adjustment (free, from 0)")
+    calibrate_iop: bool = option(False, "c, xp, yp free in the adjustment (true) or fixed at the "
+                                        "calibrated values")
+    seed: int | None = option(None, "seed of the noise; default: the project's seed for this stage")
+    blunders: list[dict] = option([], "gross errors added to image observations: a list of tables "
+                                      "{photo, point, dx, dy} (mm)")
+    margin_mm: float = option(2.0, "a target is measured when its image lies this far inside the format")
+
+    def __post_init__(self):
+        if self.case not in CONTROL_CASES:
+            raise ValueError(f"case must be one of {sorted(CONTROL_CASES)}, got {self.case}")
+        if not (self.sigma_image_um > 0 and self.sigma_control_mm > 0):
+            raise ValueError("sigma_image_um and sigma_control_mm must be positive")
+
+
+class TestFieldSource(Stage):
+    __test__ = False
+
+    summary = "Simulate the test field of paper 001 (P31, 2 strips × 5 photos or the 4 m pair) as a block"
+    reads = ()
+    writes = ("block",)
+    Options = TestFieldOptions
+
+    def run(self, inputs, options: TestFieldOptions, ctx: Context) -> StageResult:
+        for k, b in enumerate(options.blunders):
+            missing = {"photo", "point"} - set(b)
+            extra = set(b) - {"photo", "point", "dx", "dy"}
+            if missing or extra:
+                raise InputError(f"blunder {k + 1}: needs keys photo, point, dx, dy (mm); "
+                                 f"{'missing ' + ', '.join(sorted(missing)) if missing else 'unknown ' + ', '.join(sorted(extra))}",
+                                 path=ctx.project_file, field="blunders")
+        config = TestFieldConfig(
+            case=options.case, block=options.block, with_ap_errors=options.with_ap_errors,
+            sigma_image_um=options.sigma_image_um, sigma_control_mm=options.sigma_control_mm,
+            control_weighted=options.control_weighted, ap_model=options.ap_model,
+            calibrate_iop=options.calibrate_iop, blunders=tuple(options.blunders),
+            margin_mm=options.margin_mm)
+        rng = np.random.default_rng(options.seed) if options.seed is not None else ctx.rng
+        try:
+            block, truth = simulate_testfield(config, rng)
+        except ValueError as e:
+            raise InputError(str(e), path=ctx.project_file, field="blunders") from None
+        geo = block.meta["testfield"]["geometry"]
+        dof = degrees_of_freedom(block)
+        if geo["min_rays"] < 2:
+            ctx.warn(f"a target is seen in fewer than 2 photos (min {geo['min_rays']})")
+        summary = {
+            **block.summary(), "case": options.case, "block_kind": options.block,
+            "dof_without_aps": dof, "constraints": constraint_count(control_configuration(options.case)),
+            "min_rays": geo["min_rays"], "distance_m": round(geo["distance_m"], 4),
+            "forward_overlap_mean": _mean(geo["forward_overlap"]),
+            "side_overlap_mean": _mean(geo["side_overlap"]),
+            "sigma_image_um": options.sigma_image_um, "sigma_control_mm": options.sigma_control_mm,
+            "with_ap_errors": options.with_ap_errors,
+            "systematic_rms_um": float(np.sqrt(np.mean(truth.systematic ** 2)) * 1e3),
+            "blunders": len(options.blunders),
+        }
+        return StageResult(artefacts={"block": block}, summary=summary,
+                           report=_report(block, truth, geo, summary),
+                           tables=_tables(block, truth), data={"block": block, "truth": truth})
+
+    def log(self, result: StageResult, rec, ctx: Context) -> None:
+        log_testfield(rec, result.data["block"], result.data["truth"])
+
+
+def _mean(pairs) -> float | None:
+    return round(float(np.mean([f for *_, f in pairs])), 4) if pairs else None
+
+
+def _report(block, truth, geo, s) -> str:
+    lines = [
+        f"Simulated {'block (2 strips × 5 photos, 1.4 m)' if s['block_kind'] == 'block' else 'single model (A, B at 4.0 m)'}, "
+        f"control case {s['case']}: {s['photos']} photos, {s['points']} targets "
+        f"({', '.join(f'{n} {r}' for r, n in s['roles'].items() if n)}), {s['observations']} image points; "
+        f"mean object distance {geo['distance_m']:.3f} m.",
+        "",
+        f"Degrees of freedom without additional parameters: **{s['dof_without_aps']}** "
+        f"({s['constraints']} control constraints).  Noise: image σ = {s['sigma_image_um']:g} µm, control "
+        f"σ = {s['sigma_control_mm']:g} mm; systematic image errors "
+        f"{'on' if s['with_ap_errors'] else 'off'} (RMS {s['systematic_rms_um']:.1f} µm at the measured points).",
+        "",
+    ]
+    rows = [[pid, d["n"], " ".join(d["points"]), f"{d['footprint_m'][0]:.3f} × {d['footprint_m'][1]:.3f}"]
+            for pid, d in geo["photos"].items()]
+    lines += [markdown_table(["photo", "targets", "ids", "footprint m"], rows), ""]
+    ov = [[f"{a}–{b}", "forward", f"{100 * f:.1f} %"] for a, b, f in geo["forward_overlap"]]
+    ov += [[f"{a}–{b}", "side", f"{100 * f:.1f} %"] for a, b, f in geo["side_overlap"]]
+    lines += [markdown_table(["photos", "overlap", "fraction"], ov), ""]
+    rays = geo["rays_per_point"]
+    lines += [f"Rays per target: {', '.join(f'{k}: {v}' for k, v in rays.items())} (min {geo['min_rays']})."]
+    if s["blunders"]:
+        lines += ["", f"{s['blunders']} gross error(s) injected (see `truth.blunder`)."]
+    return "\n".join(lines)
+
+
+def _tables(block, truth) -> dict:
+    pts = block.points
+    rays = np.bincount(block.observations.point, minlength=len(pts))
+    points = TableData({
+        "point": pts.ids.tolist(), "role": pts.role.tolist(),
+        "X": pts.XYZ[:, 0], "Y": pts.XYZ[:, 1], "Z": pts.XYZ[:, 2],
+        "X_true": truth.XYZ[:, 0], "Y_true": truth.XYZ[:, 1], "Z_true": truth.XYZ[:, 2],
+        "rays": rays,
+    }, "targets: surveyed (X, Y, Z) and true coordinates (m), role, number of photos")
+    ph = block.photos
+    photos = TableData({
+        "photo": ph.ids.tolist(),
+        "X0_approx": ph.X0[:, 0], "Y0_approx": ph.X0[:, 1], "Z0_approx": ph.X0[:, 2],
+        "X0_true": truth.X0[:, 0], "Y0_true": truth.X0[:, 1], "Z0_true": truth.X0[:, 2],
+        "omega_true_deg": np.rad2deg(truth.opk[:, 0]), "phi_true_deg": np.rad2deg(truth.opk[:, 1]),
+        "kappa_true_deg": np.rad2deg(truth.opk[:, 2]),
+        "targets": np.bincount(block.observations.photo, minlength=len(ph)),
+    }, "photos: approximate (paper's Table 1) and true exterior orientation")
+    obs = block.observations
+    observations = TableData({
+        "photo": ph.ids[obs.photo].tolist(), "point": pts.ids[obs.point].tolist(),
+        "x": obs.xy[:, 0], "y": obs.xy[:, 1],
+        "sys_x_um": truth.systematic[:, 0] * 1e3, "sys_y_um": truth.systematic[:, 1] * 1e3,
+        "noise_x_um": truth.noise[:, 0] * 1e3, "noise_y_um": truth.noise[:, 1] * 1e3,
+        "blunder_x_um": truth.blunder[:, 0] * 1e3, "blunder_y_um": truth.blunder[:, 1] * 1e3,
+    }, "image observations (mm) with their simulated systematic error, noise and blunder (µm)")
+    return {"points": points, "photos": photos, "observations": observations}
+
+
+DISPLAY_PIXEL_MM = 0.1
+"""Nominal pixel of the film format in the recording's pinhole (display only)."""
+
+
+def log_testfield(rec, block, truth, root: str = "world") -> None:
+    """Cameras (true orientation, frusta), targets coloured by role, and image points per photo."""
+    import rerun as rr
+
+    pts = block.points
+    colors = np.array([ROLE_COLORS.get(r, (150, 150, 150)) for r in pts.role], dtype=np.uint8)
+    rec.log(f"{root}/targets", rr.Points3D(truth.XYZ, colors=colors, labels=pts.ids.tolist(),
+                                           radii=0.012), static=True)
+    rec.log(f"{root}/targets/roles", rr.AnyValues(role=pts.role.tolist(), point=pts.ids.tolist()), static=True)
+    cam = block.cameras
+    w_mm, h_mm = cam.format_mm[0]
+    W, H = int(round(w_mm / DISPLAY_PIXEL_MM)), int(round(h_mm / DISPLAY_PIXEL_MM))
+    f = cam.c[0] / DISPLAY_PIXEL_MM
+    R = rotation_from_opk_many(truth.opk)
+    obs = block.observations
+    for i, pid in enumerate(block.photos.ids):
+        path = f"{root}/cameras/{pid}"
+        rec.log(path, rr.Transform3D(translation=-R[i] @ truth.X0[i], mat3x3=R[i],
+                                     relation=rr.TransformRelation.ChildFromParent), static=True)
+        rec.log(path, rr.Pinhole(image_from_camera=[[f, 0, (W - 1) / 2], [0, f, (H - 1) / 2], [0, 0, 1]],
+                                 resolution=[W, H], camera_xyz=rr.ViewCoordinates.RUB,
+                                 image_plane_distance=0.25), static=True)
+        sel = obs.photo == i
+        uv = np.column_stack([obs.xy[sel, 0] / DISPLAY_PIXEL_MM + (W - 1) / 2,
+                              -obs.xy[sel, 1] / DISPLAY_PIXEL_MM + (H - 1) / 2])
+        rec.log(f"{path}/image/targets", rr.Points2D(uv, colors=colors[obs.point[sel]],
+                                                     labels=pts.ids[obs.point[sel]].tolist(), radii=6.0),
+                static=True)
