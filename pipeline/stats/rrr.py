@@ -100,8 +100,10 @@ class RRRResult:
     suspects: list[int]  # rows, in test order
     suspect_labels: list[str]
     nabla_hat: np.ndarray  # (ρ,) ∇̂l of the suspects in the full adjustment
-    H_exp: np.ndarray  # (ρ,)
-    H: float  # critical value from the Monte Carlo of the whole procedure
+    H_exp: np.ndarray  # (ρ,) as tested (clean set grows by the suspects that passed)
+    H_exp_clean: np.ndarray  # (ρ,) each suspect against the initial clean set only
+    H: float  # critical value used (Monte Carlo of the whole procedure unless given)
+    H_mc: float  # Monte Carlo critical value (nan if n_sim = 0)
     H_ci: tuple  # 95 % distribution-free interval of that quantile (order statistics)
     H_naive: np.ndarray  # (ρ,) Beta(1/2, (k−1)/2) quantile, no selection
     k_terms: np.ndarray  # (ρ,) number of recursive residuals in each H_exp
@@ -123,7 +125,8 @@ class RRRResult:
         return {
             "alpha": self.alpha, "H": self.H, "H_ci": list(self.H_ci), "n_sim": self.n_sim,
             "n_degenerate": self.n_degenerate, "selection": self.selection,
-            "suspects": self.suspect_labels, "H_exp": self.H_exp.tolist(),
+            "H_mc": self.H_mc, "suspects": self.suspect_labels, "H_exp": self.H_exp.tolist(),
+            "H_exp_clean": self.H_exp_clean.tolist(),
             "H_naive": self.H_naive.tolist(), "k_terms": self.k_terms.tolist(),
             "p_value": self.p_value.tolist(), "p_naive": self.p_naive.tolist(),
             "rejected": self.rejected_labels, "history": self.history,
@@ -195,14 +198,16 @@ def _path_diag(At, E, sqrtp, rho, fixed, H_crit=None):
 
 # ---------------------------------------------------------------------------- core (full P)
 def _rss_subset(A, Sigma, rows, E):
-    """RSS of the GLS fit of the rows ``rows`` for a batch of data ``E`` (m, n)."""
+    """RSS of the GLS fit of the rows ``rows`` for a batch of data ``E`` (m, n), and the rank."""
     rows = np.asarray(rows, int)
     L = np.linalg.cholesky(Sigma[np.ix_(rows, rows)])
-    At = sla.solve_triangular(L, A[rows], lower=True)
-    Et = sla.solve_triangular(L, E[:, rows].T, lower=True)  # (k, m)
-    Q, _ = np.linalg.qr(At)
+    Linv = np.linalg.inv(L)
+    At = Linv @ A[rows]
+    Et = Linv @ E[:, rows].T  # (k, m)
+    Q, R = np.linalg.qr(At)
+    d = np.abs(np.diag(R))
+    rank = int(np.sum(d > 1e-10 * max(d.max(), 1e-300)))
     res = Et - Q @ (Q.T @ Et)
-    rank = np.linalg.matrix_rank(At)
     return np.einsum("km,km->m", res, res), rank
 
 
@@ -262,7 +267,7 @@ def _as_rng(rng):
 
 
 def rrr(model, rho: int, alpha: float = 0.001, n_sim: int = 100_000, rng=None, suspects=None,
-        active=None, chunk: int | None = None) -> RRRResult:
+        active=None, chunk: int | None = None, critical: float | None = None) -> RRRResult:
     """Recursive Residual Rejection on a :class:`~pipeline.stats.linear.LinearModel`.
 
     Parameters
@@ -276,6 +281,9 @@ def rrr(model, rho: int, alpha: float = 0.001, n_sim: int = 100_000, rng=None, s
         the Monte Carlo then keeps the same fixed suspects (no selection effect).
     active : optional (n,) bool; RRR then works on the active rows only.
     chunk : simulations per batch (memory); default ≈ 2e6 / n.
+    critical : optional critical value H to use instead of the Monte Carlo one (e.g. the paper's
+        0.993, to show what it implies); the Monte Carlo still runs for the p-values unless
+        ``n_sim = 0``.
     """
     act = np.ones(model.n, bool) if active is None else np.array(active, bool).reshape(-1)
     rows = np.flatnonzero(act)
@@ -354,17 +362,26 @@ def rrr(model, rho: int, alpha: float = 0.001, n_sim: int = 100_000, rng=None, s
         n_deg += int(deg.sum())
         stats_max.append(np.max(Hs[~deg], axis=1))
         done += m
-    M = np.sort(np.concatenate(stats_max))
+    M = np.sort(np.concatenate(stats_max)) if stats_max else np.zeros(0)
     mm = M.size
-    if mm == 0:
+    if n_sim > 0 and mm == 0:
         raise AdjustmentError("RRR: no simulated clean set determined the unknowns")
-    q = 1.0 - alpha
-    idx = min(int(np.ceil(q * mm)) - 1, mm - 1)
-    H = float(M[max(idx, 0)])
-    half = 1.96 * np.sqrt(mm * alpha * (1 - alpha))
-    lo = int(np.clip(np.floor(q * mm - half) - 1, 0, mm - 1))
-    hi = int(np.clip(np.ceil(q * mm + half) - 1, 0, mm - 1))
-    H_ci = (float(M[lo]), float(M[hi]))
+    if mm:
+        q = 1.0 - alpha
+        idx = min(int(np.ceil(q * mm)) - 1, mm - 1)
+        H_mc = float(M[max(idx, 0)])
+        half = 1.96 * np.sqrt(mm * alpha * (1 - alpha))
+        lo = int(np.clip(np.floor(q * mm - half) - 1, 0, mm - 1))
+        hi = int(np.clip(np.ceil(q * mm + half) - 1, 0, mm - 1))
+        H_ci = (float(M[lo]), float(M[hi]))
+    else:
+        H_mc, H_ci = float("nan"), (float("nan"), float("nan"))
+    if critical is None:
+        if not mm:
+            raise ValueError("rrr needs n_sim > 0 or an explicit critical value")
+        H = H_mc
+    else:
+        H = float(critical)
 
     # -------- the observed data
     S, Hobs, Wobs, joined, deg = path(data, H_crit=H)
@@ -377,7 +394,13 @@ def rrr(model, rho: int, alpha: float = 0.001, n_sim: int = 100_000, rng=None, s
                         for k in k_terms])
     p_naive = np.array([stats.beta.sf(h, 0.5, (k - 1) / 2.0) if k > 1 else 1.0
                         for h, k in zip(Hobs, k_terms)])
-    p_value = np.array([(1 + np.sum(M >= h)) / (mm + 1) for h in Hobs])
+    p_value = np.array([(1 + np.sum(M >= h)) / (mm + 1) if mm else np.nan for h in Hobs])
+    Sig_sub = Sigma if full else np.diag(1.0 / model.P[rows])
+    clean0 = [i for i in range(n) if i not in set(S.tolist())]
+    rss0, _ = _rss_subset(A, Sig_sub, clean0, l[None, :])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        H_exp_clean = np.array([1.0 - rss0[0] / _rss_subset(A, Sig_sub, clean0 + [int(s)],
+                                                              l[None, :])[0][0] for s in S])
 
     history = []
     clean = [i for i in range(n) if i not in set(S.tolist())]
@@ -392,7 +415,8 @@ def rrr(model, rho: int, alpha: float = 0.001, n_sim: int = 100_000, rng=None, s
         history.append({
             "suspect": str(labels[s]), "row": int(rows[s]), "nabla_hat": float(nab_all[s]),
             "clean": [str(labels[i]) for i in clean], "k_terms": int(k_terms[j]),
-            "recursive_residuals": rec.tolist(), "H_exp": float(Hobs[j]), "H": H,
+            "recursive_residuals": rec.tolist(), "H_exp": float(Hobs[j]),
+            "H_exp_initial_clean_set": float(H_exp_clean[j]), "H": H,
             "H_naive": float(H_naive[j]), "p_value": float(p_value[j]),
             "decision": "rejected" if rejected[j] else "accepted (rejoins the clean set)",
         })
@@ -401,7 +425,7 @@ def rrr(model, rho: int, alpha: float = 0.001, n_sim: int = 100_000, rng=None, s
 
     return RRRResult(
         suspects=[int(rows[s]) for s in S], suspect_labels=[str(labels[s]) for s in S],
-        nabla_hat=nab_all[S], H_exp=Hobs, H=H, H_ci=H_ci, H_naive=H_naive,
+        nabla_hat=nab_all[S], H_exp=Hobs, H_exp_clean=H_exp_clean, H=H, H_mc=H_mc, H_ci=H_ci, H_naive=H_naive,
         k_terms=np.asarray(k_terms), rejected=rejected, p_value=p_value, p_naive=p_naive,
         alpha=float(alpha), n_sim=n_sim, n_degenerate=n_deg, selection=selection,
         history=history, labels=model.labels)

@@ -40,9 +40,10 @@ def t_from_tau(tau, dof):
     """Inverse of :func:`tau_from_t` (|τ| < √dof; ±inf at the bounds)."""
     r = _dof(dof)
     tau = np.asarray(tau, dtype=float)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = tau * np.sqrt(r - 1) / np.sqrt(np.maximum(r - tau * tau, 0.0))
-    return np.where(np.abs(tau) >= np.sqrt(r), np.sign(tau) * np.inf, t)
+    inside = np.abs(tau) < np.sqrt(r)
+    ti = np.where(inside, tau, 0.0)
+    t = ti * np.sqrt(r - 1) / np.sqrt(r - ti * ti)
+    return np.where(inside, t, np.copysign(np.inf, tau))
 
 
 def cdf(tau, dof):
@@ -62,7 +63,8 @@ def pdf(tau, dof):
     inside = np.abs(tau) < np.sqrt(r)
     t = np.where(inside, t_from_tau(np.where(inside, tau, 0.0), r), 0.0)
     # dt/dτ = √(r−1) · r / (r − τ²)^{3/2}
-    jac = np.sqrt(r - 1) * r / np.maximum(r - tau * tau, 1e-300) ** 1.5
+    ti = np.where(inside, tau, 0.0)
+    jac = np.sqrt(r - 1) * r / (r - ti * ti) ** 1.5
     return np.where(inside, stats.t.pdf(t, r - 1) * jac, 0.0)
 
 
