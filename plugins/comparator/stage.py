@@ -1,0 +1,161 @@
+"""Source stage ``comparator``: read a mono-comparator file into a block.
+
+Format: docs/comparator-format.md.  Parsing (:mod:`.parser`), interior orientation numerics
+(:mod:`.interior`) and block building (:mod:`.block`) live in their own modules; this stage wires
+them together, applies the interior-orientation tolerance and writes the recording.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from pipeline.errors import InputError
+from pipeline.options import option
+from pipeline.stage import Context, Stage, StageResult, TableData
+
+from .block import build_block, interior_orientation, tolerance_violations
+from .parser import parse_comparator
+
+
+@dataclasses.dataclass(frozen=True)
+class ComparatorOptions:
+    path: Path = option(Path(""), "comparator file (docs/comparator-format.md), relative to the "
+                                  "project file (required)")
+    transform: Literal["file", "affine", "similarity"] = option(
+        "file", "interior orientation machine → fiducial system: 'file' uses the file's "
+                "'transform' line (default affine)")
+    io_tolerance_um: float = option(
+        20.0, "largest admissible fiducial residual (length of the residual vector, µm) after the "
+              "interior orientation")
+    on_tolerance: Literal["fail", "warn"] = option(
+        "fail", "what a fiducial beyond the tolerance does: stop with an error naming the photo and "
+                "fiducial, or warn and continue")
+
+    def __post_init__(self):
+        if not self.io_tolerance_um > 0:
+            raise ValueError(f"io_tolerance_um must be positive, got {self.io_tolerance_um}")
+
+
+class ComparatorSource(Stage):
+    summary = "Read mono-comparator measurements (fiducial or photo mode) with interior orientation"
+    reads = ()
+    writes = ("block",)
+    Options = ComparatorOptions
+
+    def run(self, inputs, options: ComparatorOptions, ctx: Context) -> StageResult:
+        if str(options.path) in ("", "."):
+            raise InputError("option 'path' is required: the comparator file to read",
+                             ctx.project_file, None, "path")
+        path = ctx.resolve(options.path)
+        parsed = parse_comparator(path)
+        interior = interior_orientation(parsed, None if options.transform == "file" else options.transform)
+        tol_mm = options.io_tolerance_um / 1000.0
+        violations = tolerance_violations(interior, tol_mm)
+        warnings = []
+        for v in violations:
+            fit = interior[v.photo].fit
+            msg = v.message(tol_mm, fit.kind, fit.sigma0_hat)
+            if options.on_tolerance == "fail":
+                raise InputError(msg, path, v.line, f"fid {v.fiducial}")
+            warnings.append(f"{path}:{v.line}: {msg}")
+            ctx.warn(f"{path}:{v.line}: {msg}")
+        for res in interior.values():
+            if res.fit.dof == 0:
+                text = (f"{path}:{res.photo_line}: photo {res.photo}: {len(res.fiducials)} fiducials give no "
+                        f"redundancy for the {res.fit.kind} interior orientation; it cannot be checked")
+                warnings.append(text)
+                ctx.warn(text)
+        block = build_block(parsed, interior)
+        return StageResult(
+            artefacts={"block": block},
+            summary={**block.summary(), "file": str(path), "mode": parsed.mode, "unit": parsed.unit,
+                     "interior_orientation": {k: r.report() for k, r in interior.items()},
+                     "io_tolerance_um": options.io_tolerance_um,
+                     "io_violations": [dataclasses.asdict(v) for v in violations],
+                     "warnings": warnings},
+            report=_report(parsed, block, interior, violations, options, warnings),
+            tables=_tables(block, interior, tol_mm),
+            data={"block": block, "interior": interior, "tolerance_mm": tol_mm},
+        )
+
+    def log(self, result: StageResult, rec, ctx: Context) -> None:
+        import rerun as rr
+
+        block = result.data["block"]
+        obs = block.observations
+        for i, pid in enumerate(block.photos.ids):
+            sel = obs.photo == i
+            if sel.any():
+                rec.log(f"photos/{pid}/points",
+                        rr.Points2D(obs.xy[sel], labels=block.points.ids[obs.point[sel]].tolist(), radii=0.5))
+            fmt = block.cameras.format_mm[block.photos.camera[i]]
+            if np.isfinite(fmt).all():
+                w, h = fmt / 2
+                rec.log(f"photos/{pid}/format", rr.LineStrips2D([[[-w, -h], [w, -h], [w, h], [-w, h], [-w, -h]]]))
+            res = result.data["interior"].get(pid)
+            if res is not None:
+                scale = 1000.0  # residual arrows drawn 1000× (1 µm shown as 1 mm)
+                colors = [[220, 40, 40] if n > result.data["tolerance_mm"] else [40, 160, 40]
+                          for n in res.fit.residual_norm]
+                rec.log(f"photos/{pid}/fiducials",
+                        rr.Arrows2D(origins=res.calibrated - res.fit.residuals,
+                                    vectors=res.fit.residuals * scale, labels=list(res.fiducials),
+                                    colors=colors))
+                rec.log(f"photos/{pid}/interior_orientation",
+                        rr.AnyValues(sigma0_hat_um=float(res.fit.sigma0_hat * 1000), dof=res.fit.dof,
+                                     arrow_scale=scale))
+
+
+def _report(parsed, block, interior, violations, options, warnings) -> str:
+    s = block.summary()
+    lines = [f"Read `{parsed.path}` ({parsed.mode} mode, comparator unit {parsed.unit}): "
+             f"{s['cameras']} camera(s), {s['photos']} photo(s), {s['points']} point(s), "
+             f"{s['observations']} observation(s), {s['pairs']} pair(s).", ""]
+    if interior:
+        lines += [f"Interior orientation ({next(iter(interior.values())).fit.kind}), tolerance "
+                  f"{options.io_tolerance_um:g} µm:", "",
+                  "| photo | fiducials | dof | σ̂0 µm | largest residual µm (fiducial) |",
+                  "|---|---|---|---|---|"]
+        for r in interior.values():
+            k = int(np.argmax(r.fit.residual_norm))
+            s0 = "—" if math.isnan(r.fit.sigma0_hat) else f"{r.fit.sigma0_hat * 1000:.1f}"
+            lines.append(f"| {r.photo} | {len(r.fiducials)} | {r.fit.dof} | {s0} | "
+                         f"{r.fit.residual_norm[k] * 1000:.1f} ({r.fiducials[k]}) |")
+        lines.append("")
+    else:
+        lines += ["Photo-coordinate mode: coordinates are already in mm; no interior orientation.", ""]
+    for w in warnings:
+        lines.append(f"- warning: {w}")
+    return "\n".join(lines)
+
+
+def _tables(block, interior, tol_mm) -> dict:
+    tables = {}
+    if interior:
+        cols = {k: [] for k in ("photo", "fiducial", "line", "vx_um", "vy_um", "norm_um", "beyond_tolerance")}
+        for r in interior.values():
+            for f, ln, v, n in zip(r.fiducials, r.lines, r.fit.residuals, r.fit.residual_norm):
+                cols["photo"].append(r.photo)
+                cols["fiducial"].append(f)
+                cols["line"].append(ln)
+                cols["vx_um"].append(round(float(v[0]) * 1000, 3))
+                cols["vy_um"].append(round(float(v[1]) * 1000, 3))
+                cols["norm_um"].append(round(float(n) * 1000, 3))
+                cols["beyond_tolerance"].append(bool(n > tol_mm))
+        tables["interior"] = TableData(cols, "fiducial residuals of the interior orientation "
+                                             "(calibrated − transformed, µm)")
+    obs = block.observations
+    lines = block.meta.get("source_lines", {})
+    tables["observations"] = TableData({
+        "photo": block.photos.ids[obs.photo].tolist(),
+        "point": block.points.ids[obs.point].tolist(),
+        "x_mm": obs.xy[:, 0].tolist(), "y_mm": obs.xy[:, 1].tolist(),
+        "sx_mm": np.sqrt(obs.cov[:, 0, 0]).tolist(), "sy_mm": np.sqrt(obs.cov[:, 1, 1]).tolist(),
+        "line": [lines.get((int(p), int(q)), ("", None))[1] for p, q in zip(obs.photo, obs.point)],
+    }, "image observations in the image system (mm)")
+    return tables
