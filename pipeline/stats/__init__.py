@@ -13,7 +13,8 @@ from pipeline.stats.critical import (alpha_prime, critical_normal, delta0, globa
                                      w_power)
 from pipeline.stats.ids import IDSResult, IDSStep, iterated_data_snooping
 from pipeline.stats.joint import JointTestResult, joint_test_2d
-from pipeline.stats.linear import LinearAdjustment, LinearModel, factor_normal_equations
+from pipeline.stats.linear import (LinearAdjustment, LinearModel, factor_normal_equations,
+                                   solve_normal)
 from pipeline.stats.pope import (PopeIteratedResult, PopeResult, PopeStep, pope_iterated,
                                  pope_test)
 from pipeline.stats.rrr import RRRResult, recursive_residuals, rrr
@@ -23,7 +24,7 @@ from pipeline.stats.tau_distribution import tau_critical
 
 __all__ = [
     "Snapshot", "Refittable", "snapshot_from_arrays",
-    "LinearModel", "LinearAdjustment", "factor_normal_equations",
+    "LinearModel", "LinearAdjustment", "factor_normal_equations", "solve_normal",
     "delta0", "critical_normal", "alpha_prime", "global_power", "w_power",
     "GlobalTestResult", "global_test", "w_test", "estimated_errors", "mdb", "controlled",
     "DataSnoopingResult", "data_snooping", "ExternalReliability", "external_reliability",

@@ -8,22 +8,18 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.stats.snapshot import Snapshot
+from pipeline.stats.snapshot import Snapshot, group_rows, pair_rows
 
 __all__ = ["snapshot_from_arrays"]
 
 
 def _pair_rows(group: np.ndarray, n_blocks: int, name: str) -> tuple[np.ndarray, np.ndarray]:
-    pos = np.flatnonzero(group >= 0)
-    order = pos[np.argsort(group[pos], kind="stable")]
-    gs = group[order]
-    starts = np.flatnonzero(np.r_[True, gs[1:] != gs[:-1]]) if gs.size else np.zeros(0, int)
-    counts = np.diff(np.r_[starts, gs.size])
+    ids, _, counts, _ = group_rows(group)
     if np.any(counts != 2):
         raise ValueError(f"{name}: every group id >= 0 must have exactly two rows")
-    if starts.size != n_blocks:
-        raise ValueError(f"{name}: {n_blocks} blocks for {starts.size} groups")
-    return gs[starts], np.stack([order[starts], order[starts + 1]], axis=1)
+    if ids.size != n_blocks:
+        raise ValueError(f"{name}: {n_blocks} blocks for {ids.size} groups")
+    return pair_rows(group)
 
 
 def snapshot_from_arrays(v, dof: int, *, p=None, P_blocks=None, qvv=None, Qvv_blocks=None,

@@ -28,7 +28,7 @@ from pipeline.stats.critical import delta0 as _delta0
 from pipeline.stats.snapshot import Snapshot
 
 __all__ = [
-    "GlobalTestResult", "DataSnoopingResult", "ExternalReliability",
+    "RowTestResult", "GlobalTestResult", "DataSnoopingResult", "ExternalReliability",
     "global_test", "w_test", "estimated_errors", "mdb", "data_snooping", "external_reliability",
     "controlled",
 ]
@@ -44,6 +44,18 @@ def controlled(snap: Snapshot) -> np.ndarray:
     """
     rel = snap.PQvvP * (snap.sigma_l / snap.sigma0) ** 2
     return snap.active & (rel > R_MIN)
+
+
+class RowTestResult:
+    """Shared helpers of row-wise test results (needs ``labels``, ``flagged``, ``largest``)."""
+
+    @property
+    def flagged_labels(self) -> list[str]:
+        return [str(s) for s in self.labels[self.flagged]]
+
+    def _largest(self, name: str, values: np.ndarray) -> dict | None:
+        i = self.largest
+        return None if i is None else {"row": i, "label": str(self.labels[i]), name: float(values[i])}
 
 
 @dataclass(frozen=True)
@@ -138,7 +150,7 @@ def mdb(snap: Snapshot, delta0: float | None = None) -> np.ndarray:
 
 
 @dataclass(frozen=True, eq=False)
-class DataSnoopingResult:
+class DataSnoopingResult(RowTestResult):
     """Data snooping (Baarda): all rows tested with the w-test at one critical value."""
 
     w: np.ndarray
@@ -153,18 +165,11 @@ class DataSnoopingResult:
     delta0: float
     labels: np.ndarray = field(repr=False)
 
-    @property
-    def flagged_labels(self) -> list[str]:
-        return [str(s) for s in self.labels[self.flagged]]
-
     def summary(self) -> dict:
-        i = self.largest
         return {
             "critical": self.critical, "alpha0": self.alpha0, "beta0": self.beta0,
             "delta0": self.delta0, "n_flagged": int(self.flagged.sum()),
-            "flagged": self.flagged_labels,
-            "largest": None if i is None else {"row": i, "label": str(self.labels[i]),
-                                               "w": float(self.w[i])},
+            "flagged": self.flagged_labels, "largest": self._largest("w", self.w),
         }
 
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
-from pipeline.stats.snapshot import Snapshot
+from pipeline.stats.snapshot import Snapshot, pair_rows
 
 __all__ = ["JointTestResult", "joint_test_2d"]
 
@@ -42,21 +42,9 @@ class JointTestResult:
                 "flagged": [[str(self.labels[i]) for i in r] for r in self.rows[self.flagged]]}
 
 
-def _pairs(snap: Snapshot):
-    """Group ids with exactly two active rows and their row indices (vectorised)."""
-    grp = np.where(snap.active, snap.group, -1)
-    pos = np.flatnonzero(grp >= 0)
-    order = pos[np.argsort(grp[pos], kind="stable")]
-    gs = grp[order]
-    starts = np.flatnonzero(np.r_[True, gs[1:] != gs[:-1]]) if gs.size else np.zeros(0, int)
-    counts = np.diff(np.r_[starts, gs.size])
-    two = starts[counts == 2]
-    return gs[two], np.stack([order[two], order[two + 1]], axis=1) if two.size else np.zeros((0, 2), int)
-
-
 def joint_test_2d(snap: Snapshot, alpha: float = 0.001) -> JointTestResult:
     """Joint χ²(2) test of every group with two active rows (image point x, y)."""
-    groups, rows = _pairs(snap)
+    groups, rows = pair_rows(np.where(snap.active, snap.group, -1))
     blocks = snap.PQvvP_blocks or {}
     missing = [int(g) for g in groups if int(g) not in blocks]
     if missing:

@@ -23,9 +23,9 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 
 from pipeline.errors import AdjustmentError
-from pipeline.stats.snapshot import Snapshot
+from pipeline.stats.snapshot import Snapshot, pair_rows
 
-__all__ = ["LinearModel", "LinearAdjustment", "factor_normal_equations"]
+__all__ = ["LinearModel", "LinearAdjustment", "factor_normal_equations", "solve_normal"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -318,17 +318,10 @@ class LinearModel:
     def _blocks(self, idx, Pa, B, Qxx) -> dict | None:
         """2×2 blocks of P Qvv P for groups with exactly two active rows."""
         grp = self.group[idx]
-        if not np.any(grp >= 0):
+        gids, pairs = pair_rows(grp)
+        if gids.size == 0:
             return None
-        pos = np.flatnonzero(grp >= 0)
-        order = pos[np.argsort(grp[pos], kind="stable")]
-        g_sorted = grp[order]
-        starts = np.flatnonzero(np.r_[True, g_sorted[1:] != g_sorted[:-1]])
-        counts = np.diff(np.r_[starts, g_sorted.size])
-        two = starts[counts == 2]
-        if two.size == 0:
-            return None
-        i0, i1 = order[two], order[two + 1]  # local (active) row indices, increasing order
+        i0, i1 = pairs[:, 0], pairs[:, 1]  # local (active) row indices, increasing order
         Bd = B.toarray() if sp.issparse(B) else np.asarray(B)
         BQ0, BQ1 = Bd[i0] @ Qxx, Bd[i1] @ Qxx
         q00 = np.einsum("ij,ij->i", BQ0, Bd[i0])

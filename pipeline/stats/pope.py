@@ -15,14 +15,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.stats import tau_distribution
-from pipeline.stats.baarda import controlled, w_test
+from pipeline.stats.baarda import RowTestResult, controlled, w_test
 from pipeline.stats.snapshot import Refittable, Snapshot
 
 __all__ = ["PopeResult", "PopeStep", "PopeIteratedResult", "pope_test", "pope_iterated"]
 
 
 @dataclass(frozen=True, eq=False)
-class PopeResult:
+class PopeResult(RowTestResult):
     tau: np.ndarray  # (n,) 0 on inactive/uncontrolled rows
     critical: float
     flagged: np.ndarray
@@ -32,16 +32,10 @@ class PopeResult:
     largest: int | None
     labels: np.ndarray = field(repr=False)
 
-    @property
-    def flagged_labels(self) -> list[str]:
-        return [str(s) for s in self.labels[self.flagged]]
-
     def summary(self) -> dict:
-        i = self.largest
         return {"critical": self.critical, "alpha": self.alpha, "dof": self.dof,
                 "sigma0_hat": self.sigma0_hat, "flagged": self.flagged_labels,
-                "largest": None if i is None else {"row": i, "label": str(self.labels[i]),
-                                                   "tau": float(self.tau[i])}}
+                "largest": self._largest("tau", self.tau)}
 
 
 def pope_test(snap: Snapshot, alpha: float = 0.001, familywise: bool = False) -> PopeResult:

@@ -103,6 +103,31 @@ class Snapshot:
         return float(np.sqrt(self.vtpv / self.dof)) if self.dof > 0 else float("nan")
 
 
+def group_rows(group: np.ndarray):
+    """Groups (ids >= 0) of a row-group vector, vectorised.
+
+    Returns ``(ids, starts, counts, order)``: ``order`` lists the grouped rows sorted by group id
+    (stable, so rows of one group stay in increasing row order); group k occupies
+    ``order[starts[k] : starts[k] + counts[k]]``.
+    """
+    group = np.asarray(group)
+    pos = np.flatnonzero(group >= 0)
+    order = pos[np.argsort(group[pos], kind="stable")]
+    gs = group[order]
+    starts = np.flatnonzero(np.r_[True, gs[1:] != gs[:-1]]) if gs.size else np.zeros(0, int)
+    counts = np.diff(np.r_[starts, gs.size]).astype(int)
+    return gs[starts], starts, counts, order
+
+
+def pair_rows(group: np.ndarray):
+    """Group ids with exactly two rows and their rows ``(m, 2)`` in increasing row order."""
+    ids, starts, counts, order = group_rows(group)
+    two = counts == 2
+    rows = np.stack([order[starts[two]], order[starts[two] + 1]], axis=1) if two.any() \
+        else np.zeros((0, 2), int)
+    return ids[two], rows
+
+
 class Refittable(Protocol):
     """An adjustment that can be recomputed with a different set of active rows."""
 
