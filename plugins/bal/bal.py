@@ -1,0 +1,175 @@
+"""BAL ("Bundle Adjustment in the Large") text problems → :class:`pipeline.model.Block`.
+
+File layout (Agarwal et al. 2010): a header ``n_cams n_pts n_obs``; ``n_obs`` lines ``cam pt x y``
+(pixels, origin at the image centre, x right, y up); ``9 n_cams`` camera parameters (Rodrigues
+``r`` (3), ``t`` (3), ``f``, ``k1``, ``k2``); ``3 n_pts`` point coordinates.  Parameters may be one
+per line (the original files) or several per line.
+
+BAL's camera model::
+
+    P = R(r) X + t,   p = −P / P_z,   p' = f (1 + k1 ‖p‖² + k2 ‖p‖⁴) p
+
+Its camera frame is baarda's image-space frame (x right, y up, z back: the camera looks down −Z),
+so ``R_cam_from_world = R(r)`` and ``X0 = −R(r)ᵀ t``; with pitch ``s`` (mm per pixel) and
+``c = f s`` the radial term is the brown model at the ideal point with ``K1 = k1/c²``,
+``K2 = k2/c⁴`` — exactly (``docs/bal-libmv.md``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.errors import InputError
+from pipeline.geometry import opk_from_rotation
+from pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points
+
+from plugins.colmap_io.convert import BROWN
+
+
+@dataclass(frozen=True, eq=False)
+class BalProblem:
+    """The arrays of a BAL file, as in the file (pixels, BAL's parameters)."""
+
+    cam: np.ndarray        # (k,) int
+    pt: np.ndarray         # (k,) int
+    xy: np.ndarray         # (k, 2) pixels, origin image centre, y up
+    cameras: np.ndarray    # (n_cams, 9) r, t, f, k1, k2
+    points: np.ndarray     # (n_pts, 3)
+    path: str = ""
+
+
+def _number(tok: str, path, line: int, what: str) -> float:
+    try:
+        return float(tok)
+    except ValueError:
+        raise InputError(f"expected a number for {what}, got {tok!r}", path=path, line=line, field=what) from None
+
+
+def _int(tok: str, path, line: int, what: str) -> int:
+    try:
+        return int(tok)
+    except ValueError:
+        raise InputError(f"expected an integer for {what}, got {tok!r}", path=path, line=line, field=what) from None
+
+
+def read_bal(path: str | Path) -> BalProblem:
+    """Parse a BAL text file; every format error is an InputError naming the line and field."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="ascii", errors="strict")
+    except FileNotFoundError:
+        raise InputError("BAL file not found", path=path) from None
+    except (UnicodeDecodeError, IsADirectoryError) as e:
+        raise InputError(f"not a BAL text file ({type(e).__name__})", path=path) from None
+    lines = text.splitlines()
+    # skip leading blank lines for the header
+    ln = 0
+    while ln < len(lines) and not lines[ln].strip():
+        ln += 1
+    if ln == len(lines):
+        raise InputError("empty file; expected the header 'n_cams n_pts n_obs'", path=path, line=1)
+    head = lines[ln].split()
+    if len(head) != 3:
+        raise InputError(f"header must be 'n_cams n_pts n_obs', got {lines[ln].strip()!r}", path=path,
+                         line=ln + 1, field="header")
+    n_cams, n_pts, n_obs = (_int(t, path, ln + 1, f) for t, f in zip(head, ("n_cams", "n_pts", "n_obs")))
+    if min(n_cams, n_pts, n_obs) < 0:
+        raise InputError("negative count in the header", path=path, line=ln + 1, field="header")
+    ln += 1
+
+    cam = np.empty(n_obs, int)
+    pt = np.empty(n_obs, int)
+    xy = np.empty((n_obs, 2))
+    for i in range(n_obs):
+        if ln >= len(lines):
+            raise InputError(f"file ends after {i} of {n_obs} observation lines (truncated?)", path=path,
+                             line=ln + 1, field="observation")
+        tok = lines[ln].split()
+        if len(tok) != 4:
+            raise InputError(f"observation line must be 'cam pt x y', got {lines[ln].strip()!r}", path=path,
+                             line=ln + 1, field="observation")
+        cam[i] = _int(tok[0], path, ln + 1, "cam")
+        pt[i] = _int(tok[1], path, ln + 1, "pt")
+        xy[i, 0] = _number(tok[2], path, ln + 1, "x")
+        xy[i, 1] = _number(tok[3], path, ln + 1, "y")
+        if not (0 <= cam[i] < n_cams):
+            raise InputError(f"camera index {cam[i]} out of range 0…{n_cams - 1}", path=path, line=ln + 1, field="cam")
+        if not (0 <= pt[i] < n_pts):
+            raise InputError(f"point index {pt[i]} out of range 0…{n_pts - 1}", path=path, line=ln + 1, field="pt")
+        ln += 1
+
+    need = 9 * n_cams + 3 * n_pts
+    values = np.empty(need)
+    k = 0
+    while k < need:
+        if ln >= len(lines):
+            what = (f"camera {k // 9} parameter {k % 9 + 1} of 9" if k < 9 * n_cams
+                    else f"point {(k - 9 * n_cams) // 3} coordinate {(k - 9 * n_cams) % 3 + 1} of 3")
+            raise InputError(f"file ends before {what} (read {k} of {need} parameter values; truncated?)",
+                             path=path, line=ln + 1, field="camera" if k < 9 * n_cams else "point")
+        for tok in lines[ln].split():
+            if k >= need:
+                raise InputError("more values than the header announces", path=path, line=ln + 1)
+            values[k] = _number(tok, path, ln + 1, "camera parameter" if k < 9 * n_cams else "point coordinate")
+            k += 1
+        ln += 1
+    if any(s.strip() for s in lines[ln:]):
+        extra = ln + next(i for i, s in enumerate(lines[ln:]) if s.strip()) + 1
+        raise InputError("more values than the header announces", path=path, line=extra)
+    return BalProblem(cam=cam, pt=pt, xy=xy, cameras=values[:9 * n_cams].reshape(n_cams, 9),
+                      points=values[9 * n_cams:].reshape(n_pts, 3), path=str(path))
+
+
+def rotation_from_rodrigues(r) -> np.ndarray:
+    """Rotation matrices ``(m, 3, 3)`` of angle-axis vectors ``r (m, 3)`` (``P = R X`` rotates by ``r``)."""
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_rotvec(np.asarray(r, float).reshape(-1, 3)).as_matrix()
+
+
+def block_from_bal(problem: BalProblem, *, pixel_mm: float = 0.001, sigma_px: float = 1.0,
+                   intrinsics: str = "free", object_unit: str = "m") -> Block:
+    """One baarda camera and one photo per BAL camera; brown ``K1 = k1/c²``, ``K2 = k2/c⁴``.
+
+    intrinsics : ``"free"`` — c, K1, K2 unknown per camera (as BAL problems are solved), principal
+        point fixed at the image centre; ``"fixed"`` — all interior parameters held.
+    """
+    if intrinsics not in ("free", "fixed"):
+        raise ValueError(f"intrinsics must be 'free' or 'fixed', got {intrinsics!r}")
+    P = problem.cameras
+    m = len(P)
+    f = P[:, 6]
+    if np.any(f <= 0):
+        bad = int(np.flatnonzero(f <= 0)[0])
+        raise InputError(f"camera {bad}: focal length f = {f[bad]:g} must be > 0", path=problem.path, field="f")
+    c = f * pixel_mm
+    ap = np.zeros((m, len(BROWN)))
+    ap[:, 0] = P[:, 7] / c**2
+    ap[:, 1] = P[:, 8] / c**4
+    free = FREE if intrinsics == "free" else FIXED
+    sigma_ap = np.zeros_like(ap)
+    sigma_ap[:, :2] = free
+    cameras = Cameras.make([str(i) for i in range(m)], c, 0.0, 0.0, ap_model="brown", ap=ap,
+                           sigma_iop=[free, FIXED, FIXED], sigma_ap=sigma_ap, pixel_mm=pixel_mm)
+    R = rotation_from_rodrigues(P[:, :3])
+    X0 = -np.einsum("mji,mj->mi", R, P[:, 3:6])
+    opk = np.array([opk_from_rotation(Rk) for Rk in R]).reshape(-1, 3)
+    photos = Photos.make([str(i) for i in range(m)], camera=np.arange(m), X0=X0, opk=opk)
+    points = Points.make([str(j) for j in range(len(problem.points))], XYZ=problem.points, role="tie")
+    obs = Observations.make(problem.cam, problem.pt, problem.xy * pixel_mm, sigma=sigma_px * pixel_mm)
+    return Block(cameras=cameras, photos=photos, points=points, observations=obs, object_unit=object_unit,
+                 meta={"source": problem.path, "bal": {"format": "bal", "pixel_mm": pixel_mm}})
+
+
+def bal_reprojection(problem: BalProblem) -> np.ndarray:
+    """Residuals ``observed − predicted`` (pixels, ``(k, 2)``) with BAL's own camera model."""
+    P = problem.cameras[problem.cam]
+    R = rotation_from_rodrigues(P[:, :3])
+    Pc = np.einsum("kij,kj->ki", R, problem.points[problem.pt]) + P[:, 3:6]
+    p = -Pc[:, :2] / Pc[:, 2:3]
+    r2 = (p**2).sum(axis=1)
+    scale = P[:, 6] * (1 + P[:, 7] * r2 + P[:, 8] * r2**2)
+    return problem.xy - scale[:, None] * p

@@ -1,0 +1,99 @@
+"""OpenCV helpers on planar-target detections: start values and the ``cv2.calibrateCamera`` reference.
+
+Everything here works in OpenCV pixels (``"opencv"`` convention) and OpenCV's board frame; results
+are converted to baarda's conventions with :mod:`plugins.colmap_io.convert` and
+:data:`plugins.targets.boards.F_BOARD`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from plugins.colmap_io.convert import brown_from_opencv, mm_from_pixels, pixels_from_mm, pose_from_cv
+
+from .boards import F_BOARD
+
+
+def initial_focal_px(object_xyz: list[np.ndarray], uv: list[np.ndarray], size: tuple[int, int]) -> float | None:
+    """Focal length (pixels) from the homographies of planar views (:func:`cv2.initCameraMatrix2D`).
+
+    ``object_xyz`` in baarda's board frame (Z = 0); needs at least one view with ≥ 4 points.
+    Returns None when OpenCV cannot estimate it.
+    """
+    import cv2
+
+    views = [(np.asarray(X, np.float32) @ F_BOARD.astype(np.float32), np.asarray(p, np.float32))
+             for X, p in zip(object_xyz, uv) if len(X) >= 4]
+    if not views:
+        return None
+    try:
+        K = cv2.initCameraMatrix2D([v[0] for v in views], [v[1] for v in views], tuple(int(s) for s in size))
+    except cv2.error:
+        return None
+    f = float(np.sqrt(K[0, 0] * K[1, 1]))
+    return f if np.isfinite(f) and f > 0 else None
+
+
+def resect(object_xyz: np.ndarray, uv: np.ndarray, f_px: float, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray] | None:
+    """Approximate ``(X0, opk)`` (baarda) of one photo by :func:`cv2.solvePnP` (no distortion,
+    principal point at the image centre).  None when it fails."""
+    import cv2
+
+    X = np.asarray(object_xyz, float)
+    if len(X) < 4:
+        return None
+    w, h = size
+    K = np.array([[f_px, 0, (w - 1) / 2], [0, f_px, (h - 1) / 2], [0, 0, 1]], float)
+    try:
+        ok, rvec, tvec = cv2.solvePnP(X, np.asarray(uv, float), K, None)
+    except cv2.error:
+        return None
+    if not ok:
+        return None
+    R, _ = cv2.Rodrigues(rvec)
+    return pose_from_cv(R, tvec.ravel())
+
+
+def opencv_calibration(block, camera: int = 0, flags: int = 0, fix_aspect: bool = False) -> dict:
+    """``cv2.calibrateCamera`` on the control-point observations of one camera of a block.
+
+    Uses every photo of the camera with ≥ 6 observations of points with known coordinates (board
+    frame, Z = 0); image coordinates are converted back to OpenCV pixels.  Returns the OpenCV result
+    (``fx, fy, cx, cy`` px, ``dist`` (k1, k2, p1, p2, k3), ``rms_px`` as OpenCV reports it — the
+    RMS over all x and y residual *pairs*, i.e. √(Σ(vx² + vy²)/n_points)), the views used, and
+    the same camera in baarda's terms (``c, xp, yp`` mm and brown ``ap``, exact when fx = fy).
+    ``fix_aspect`` adds ``CALIB_FIX_ASPECT_RATIO`` with fx/fy = 1: then OpenCV's camera model is
+    exactly baarda's brown model with B1 = B2 = 0.
+    """
+    import cv2
+
+    cams, ph, obs, pts = block.cameras, block.photos, block.observations, block.points
+    size = tuple(int(v) for v in cams.resolution[camera])
+    pitch = float(cams.pixel_mm[camera])
+    known = np.isfinite(pts.XYZ).all(axis=1)
+    obj, img, used = [], [], []
+    for k in np.flatnonzero(ph.camera == camera):
+        rows = np.flatnonzero((obs.photo == k) & obs.active & known[obs.point])
+        if rows.size < 6:
+            continue
+        obj.append((pts.XYZ[obs.point[rows]] @ F_BOARD).astype(np.float32))
+        img.append(pixels_from_mm(obs.xy[rows], size, pitch, "opencv").astype(np.float32))
+        used.append(str(ph.ids[k]))
+    if len(obj) < 2:
+        raise ValueError(f"camera {cams.ids[camera]}: cv2.calibrateCamera needs ≥ 2 views with ≥ 6 control "
+                         f"observations, have {len(obj)}")
+    K0 = None
+    if fix_aspect:
+        flags |= cv2.CALIB_FIX_ASPECT_RATIO
+        K0 = np.eye(3)                      # only the ratio fx/fy = 1 is taken from it
+    rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(obj, img, size, K0, None, flags=flags)
+    dist = np.asarray(dist, float).ravel()
+    dist = np.concatenate([dist, np.zeros(max(0, 5 - dist.size))])
+    k1, k2, p1, p2, k3 = dist[:5]
+    c, ap = brown_from_opencv(K[0, 0], K[1, 1], pitch, k1=k1, k2=k2, p1=p1, p2=p2, k3=k3)
+    xp, yp = mm_from_pixels([K[0, 2], K[1, 2]], size, pitch, "opencv")
+    n_points = sum(len(o) for o in obj)
+    return {"fx": float(K[0, 0]), "fy": float(K[1, 1]), "cx": float(K[0, 2]), "cy": float(K[1, 2]),
+            "dist": dist[:5].tolist(), "rms_px": float(rms), "views": used, "n_points": int(n_points),
+            "c_mm": float(c), "xp_mm": float(xp), "yp_mm": float(yp), "brown": ap.tolist(),
+            "rvecs": [np.asarray(r).ravel() for r in rvecs], "tvecs": [np.asarray(t).ravel() for t in tvecs]}

@@ -1,0 +1,374 @@
+"""Stage ``opencv-targets``: detect targets in images and emit a block of image observations.
+
+Per image: read (grayscale), detect, convert pixels to mm with the camera's pitch and format
+(``docs/conventions.md``: ``x = (u − (W−1)/2) p``, ``y = −(v − (H−1)/2) p``), attach the a-priori
+sigma of the target type.  A known board gives full control points (Z = 0) and approximate photo
+orientations (``cv2.solvePnP``).  A problem with one image (unreadable, nothing found, too few
+points, other size) is a warning and the image is skipped; only "no usable image at all" fails.
+"""
+
+from __future__ import annotations
+
+import glob
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from pipeline.errors import InputError
+from pipeline.geometry import rotation_from_opk
+from pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points
+from pipeline.options import option
+from pipeline.stage import Context, Stage, StageResult, TableData
+
+from plugins.colmap_io.convert import BROWN, mm_from_pixels, pixels_from_mm, project_block
+
+from .boards import BoardGeometry, aruco_dictionary, object_points
+from .calib import initial_focal_px, opencv_calibration, resect
+from .detect import (DEFAULT_SIGMA_PX, Detection, detect_aruco, detect_blobs, detect_charuco, detect_chessboard,
+                     detect_circles_grid, detector_parameters, match_to_predicted)
+
+IOP = ("c", "xp", "yp")
+
+
+@dataclass(frozen=True)
+class TargetOptions:
+    images: list[str] = option([], "image files or glob patterns, relative to the project file")
+    target: Literal["chessboard", "charuco", "aruco", "circles-grid", "circles"] = option(
+        "chessboard", "target type; 'circles' takes ids from the layout of an input block (matching)")
+    squares: list[int] = option([], "chessboard / ChArUco: squares along x and y (OpenCV's 9×6 inner-corner "
+                                    "sample board is [10, 7])")
+    square_size: float = option(0.0, "side of a square (circle grid: centre spacing), in 'unit'")
+    marker_size: float = option(0.0, "side of an ArUco marker (ChArUco, ArUco grid), in 'unit'")
+    marker_separation: float = option(0.0, "ArUco grid board: gap between markers, in 'unit'")
+    markers: list[int] = option([], "ArUco grid board: markers along x and y; empty: single markers (tie points)")
+    circles: list[int] = option([], "circle grid: circles per row and rows [cols, rows]")
+    asymmetric: bool = option(False, "circle grid with every other row offset (OpenCV's asymmetric grid)")
+    dictionary: str = option("DICT_6X6_250", "ArUco dictionary (ChArUco, ArUco)")
+    legacy_pattern: bool = option(False, "ChArUco board printed with OpenCV < 4.6 (even number of rows)")
+    detector_params: str = option("", "YAML file of ArUco detector parameters (default: OpenCV's defaults "
+                                      "with subpixel corner refinement)")
+    chessboard_method: Literal["auto", "sb", "classic"] = option(
+        "auto", "chessboard detector: findChessboardCornersSB, findChessboardCorners + cornerSubPix, or sb then classic")
+    unit: Literal["mm", "m", "cm"] = option("mm", "unit of the board lengths = the block's object unit")
+    pixel_mm: float = option(0.001, "camera pixel pitch, mm (default 1 µm: µm in reports read as pixels)")
+    principal_distance_mm: float = option(0.0, "principal distance guess, mm; 0: estimated from the board "
+                                               "(cv2.initCameraMatrix2D) or, without one, the image width")
+    camera_from_name: str = option("", "regular expression on the file name whose first group (or match) "
+                                       "names the camera, e.g. '^(left|right)'; empty: one camera 'cam'")
+    ap_model: Literal["brown", "none"] = option("brown", "additional-parameter model of the cameras")
+    unknowns: list[str] = option(["c", "xp", "yp", "K1", "K2", "K3", "P1", "P2"],
+                                 "interior parameters that are unknowns (self-calibration); the others are fixed")
+    sigma_px: float = option(0.0, "a-priori sigma of an image coordinate, pixels; 0: per target type "
+                                  "(ChArUco/chessboard 0.05, ArUco corners 0.2, circles 0.07)")
+    min_points: int = option(4, "images with fewer detected points are skipped (warning)")
+    match_radius_px: float = option(10.0, "'circles': largest distance of a blob from its predicted position")
+    polarity: Literal["auto", "dark", "light"] = option("auto", "'circles': dark dots, light dots or both")
+    opencv_reference: bool = option(True, "with a known board: also run cv2.calibrateCamera per camera and report it")
+    log_max_size: int = option(800, "longest side of the images logged to rerun, pixels")
+
+    def __post_init__(self):
+        if self.pixel_mm <= 0:
+            raise ValueError("pixel_mm must be > 0")
+        bad = sorted(set(self.unknowns) - set(IOP) - set(BROWN))
+        if bad:
+            raise ValueError(f"unknown interior parameter(s) {bad} in 'unknowns'; known: {', '.join(IOP + BROWN)}")
+        if self.camera_from_name:
+            try:
+                re.compile(self.camera_from_name)
+            except re.error as e:
+                raise ValueError(f"camera_from_name is not a regular expression: {e}") from None
+        self.geometry()   # validates the board options
+        if self.target in ("aruco", "charuco"):
+            aruco_dictionary(self.dictionary)
+
+    def geometry(self) -> BoardGeometry:
+        two = lambda v: tuple(int(x) for x in v) if len(v) == 2 else (0, 0)
+        if any(len(v) not in (0, 2) for v in (self.squares, self.markers, self.circles)):
+            raise ValueError("squares, markers and circles take two numbers [x, y]")
+        return BoardGeometry(self.target, squares=two(self.squares), square_size=self.square_size,
+                             marker_size=self.marker_size, marker_separation=self.marker_separation,
+                             markers=two(self.markers), circles=two(self.circles), asymmetric=self.asymmetric,
+                             dictionary=self.dictionary, legacy_pattern=self.legacy_pattern)
+
+
+def find_images(patterns: list[str], base: Path) -> list[Path]:
+    """Files matching the patterns (sorted per pattern, first occurrence kept)."""
+    out, seen = [], set()
+    for pat in patterns:
+        p = Path(pat).expanduser()
+        full = p if p.is_absolute() else base / p
+        hits = sorted(Path(h) for h in glob.glob(str(full))) if glob.has_magic(str(full)) else [full]
+        for h in hits:
+            if h not in seen:
+                seen.add(h)
+                out.append(h)
+    return out
+
+
+def camera_name(file: Path, pattern: str) -> str | None:
+    """Camera id of an image from ``pattern`` (first group or whole match); None if it does not match."""
+    if not pattern:
+        return "cam"
+    m = re.search(pattern, file.name)
+    if not m:
+        return None
+    return m.group(1) if m.groups() else m.group(0)
+
+
+def _photo_ids(files: list[Path]) -> list[str]:
+    stems = [f.stem for f in files]
+    if len(set(stems)) == len(stems):
+        return stems
+    return [str(f) for f in files]
+
+
+def _downscale(gray: np.ndarray, max_size: int) -> tuple[np.ndarray, float]:
+    import cv2
+
+    s = min(1.0, max_size / max(gray.shape[:2])) if max_size > 0 else 1.0
+    if s >= 1.0:
+        return gray, 1.0
+    return cv2.resize(gray, (int(round(gray.shape[1] * s)), int(round(gray.shape[0] * s))),
+                      interpolation=cv2.INTER_AREA), s
+
+
+class TargetDetection(Stage):
+    """Detect ArUco markers, ChArUco boards, chessboards or circular targets in images → block."""
+
+    summary = "OpenCV target detection in images → block (image observations in mm, board as control)"
+    reads = ("block?",)
+    writes = ("block",)
+    Options = TargetOptions
+
+    def run(self, inputs, options: TargetOptions, ctx: Context) -> StageResult:
+        import cv2
+
+        geom = options.geometry()
+        if not options.images:
+            raise InputError("option 'images' (files or glob patterns) is required", field="images",
+                             path=ctx.project_file)
+        files = find_images(options.images, ctx.project_dir)
+        if not files:
+            raise InputError(f"no image matches {options.images}", field="images", path=ctx.project_file)
+        layout = inputs.get("block") if options.target == "circles" else None
+        if options.target == "circles" and layout is None:
+            raise InputError("target 'circles' takes its ids from an input block (layout points and approximate "
+                             "orientations); add a source stage before this one, or use 'circles-grid'",
+                             field="target", path=ctx.project_file)
+        params = None
+        if options.target in ("charuco", "aruco"):
+            try:
+                params = detector_parameters(ctx.resolve(options.detector_params) if options.detector_params else None)
+            except ValueError as e:
+                raise InputError(str(e), field="detector_params", path=ctx.project_file) from None
+        sigma_px = options.sigma_px or DEFAULT_SIGMA_PX[options.target]
+        photo_ids = _photo_ids(files)
+
+        rows, dets, logged = [], [], []
+        for file, pid in ctx.progress.track(list(zip(files, photo_ids)), what="images"):
+            row = {"file": str(file), "photo": pid, "camera": "", "points": 0, "status": "ok", "message": ""}
+            rows.append(row)
+            cam = camera_name(file, options.camera_from_name)
+            if cam is None:
+                row["status"], row["message"] = "skipped", "file name does not match camera_from_name"
+                ctx.warn(f"{file.name}: {row['message']} '{options.camera_from_name}'")
+                continue
+            row["camera"] = cam
+            gray = cv2.imread(str(file), cv2.IMREAD_GRAYSCALE) if file.is_file() else None
+            if gray is None:
+                row["status"] = "skipped"
+                row["message"] = "file not found" if not file.exists() else "not a readable image"
+                ctx.warn(f"{file}: {row['message']}; skipped")
+                continue
+            det = self._detect(gray, geom, options, params, layout, pid)
+            det.extra["file"] = str(file)
+            row["points"], row["message"] = len(det), det.message
+            small, s = _downscale(gray, options.log_max_size)
+            logged.append((pid, small, det.uv * s + (s - 1) / 2, det.ids))
+            if len(det) < options.min_points:
+                row["status"] = "skipped"
+                ctx.warn(f"{file.name}: {det.message or 'too few points'} ({len(det)} < min_points "
+                         f"{options.min_points}); skipped")
+                continue
+            if det.message:
+                ctx.warn(f"{file.name}: {det.message}")
+            dets.append((pid, cam, (gray.shape[1], gray.shape[0]), det))
+        if not dets:
+            raise InputError(f"no usable detection in {len(files)} image(s) (see the warnings)", field="images",
+                             path=ctx.project_file)
+        block, info = self._block(dets, geom, options, sigma_px, layout, ctx)
+        for r in rows:
+            if r["photo"] in info["size_mismatch"]:
+                r["status"], r["message"] = "skipped", "image size differs from the camera's first image"
+        summary = {**block.summary(), "target": options.target, "sigma_px": sigma_px,
+                   "images": len(files), "used_images": len(block.photos),
+                   "detections": {r["photo"]: r["points"] for r in rows}, "cameras_px": info["cameras_px"]}
+        ref = {}
+        if options.opencv_reference and geom.has_geometry:
+            for k, cid in enumerate(block.cameras.ids):
+                try:
+                    cal = opencv_calibration(block, k)
+                except ValueError as e:
+                    ctx.warn(str(e))
+                    continue
+                ref[str(cid)] = {key: v for key, v in cal.items() if key not in ("rvecs", "tvecs")}
+            summary["opencv_calibration"] = ref
+        table = TableData({k: [r[k] for r in rows] for k in ("file", "photo", "camera", "points", "status", "message")},
+                          "detections per image")
+        report = self._report(options, files, rows, block, ref, sigma_px)
+        return StageResult(artefacts={"block": block}, summary=summary, report=report, tables={"detections": table},
+                           data={"images": logged, "block": block})
+
+    # -- per image ------------------------------------------------------------------------------
+    def _detect(self, gray, geom, options, params, layout, pid) -> Detection:
+        t = options.target
+        if t == "chessboard":
+            return detect_chessboard(gray, geom, options.chessboard_method)
+        if t == "charuco":
+            return detect_charuco(gray, geom, params)
+        if t == "aruco":
+            return detect_aruco(gray, geom, params)
+        if t == "circles-grid":
+            return detect_circles_grid(gray, geom)
+        # circles: ids from the layout block
+        uv = detect_blobs(gray, options.polarity)
+        try:
+            k = int(layout.photos.index_of([pid])[0])
+        except KeyError:
+            return Detection([], np.zeros((0, 2)), f"photo '{pid}' not in the input block (layout)")
+        if not layout.photos.has_orientation[k]:
+            return Detection([], np.zeros((0, 2)), f"photo '{pid}' has no approximate orientation in the input block")
+        cams = layout.cameras
+        ci = int(layout.photos.camera[k])
+        pts = layout.points
+        ph = layout.photos
+        depth = (pts.XYZ - ph.X0[k]) @ rotation_from_opk(*ph.opk[k])[2]     # W < 0: in front of the camera
+        known = np.flatnonzero(np.isfinite(pts.XYZ).all(axis=1) & (depth < 0))
+        xy = project_block(layout, np.full(known.size, k), known)
+        size = (gray.shape[1], gray.shape[0])
+        pred = pixels_from_mm(xy, size, cams.pixel_mm[ci] if np.isfinite(cams.pixel_mm[ci]) else options.pixel_mm,
+                              "opencv")
+        inside = (pred[:, 0] >= 0) & (pred[:, 1] >= 0) & (pred[:, 0] <= size[0] - 1) & (pred[:, 1] <= size[1] - 1)
+        return match_to_predicted(uv, pred[inside], [str(i) for i in pts.ids[known[inside]]], options.match_radius_px)
+
+    # -- block ----------------------------------------------------------------------------------
+    def _block(self, dets, geom, options, sigma_px, layout, ctx):
+        size_of: dict[str, tuple[int, int]] = {}
+        mismatch = set()
+        kept = []
+        for pid, cam, size, det in dets:
+            if size_of.setdefault(cam, size) != size:
+                mismatch.add(pid)
+                ctx.warn(f"{pid}: image size {size[0]}×{size[1]} differs from camera '{cam}' "
+                         f"({size_of[cam][0]}×{size_of[cam][1]}); skipped")
+                continue
+            kept.append((pid, cam, size, det))
+        if layout is not None:
+            return self._block_from_layout(kept, layout, options, sigma_px), {"size_mismatch": mismatch,
+                                                                               "cameras_px": {}}
+        board_ids, board_xyz = object_points(geom)
+        xyz_of = dict(zip(board_ids, board_xyz))
+        cam_ids = list(dict.fromkeys(cam for _, cam, _, _ in kept))
+        p = options.pixel_mm
+        # principal distance per camera: option, else from the board's homographies, else the image width
+        f_px = {}
+        for cam in cam_ids:
+            guess = options.principal_distance_mm / p if options.principal_distance_mm > 0 else None
+            if guess is None and geom.has_geometry:
+                views = [(np.array([xyz_of[i] for i in d.ids]), d.uv) for _, c, _, d in kept if c == cam]
+                guess = initial_focal_px([v[0] for v in views], [v[1] for v in views], size_of[cam])
+            f_px[cam] = guess or float(max(size_of[cam]))
+        point_ids = list(dict.fromkeys(i for _, _, _, d in kept for i in d.ids))
+        if geom.has_geometry:
+            points = Points.make([f"{i}" for i in point_ids], XYZ=np.array([xyz_of[i] for i in point_ids]).reshape(-1, 3),
+                                 role="full")
+        else:
+            points = Points.make(point_ids, role="tie")
+        pindex = {i: k for k, i in enumerate(point_ids)}
+        X0 = np.full((len(kept), 3), np.nan)
+        opk = np.full((len(kept), 3), np.nan)
+        obs_photo, obs_point, obs_xy = [], [], []
+        for k, (pid, cam, size, det) in enumerate(kept):
+            if geom.has_geometry:
+                pose = resect(np.array([xyz_of[i] for i in det.ids]), det.uv, f_px[cam], size)
+                if pose is not None:
+                    X0[k], opk[k] = pose
+            obs_photo += [k] * len(det)
+            obs_point += [pindex[i] for i in det.ids]
+            obs_xy.append(mm_from_pixels(det.uv, size, p, "opencv"))
+        photos = Photos.make([pid for pid, _, _, _ in kept], camera=[cam_ids.index(c) for _, c, _, _ in kept],
+                             X0=X0, opk=opk)
+        cameras = self._cameras(cam_ids, size_of, f_px, options)
+        obs = Observations.make(obs_photo, obs_point, np.concatenate(obs_xy), sigma=sigma_px * p)
+        block = Block(cameras=cameras, photos=photos, points=points, observations=obs, object_unit=options.unit,
+                      meta={"targets": {"target": options.target, "images": {pid: str(d.extra.get("file", ""))
+                                                                             for pid, _, _, d in kept},
+                                        "pixel_convention": "opencv"}})
+        return block, {"size_mismatch": mismatch,
+                       "cameras_px": {c: {"f_px_start": f_px[c], "size": list(size_of[c])} for c in cam_ids}}
+
+    def _cameras(self, cam_ids, size_of, f_px, options) -> Cameras:
+        p = options.pixel_mm
+        unknown = set(options.unknowns)
+        n_ap = len(BROWN) if options.ap_model == "brown" else 0
+        sig_iop = [FREE if name in unknown else FIXED for name in IOP]
+        sig_ap = [FREE if name in unknown else FIXED for name in BROWN[:n_ap]]
+        k = len(cam_ids)
+        res = np.array([size_of[c] for c in cam_ids], int).reshape(k, 2)
+        return Cameras.make(cam_ids, [f_px[c] * p for c in cam_ids], 0.0, 0.0, ap_model=options.ap_model,
+                            ap=np.zeros((k, n_ap)), sigma_iop=sig_iop,
+                            sigma_ap=np.tile(np.array(sig_ap, float), (k, 1)).reshape(k, n_ap),
+                            format_mm=res * p, pixel_mm=p, resolution=res)
+
+    def _block_from_layout(self, kept, layout, options, sigma_px) -> Block:
+        """'circles': the input block's cameras, the detected photos and points, new observations."""
+        ph_idx = layout.photos.index_of([pid for pid, _, _, _ in kept])
+        used_points = list(dict.fromkeys(i for _, _, _, d in kept for i in d.ids))
+        pt_idx = layout.points.index_of(used_points)
+        pindex = {i: k for k, i in enumerate(used_points)}
+        cams = layout.cameras
+        obs_photo, obs_point, obs_xy, sig = [], [], [], []
+        for k, (pid, _, size, det) in enumerate(kept):
+            ci = layout.photos.camera[ph_idx[k]]
+            pitch = cams.pixel_mm[ci] if np.isfinite(cams.pixel_mm[ci]) else options.pixel_mm
+            obs_photo += [k] * len(det)
+            obs_point += [pindex[i] for i in det.ids]
+            obs_xy.append(mm_from_pixels(det.uv, size, pitch, "opencv"))
+            sig += [sigma_px * pitch] * len(det)
+        obs = Observations.make(obs_photo, obs_point, np.concatenate(obs_xy), sigma=np.array(sig))
+        meta = dict(layout.meta)
+        meta["targets"] = {"target": "circles", "pixel_convention": "opencv"}
+        return Block(cameras=cams, photos=layout.photos.take(ph_idx), points=layout.points.take(pt_idx),
+                     observations=obs, object_unit=layout.object_unit, meta=meta)
+
+    def _report(self, options, files, rows, block, ref, sigma_px) -> str:
+        used = [r for r in rows if r["status"] == "ok"]
+        lines = [f"Target type **{options.target}**: {len(used)} of {len(files)} image(s) used, "
+                 f"{len(block.observations)} image points, {len(block.points)} object points "
+                 f"({'control, board frame' if (block.points.role == 'full').any() else 'tie'}); a-priori sigma "
+                 f"{sigma_px:g} px = {sigma_px * options.pixel_mm * 1000:g} µm at pitch {options.pixel_mm:g} mm.", "",
+                 "| image | camera | points | status | note |", "|---|---|---:|---|---|"]
+        for r in rows:
+            lines.append(f"| {Path(r['file']).name} | {r['camera']} | {r['points']} | {r['status']} | {r['message']} |")
+        for cid, cal in ref.items():
+            d = ", ".join(f"{v:.5g}" for v in cal["dist"])
+            lines += ["", f"cv2.calibrateCamera reference, camera {cid} ({len(cal['views'])} views): fx {cal['fx']:.3f}, "
+                          f"fy {cal['fy']:.3f}, cx {cal['cx']:.3f}, cy {cal['cy']:.3f} px; (k1, k2, p1, p2, k3) = ({d}); "
+                          f"RMS {cal['rms_px']:.4f} px."]
+        return "\n".join(lines)
+
+    def log(self, result, rec, ctx) -> None:
+        import rerun as rr
+
+        from plugins.colmap_io.rrlog import entity_part, log_block
+
+        for pid, small, uv, ids in result.data["images"]:
+            path = f"{ctx.stage_id}/images/{entity_part(pid)}"
+            rec.log(path, rr.Image(small), static=True)
+            if len(ids):
+                rec.log(f"{path}/points", rr.Points2D(uv, labels=list(ids), colors=[[255, 60, 40]],
+                                                      radii=rr.Radius.ui_points(3.0)), static=True)
+        log_block(rec, result.data["block"], root=f"{ctx.stage_id}/block")
