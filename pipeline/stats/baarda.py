@@ -192,22 +192,26 @@ def data_snooping(snap: Snapshot, alpha0: float = 0.001, beta0: float = 0.80,
 
 
 class ExternalReliability(NamedTuple):
-    """Effect of each undetected MDB on the unknowns (external reliability)."""
+    """Effect of each undetected MDB on the unknowns (external reliability); unpacks as
+    ``dx, bar_delta0 = external_reliability(...)``."""
 
     dx: np.ndarray  # (n, u): ∇0x for a bias ∇0l_i in row i (zero rows for inactive rows)
     bar_delta0: np.ndarray  # (n,): δ̄0_i = √(∇0x_iᵀ N ∇0x_i) / σ0
-    df: np.ndarray | None  # (n, k): F ∇0x_i if a (k, u) matrix F was given
+
+    def on(self, F) -> np.ndarray:
+        """(n, k) effect on derived quantities ``F x`` (F: (k, u), e.g. object coordinates)."""
+        return self.dx @ np.asarray(F, dtype=float).T
 
 
-def external_reliability(model, adjustment, mdb, F=None) -> ExternalReliability:
+def external_reliability(model, adjustment, mdb) -> ExternalReliability:
     """External reliability of a :class:`~pipeline.stats.linear.LinearModel` adjustment.
 
     ``∇0x_i = N⁻¹ Aᵀ P e_i ∇0l_i`` for every active row i (Baarda 1968, Förstner 1985) and
     Baarda's scalar summary ``δ̄0_i = √(∇0x_iᵀ N ∇0x_i)/σ0`` which equals ``√((1−r_i)/r_i) δ0``
     for uncorrelated observations; ``σ0 δ̄0_i`` bounds the effect on any function f of the unknowns
     in units of its standard deviation, ``|∇0 f| ≤ δ̄0_i σ_f``.  ``mdb`` is the (n,) output of
-    :func:`mdb` (or any vector of biases).  ``F`` (k, u) maps the unknowns to derived quantities
-    (e.g. object coordinates); then ``df = ∇0x Fᵀ``.  Rows with an infinite MDB get nan.
+    :func:`mdb` (or any vector of biases).  ``result.on(F)`` maps the effects to derived
+    quantities ``F x`` (e.g. object coordinates).  Rows with an infinite MDB get nan.
     """
     act = np.asarray(adjustment.active, bool)
     B = model.weighted_design(act)  # (n, u), P_a A_a scattered
@@ -222,5 +226,4 @@ def external_reliability(model, adjustment, mdb, F=None) -> ExternalReliability:
     q = np.einsum("ij,ij->i", BQ, B)  # b_i Qxx b_iᵀ ;  ∇xᵀ N ∇x = bias² q
     bar = np.abs(scale) * np.sqrt(np.maximum(q, 0.0)) / adjustment.snapshot.sigma0
     bar[~act] = np.nan
-    df = None if F is None else dx @ np.asarray(F, dtype=float).T
-    return ExternalReliability(dx=dx, bar_delta0=bar, df=df)
+    return ExternalReliability(dx=dx, bar_delta0=bar)

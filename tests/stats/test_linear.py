@@ -170,14 +170,15 @@ def test_external_reliability(poly):
         adj = m.adjust()
         nab = mdb(adj.snapshot)
         F = np.array([[1.0, 10.0, 100.0, 1000.0]])  # the fitted value at x = 10
-        er = external_reliability(m, adj, nab, F)
+        er = external_reliability(m, adj, nab)
+        dx_all, bar = er  # unpacks as a pair
         # independent: adjust with the MDB added to row i and compare the unknowns
         for i in (0, 5, 11):
             li = l.copy()
             li[i] += nab[i]
             dx = LinearModel(poly.A, li, P, sigma0=poly.sigma0).adjust().x - adj.x
             np.testing.assert_allclose(er.dx[i], dx, rtol=1e-8, atol=1e-10)
-            np.testing.assert_allclose(er.df[i], F @ dx, rtol=1e-8)
+            np.testing.assert_allclose(er.on(F)[i], F @ dx, rtol=1e-8)
             N = poly.A.T @ (np.diag(P) if P.ndim == 1 else P) @ poly.A
             assert er.bar_delta0[i] == pytest.approx(np.sqrt(dx @ N @ dx) / poly.sigma0, rel=1e-8)
         if P.ndim == 1:  # Baarda's closed form for uncorrelated observations
