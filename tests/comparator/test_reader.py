@@ -11,13 +11,11 @@ from plugins.comparator.stage import ComparatorSource
 
 FIX = Path(__file__).resolve().parents[2] / "fixtures" / "paper000"
 
-# Table 3 of paper 000 (left x of point 9 corrected, see fixtures/paper000/make_fixtures.py)
-TABLE3 = np.array([
-    [97.673, 180.515, 75.083, 80.475], [128.692, 180.423, 105.792, 80.359],
-    [158.014, 180.618, 134.627, 80.543], [93.523, 160.744, 70.903, 60.735],
-    [124.946, 160.523, 102.244, 60.468], [156.755, 159.548, 133.771, 59.456],
-    [93.115, 142.816, 70.361, 42.833], [124.410, 141.949, 101.549, 41.913],
-    [155.576, 141.152, 132.787, 41.063]])
+from tests.screening.test_paper000 import PRINTED
+
+# Table 3 of paper 000 with the left x of point 9 corrected (docs/screening.md)
+TABLE3 = PRINTED.copy()
+TABLE3[8, 0] = 155.576
 
 GOOD = """\
 unit um
