@@ -110,6 +110,17 @@ def nearest_rotation(M) -> np.ndarray:
     return U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
 
 
+def marker_index(problem: LibmvProblem) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(used (k,) bool, camera index, point index)`` of the markers whose image and track exist."""
+    cam_of = {int(i): k for k, i in enumerate(problem.image)}
+    pt_of = {int(t): k for k, t in enumerate(problem.track)}
+    used = np.array([(int(i) in cam_of) and (int(t) in pt_of)
+                     for i, t in zip(problem.marker_image, problem.marker_track)], bool).reshape(-1)
+    ci = np.array([cam_of[int(i)] for i in problem.marker_image[used]], int)
+    pj = np.array([pt_of[int(t)] for t in problem.marker_track[used]], int)
+    return used, ci, pj
+
+
 def default_resolution(problem: LibmvProblem) -> tuple[int, int]:
     """Image size assumed when none is given: twice the principal point (its files put it at the centre)."""
     _, cx, cy = problem.intrinsics[:3]
@@ -144,12 +155,7 @@ def block_from_libmv(problem: LibmvProblem, *, pixel_mm: float = 0.001, sigma_px
                          X0=np.array([p[0] for p in poses]).reshape(-1, 3),
                          opk=np.array([p[1] for p in poses]).reshape(-1, 3))
     points = Points.make([str(j) for j in problem.track], XYZ=problem.X, role="tie")
-    photo_of = {int(img): k for k, img in enumerate(problem.image)}
-    point_of = {int(tr): k for k, tr in enumerate(problem.track)}
-    keep = np.array([(int(i) in photo_of) and (int(t) in point_of)
-                     for i, t in zip(problem.marker_image, problem.marker_track)], bool)
-    ph = np.array([photo_of[int(i)] for i in problem.marker_image[keep]], int)
-    pt = np.array([point_of[int(t)] for t in problem.marker_track[keep]], int)
+    keep, ph, pt = marker_index(problem)
     xy = mm_from_pixels(problem.marker_xy[keep], size, pixel_mm, "colmap")
     obs = Observations.make(ph, pt, xy, sigma=sigma_px * pixel_mm)
     block = Block(cameras=cameras, photos=photos, points=points, observations=obs, object_unit=object_unit,
@@ -163,12 +169,7 @@ def libmv_reprojection(problem: LibmvProblem, orthonormalize: bool = False) -> t
     ``orthonormalize`` replaces each stored rotation by :func:`nearest_rotation` (as the block does).
     """
     f, cx, cy, k1, k2, k3, p1, p2 = problem.intrinsics
-    cam_of = {int(i): k for k, i in enumerate(problem.image)}
-    pt_of = {int(t): k for k, t in enumerate(problem.track)}
-    used = np.array([(int(i) in cam_of) and (int(t) in pt_of)
-                     for i, t in zip(problem.marker_image, problem.marker_track)], bool)
-    ci = np.array([cam_of[int(i)] for i in problem.marker_image[used]], int)
-    pj = np.array([pt_of[int(t)] for t in problem.marker_track[used]], int)
+    used, ci, pj = marker_index(problem)
     R = np.array([nearest_rotation(M) for M in problem.R]) if orthonormalize else problem.R
     P = np.einsum("kij,kj->ki", R[ci], problem.X[pj]) + problem.t[ci]
     x, y = P[:, 0] / P[:, 2], P[:, 1] / P[:, 2]

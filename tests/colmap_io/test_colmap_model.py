@@ -8,7 +8,7 @@ import pytest
 from pipeline.errors import InputError
 from pipeline.model import Block, Cameras, Observations, Photos, Points
 from pipeline.stage import Context
-from plugins.colmap_io.convert import cv_from_pose, pixels_from_mm, project_block
+from plugins.colmap_io.convert import pixels_from_mm, project_block
 from plugins.colmap_io.reader import block_from_reconstruction, read_colmap, read_reconstruction
 from plugins.colmap_io.stage import ColmapExport, ColmapExportOptions, ColmapSource, ColmapSourceOptions, reprojection_px
 from plugins.colmap_io.writer import reconstruction_from_block, write_colmap

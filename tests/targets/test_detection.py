@@ -17,29 +17,13 @@ from plugins.targets.detect import (detect_aruco, detect_blobs, detect_circles_g
                                     refine_ellipse_centres)
 from plugins.targets.stage import TargetDetection, TargetOptions
 
+from .conftest import run_targets
+
 S = 8   # supersampling of rendered images
 
 
 def _run(folder: Path, **opts):
-    ctx = Context("targets", project_dir=folder)
-    options = parse_options(TargetOptions, opts)
-    return TargetDetection().run({}, options, ctx), ctx
-
-
-@pytest.fixture(scope="module")
-def chessboard(shared_data):
-    folder = shared_data / "opencv-chessboard"
-    res, ctx = _run(folder, images=["left*.jpg", "right*.jpg"], target="chessboard", squares=[10, 7],
-                    square_size=25.0, camera_from_name="^(left|right)")
-    return res, ctx
-
-
-@pytest.fixture(scope="module")
-def charuco(shared_data):
-    folder = shared_data / "opencv-charuco"
-    res, ctx = _run(folder, images=["img_0*.jpg", "chocclusion_original.jpg"], target="charuco", squares=[5, 7],
-                    square_size=0.04, marker_size=0.02, dictionary="DICT_6X6_250", unit="m")
-    return res, ctx
+    return run_targets(folder, **opts)
 
 
 # ---------------------------------------------------------------------------------------------
