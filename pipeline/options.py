@@ -22,8 +22,18 @@ class NoOptions:
     """The stage takes no options."""
 
 
+REQUIRED = dataclasses.MISSING
+"""Use as ``option(REQUIRED, "doc")`` for an option the project must give."""
+
+
 def option(default: Any, doc: str, **kw) -> Any:
-    """A documented option field: ``x: float = option(1.0, "what x does")``."""
+    """A documented option field: ``x: float = option(1.0, "what x does")``.
+
+    ``option(REQUIRED, doc)`` declares a required option (it must come before optional ones in
+    the dataclass, or the dataclass needs ``kw_only=True``).
+    """
+    if default is dataclasses.MISSING:
+        return dataclasses.field(metadata={"doc": doc}, **kw)
     if isinstance(default, (list, dict, set)):
         return dataclasses.field(default_factory=lambda: type(default)(default), metadata={"doc": doc}, **kw)
     return dataclasses.field(default=default, metadata={"doc": doc}, **kw)

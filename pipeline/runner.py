@@ -104,7 +104,8 @@ def run_project(project_path: str | Path, out: str | Path | None = None, *,
         if verbose:
             print(f"[{k + 1}/{n}] {spec.id} ({spec.use}) …", file=stream, flush=True)
         ctx = Context(stage_id=spec.id, project_dir=project.directory, run_dir=run_dir, seed=project.seed,
-                      progress=Progress(spec.id, stream=stream, enabled=verbose), project_file=project.path)
+                      progress=Progress(spec.id, stream=stream, enabled=verbose), project_file=project.path,
+                      object_unit=project.object_unit)
         inputs = {}
         for name in spec.cls.reads:
             key = name.rstrip("?")

@@ -108,6 +108,7 @@ class Context:
     progress: Progress = None  # type: ignore[assignment]
     warnings: list[str] = field(default_factory=list)
     project_file: Path | None = None
+    object_unit: str = "m"
 
     def __post_init__(self):
         if self.progress is None:

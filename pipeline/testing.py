@@ -79,8 +79,11 @@ def check_stage(cls: type, name: str | None = None) -> None:
     assert not problems, "; ".join(problems)
     for o in describe(cls.Options):
         assert o["doc"], f"{name}: option '{o['name']}' has no doc (use pipeline.options.option)"
-    # every option has a default, so an empty table is valid
-    parse_options(cls.Options, {}, path="<check_stage>")
+    # options without a default are required; all others must make an empty table valid
+    required = [f.name for f in dataclasses.fields(cls.Options)
+                if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING]
+    if not required:
+        parse_options(cls.Options, {}, path="<check_stage>")
     assert dataclasses.is_dataclass(cls.Options)
 
 

@@ -15,7 +15,7 @@ from typing import Literal
 import numpy as np
 
 from pipeline.errors import InputError
-from pipeline.options import option
+from pipeline.options import REQUIRED, option
 from pipeline.stage import Context, Stage, StageResult, TableData
 
 from .block import build_block, interior_orientation, tolerance_violations
@@ -24,7 +24,7 @@ from .parser import parse_comparator
 
 @dataclasses.dataclass(frozen=True)
 class ComparatorOptions:
-    path: Path = option(Path(""), "comparator file (docs/comparator-format.md), relative to the "
+    path: Path = option(REQUIRED, "comparator file (docs/comparator-format.md), relative to the "
                                   "project file (required)")
     transform: Literal["file", "affine", "similarity"] = option(
         "file", "interior orientation machine → fiducial system: 'file' uses the file's "
