@@ -107,7 +107,7 @@ class LinearAPModel(APModel):
 
     def distortion(self, xbar, ybar, params, c, meta):
         B = self.basis(np.asarray(xbar, float), np.asarray(ybar, float), c, meta)
-        d = np.einsum("kip,kp->ki", B, _rows(params, B.shape[0], B.shape[2]))
+        d = (B * _rows(params, B.shape[0], B.shape[2])[:, None, :]).sum(axis=2)
         return d[:, 0], d[:, 1]
 
     def jacobian_params(self, xbar, ybar, params, c, meta):
@@ -115,7 +115,7 @@ class LinearAPModel(APModel):
 
     def jacobian_xy(self, xbar, ybar, params, c, meta):
         Bxy = self.basis_xy(np.asarray(xbar, float), np.asarray(ybar, float), c, meta)
-        return np.einsum("kijp,kp->kij", Bxy, _rows(params, Bxy.shape[0], Bxy.shape[3]))
+        return (Bxy * _rows(params, Bxy.shape[0], Bxy.shape[3])[:, None, None, :]).sum(axis=3)
 
 
 def _rows(params, n, p):

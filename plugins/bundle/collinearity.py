@@ -27,6 +27,26 @@ IOP_NAMES = ("c", "xp", "yp")
 EO_NAMES = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
 
 
+def bmm(A, B):
+    """Batched small matrix product ``A @ B`` over the leading axis (explicit sum over the inner
+    dimension — much faster than einsum/matmul for 2×3-sized blocks)."""
+    inner = A.shape[-1]
+    if inner > 4:
+        return np.matmul(A, B)
+    out = A[..., :, 0, None] * B[..., None, 0, :]
+    for t in range(1, inner):
+        out += A[..., :, t, None] * B[..., None, t, :]
+    return out
+
+
+def bmv(A, x):
+    """Batched ``A @ x`` for (k, a, b) × (k, b)."""
+    out = A[..., 0] * x[..., 0, None]
+    for t in range(1, A.shape[-1]):
+        out += A[..., t] * x[..., t, None]
+    return out
+
+
 def _elem(a, axis):
     """Elementary rotations R1, R2, R3 (conventions doc) and their derivatives, batched."""
     c, s = np.cos(a), np.sin(a)
@@ -104,7 +124,7 @@ def project_observations(obs_photo: np.ndarray, obs_point: np.ndarray, XYZ: np.n
     cam = np.asarray(photo_camera, int)[obs_photo]
     D = XYZ[obs_point] - X0[obs_photo]                # (k, 3)
     Rk = R[obs_photo]
-    d = np.einsum("kij,kj->ki", Rk, D)
+    d = bmv(Rk, D)
     U, V, W = d[:, 0], d[:, 1], d[:, 2]
     c = cam_params[cam, 0]
     xbar = -c * U / W
@@ -155,16 +175,16 @@ def project_observations(obs_photo: np.ndarray, obs_point: np.ndarray, XYZ: np.n
     G[:, 0, 2] = c * U / (W * W)
     G[:, 1, 1] = -c / W
     G[:, 1, 2] = c * V / (W * W)
-    JG = np.einsum("kij,kjl->kil", Jxy, G)            # (k, 2, 3) ∂(x, y)/∂d
-    J_point = np.einsum("kil,klm->kim", JG, Rk)       # ∂/∂X = JG R
+    JG = bmm(Jxy, G)                                  # (k, 2, 3) ∂(x, y)/∂d
+    J_point = bmm(JG, Rk)                             # ∂/∂X = JG R
     J_eo = np.empty((k, 2, 6))
     J_eo[:, :, :3] = -J_point
-    dd = np.einsum("kaij,kj->kai", dR[obs_photo], D)  # (k, 3 angles, 3)
-    J_eo[:, :, 3:] = np.einsum("kil,kal->kia", JG, dd)
+    dd = bmv(dR[obs_photo], D[:, None, :])            # (k, 3 angles, 3): ∂d/∂angle
+    J_eo[:, :, 3:] = bmm(JG, np.transpose(dd, (0, 2, 1)))
     J_cam = np.zeros((k, 2, ptot))
     # ∂(x̄, ȳ)/∂c = (x̄, ȳ)/c  (chain through the AP model) + the model's own ∂/∂c
     xbc = np.column_stack([xbar / c, ybar / c])
-    J_cam[:, :, 0] = np.einsum("kij,kj->ki", Jxy, xbc) + J_c_model
+    J_cam[:, :, 0] = bmv(Jxy, xbc) + J_c_model
     J_cam[:, 0, 1] = 1.0
     J_cam[:, 1, 2] = 1.0
     J_cam[:, :, 3:] = J_ap

@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg as sla
 
+from .collinearity import bmm
 from .solver import BundleProblem, _solve_reduced
 
 
@@ -51,10 +52,20 @@ def precision(prob: BundleProblem, lin, red, st, chunk_bytes: float = 6.4e7):
     Qg = np.zeros((n_g + 1, n_g + 1))
     Qg[:n_g, :n_g] = Qx[:n_g, :n_g]
     cidx = prob.cidx
-    # camera–camera part for every observation
-    Qcc_k = Qg[cidx[:, :, None], cidx[:, None, :]]
-    H = np.einsum("kiq,kqr,kjr->kij", Jc, Qcc_k, Jc)
-    del Qcc_k
+    # camera–camera part, photo by photo (the photo-constant columns share one Q block)
+    H = np.zeros((k, 2, 2))
+    q_ph = prob.q_ph
+    for s0, s1 in zip(prob.seg_start, prob.seg_end):
+        idx = cidx[s0, :q_ph]
+        J = Jc[s0:s1, :, :q_ph]
+        T = (J.reshape(-1, q_ph) @ Qg[np.ix_(idx, idx)]).reshape(s1 - s0, 2, q_ph)
+        H[s0:s1] = (T[:, :, None, :] * J[:, None, :, :]).sum(axis=3)
+    if len(prob.gp_obs):
+        ob = prob.gp_obs
+        Qk = Qg[cidx[ob][:, :, None], cidx[ob][:, None, :]]
+        Qk[:, :q_ph, :q_ph] = 0.0
+        J = Jc[ob]
+        H[ob] += np.einsum("kiq,kqr,kjr->kij", J, Qk, J)
     Qpp = np.zeros((n_e, 3, 3))
     if n_e:
         Li = red["Li"]
@@ -64,7 +75,7 @@ def precision(prob: BundleProblem, lin, red, st, chunk_bytes: float = 6.4e7):
         c = max(1, int(chunk_bytes / (24.0 * max(n_x, 1))))
         for p0 in range(0, n_e, c):
             p1 = min(n_e, p0 + c)
-            Bc = B.cols(3 * p0, 3 * p1)                           # (n_x, 3c)
+            Bc = B.dense_cols(p0, p1)                             # (n_x, 3c)
             M = Qx @ Bc if n_x else np.zeros((0, 3 * (p1 - p0)))  # K⁻¹ B_p
             nc = p1 - p0
             T = np.einsum("rpa,rpb->pab", Bc.reshape(n_x, nc, 3), M.reshape(n_x, nc, 3))
@@ -78,10 +89,12 @@ def precision(prob: BundleProblem, lin, red, st, chunk_bytes: float = 6.4e7):
             Mpad = np.vstack([M[:n_g], np.zeros((1, 3 * nc))])
             loc = prob.pidx[ob] - p0
             Mk = Mpad[cidx[ob][:, :, None], 3 * loc[:, None, None] + np.arange(3)]   # (kb, q, 3)
-            Qcp = -np.einsum("kqa,kab->kqb", Mk, Li[prob.pidx[ob]])
-            X = np.einsum("kiq,kqa,kja->kij", Jc[ob], Qcp, Jp[ob])
+            Qcp = -bmm(Mk, Li[prob.pidx[ob]])                                         # (kb, q, 3)
+            JQ = np.matmul(Jc[ob], Qcp)                                                # (kb, 2, 3)
+            X = bmm(JQ, np.transpose(Jp[ob], (0, 2, 1)))
             H[ob] += X + np.transpose(X, (0, 2, 1))
-            H[ob] += np.einsum("kia,kab,kjb->kij", Jp[ob], Qpp[prob.pidx[ob]], Jp[ob])
+            JpQ = bmm(Jp[ob], Qpp[prob.pidx[ob]])
+            H[ob] += bmm(JpQ, np.transpose(Jp[ob], (0, 2, 1)))
         # fixed coordinates of partly controlled points are not unknowns
         Qpp *= prob.elim_free[:, :, None] & prob.elim_free[:, None, :]
     return dict(Qx=Qx, Qpp=Qpp, H=H)

@@ -34,7 +34,7 @@ from pipeline.errors import AdjustmentError, InputError
 from pipeline.model import Block
 
 from .apmodels import get_ap_model
-from .collinearity import EO_NAMES, IOP_NAMES, project_observations, rotation_and_derivatives
+from .collinearity import EO_NAMES, IOP_NAMES, bmm, bmv, project_observations, rotation_and_derivatives
 
 __all__ = ["Distance", "BundleSettings", "BundleState", "BundleProblem", "solve_bundle"]
 
@@ -177,6 +177,7 @@ class BundleProblem:
         self.obs_active = act
         self.row_active &= act[:, None]
         oi = np.flatnonzero(act)
+        oi = oi[np.argsort(obs.photo[oi], kind="stable")]     # photo segments are contiguous
         self.oi = oi
         self.obs_photo = obs.photo[oi]
         self.obs_point = obs.point[oi]
@@ -213,6 +214,7 @@ class BundleProblem:
         if not np.isfinite(L).all():
             raise InputError("an image observation has a zero or invalid variance", field="cov")
         self.L = L
+        self.L_diag = bool(np.all(L[:, 0, 1] == 0) and np.all(L[:, 1, 0] == 0))
 
         # ---- global unknowns ---------------------------------------------------------------------
         nx = 0
@@ -260,18 +262,31 @@ class BundleProblem:
             cols.append({"cam": self.g_cam[self.obs_cam], "eo": self.g_eo[self.obs_photo],
                          "pt": self.g_pt[self.obs_point]}[name])
         cidx = np.concatenate(cols, axis=1) if cols else np.zeros((len(oi), 0), int)
+        # drop columns that no observation uses (parameters fixed everywhere)
+        keep = (cidx >= 0).any(axis=0)
+        n_ph_cols = sum(w for name, w in groups if name != "pt")
+        self.col_keep = np.flatnonzero(keep)
+        cidx = cidx[:, keep]
         self.col_mask = cidx >= 0
         cidx = np.where(self.col_mask, cidx, self.n_g)
         self.cidx = cidx
         self.q = cidx.shape[1]
+        self.q_ph = int(keep[:n_ph_cols].sum())                          # photo-constant columns
+        # photo segments of the (photo-sorted) observations
+        ph_sorted = self.obs_photo
+        starts = np.flatnonzero(np.r_[True, ph_sorted[1:] != ph_sorted[:-1]]) if len(oi) else np.zeros(0, int)
+        self.seg_start = starts
+        self.seg_end = np.r_[starts[1:], len(oi)].astype(int)
+        self.gp_obs = np.flatnonzero((cidx[:, self.q_ph:] < self.n_g).any(axis=1)) if self.q > self.q_ph \
+            else np.zeros(0, int)
         pidx = self.elim_of[self.obs_point]
         self.obs_elim = pidx >= 0
         self.pidx = np.where(self.obs_elim, pidx, self.n_e)
         self.pt_mask = np.zeros((len(oi), 3), bool)
         self.pt_mask[self.obs_elim] = self.elim_free[pidx[self.obs_elim]]
-        # flat indices for the assembly of U (upper+lower, symmetric)
         ng1 = self.n_g + 1
-        self.flatU = (cidx[:, :, None] * ng1 + cidx[:, None, :]).ravel()
+        gc = cidx[self.gp_obs]
+        self.flatU_gp = (gc[:, :, None] * ng1 + gc[:, None, :]).ravel()
 
         # ---- weighted constraints (priors) -------------------------------------------------------
         self._setup_priors()
@@ -435,7 +450,7 @@ class BundleProblem:
         """Whitened image residuals e (k, 2), prior residuals (global, points), distances."""
         proj = proj or self.project(st, False)
         v = self.l - proj.xy
-        e = np.einsum("kij,kj->ki", self.L, v)
+        e = bmv(self.L, v)
         xg = self.global_vector(st)
         dg = self.prior_g_val - xg[self.prior_g_idx]
         dg = np.where(self.prior_g_ang, _wrap(dg), dg)
@@ -456,26 +471,25 @@ class BundleProblem:
         proj = self.project(st, True)
         parts = self.residual_parts(st, proj)
         v, e, dg, dpv, dd, _ = parts
-        L = self.L
         blocks = []
         for name, _ in self.col_groups:
             blocks.append({"cam": proj.J_cam, "eo": proj.J_eo, "pt": proj.J_point}[name])
-        Jc = np.concatenate(blocks, axis=2) if blocks else np.zeros((len(e), 2, 0))
-        Jc = np.einsum("kij,kjq->kiq", L, Jc)
+        Jc = np.concatenate(blocks, axis=2)[:, :, self.col_keep] if blocks else np.zeros((len(e), 2, 0))
+        Jc = self.whiten(Jc)
         Jc *= self.col_mask[:, None, :]
-        Jp = np.einsum("kij,kjq->kiq", L, proj.J_point)
+        Jp = self.whiten(proj.J_point)
         Jp *= self.pt_mask[:, None, :]
+        U = self.gram_U(Jc)
         ng1 = self.n_g + 1
-        outer = np.einsum("kia,kib->kab", Jc, Jc)
-        U = np.bincount(self.flatU, outer.ravel(), minlength=ng1 * ng1).reshape(ng1, ng1)[:-1, :-1]
-        g = np.bincount(self.cidx.ravel(), np.einsum("kia,ki->ka", Jc, e).ravel(), minlength=ng1)[:-1]
+        g = np.bincount(self.cidx.ravel(), (Jc[:, 0, :] * e[:, 0, None] + Jc[:, 1, :] * e[:, 1, None]).ravel(),
+                        minlength=ng1)[:-1]
         ne1 = self.n_e + 1
-        Vflat = np.einsum("kia,kib->kab", Jp, Jp).reshape(-1, 9)
-        V = np.stack([np.bincount(self.pidx, Vflat[:, t], minlength=ne1) for t in range(9)], axis=1)
+        Vk = bmm(np.transpose(Jp, (0, 2, 1)), Jp).reshape(-1, 9)
+        V = np.stack([np.bincount(self.pidx, Vk[:, t], minlength=ne1) for t in range(9)], axis=1)
         V = V.reshape(ne1, 3, 3)[:-1]
-        bp = np.stack([np.bincount(self.pidx, np.einsum("kia,ki->ka", Jp, e)[:, t], minlength=ne1)
-                       for t in range(3)], axis=1)[:-1]
-        Wk = np.einsum("kiq,kia->kqa", Jc, Jp)
+        Jpe = Jp[:, 0, :] * e[:, 0, None] + Jp[:, 1, :] * e[:, 1, None]
+        bp = np.stack([np.bincount(self.pidx, Jpe[:, t], minlength=ne1) for t in range(3)], axis=1)[:-1]
+        Wk = Jc[:, 0, :, None] * Jp[:, 0, None, :] + Jc[:, 1, :, None] * Jp[:, 1, None, :]
         # priors
         np.add.at(U, (self.prior_g_idx, self.prior_g_idx), self.prior_g_w)
         np.add.at(g, self.prior_g_idx, self.prior_g_w * dg)
@@ -493,6 +507,7 @@ class BundleProblem:
             ok = cols >= 0
             cols = np.where(ok, cols, self.n_g)
             Jd = Jd * ok
+            dist_lin = (Jd, cols)
             Uext = np.zeros((ng1, ng1))
             np.add.at(Uext, (cols[:, :, None], cols[:, None, :]), Jd[:, :, None] * Jd[:, None, :])
             U = U + Uext[:-1, :-1]
@@ -505,8 +520,68 @@ class BundleProblem:
             pi, ci = np.nonzero(fixed)
             V[pi, ci, ci] = 1.0
             bp[fixed] = 0.0
+        Jd, dcols = dist_lin if len(self.dist_l) else (None, None)
         return dict(U=U, g=g, V=V, bp=bp, Wk=Wk, Jc=Jc, Jp=Jp, e=e, v=v, parts=parts, proj=proj,
-                    t=time.perf_counter() - t0)
+                    Jd=Jd, dcols=dcols, t=time.perf_counter() - t0)
+
+    def whiten(self, J):
+        """``L J`` for (k, 2, c) Jacobians."""
+        if self.L_diag:
+            return J * np.stack([self.L[:, 0, 0], self.L[:, 1, 1]], axis=1)[:, :, None]
+        return bmm(self.L, J)
+
+    def gram_U(self, Jc):
+        """``Σ_k Jc_kᵀ Jc_k`` scattered into (n_g, n_g): per photo with BLAS for the photo-constant
+        columns, by bincount for the few observations of global points."""
+        ng1 = self.n_g + 1
+        Up = np.zeros((ng1, ng1))
+        q_ph = self.q_ph
+        for s0, s1 in zip(self.seg_start, self.seg_end):
+            A = Jc[s0:s1, :, :q_ph].reshape(-1, q_ph)
+            idx = self.cidx[s0, :q_ph]
+            Up[np.ix_(idx, idx)] += A.T @ A
+        if len(self.gp_obs):
+            J = Jc[self.gp_obs]
+            outer = bmm(np.transpose(J, (0, 2, 1)), J)
+            outer[:, :q_ph, :q_ph] = 0.0          # counted above
+            Up += np.bincount(self.flatU_gp, outer.ravel(), minlength=ng1 * ng1).reshape(ng1, ng1)
+        return Up[:-1, :-1]
+
+    def gram_mode(self) -> str:
+        """Cheapest way to form ``B Bᵀ`` for this problem (cost model in flops-equivalents)."""
+        if getattr(self, "_gram_mode", None) is None:
+            n_e = self.n_e
+            cnt = np.bincount(self.pidx[self.obs_elim], minlength=n_e).astype(float)
+            pairs = float(np.sum(cnt ** 2)) * self.q * self.q
+            nnz_col = np.minimum(cnt * self.q, self.n_g)
+            sparse = 3.0 * float(np.sum(nnz_col ** 2)) * 4.0
+            dense = float(self.n_g + self.n_c) ** 2 * 3 * n_e / 10.0 + 3.0 * len(self.oi) * self.q
+            dense_bytes = 8.0 * (self.n_g + 1) * 3 * n_e
+            pair_bytes = 8.0 * pairs
+            costs = {"sparse": sparse, "pairs": 2.0 * pairs if pair_bytes < 6e8 else np.inf,
+                     "dense": dense if dense_bytes < 4e8 else np.inf}
+            self._gram_mode = min(costs, key=costs.get)
+        return self._gram_mode
+
+    def track_groups(self):
+        """Observations of each eliminated point grouped by track length: list of
+        ``(obs_mat (N_t, t), flat (N_t·(t q)²,))`` with the flat (row, col) indices into U."""
+        if getattr(self, "_tracks", None) is None:
+            sel = np.flatnonzero(self.obs_elim)
+            order = sel[np.argsort(self.pidx[sel], kind="stable")]
+            cnt = np.bincount(self.pidx[sel], minlength=self.n_e)
+            start = np.r_[0, np.cumsum(cnt)[:-1]]
+            ng1 = self.n_g + 1
+            itype = np.int32 if ng1 * ng1 < 2 ** 31 else np.int64
+            groups = []
+            for t in np.unique(cnt[cnt > 0]):
+                pts = np.flatnonzero(cnt == t)
+                obs_mat = order[start[pts][:, None] + np.arange(t)]
+                rows = self.cidx[obs_mat].reshape(len(pts), t * self.q).astype(itype)
+                flat = (rows[:, :, None] * itype(ng1) + rows[:, None, :]).ravel()
+                groups.append((obs_mat, flat))
+            self._tracks = groups
+        return self._tracks
 
     # ------------------------------------------------------------------------------------------
     def constraint_rows(self, st: BundleState):
@@ -560,7 +635,7 @@ class BundleProblem:
         Lp = _chol3(V, self)
         Li = np.linalg.inv(Lp)                                     # (n_e, 3, 3) lower
         Li1 = np.concatenate([Li, np.eye(3)[None]], axis=0)        # dummy point for global-point obs
-        Bk = np.einsum("kqa,kba->kqb", Wk, Li1[self.pidx])         # W_k L⁻ᵀ
+        Bk = bmm(Wk, np.transpose(Li1[self.pidx], (0, 2, 1)))      # W_k L⁻ᵀ
         Cg, Cp = self.constraint_rows(st)
         n_x = n_g + n_c
         Bc = np.einsum("pac,pba->pcb", Cp, Li) if n_c else None   # (n_e, n_c, 3) = Cpᵀ L⁻ᵀ
@@ -571,8 +646,8 @@ class BundleProblem:
             K[:n_g, n_g:] = Cg
             K[n_g:, :n_g] = Cg.T
         K -= B.gram()
-        z = np.einsum("pab,pb->pa", Li, bp)                         # L⁻¹ b_p
-        rhs = np.concatenate([g, np.zeros(n_c)]) - B.matvec(z)
+        z = bmv(Li, bp)                                             # L⁻¹ b_p
+        rhs = np.concatenate([g, np.zeros(n_c)]) - (B.matvec(z) if n_e else 0.0)
         return dict(K=K, rhs=rhs, Li=Li, z=z, B=B)
 
     def back_substitute(self, red, dx):
@@ -580,7 +655,7 @@ class BundleProblem:
         if self.n_e == 0:
             return np.zeros((0, 3))
         t = red["z"] - red["B"].rmatvec(dx)
-        return np.einsum("pba,pb->pa", red["Li"], t)
+        return bmv(np.transpose(red["Li"], (0, 2, 1)), t)
 
 
 def _wrap(a):
@@ -610,58 +685,109 @@ def _chol3(V, prob):
 
 
 class _BMatrix:
-    """``B = [W V^{-1/2}; Cpᵀ V^{-1/2}]`` (n_x × 3 n_e), dense or sparse, whichever is cheaper."""
+    """``B = [W V^{-1/2}; Cpᵀ V^{-1/2}]`` (n_x × 3 n_e), held as per-observation blocks ``Bk``
+    (k, q, 3) plus the constraint blocks ``Bc`` (n_e, n_c, 3).
+
+    ``gram() = B Bᵀ`` is computed by the cheapest of three strategies:
+    ``dense`` (BLAS on the dense n_g × 3n_e matrix: few points, many photos per point),
+    ``pairs`` (one q×q product per pair of observations of the same point, grouped by track
+    length: many points with short tracks, e.g. BAL), ``sparse`` (scipy CSR product).
+    """
 
     def __init__(self, prob: BundleProblem, Bk, Bc):
         self.prob = prob
-        n_g, n_e, n_c = prob.n_g, prob.n_e, prob.n_c
-        self.n_x = n_g + n_c
-        ncol = 3 * (n_e + 1)
-        rows = np.broadcast_to(prob.cidx[:, :, None], Bk.shape)
-        cols = np.broadcast_to(3 * prob.pidx[:, None, None] + np.arange(3), Bk.shape)
-        # nnz per column ≈ obs per point × q (camera rows merge); dense cost n_x² · 3 n_e
-        dense_bytes = 8.0 * (n_g + 1) * ncol
-        obs_per_pt = np.bincount(prob.pidx, minlength=n_e + 1)[:-1]
-        nnz_col = np.minimum(obs_per_pt * prob.q, n_g)
-        sparse_cost = 3.0 * float(np.sum(nnz_col.astype(float) ** 2))
-        dense_cost = float(self.n_x) ** 2 * 3 * n_e / 40.0
-        self.dense = dense_bytes < 4e8 and dense_cost < sparse_cost
-        if self.dense:
-            flat = (rows * ncol + cols).ravel()
-            D = np.bincount(flat, Bk.ravel(), minlength=(n_g + 1) * ncol).reshape(n_g + 1, ncol)
-            D = D[:n_g, :3 * n_e]
-            if n_c:
-                D = np.vstack([D, np.transpose(Bc, (1, 0, 2)).reshape(n_c, 3 * n_e)])
-            self.M = D
-        else:
-            S = sp.csr_matrix((Bk.ravel(), (rows.ravel(), cols.ravel())), shape=(n_g + 1, ncol))
-            S = S[:n_g, :3 * n_e]
-            if n_c:
-                C = sp.csr_matrix(np.transpose(Bc, (1, 0, 2)).reshape(n_c, 3 * n_e))
-                S = sp.vstack([S, C], format="csr")
-            self.M = S
+        self.Bk, self.Bc = Bk, Bc
+        n_g, n_e = prob.n_g, prob.n_e
+        self.n_x = n_g + prob.n_c
+        self.mode = prob.gram_mode()
 
+    # -- the Schur product ---------------------------------------------------------------------
     def gram(self):
-        if self.dense:
-            return self.M @ self.M.T
-        return (self.M @ self.M.T).toarray()
+        prob = self.prob
+        n_g, n_e, n_c = prob.n_g, prob.n_e, prob.n_c
+        out = np.zeros((self.n_x, self.n_x))
+        if n_e == 0:
+            return out
+        if self.mode == "dense":
+            D = self.dense_cols(0, n_e)
+            out[:] = D @ D.T
+            return out
+        ng1 = n_g + 1
+        if self.mode == "pairs":
+            acc = np.zeros(ng1 * ng1)
+            for obs_mat, flat in prob.track_groups():
+                t = obs_mat.shape[1]
+                X = self.Bk[obs_mat].reshape(obs_mat.shape[0], t * prob.q, 3)
+                G = np.matmul(X, np.transpose(X, (0, 2, 1)))
+                acc += np.bincount(flat, G.ravel(), minlength=ng1 * ng1)
+            out[:n_g, :n_g] = acc.reshape(ng1, ng1)[:-1, :-1]
+        else:
+            S = self.sparse()[:n_g]
+            out[:n_g, :n_g] = (S @ S.T).toarray()
+        if n_c:
+            # cross terms with the constraint rows: Σ_k Bk Bc[p]ᵀ, and Bc Bcᵀ
+            sel = prob.obs_elim
+            Bck = self.Bc[prob.pidx[sel]]                                   # (k', n_c, 3)
+            X = np.matmul(self.Bk[sel], np.transpose(Bck, (0, 2, 1)))      # (k', q, n_c)
+            rows = prob.cidx[sel]
+            cross = np.stack([np.bincount(rows.ravel(), X[:, :, j].ravel(), minlength=ng1)[:-1]
+                              for j in range(n_c)], axis=1)
+            out[:n_g, n_g:] = cross
+            out[n_g:, :n_g] = cross.T
+            Bcf = np.transpose(self.Bc, (1, 0, 2)).reshape(n_c, -1)
+            out[n_g:, n_g:] = Bcf @ Bcf.T
+        return out
 
+    # -- products with vectors -----------------------------------------------------------------
     def matvec(self, z):
-        return self.M @ z.reshape(-1)
+        """``B z`` for z (n_e, 3)."""
+        prob = self.prob
+        z1 = np.vstack([z.reshape(-1, 3), np.zeros((1, 3))])
+        y = (self.Bk * z1[prob.pidx][:, None, :]).sum(axis=2)              # (k, q)
+        out = np.zeros(self.n_x)
+        out[:prob.n_g] = np.bincount(prob.cidx.ravel(), y.ravel(), minlength=prob.n_g + 1)[:-1]
+        if prob.n_c and prob.n_e:
+            out[prob.n_g:] = np.einsum("pca,pa->c", self.Bc, z.reshape(-1, 3))
+        return out
 
     def rmatvec(self, x):
-        return (self.M.T @ x).reshape(-1, 3)
+        """``Bᵀ x`` as (n_e, 3)."""
+        prob = self.prob
+        xg = np.append(x[:prob.n_g], 0.0)[prob.cidx]                        # (k, q)
+        y = (self.Bk * xg[:, :, None]).sum(axis=1)                          # (k, 3)
+        ne1 = prob.n_e + 1
+        out = np.stack([np.bincount(prob.pidx, y[:, a], minlength=ne1) for a in range(3)], axis=1)[:-1]
+        if prob.n_c and prob.n_e:
+            out += np.einsum("pca,c->pa", self.Bc, x[prob.n_g:])
+        return out
 
-    def times_dense_cols(self, Q, c0, c1):
-        """``Q @ B[:, c0:c1]`` (dense)."""
-        if self.dense:
-            return Q @ self.M[:, c0:c1]
-        return np.asarray((self.M[:, c0:c1].T @ Q.T).T)
+    # -- explicit columns ----------------------------------------------------------------------
+    def dense_cols(self, p0, p1):
+        """Dense ``B[:, 3 p0 : 3 p1]`` (n_x × 3 (p1 − p0))."""
+        prob = self.prob
+        n_g, n_c = prob.n_g, prob.n_c
+        nc = p1 - p0
+        sel = (prob.pidx >= p0) & (prob.pidx < p1)
+        rows = prob.cidx[sel]
+        ncol = 3 * nc
+        cols = 3 * (prob.pidx[sel] - p0)
+        flat = (rows[:, :, None] * ncol + cols[:, None, None] + np.arange(3)).ravel()
+        D = np.bincount(flat, self.Bk[sel].ravel(), minlength=(n_g + 1) * ncol).reshape(n_g + 1, ncol)
+        out = np.empty((self.n_x, ncol))
+        out[:n_g] = D[:n_g]
+        if n_c:
+            out[n_g:] = np.transpose(self.Bc[p0:p1], (1, 0, 2)).reshape(n_c, ncol)
+        return out
 
-    def cols(self, c0, c1):
-        if self.dense:
-            return self.M[:, c0:c1]
-        return self.M[:, c0:c1].toarray()
+    cols_points = dense_cols
+
+    def sparse(self):
+        prob = self.prob
+        Bk = self.Bk
+        rows = np.broadcast_to(prob.cidx[:, :, None], Bk.shape)
+        cols = np.broadcast_to(3 * prob.pidx[:, None, None] + np.arange(3), Bk.shape)
+        S = sp.csr_matrix((Bk.ravel(), (rows.ravel(), cols.ravel())), shape=(prob.n_g + 1, 3 * (prob.n_e + 1)))
+        return S[:, :3 * prob.n_e]
 
 
 def solve_bundle(block: Block, settings: BundleSettings | None = None, *, obs_active=None, row_active=None,
@@ -685,6 +811,7 @@ def solve_bundle(block: Block, settings: BundleSettings | None = None, *, obs_ac
     converged = False
     it = 0
     eps_cost = 1e-12 * max(1, prob.n_obs_rows)
+    nu = 2.0
     for it in range(1, settings.max_iter + 1):
         lin = prob.linearize(st)
         timings["linearize"] += lin["t"]
@@ -694,19 +821,32 @@ def solve_bundle(block: Block, settings: BundleSettings | None = None, *, obs_ac
             dx, fac = _solve_reduced(prob, red, st, diagnose=(it == 1 and lam == 0.0))
             dp = prob.back_substitute(red, dx)
             timings["solve"] += time.perf_counter() - ts
-            # predicted change of each observation in units of its sigma
-            max_step = _max_pred(prob, lin, dx, dp)
+            pred = _pred(prob, lin, dx, dp)        # J̃Δ: change of each observation in units of its σ
+            max_step = float(np.max(np.abs(pred))) if pred.size else 0.0
             new = prob.apply(st, dx[:prob.n_g], dp)
             new_parts = prob.residual_parts(new)
             new_cost = prob.cost(new, new_parts)
             if not np.isfinite(new_cost):
                 new_cost = np.inf
+            gain = cost - _linear_cost(prob, lin, pred, dx, dp)
+            rho = (cost - new_cost) / gain if gain > 0 else (1.0 if new_cost <= cost else -1.0)
+            if gain <= eps_cost and new_cost <= cost + eps_cost:
+                break                                 # nothing left to gain: converged
             if new_cost <= cost * (1 + 1e-10) + eps_cost or not settings.damping:
+                # accepted: Nielsen's update of the damping
+                if lam > 0:
+                    lam *= max(1.0 / 3.0, 1.0 - (2.0 * min(rho, 1.0) - 1.0) ** 3)
+                    if lam < 1e-7:
+                        lam = 0.0
+                elif rho < 0.25 and settings.damping:
+                    lam = 1e-4                  # Gauss–Newton overshoots: start damping next time
+                nu = 2.0
                 break
             if lam == 0.0 and max_step < settings.tol_obs:
                 new, new_parts, new_cost = st, parts, cost    # at the minimum already
                 break
-            lam = 1e-3 if lam == 0 else lam * 10
+            lam = 1e-4 if lam == 0 else lam * nu
+            nu *= 2.0
             if lam > 1e12:
                 raise AdjustmentError(
                     f"the adjustment diverges: no damped step reduces vᵀPv (= {cost:.6g}) at iteration {it}; "
@@ -714,15 +854,17 @@ def solve_bundle(block: Block, settings: BundleSettings | None = None, *, obs_ac
         rel = abs(cost - new_cost) / max(cost, 1e-300)
         st, parts, cost = new, new_parts, new_cost
         history.append({"iteration": it, "vtpv": cost, "lambda": lam, "max_step_sigma": max_step})
-        if lam == 0.0 and (max_step < settings.tol_obs or rel < settings.tol_rel):
+        if (lam == 0.0 and max_step < settings.tol_obs) or rel < settings.tol_rel or gain <= eps_cost \
+                or abs(cost - history[-2]["vtpv"]) <= eps_cost:
             converged = True
             break
-        lam = 0.0 if lam <= 1e-6 else lam / 10
     if not converged:
-        raise AdjustmentError(
+        err = AdjustmentError(
             f"no convergence after {settings.max_iter} iterations: vᵀPv = {cost:.6g}, last correction moved an "
             f"observation by {history[-1]['max_step_sigma']:.3g} σ (threshold {settings.tol_obs:g}); "
             "raise max_iter, check the initial values, or look for gross errors", state=st)
+        err.history = history
+        raise err
     ts = time.perf_counter()
     lin = prob.linearize(st)
     red = prob.reduced_system(lin, st, 0.0)
@@ -731,11 +873,26 @@ def solve_bundle(block: Block, settings: BundleSettings | None = None, *, obs_ac
     return prob, st, info
 
 
-def _max_pred(prob, lin, dx, dp) -> float:
-    pred = np.einsum("kiq,kq->ki", lin["Jc"], np.append(dx[:prob.n_g], 0.0)[prob.cidx])
+def _pred(prob, lin, dx, dp) -> np.ndarray:
+    """Whitened change J̃Δ of every observation (k, 2)."""
+    pred = bmv(lin["Jc"], np.append(dx[:prob.n_g], 0.0)[prob.cidx])
     if prob.n_e:
-        pred += np.einsum("kia,ka->ki", lin["Jp"], np.vstack([dp, np.zeros((1, 3))])[prob.pidx])
-    return float(np.max(np.abs(pred))) if pred.size else 0.0
+        pred += bmv(lin["Jp"], np.vstack([dp, np.zeros((1, 3))])[prob.pidx])
+    return pred
+
+
+def _linear_cost(prob, lin, pred, dx, dp) -> float:
+    """vᵀPv of the linearised model after the step Δ (for the gain ratio of the damping)."""
+    v, e, dg, dpv, dd, _ = lin["parts"]
+    c = float(np.sum((e - pred) ** 2))
+    c += float(np.sum(prob.prior_g_w * (dg - dx[prob.prior_g_idx]) ** 2))
+    if len(prob.prior_p_idx):
+        c += float(np.sum(prob.prior_p_w * (dpv - dp[prob.prior_p_idx, prob.prior_p_coord]) ** 2))
+    if len(prob.dist_l):
+        wd = prob.settings.sigma0 / prob.dist_s
+        step = (lin["Jd"] * np.append(dx[:prob.n_g], 0.0)[lin["dcols"]]).sum(axis=1)
+        c += float(np.sum((wd * dd - step) ** 2))
+    return c
 
 
 def _check_initial(prob: BundleProblem, st: BundleState):
