@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
@@ -43,7 +43,7 @@ def _result(block, path, kind, extra_report="", **extra) -> StageResult:
 
 @dataclass(frozen=True)
 class BalOptions:
-    path: Path = option(Path(""), "BAL problem file (text), relative to the project file")
+    path: Path = field(metadata={"doc": "BAL problem file (text), relative to the project file (required)"})
     pixel_mm: float = option(0.001, _PITCH_DOC)
     sigma_px: float = option(1.0, "a-priori sigma of an image coordinate, pixels")
     intrinsics: Literal["free", "fixed"] = option("free", "'free': c, K1, K2 of every camera are unknowns (as BAL "
@@ -73,7 +73,7 @@ class BalSource(Stage):
 
 @dataclass(frozen=True)
 class LibmvOptions:
-    path: Path = option(Path(""), "libmv problem file (binary), relative to the project file")
+    path: Path = field(metadata={"doc": "libmv problem file (binary), relative to the project file (required)"})
     pixel_mm: float = option(0.001, _PITCH_DOC)
     sigma_px: float = option(1.0, "a-priori sigma of an image coordinate, pixels")
     resolution: list[int] = option([], "image width and height in pixels; default: twice the principal point")

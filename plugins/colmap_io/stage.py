@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
@@ -36,8 +36,8 @@ def reprojection_summary(block) -> dict:
 
 @dataclass(frozen=True)
 class ColmapSourceOptions:
-    path: Path = option(Path(""), "COLMAP model folder (cameras, images, points3D as .bin or .txt; "
-                                  "rigs/frames optional), relative to the project file")
+    path: Path = field(metadata={"doc": "COLMAP model folder (cameras, images, points3D as .bin or .txt; "
+                                        "rigs/frames optional), relative to the project file (required)"})
     pixel_mm: float = option(0.001, "nominal pixel pitch, mm (COLMAP has none): c = f_px · pixel_mm; the "
                                     "default 1 µm makes µm in reports read as pixels")
     sensor_width_mm: float = option(0.0, "sensor width, mm; when > 0 the pitch of each camera is "
@@ -95,8 +95,8 @@ class ColmapSource(Stage):
 
 @dataclass(frozen=True)
 class ColmapExportOptions:
-    path: Path = option(Path(""), "output folder for the COLMAP model (relative paths: inside the run "
-                                  "directory)")
+    path: Path = field(metadata={"doc": "output folder for the COLMAP model (relative paths: inside the run "
+                                        "directory) (required)"})
     format: Literal["binary", "text"] = option("binary", "COLMAP file format")
     camera_model: str = option("keep", "'keep' (the model a camera had when read from COLMAP, when it still "
                                        "holds the parameters), 'auto' (the simplest exact model) or one of "

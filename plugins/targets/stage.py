@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import glob
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
@@ -35,9 +35,10 @@ IOP = ("c", "xp", "yp")
 
 @dataclass(frozen=True)
 class TargetOptions:
-    images: list[str] = option([], "image files or glob patterns, relative to the project file")
-    target: Literal["chessboard", "charuco", "aruco", "circles-grid", "circles"] = option(
-        "chessboard", "target type; 'circles' takes ids from the layout of an input block (matching)")
+    images: list[str] = field(metadata={"doc": "image files or glob patterns, relative to the project file "
+                                               "(required)"})
+    target: Literal["chessboard", "charuco", "aruco", "circles-grid", "circles"] = field(
+        metadata={"doc": "target type (required); 'circles' takes ids from the layout of an input block (matching)"})
     squares: list[int] = option([], "chessboard / ChArUco: squares along x and y (OpenCV's 9×6 inner-corner "
                                     "sample board is [10, 7])")
     square_size: float = option(0.0, "side of a square (circle grid: centre spacing), in 'unit'")

@@ -219,7 +219,14 @@ def test_stages(bal_dir, libmv_dir, tmp_path):
     ctx = Context("libmv", project_dir=libmv_dir)
     res = LibmvSource().run({}, LibmvOptions(path=Path("problem_01.bin"), resolution=[2048, 1080]), ctx)
     assert res.summary["photos"] == 333 and res.summary["resolution"] == (2048, 1080)
+    from pipeline.options import parse_options
+    from pipeline.testing import check_stage
+
+    with pytest.raises(InputError, match="required option 'path'"):
+        parse_options(BalOptions, {})
     with pytest.raises(InputError, match="required"):
-        BalSource().run({}, BalOptions(), ctx)
+        BalSource().run({}, BalOptions(path=Path("")), ctx)
+    check_stage(BalSource, "bal")
+    check_stage(LibmvSource, "libmv")
     with pytest.raises(ValueError):
         LibmvOptions(path=Path("x"), resolution=[1])

@@ -236,7 +236,11 @@ def test_stages_colmap_and_export(model_dir, tmp_path):
     assert out.summary["points3D"] == 1443
     assert pycolmap.Reconstruction(str(tmp_path / "model")).num_images() == 23
     with pytest.raises(InputError, match="required"):
-        ColmapSource().run({}, ColmapSourceOptions(), ctx)
+        ColmapSource().run({}, ColmapSourceOptions(path=Path("")), ctx)
+    from pipeline.testing import check_stage
+
+    check_stage(ColmapSource, "colmap")
+    check_stage(ColmapExport, "colmap-export")
     with pytest.raises(ValueError):
         ColmapExportOptions(path=Path("x"), camera_model="KANNALA")
 
@@ -267,3 +271,33 @@ def test_bundle_on_colmap_model_and_export_adjusted(model_dir, tmp_path):
     XYZ = np.array([rec.points3D[int(i)].xyz for i in result.block.points.ids])
     np.testing.assert_allclose(XYZ, result.block.points.XYZ, atol=1e-12)
     print(f"pycolmap mean reprojection error of the adjusted model: {rec.compute_mean_reprojection_error():.6f} px")
+
+
+def test_project_colmap_to_export_through_the_runner(model_dir, tmp_path):
+    """The two stages in a project file, run by the runner (entry points, options, recordings)."""
+    import pycolmap
+
+    from pipeline.testing import run_project_text
+
+    out = run_project_text(f"""
+[project]
+name = "colmap round trip"
+
+[[stage]]
+use = "colmap"
+[stage.options]
+path = "{model_dir}"
+sigma_px = 0.7
+
+[[stage]]
+use = "colmap-export"
+[stage.options]
+path = "model"
+format = "text"
+camera_model = "auto"
+""", tmp_path)
+    assert out.ok, out.message
+    assert {p.name for p in out.run_dir.iterdir()} >= {"colmap.rrd", "colmap-export.rrd", "report.md", "model"}
+    rec = pycolmap.Reconstruction(str(out.run_dir / "model"))
+    assert rec.num_points3D() == 1443
+    assert out.artefacts["block"].observations.cov[0, 0, 0] == pytest.approx((0.7 * 0.001) ** 2)

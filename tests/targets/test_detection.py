@@ -322,3 +322,50 @@ def test_log_images_to_rerun(charuco, tmp_path):
     paths = {e.path for e in summary.entities}
     assert "/targets/images/img_00" in paths and "/targets/images/chocclusion_original/points" in paths
     assert "Image" in " ".join(summary.archetypes) and "Points2D" in " ".join(summary.archetypes)
+
+
+@pytest.mark.parametrize("printed_legacy", [True, False])
+def test_charuco_legacy_pattern_even_rows(printed_legacy):
+    """A 5 × 6 board (even rows) printed with the pre-4.6 layout is found only with
+    legacy_pattern = true, and vice versa; corners land on the drawn square corners."""
+    from plugins.targets.detect import detect_charuco
+
+    geom = lambda legacy: BoardGeometry("charuco", squares=(5, 6), square_size=1.0, marker_size=0.7,
+                                        legacy_pattern=legacy)
+    sq, m = 60, 40
+    img = opencv_board(geom(printed_legacy)).generateImage((5 * sq + 2 * m, 6 * sq + 2 * m), marginSize=m)
+    right = detect_charuco(img, geom(printed_legacy))
+    wrong = detect_charuco(img, geom(not printed_legacy))
+    assert len(right) == 20 and len(wrong) == 0 and "no ChArUco corners" in wrong.message
+    ids, X = object_points(geom(printed_legacy))
+    truth = {i: np.array([m + X[k, 0] * sq - 0.5, m - X[k, 1] * sq - 0.5]) for k, i in enumerate(ids)}
+    err = np.array([right.uv[k] - truth[i] for k, i in enumerate(right.ids)])
+    assert np.abs(err).max() < 0.05
+
+
+def test_stage_contract_and_project(shared_data, tmp_path):
+    from pipeline.testing import check_stage, run_project_text
+
+    check_stage(TargetDetection, "opencv-targets")
+    with pytest.raises(InputError, match="required option 'images'"):
+        parse_options(TargetOptions, {"target": "charuco"})
+    folder = shared_data / "opencv-charuco"
+    out = run_project_text(f"""
+[[stage]]
+use = "opencv-targets"
+id = "charuco"
+[stage.options]
+images = ["{folder}/img_01.jpg", "{folder}/chocclusion_original.jpg", "{folder}/nothing.jpg"]
+target = "charuco"
+squares = [5, 7]
+square_size = 40.0
+marker_size = 20.0
+pixel_mm = 0.0014
+""", tmp_path)
+    assert out.ok, out.message
+    rec = out.stages[0]
+    assert any("nothing.jpg: file not found" in w for w in rec.warnings)
+    assert (out.run_dir / "charuco_detections.csv").is_file() and (out.run_dir / "charuco.rrd").is_file()
+    b = out.artefacts["block"]
+    assert len(b.photos) == 2 and b.object_unit == "mm"
+    np.testing.assert_allclose(b.cameras.pixel_mm, 0.0014)
