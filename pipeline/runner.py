@@ -28,7 +28,7 @@ from .plugins import PluginManager
 from .project import Project, load_project
 from .recording import log_text, log_values, new_recording_id, open_recording
 from .report import jsonable, write_json, write_table, write_toml
-from .stage import Context, Progress, StageResult
+from .stage import Context, EarlierStage, Progress, StageResult
 
 RUN_MARKER = "results.json"
 
@@ -93,6 +93,7 @@ def run_project(project_path: str | Path, out: str | Path | None = None, *,
     records = [StageRecord(s.id, s.use, s.package) for s in project.stages]
     store: dict[str, Any] = {}
     produced_by: dict[str, str] = {}
+    previous: list[EarlierStage] = []
     ok, message = True, ""
 
     def flush():
@@ -105,7 +106,7 @@ def run_project(project_path: str | Path, out: str | Path | None = None, *,
             print(f"[{k + 1}/{n}] {spec.id} ({spec.use}) …", file=stream, flush=True)
         ctx = Context(stage_id=spec.id, project_dir=project.directory, run_dir=run_dir, seed=project.seed,
                       progress=Progress(spec.id, stream=stream, enabled=verbose), project_file=project.path,
-                      object_unit=project.object_unit)
+                      object_unit=project.object_unit, previous=list(previous))
         inputs = {}
         for name in spec.cls.reads:
             key = name.rstrip("?")
@@ -141,6 +142,7 @@ def run_project(project_path: str | Path, out: str | Path | None = None, *,
             store[name] = value
             produced_by[name] = spec.id
         rec.status, rec.summary, rec.report = "ok", jsonable(result.summary), result.report
+        previous.append(EarlierStage(spec.id, spec.use, result))
         for name, table in result.tables.items():
             fname = f"{spec.id}_{name}.csv"
             write_table(run_dir / fname, table)

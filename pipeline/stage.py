@@ -97,9 +97,22 @@ class Progress:
             print(file=self.stream, flush=True)
 
 
+@dataclass(frozen=True)
+class EarlierStage:
+    """What an earlier stage of the run produced (``Context.previous``)."""
+
+    id: str
+    use: str
+    result: StageResult
+
+
 @dataclass
 class Context:
-    """What the runner gives a stage besides its inputs and options."""
+    """What the runner gives a stage besides its inputs and options.
+
+    ``previous`` lists the earlier stages of the run in order, with their results, for stages
+    that summarise a whole run (e.g. ``comparison``); ordinary stages use their ``inputs``.
+    """
 
     stage_id: str
     project_dir: Path
@@ -109,6 +122,7 @@ class Context:
     warnings: list[str] = field(default_factory=list)
     project_file: Path | None = None
     object_unit: str = "m"
+    previous: list = field(default_factory=list)
 
     def __post_init__(self):
         if self.progress is None:

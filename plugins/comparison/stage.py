@@ -1,0 +1,131 @@
+"""The ``comparison`` stage: what every earlier stage found, and check-point errors per method.
+
+Convention (docs/plugins.md): a stage that compares its results with check points reports
+``summary["check_points"] = {"n", "Sx", "Sy", "Sxy", "Sz", "unit"}`` (or a dict of such dicts,
+one per variant, for a stage that runs several) and a table ``check_points`` with columns
+``point, dX, dY, dZ`` (adjusted minus surveyed). A one-line finding comes from
+``summary["headline"]`` or else from the first line of the stage's report.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+
+import numpy as np
+
+from pipeline.options import option
+from pipeline.report import markdown_table
+from pipeline.stage import Stage, StageResult, TableData
+
+from .plot import checkpoint_chart, png_bytes
+
+KEYS = ("Sx", "Sy", "Sxy", "Sz")
+
+
+def headline(result) -> str:
+    h = result.summary.get("headline") if isinstance(result.summary, dict) else None
+    if h:
+        return str(h)
+    for line in (result.report or "").splitlines():
+        line = line.strip().lstrip("-*# ").strip()
+        if line and not line.startswith("|"):
+            return re.sub(r"\s+", " ", line)[:240]
+    return "(no report)"
+
+
+def _is_rmse(d) -> bool:
+    return isinstance(d, dict) and all(k in d for k in ("Sx", "Sy", "Sz"))
+
+
+def collect_methods(previous) -> list[dict]:
+    """Check-point RMSE (and per-point errors) of every earlier stage that has them."""
+    methods = []
+    for st in previous:
+        cp = st.result.summary.get("check_points") if isinstance(st.result.summary, dict) else None
+        if cp is None:
+            continue
+        variants = {st.id: cp} if _is_rmse(cp) else {f"{st.id}: {k}": v for k, v in cp.items() if _is_rmse(v)}
+        table = st.result.tables.get("check_points")
+        for name, d in variants.items():
+            m = {"name": name, "stage": st.id, "use": st.use, "n": d.get("n"), "unit": d.get("unit", "")}
+            for k in KEYS:
+                v = d.get(k)
+                m[k] = float(v) if v is not None else float("nan")
+            if not np.isfinite(m["Sxy"]) and np.isfinite(m["Sx"]) and np.isfinite(m["Sy"]):
+                m["Sxy"] = float(np.sqrt((m["Sx"] ** 2 + m["Sy"] ** 2) / 2))
+            if table is not None and len(variants) == 1 and all(c in table.columns for c in ("dX", "dY", "dZ")):
+                m["errors"] = np.column_stack([np.asarray(table.columns[c], float) for c in ("dX", "dY", "dZ")])
+            methods.append(m)
+    return methods
+
+
+class Comparison(Stage):
+    summary = "One comparison across all stages of the run: findings and check-point errors per method."
+    reads = ()
+    writes = ("comparison",)
+
+    @dataclasses.dataclass(frozen=True)
+    class Options:
+        reference: str = option("", "stage (or 'stage: variant') whose check-point RMSE the others are "
+                                    "compared with in percent; default: the first with check points")
+        scale: float = option(1.0, "factor applied to check-point errors for the report and plot "
+                                   "(e.g. 100 to show m as cm)")
+        unit_label: str = option("", "unit shown for check-point errors (default: the object unit, "
+                                     "or 'cm' etc. when you set scale)")
+
+    def run(self, inputs, options, ctx):
+        found = [(st.id, st.use, headline(st.result)) for st in ctx.previous]
+        methods = collect_methods(ctx.previous)
+        unit = options.unit_label or (methods[0]["unit"] if methods and methods[0]["unit"] else ctx.object_unit)
+        for m in methods:
+            for k in KEYS:
+                m[k] *= options.scale
+            if "errors" in m:
+                m["errors"] = m["errors"] * options.scale
+        lines = ["What each stage found:", "",
+                 markdown_table(["stage", "uses", "finding"], [[a, b, c.replace("|", "/")] for a, b, c in found]), ""]
+        summary = {"stages": len(found), "methods": {}}
+        figures = {}
+        tables = {}
+        if methods:
+            ref = next((m for m in methods if m["name"] == options.reference or m["stage"] == options.reference),
+                       methods[0])
+            rows = []
+            for m in methods:
+                pct = [100.0 * (m[k] - ref[k]) / ref[k] if ref[k] else float("nan") for k in ("Sxy", "Sz")]
+                rows.append([m["name"], m["n"] if m["n"] is not None else "", *(m[k] for k in KEYS), *pct])
+                summary["methods"][m["name"]] = {k: m[k] for k in KEYS} | {"n": m["n"]}
+            lines += [f"Check-point RMSE ({unit}; adjusted minus surveyed; percent relative to **{ref['name']}**):",
+                      "", markdown_table(["method", "n", "Sx", "Sy", "Sxy", "Sz", "ΔSxy %", "ΔSz %"], rows), "",
+                      "![check-point errors per method](comparison_checkpoints.png)", ""]
+            img = checkpoint_chart(methods, unit)
+            figures["checkpoints"] = png_bytes(img)
+            tables["checkpoints"] = TableData({"method": [m["name"] for m in methods],
+                                               **{k: [m[k] for m in methods] for k in KEYS}})
+            best_z = min(methods, key=lambda m: m["Sz"] if np.isfinite(m["Sz"]) else np.inf)
+            best_xy = min(methods, key=lambda m: m["Sxy"] if np.isfinite(m["Sxy"]) else np.inf)
+            lines.append(f"Best planimetry: **{best_xy['name']}** (Sxy {best_xy['Sxy']:.4g} {unit}); "
+                         f"best height: **{best_z['name']}** (Sz {best_z['Sz']:.4g} {unit}).")
+            summary["headline"] = f"{len(methods)} method(s) with check points; best Sxy {best_xy['name']}, best Sz {best_z['name']}"
+            data = {"methods": methods, "image": img, "unit": unit}
+        else:
+            lines.append("No stage of this run compared its results with check points.")
+            summary["headline"] = "no check points in this run"
+            data = {"methods": [], "image": None, "unit": unit}
+        return StageResult(artefacts={"comparison": {"found": found, "methods": methods}}, summary=summary,
+                           report="\n".join(lines), tables=tables, figures=figures, data=data)
+
+    def log(self, result, rec, ctx):
+        import rerun as rr
+
+        d = result.data
+        if d["image"] is not None:
+            rec.log(f"{ctx.stage_id}/checkpoints_chart", rr.Image(d["image"][:, :, ::-1].copy()), static=True)
+        for k in KEYS:
+            vals = [m[k] for m in d["methods"]]
+            if vals:
+                rec.log(f"{ctx.stage_id}/rmse/{k}", rr.BarChart(np.nan_to_num(np.array(vals, float))), static=True)
+        if d["methods"]:
+            rec.log(f"{ctx.stage_id}/rmse/methods", rr.TextDocument("\n".join(
+                f"{i}: {m['name']}" for i, m in enumerate(d["methods"]))), static=True)

@@ -1,0 +1,66 @@
+"""The comparison stage: findings of every stage, check-point RMSE per method, chart."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import pytest
+
+from pipeline.options import option
+from pipeline.recording import read_recording
+from pipeline.stage import Stage, StageResult, TableData
+from pipeline.testing import check_stage, make_plugin_manager, run_project_text
+from plugins.comparison.stage import Comparison
+
+
+def _fake(errors, name):
+    class Fake(Stage):
+        summary = f"fake adjustment {name}"
+        writes = (name,)
+
+        @dataclass(frozen=True)
+        class Options:
+            pass
+
+        def run(self, inputs, options, ctx):
+            e = np.asarray(errors, float)
+            s = {k: float(np.sqrt(np.mean(e[:, i] ** 2))) for i, k in enumerate(("Sx", "Sy", "Sz"))}
+            s["Sxy"] = float(np.sqrt((s["Sx"] ** 2 + s["Sy"] ** 2) / 2))
+            return StageResult(artefacts={name: 1}, summary={"check_points": {"n": len(e), "unit": "m", **s},
+                                                             "headline": f"{name} did its job"},
+                               tables={"check_points": TableData({"point": [str(i) for i in range(len(e))],
+                                                                  "dX": e[:, 0], "dY": e[:, 1], "dZ": e[:, 2]})})
+    return Fake
+
+
+def test_comparison_across_stages(tmp_path):
+    a = np.array([[0.001, -0.002, 0.004], [0.003, 0.001, -0.002]])
+    b = 2 * a
+    pm = make_plugin_manager({"a": _fake(a, "one"), "b": _fake(b, "two"), "comparison": Comparison})
+    text = '[project]\nname = "cmp"\n[[stage]]\nuse = "a"\n[[stage]]\nuse = "b"\n[[stage]]\nuse = "comparison"\n' \
+           '[stage.options]\nscale = 100.0\nunit_label = "cm"\n'
+    out = run_project_text(text, tmp_path, plugins=pm)
+    assert out.ok, out.message
+    res = out.stages[-1].summary
+    sz_a = 100 * np.sqrt(np.mean(a[:, 2] ** 2))
+    assert res["methods"]["a"]["Sz"] == pytest.approx(sz_a)
+    assert res["methods"]["b"]["Sz"] == pytest.approx(2 * sz_a)
+    report = (out.run_dir / "report.md").read_text()
+    assert "one did its job" in report and "two did its job" in report
+    assert "| b | 2 |" in report and "100.0" in report  # b's errors are twice a's: +100 %
+    img = cv2.imread(str(out.run_dir / "comparison_checkpoints.png"))
+    assert img is not None and img.shape[0] > 100
+    rec = read_recording(out.run_dir / "comparison.rrd")
+    assert {"/comparison/checkpoints_chart", "/comparison/rmse/Sz"} <= {e.path for e in rec.entities}
+
+
+def test_comparison_without_check_points(tmp_path):
+    pm = make_plugin_manager({"comparison": Comparison})
+    out = run_project_text('[project]\nname = "x"\n[[stage]]\nuse = "comparison"\n', tmp_path, plugins=pm)
+    assert out.ok and "No stage of this run compared" in (out.run_dir / "report.md").read_text()
+
+
+def test_protocol():
+    check_stage(Comparison)
