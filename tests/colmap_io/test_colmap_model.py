@@ -301,3 +301,15 @@ camera_model = "auto"
     rec = pycolmap.Reconstruction(str(out.run_dir / "model"))
     assert rec.num_points3D() == 1443
     assert out.artefacts["block"].observations.cov[0, 0, 0] == pytest.approx((0.7 * 0.001) ** 2)
+
+
+def test_legacy_text_model_without_rigs_and_frames(model_dir, tmp_path):
+    """COLMAP < 3.12 text models have only cameras, images, points3D."""
+    block, _ = read_colmap(model_dir)
+    write_colmap(block, tmp_path, fmt="text")
+    (tmp_path / "rigs.txt").unlink()
+    (tmp_path / "frames.txt").unlink()
+    legacy, info = read_colmap(tmp_path)
+    assert info["format"] == "text" and len(legacy.photos) == 23
+    np.testing.assert_allclose(legacy.photos.opk, block.photos.opk, atol=1e-12)
+    np.testing.assert_allclose(legacy.observations.xy, block.observations.xy, atol=1e-15)

@@ -55,13 +55,11 @@ def test_chessboard_two_cameras_agree_with_opencv(chessboard):
 
 def test_charuco_agrees_with_opencv(charuco):
     """5 views (one occluded): K3 is held at 0 on both sides (OpenCV: CALIB_FIX_K3)."""
-    from plugins.bundle.solver import BundleSettings
-
     res, _ = charuco
     block = res.artefacts["block"]
     sig = block.cameras.sigma_ap.copy()
     sig[:, 2] = 0.0                                            # K3 fixed
     block = block.replace(cameras=block.cameras.replace(sigma_ap=sig))
-    # this weak case creeps (LM damping stays at 1e-5 for ~25 iterations): 36 iterations
-    result = adjust_mod.adjust(block, BundleSettings(max_iter=100))
+    result = adjust_mod.adjust(block)                           # weak: ~25 iterations
+    print(f"\nChArUco bundle: {result.iterations} iterations")
     _compare("ChArUco", block, result, 0, fixed_k3=True, strict=False)
