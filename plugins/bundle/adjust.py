@@ -19,6 +19,25 @@ from .solver import BundleProblem, BundleSettings, BundleState, solve_bundle
 __all__ = ["adjust", "BundleResult", "check_point_rmse"]
 
 
+def padded_ap(cameras) -> tuple[np.ndarray, np.ndarray]:
+    """``(ap, sigma_ap)`` copies widened to the largest parameter count of the cameras' models;
+    added columns get the model's default sigma (0 beyond a camera's own parameter count)."""
+    from .apmodels import get_ap_model
+
+    models = [get_ap_model(m) for m in cameras.ap_model.tolist()]
+    p = max([m.n_params for m in models] + [cameras.ap.shape[1]])
+    k = len(cameras)
+    ap = np.zeros((k, p))
+    sig = np.zeros((k, p))
+    w = cameras.ap.shape[1]
+    ap[:, :w] = cameras.ap
+    sig[:, :w] = cameras.sigma_ap
+    for j, m in enumerate(models):
+        if m.n_params > w:
+            sig[j, w:m.n_params] = np.asarray(m.default_sigma, float)[w:]
+    return ap, sig
+
+
 def check_point_rmse(adjusted: np.ndarray, surveyed: np.ndarray) -> dict:
     """SPEC §2: ``Sx = √(Σ(Xp − XG)²/n)``, likewise Sy, Sz; ``Sxy = √((Sx² + Sy²)/2)``.
 
@@ -64,6 +83,7 @@ class BundleResult:
     timings: dict
     warnings: list
     Qx: np.ndarray | None = field(default=None, repr=False)   # cofactors of the global unknowns
+    extras: dict = field(default_factory=dict, repr=False)     # stage-level results (tests, AP selection)
 
     # -- derived -------------------------------------------------------------------------------
     @property
@@ -80,15 +100,7 @@ class BundleResult:
         b = self.block_in
         cams = b.cameras
         st = self.state
-        ap = np.array(cams.ap, float)
-        p = st.cam_params.shape[1] - 3
-        if ap.shape[1] < p:
-            ap = np.hstack([ap, np.zeros((len(cams), p - ap.shape[1]))])
-            sig = np.hstack([cams.sigma_ap, np.array([[m.default_sigma[t] if t < m.n_params else 0.0
-                                                      for t in range(cams.ap.shape[1], p)]
-                                                     for m in self.problem.models]).reshape(len(cams), -1)])
-        else:
-            sig = cams.sigma_ap
+        ap, sig = padded_ap(cams)
         for j, m in enumerate(self.problem.models):
             ap[j, :m.n_params] = st.cam_params[j, 3:3 + m.n_params]
         new_cams = cams.replace(c=st.cam_params[:, 0], xp=st.cam_params[:, 1], yp=st.cam_params[:, 2],
@@ -129,10 +141,10 @@ class BundleResult:
     def point_sigmas(self) -> np.ndarray:
         return np.sqrt(np.clip(np.einsum("nii->ni", self.cov_points), 0, None))
 
-    def obs_rows(self) -> list[tuple[int, int]]:
-        """Scalar snapshot row → (observation index, coordinate 0 = x / 1 = y)."""
+    def obs_rows(self) -> np.ndarray:
+        """(2k, 2): scalar snapshot row → (observation index, coordinate 0 = x / 1 = y)."""
         k = len(self.residuals)
-        return [(i, c) for i in range(k) for c in (0, 1)]
+        return np.column_stack([np.repeat(np.arange(k), 2), np.tile([0, 1], k)])
 
     def refit(self, active: np.ndarray) -> Snapshot:
         """Adjust again with only the scalar rows ``active`` (2 per observation: x, y); the start is

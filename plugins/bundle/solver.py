@@ -667,8 +667,11 @@ def _block_distances(block: Block):
     for d in (block.meta.get("distances", []) if isinstance(block.meta, dict) else []):
         if isinstance(d, Distance):
             out.append(d)
-        else:
+        elif isinstance(d, Mapping):
             out.append(Distance(str(d["from"]), str(d["to"]), float(d["distance"]), float(d["sigma"])))
+        else:                                   # (id_a, id_b, distance, sigma), e.g. the AICON reader's
+            a, b, dist, sig = tuple(d)[:4]
+            out.append(Distance(str(a), str(b), float(dist), float(sig)))
     return out
 
 

@@ -1,0 +1,129 @@
+"""The bundle stage's rerun recording (called only from ``BundleAdjustment.log``).
+
+Entities
+    ``world/points``                object points, coloured by role (labels = ids)
+    ``world/photos/<id>``           Transform3D (world_from_cam) + Pinhole (c, format in mm, RUB)
+    ``world/rejected_rays``         rays of rejected / flagged observations (red)
+    ``images/<id>/observed``        image points (u = x + w/2, v = h/2 − y: mm, y down as in 2-D views)
+    ``images/<id>/residuals``       residual vectors from computed to observed, × arrow scale
+    ``cameras/<id>/distortion``     distortion field of the estimated APs on a grid, × scale
+    ``convergence/*``               vᵀPv, σ̂0, damping per ``iteration``
+    ``bundle/report``               the Markdown report
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.geometry import rotation_from_opk_many
+
+from .apmodels import get_ap_model
+
+ROLE_COLORS = {"full": [220, 40, 40], "xy": [240, 150, 20], "z": [200, 60, 200], "check": [40, 170, 60],
+               "tie": [60, 110, 230]}
+RED, GREY, BLUE = [230, 40, 40], [150, 150, 150], [40, 90, 230]
+
+
+def _safe(s: str) -> str:
+    return "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in str(s))
+
+
+def _format(block, j, xy):
+    f = np.asarray(block.cameras.format_mm[j], float)
+    if not np.all(np.isfinite(f)) or np.any(f <= 0):
+        ext = np.nanmax(np.abs(xy), axis=0) if len(xy) else np.array([10.0, 10.0])
+        f = 2.0 * np.maximum(ext, 1e-3)
+    return f
+
+
+def log_bundle(rec, res, decision, options, report: str, max_photos: int = 300) -> None:
+    import rerun as rr
+
+    block = res.block_in
+    st = res.state
+    prob = res.problem
+    pts, photos, obs = block.points, block.photos, block.observations
+    used = prob.point_used
+    rec.log("world/points", rr.Points3D(st.XYZ[used], labels=pts.ids[used].tolist(),
+                                        colors=[ROLE_COLORS.get(r, GREY) for r in pts.role[used]],
+                                        radii=rr.Radius.ui_points(4.0)), static=True)
+    R = rotation_from_opk_many(np.nan_to_num(st.opk))
+    v = res.residuals
+    fin = np.isfinite(v).all(axis=1)
+    scale = options.arrow_scale
+    if scale <= 0:
+        act = res.obs_active & fin
+        rms = float(np.sqrt(np.mean(v[act] ** 2))) if act.any() else 0.0
+        ext = float(np.nanmedian([_format(block, j, obs.xy[obs.photo == i]).max()
+                                  for i, j in enumerate(photos.camera)])) if len(photos) else 1.0
+        scale = 0.03 * ext / rms if rms > 0 else 1.0
+    computed = obs.xy - np.nan_to_num(v)
+    bad = np.isin(decision, ("rejected", "flagged"))
+    for i in np.flatnonzero(prob.photo_used)[:max_photos]:
+        pid = _safe(photos.ids[i])
+        j = photos.camera[i]
+        sel = np.flatnonzero(obs.photo == i)
+        fmt = _format(block, j, obs.xy[sel])
+        c = float(st.cam_params[j, 0])
+        rec.log(f"world/photos/{pid}", rr.Transform3D(translation=st.X0[i], mat3x3=R[i].T), static=True)
+        rec.log(f"world/photos/{pid}", rr.Pinhole(focal_length=c, width=float(fmt[0]), height=float(fmt[1]),
+                                                   principal_point=[fmt[0] / 2 + st.cam_params[j, 1],
+                                                                    fmt[1] / 2 - st.cam_params[j, 2]],
+                                                   camera_xyz=rr.ViewCoordinates.RUB,
+                                                   image_plane_distance=float(0.1 * _depth(st, i, obs, sel))),
+                static=True)
+        uv = lambda xy: np.column_stack([xy[:, 0] + fmt[0] / 2, fmt[1] / 2 - xy[:, 1]])
+        labels = pts.ids[obs.point[sel]].tolist()
+        rec.log(f"images/{pid}/observed", rr.Points2D(uv(obs.xy[sel]), labels=labels,
+                                                      colors=[RED if b else BLUE for b in bad[sel]],
+                                                      radii=rr.Radius.ui_points(3.0)), static=True)
+        ok = sel[fin[sel]]
+        if ok.size:
+            vec = v[ok] * scale
+            rec.log(f"images/{pid}/residuals",
+                    rr.Arrows2D(origins=uv(computed[ok]), vectors=np.column_stack([vec[:, 0], -vec[:, 1]]),
+                                colors=[RED if b else GREY for b in bad[ok]]), static=True)
+    # rejected / flagged rays
+    rb = np.flatnonzero(bad & prob.photo_used[obs.photo] & used[obs.point])
+    if rb.size:
+        strips = [np.vstack([st.X0[obs.photo[k]], st.XYZ[obs.point[k]]]) for k in rb]
+        rec.log("world/rejected_rays", rr.LineStrips3D(strips, colors=RED,
+                                                       labels=[f"{photos.ids[obs.photo[k]]}/{pts.ids[obs.point[k]]}: "
+                                                               f"{decision[k]}" for k in rb]), static=True)
+    # distortion field of the estimated APs
+    for j in np.flatnonzero(prob.cam_used):
+        mdl = get_ap_model(block.cameras.ap_model[j])
+        if mdl.n_params == 0:
+            continue
+        fmt = _format(block, j, obs.xy[np.isin(obs.photo, np.flatnonzero(photos.camera == j))])
+        gx, gy = np.meshgrid(np.linspace(-fmt[0] / 2, fmt[0] / 2, 15), np.linspace(-fmt[1] / 2, fmt[1] / 2, 11))
+        xb, yb = gx.ravel(), gy.ravel()
+        prm = np.broadcast_to(st.cam_params[j, 3:3 + mdl.n_params], (xb.size, mdl.n_params))
+        dx, dy = mdl.distortion(xb, yb, prm, np.full(xb.size, st.cam_params[j, 0]), prob.meta[j])
+        mag = np.hypot(dx, dy)
+        dscale = 0.05 * fmt.max() / mag.max() if mag.max() > 0 else 1.0
+        rec.log(f"cameras/{_safe(block.cameras.ids[j])}/distortion",
+                rr.Arrows2D(origins=np.column_stack([xb + fmt[0] / 2, fmt[1] / 2 - yb]),
+                            vectors=np.column_stack([dx, -dy]) * dscale,
+                            labels=[f"{m * 1000:.1f} µm" for m in mag]), static=True)
+        rec.log(f"cameras/{_safe(block.cameras.ids[j])}/distortion_scale", rr.AnyValues(arrow_scale=dscale),
+                static=True)
+    rec.log("bundle/report", rr.TextDocument(report, media_type=rr.MediaType.MARKDOWN), static=True)
+    rec.log("bundle/summary", rr.AnyValues(sigma0_hat=res.sigma0_hat, dof=res.dof, vtpv=res.vtpv,
+                                           arrow_scale=scale, iterations=res.iterations), static=True)
+    dof = max(res.dof, 1)
+    for h in res.history:
+        rec.set_time("iteration", sequence=int(h["iteration"]))
+        rec.log("convergence/vtpv", rr.Scalars([float(h["vtpv"])]))
+        rec.log("convergence/sigma0_hat", rr.Scalars([float(np.sqrt(h["vtpv"] / dof))]))
+        rec.log("convergence/lambda", rr.Scalars([float(h["lambda"])]))
+        if np.isfinite(h["max_step_sigma"]):
+            rec.log("convergence/max_step_sigma", rr.Scalars([float(h["max_step_sigma"])]))
+
+
+def _depth(st, i, obs, sel):
+    if sel.size == 0:
+        return 1.0
+    d = np.linalg.norm(st.XYZ[obs.point[sel]] - st.X0[i], axis=1)
+    d = d[np.isfinite(d)]
+    return float(np.median(d)) if d.size else 1.0

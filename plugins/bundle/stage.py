@@ -1,0 +1,375 @@
+"""Stage ``bundle``: self-calibrating bundle block adjustment (see docs/bundle.md).
+
+Numerics in :mod:`.adjust` / :mod:`.solver` / :mod:`.precision`; statistics from
+:mod:`pipeline.stats`; this module maps options onto the block and the solver, runs AP
+selection and blunder handling, and writes report, tables and the recording.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Literal
+
+import numpy as np
+
+from pipeline.errors import InputError
+from pipeline.model import Block
+from pipeline.options import option
+from pipeline.stage import Context, StageResult, TableData
+from pipeline import stats
+from plugins.blunders.artefact import AdjustmentArtefact
+
+from .adjust import BundleResult, adjust, padded_ap
+from .apmodels import ap_model_names, get_ap_model
+from .apselect import select_aps
+from .collinearity import EO_NAMES
+from .solver import BundleSettings, Distance
+
+ROLE_COLORS = {"full": [220, 40, 40], "xy": [240, 150, 20], "z": [200, 60, 200], "check": [40, 170, 60],
+               "tie": [60, 110, 230]}
+
+
+@dataclasses.dataclass(frozen=True)
+class BundleOptions:
+    datum: Literal["control", "free"] = option(
+        "control", "datum: by control points / weighted constraints, or a free network with inner constraints")
+    datum_points: list[str] = option(
+        [], "free network: ids of the points carrying the inner constraints (empty: every tie and check point)")
+    datum_on: Literal["points", "centres"] = option(
+        "points", "free network: inner constraints on object points or on the projection centres")
+    ap_model: str = option("", "AP model of every camera (none, ebner12, brown, aicon, or a registered "
+                               "third-party model); empty: as in the block")
+    ap_models: dict = option({}, "AP model per camera id (overrides ap_model)")
+    iop: Literal["block", "free", "fixed"] = option(
+        "block", "c, xp, yp: a-priori sigmas from the block, all free, or all fixed")
+    aps: Literal["block", "free", "fixed"] = option(
+        "block", "additional parameters: sigmas from the block, all free, or all fixed")
+    fix: list[str] = option([], "parameter names held fixed in every camera (e.g. ['K3', 'P1', 'P2'])")
+    free: list[str] = option([], "parameter names made free in every camera (applied after 'fix')")
+    sigma: dict = option({}, "parameter name -> a-priori sigma (weighted constraint), every camera")
+    ebner_b: float = option(0.0, "image base b (mm) of ebner12; 0: 0.4 × format width (60 % overlap)")
+    distances: list[dict] = option(
+        [], "extra scale bars: tables {from, to, distance, sigma} (object units); block scale bars are used too")
+    sigma0: float = option(1.0, "a-priori standard deviation of unit weight")
+    max_iter: int = option(30, "maximum number of iterations")
+    tol_obs: float = option(1e-5, "converged when a correction moves no observation by more than this × its σ")
+    tol_rel: float = option(1e-12, "... or when vᵀPv changes by less than this fraction")
+    damping: bool = option(True, "Levenberg–Marquardt damping when a Gauss–Newton step does not reduce vᵀPv")
+    on_weak: Literal["error", "drop"] = option(
+        "error", "photos with < 3 points, points in < 2 photos: stop with an error, or drop them with a warning")
+    ap_selection: bool = option(False, "select APs: remove |ρ| > rho_max one after another, then t-tests")
+    rho_max: float = option(0.75, "AP selection: correlation limit (the paper's 0.75)")
+    ap_alpha: float = option(0.05, "AP selection: significance level of the t-test (two-sided)")
+    ap_significance: Literal["remove", "report"] = option(
+        "remove", "AP selection: remove insignificant APs one at a time, or only report them")
+    blunders: Literal["none", "data-snooping", "ids"] = option(
+        "none", "blunder handling inside the bundle: none, data snooping (flag), iterated data snooping (reject)")
+    alpha0: float = option(0.001, "significance level of the w-test (two-sided, per observation)")
+    beta0: float = option(0.80, "power for the MDBs")
+    max_rejections: int = option(50, "iterated data snooping: at most this many rejected coordinates")
+    covariance: bool = option(True, "compute covariances, redundancy numbers and w-tests")
+    arrow_scale: float = option(0.0, "scale of residual arrows in the recording (0: automatic)")
+
+    def __post_init__(self):
+        names = ap_model_names()
+        for m in [self.ap_model] * bool(self.ap_model) + list(self.ap_models.values()):
+            if m not in names:
+                raise ValueError(f"unknown AP model {m!r}; registered: {', '.join(names)}")
+        for k in ("alpha0", "beta0", "ap_alpha"):
+            if not 0 < getattr(self, k) < 1:
+                raise ValueError(f"{k} must lie strictly between 0 and 1")
+        if not 0 < self.rho_max < 1:
+            raise ValueError("rho_max must lie strictly between 0 and 1")
+        if self.sigma0 <= 0:
+            raise ValueError("sigma0 must be positive")
+        if self.max_iter < 1:
+            raise ValueError("max_iter must be at least 1")
+        for name, s in self.sigma.items():
+            if not isinstance(s, (int, float)) or s < 0:
+                raise ValueError(f"sigma.{name}: expected a non-negative number, got {s!r}")
+        for d in self.distances:
+            missing = {"from", "to", "distance", "sigma"} - set(d)
+            if missing:
+                raise ValueError(f"distances: each entry needs from, to, distance, sigma (missing {sorted(missing)})")
+
+
+def configure_block(block: Block, o: BundleOptions) -> Block:
+    """Apply the options' camera model and parameter status to the block's cameras."""
+    cams = block.cameras
+    models = cams.ap_model.copy().astype(object)
+    if o.ap_model:
+        models[:] = o.ap_model
+    for cid, m in o.ap_models.items():
+        if cid not in cams.ids:
+            raise InputError(f"ap_models: unknown camera {cid!r}", field="ap_models")
+        models[list(cams.ids).index(cid)] = m
+    changed = models != cams.ap_model
+    cams = cams.replace(ap_model=np.array(models, dtype=str))
+    ap, sig = padded_ap(cams)
+    for j in np.flatnonzero(changed):
+        mdl = get_ap_model(models[j])
+        ap[j] = 0.0
+        sig[j] = 0.0
+        sig[j, :mdl.n_params] = np.asarray(mdl.default_sigma, float)
+    siop = np.array(cams.sigma_iop, float)
+    if o.iop != "block":
+        siop[:] = np.inf if o.iop == "free" else 0.0
+    for j in range(len(cams)):
+        mdl = get_ap_model(cams.ap_model[j])
+        p = mdl.n_params
+        if o.aps != "block":
+            sig[j, :p] = np.inf if o.aps == "free" else 0.0
+        names = ["c", "xp", "yp"] + list(mdl.params)
+        for rule, value in [(o.fix, 0.0), (o.free, np.inf)]:
+            for name in rule:
+                if name in names:
+                    t = names.index(name)
+                    if t < 3:
+                        siop[j, t] = value
+                    else:
+                        sig[j, t - 3] = value
+        for name, s in o.sigma.items():
+            if name in names:
+                t = names.index(name)
+                if t < 3:
+                    siop[j, t] = float(s)
+                else:
+                    sig[j, t - 3] = float(s)
+    known = {n for m in set(cams.ap_model.tolist()) for n in ["c", "xp", "yp"] + list(get_ap_model(m).params)}
+    for name in list(o.fix) + list(o.free) + list(o.sigma):
+        if name not in known:
+            raise InputError(f"parameter {name!r} belongs to none of the cameras' models "
+                             f"({', '.join(sorted(known))})", field="fix/free/sigma")
+    return block.replace(cameras=cams.replace(ap=ap, sigma_ap=sig, sigma_iop=siop))
+
+
+def settings_from(o: BundleOptions, block: Block) -> BundleSettings:
+    ap_meta = {}
+    if o.ebner_b > 0:
+        ap_meta = {cid: {"b": o.ebner_b} for cid in block.cameras.ids.tolist()}
+    return BundleSettings(
+        datum=o.datum, datum_points=tuple(o.datum_points) or None, datum_centres=o.datum_on == "centres",
+        sigma0=o.sigma0, max_iter=o.max_iter, tol_obs=o.tol_obs, tol_rel=o.tol_rel, damping=o.damping,
+        distances=tuple(Distance(str(d["from"]), str(d["to"]), float(d["distance"]), float(d["sigma"]))
+                        for d in o.distances),
+        on_weak=o.on_weak, ap_meta=ap_meta, covariance=o.covariance)
+
+
+class BundleAdjustment:
+    summary = "Self-calibrating bundle block adjustment: datum, APs, precision, reliability, data snooping"
+    reads = ("block",)
+    writes = ("bundle", "adjustment", "block")
+    Options = BundleOptions
+
+    def run(self, inputs, options: BundleOptions, ctx: Context) -> StageResult:
+        block_in = inputs["block"]
+        block = configure_block(block_in, options)
+        settings = settings_from(options, block)
+        ctx.progress.message(f"adjusting {len(block.photos)} photos, {len(block.points)} points, "
+                             f"{int(block.observations.active.sum())} observations")
+        res = adjust(block, settings, covariance=options.covariance)
+        selection = None
+        if options.ap_selection:
+            selection = select_aps(block, settings, rho_max=options.rho_max, alpha=options.ap_alpha,
+                                   significance=options.ap_significance, result=res)
+            res = selection.result
+        for w in res.warnings:
+            ctx.warn(w)
+        snap = res.snapshot
+        extras = {"selection": selection, "global_test": None, "snooping": None, "ids": None, "joint": None}
+        decision = np.array(["ok"] * len(block.observations), dtype=object)
+        decision[~block.observations.active] = "inactive"
+        rejected_rows = np.zeros(2 * len(block.observations), bool)
+        if snap is not None:
+            extras["global_test"] = stats.global_test(snap, alpha0=options.alpha0, beta0=options.beta0)
+            if options.blunders == "ids":
+                ids = stats.iterated_data_snooping(res, snap, alpha0=options.alpha0, beta0=options.beta0,
+                                                   max_iter=options.max_rejections)
+                extras["ids"] = ids
+                if ids.removed:
+                    rejected_rows[ids.removed] = True
+                    res = getattr(res, "_last_refit", res)
+                    snap = res.snapshot
+                    extras["global_test"] = stats.global_test(snap, alpha0=options.alpha0, beta0=options.beta0)
+            ds = stats.data_snooping(snap, alpha0=options.alpha0, beta0=options.beta0)
+            extras["snooping"] = ds
+            try:
+                extras["joint"] = stats.joint_test_2d(snap, alpha=options.alpha0)
+            except ValueError:
+                extras["joint"] = None
+            flagged_obs = np.unique(np.flatnonzero(ds.flagged) // 2)
+            if options.blunders != "none":
+                decision[flagged_obs] = "flagged"
+            decision[np.unique(np.flatnonzero(rejected_rows) // 2)] = "rejected"
+        res.extras = extras
+        out_block = res.block
+        if rejected_rows.any():
+            act = out_block.observations.active.copy()
+            act[np.unique(np.flatnonzero(rejected_rows) // 2)] = False
+            out_block = out_block.replace(observations=out_block.observations.replace(active=act))
+        artefacts = {"bundle": res, "block": out_block}
+        if snap is not None:
+            artefacts["adjustment"] = AdjustmentArtefact("bundle", snap, res, res.obs_rows())
+        else:
+            artefacts["adjustment"] = None
+        return StageResult(
+            artefacts=artefacts,
+            summary=_summary(res, extras, options),
+            report=_report(res, extras, options, block),
+            tables=_tables(res, extras, decision, block),
+            data={"result": res, "decision": decision, "options": options, "extras": extras},
+        )
+
+    def log(self, result: StageResult, rec, ctx: Context) -> None:
+        from .rrlog import log_bundle
+
+        log_bundle(rec, result.data["result"], result.data["decision"], result.data["options"], result.report)
+
+
+# ---------------------------------------------------------------------------------------------
+def _f(x, nd=4):
+    return "–" if x is None or not np.isfinite(x) else f"{x:.{nd}g}"
+
+
+def _summary(res: BundleResult, extras, o) -> dict:
+    out = res.summary()
+    gt = extras.get("global_test")
+    if gt is not None:
+        out["global_test"] = {k: (float(v) if isinstance(v, (float, np.floating)) else v)
+                              for k, v in gt.summary().items()}
+    ds = extras.get("snooping")
+    if ds is not None:
+        out["data_snooping"] = {"critical": ds.critical, "n_flagged": int(ds.flagged.sum())}
+    if extras.get("ids") is not None:
+        out["ids"] = {"removed": extras["ids"].removed_labels, "stop": extras["ids"].stop_reason}
+    if extras.get("selection") is not None:
+        out["ap_selection"] = extras["selection"].summary()
+    out["cameras"] = [r for j in range(len(res.block_in.cameras)) for r in res.camera_table(j)]
+    out["sigma0_um_equivalent"] = _sigma0_um(res)
+    return out
+
+
+def _sigma0_um(res: BundleResult) -> float:
+    """σ̂0 × median a-priori image σ, in µm (the papers' 'σ0 in µm' when all σ are equal)."""
+    cov = res.block_in.observations.cov[res.obs_active]
+    if len(cov) == 0:
+        return float("nan")
+    s = np.sqrt(np.median(0.5 * (cov[:, 0, 0] + cov[:, 1, 1])))
+    return float(res.sigma0_hat * s * 1000.0 / res.sigma0)
+
+
+def _report(res: BundleResult, extras, o, block) -> str:
+    L = []
+    prob = res.problem
+    L.append(f"Bundle adjustment of {int(prob.photo_used.sum())} photos, {int(prob.point_used.sum())} points, "
+             f"{int(res.obs_active.sum())} image points ({prob.n_obs_rows} coordinates); "
+             f"{prob.n_unknowns} unknowns, {len(prob.prior_g_idx) + len(prob.prior_p_idx)} weighted constraints, "
+             f"{len(prob.dist_l)} distance(s); datum: {o.datum}"
+             + (f" (inner constraints on {'projection centres' if o.datum_on == 'centres' else 'points'}, "
+                f"{prob.n_c} constraints)" if o.datum == "free" else "") + ".")
+    L.append("")
+    L.append(f"- iterations: {res.iterations}; vᵀPv = {res.vtpv:.6g}; dof = {res.dof}; "
+             f"σ̂0 = {_f(res.sigma0_hat)} (≈ {_f(_sigma0_um(res), 3)} µm)")
+    gt = extras.get("global_test")
+    if gt is not None:
+        L.append(f"- global test: T = σ̂0²/σ0² = {_f(gt.T)} vs F-critical {_f(gt.critical)} "
+                 f"(α′ = {gt.alpha:.3g}): {'REJECTED' if gt.rejected else 'accepted'}")
+    ds = extras.get("snooping")
+    if ds is not None:
+        L.append(f"- data snooping: |w| > {ds.critical:.3f}: {int(ds.flagged.sum())} coordinate(s) flagged")
+    ids = extras.get("ids")
+    if ids is not None:
+        L.append(f"- iterated data snooping: {len(ids.removed)} coordinate(s) rejected "
+                 f"({', '.join(ids.removed_labels[:10])}{' …' if len(ids.removed) > 10 else ''}); stop: {ids.stop_reason}")
+    if res.check.get("n"):
+        c = res.check
+        L.append(f"- check points ({c['n']}, adjusted − surveyed): Sx = {_f(c['Sx'])}, Sy = {_f(c['Sy'])}, "
+                 f"Sxy = {_f(c['Sxy'])}, Sz = {_f(c['Sz'])} ({block.object_unit})")
+    t = res.timings
+    L.append(f"- time: {t.get('total', 0):.3f} s (initial values {t.get('initial_values', 0):.3f}, linearise "
+             f"{t.get('linearize', 0):.3f}, solve {t.get('solve', 0):.3f}, covariance {t.get('covariance', 0):.3f})")
+    for w in res.warnings:
+        L.append(f"- warning: {w}")
+    L.append("")
+    L.append("### Camera parameters")
+    L.append("")
+    L.append("| camera | parameter | value | σ | status |")
+    L.append("|---|---|---|---|---|")
+    for j in range(len(block.cameras)):
+        if not prob.cam_used[j]:
+            continue
+        for r in res.camera_table(j):
+            L.append(f"| {r['camera']} | {r['parameter']} | {r['value']:.8g} | {_f(r['sigma'], 3)} | {r['status']} |")
+    for j in range(len(block.cameras)):
+        free = [t for t in range(len(res.cam_param_names[j])) if prob.g_cam[j, t] >= 0]
+        if len(free) < 2:
+            continue
+        R = res.correlation_camera(j)[np.ix_(free, free)]
+        nm = [res.cam_param_names[j][t] for t in free]
+        L += ["", f"Correlations of camera {block.cameras.ids[j]!r}:", "",
+              "| | " + " | ".join(nm) + " |", "|---" * (len(nm) + 1) + "|"]
+        for a in range(len(nm)):
+            L.append(f"| {nm[a]} | " + " | ".join(f"{R[a, b]:+.2f}" for b in range(len(nm))) + " |")
+    sel = extras.get("selection")
+    if sel is not None:
+        L += ["", "### Additional-parameter selection", "", sel.markdown()]
+    return "\n".join(L)
+
+
+def _tables(res: BundleResult, extras, decision, block) -> dict:
+    obs = block.observations
+    ph_ids = block.photos.ids[obs.photo]
+    pt_ids = block.points.ids[obs.point]
+    v = res.residuals
+    r = res.redundancy
+    snap = res.snapshot
+    if snap is not None:
+        w = stats.w_test(snap).reshape(-1, 2)
+        mdbs = stats.mdb(snap).reshape(-1, 2)
+        nab = stats.estimated_errors(snap).reshape(-1, 2)
+    else:
+        w = mdbs = nab = np.full((len(obs), 2), np.nan)
+    tables = {}
+    tables["observations"] = TableData({
+        "photo": ph_ids.tolist(), "point": pt_ids.tolist(), "x": obs.xy[:, 0], "y": obs.xy[:, 1],
+        "vx": v[:, 0], "vy": v[:, 1], "rx": r[:, 0], "ry": r[:, 1], "wx": w[:, 0], "wy": w[:, 1],
+        "nabla_x": nab[:, 0], "nabla_y": nab[:, 1], "mdb_x": mdbs[:, 0], "mdb_y": mdbs[:, 1],
+        "decision": decision.tolist()}, "every image observation: residual (mm), redundancy, w-test, MDB (mm)")
+    pts = block.points
+    sp = res.point_sigmas()
+    rays = np.bincount(obs.point[res.obs_active], minlength=len(pts))
+    XYZ = res.state.XYZ
+    dXYZ = np.where((pts.role == "check")[:, None], XYZ - pts.XYZ, np.nan)
+    tables["points"] = TableData({
+        "point": pts.ids.tolist(), "role": pts.role.tolist(), "X": XYZ[:, 0], "Y": XYZ[:, 1], "Z": XYZ[:, 2],
+        "sX": sp[:, 0], "sY": sp[:, 1], "sZ": sp[:, 2], "rays": rays,
+        "dX_check": dXYZ[:, 0], "dY_check": dXYZ[:, 1], "dZ_check": dXYZ[:, 2]},
+        f"adjusted object points ({block.object_unit}) with a-posteriori σ; check points: adjusted − surveyed")
+    rows = [r for j in range(len(block.cameras)) for r in res.camera_table(j)]
+    tables["cameras"] = TableData({k: [r[k] for r in rows] for k in
+                                   ("camera", "parameter", "value", "sigma", "status", "apriori_sigma")},
+                                  "camera parameters (mm; APs in the model's units)")
+    se = res.eo_sigmas()
+    X0, opk = res.state.X0, res.state.opk
+    cols = {"photo": block.photos.ids.tolist()}
+    for t, n in enumerate(EO_NAMES):
+        val = X0[:, t] if t < 3 else np.degrees(opk[:, t - 3])
+        sd = se[:, t] if t < 3 else np.degrees(se[:, t])
+        cols[n + ("" if t < 3 else "_deg")] = val
+        cols["s" + n + ("" if t < 3 else "_deg")] = sd
+    tables["eo"] = TableData(cols, "exterior orientation with a-posteriori σ (angles in degrees)")
+    corr_rows = []
+    for j in range(len(block.cameras)):
+        R = res.correlation_camera(j)
+        nm = res.cam_param_names[j]
+        for a in range(len(nm)):
+            for b in range(a + 1, len(nm)):
+                if R[a, a] > 0 and R[b, b] > 0:
+                    corr_rows.append((str(block.cameras.ids[j]), nm[a], nm[b], float(R[a, b])))
+    tables["correlations"] = TableData({"camera": [c[0] for c in corr_rows], "p1": [c[1] for c in corr_rows],
+                                        "p2": [c[2] for c in corr_rows], "rho": [c[3] for c in corr_rows]},
+                                       "correlations between the estimated camera parameters")
+    tables["convergence"] = TableData({k: [h[k] for h in res.history] for k in
+                                       ("iteration", "vtpv", "lambda", "max_step_sigma")},
+                                      "vᵀPv, damping and largest correction (in σ of an observation) per iteration")
+    return tables
