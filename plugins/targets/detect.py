@@ -121,7 +121,7 @@ def detect_aruco(gray: np.ndarray, geom: BoardGeometry, params=None) -> Detectio
     return Detection(out_ids, uv, "; ".join(notes), {"markers": int(keep.sum())})
 
 
-def _subpixel_outline(roi: np.ndarray, centre, axes, angle_deg, level: float, n_rays: int = 90) -> np.ndarray:
+def _subpixel_outline(roi: np.ndarray, centre, axes, level: float, n_rays: int = 90) -> np.ndarray:
     """Points where the bilinear image crosses ``level`` along rays from ``centre`` (roi pixels)."""
     from scipy.ndimage import map_coordinates
 
@@ -188,12 +188,12 @@ def refine_ellipse_centres(gray: np.ndarray, uv: np.ndarray, radius_px=None) -> 
         c = inside[0].reshape(-1, 2)
         if c[:, 0].min() <= 0 or c[:, 1].min() <= 0 or c[:, 0].max() >= 2 * half or c[:, 1].max() >= 2 * half:
             continue                            # blob touches the window: not isolated
-        centre, axes, angle = cv2.fitEllipse(c.astype(np.float32))
+        centre, axes, _ = cv2.fitEllipse(c.astype(np.float32))
         blob = roi[bw > 0]
         ground = roi[bw == 0]
         if blob.size and ground.size:
             mid = 0.5 * (float(np.median(blob)) + float(np.median(ground)))
-            edge = _subpixel_outline(roi, np.array(centre, float), axes, angle, mid)
+            edge = _subpixel_outline(roi, np.array(centre, float), axes, mid)
             if len(edge) >= 20:
                 centre, _, _ = cv2.fitEllipse(edge)
         out[i] = (x0 + centre[0], y0 + centre[1])
