@@ -29,17 +29,17 @@ def parameter_names(prob) -> list[str]:
         for t in range(len(pn)):
             i = prob.g_cam[j, t]
             if i >= 0:
-                names[i] = f"parameter {pn[t]} of camera {cams.ids[j]!r}"
+                names[i] = f"parameter {pn[t]} of camera {str(cams.ids[j])!r}"
     for i_ph in range(prob.m):
         for t in range(6):
             i = prob.g_eo[i_ph, t]
             if i >= 0:
-                names[i] = f"{EO_NAMES[t]} of photo {photos.ids[i_ph]!r}"
+                names[i] = f"{EO_NAMES[t]} of photo {str(photos.ids[i_ph])!r}"
     for p in range(prob.n):
         for t in range(3):
             i = prob.g_pt[p, t]
             if i >= 0:
-                names[i] = f"{'XYZ'[t]} of point {points.ids[p]!r}"
+                names[i] = f"{'XYZ'[t]} of point {str(points.ids[p])!r}"
     return names
 
 
@@ -59,13 +59,13 @@ def datum_motions(prob, st) -> np.ndarray:
     scale = scale or 1.0
 
     def pos_motion(X):
-        Xr = (X - ctr) / scale
+        Xc = X - ctr                           # rotations: ΔX = ε × (X − ctr), angles change by ε
         out = np.zeros((len(X), 3, 7))
         out[:, [0, 1, 2], [0, 1, 2]] = 1.0
-        out[:, 1, 3], out[:, 2, 3] = -Xr[:, 2], Xr[:, 1]
-        out[:, 0, 4], out[:, 2, 4] = Xr[:, 2], -Xr[:, 0]
-        out[:, 0, 5], out[:, 1, 5] = -Xr[:, 1], Xr[:, 0]
-        out[:, :, 6] = Xr
+        out[:, 1, 3], out[:, 2, 3] = -Xc[:, 2], Xc[:, 1]
+        out[:, 0, 4], out[:, 2, 4] = Xc[:, 2], -Xc[:, 0]
+        out[:, 0, 5], out[:, 1, 5] = -Xc[:, 1], Xc[:, 0]
+        out[:, :, 6] = Xc / scale
         return out
 
     mX = pos_motion(st.X0)

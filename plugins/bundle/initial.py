@@ -383,11 +383,11 @@ def initial_values(block: Block, *, ap_meta=None, max_rounds: int = 50, warn=Non
         i = missing_ph[0]
         nk = int(((o_ph == i) & known[o_pt]).sum())
         raise AdjustmentError(
-            f"no initial orientation for photo {photos.ids[i]!r}: it sees {nk} point(s) with known coordinates, "
+            f"no initial orientation for photo {str(photos.ids[i])!r}: it sees {nk} point(s) with known coordinates, "
             "resection needs 4 — give approximate X0/ω φ κ or more control points")
     missing_pt = np.flatnonzero(used_pt & ~known)
     if missing_pt.size:
         p = missing_pt[0]
         raise AdjustmentError(
-            f"no initial coordinates for point {points.ids[p]!r}: it is seen by fewer than two oriented photos")
+            f"no initial coordinates for point {str(points.ids[p])!r}: it is seen by fewer than two oriented photos")
     return block.replace(photos=photos.replace(X0=X0, opk=opk), points=points.replace(XYZ=XYZ))

@@ -94,7 +94,7 @@ def _dup(ids, what):
     if (cnt > 1).any():
         bad = u[np.argmax(cnt > 1)]
         rows = np.flatnonzero(ids == bad) + 1
-        raise InputError(f"duplicate {what} id {bad!r} (rows {', '.join(map(str, rows))}); ids must be unique",
+        raise InputError(f"duplicate {what} id {str(bad)!r} (rows {', '.join(map(str, rows))}); ids must be unique",
                          field=f"{what} id")
 
 
@@ -140,7 +140,7 @@ class BundleProblem:
         self.meta = camera_meta(block, settings)
         for j, mdl in enumerate(self.models):
             if mdl.name == "ebner12" and self.meta[j].get("b") is None:
-                raise InputError(f"camera {cams.ids[j]!r}: ebner12 needs the image base b (mm): set option "
+                raise InputError(f"camera {str(cams.ids[j])!r}: ebner12 needs the image base b (mm): set option "
                                  "'ebner_b' or give the camera's format", field="ebner_b")
         P = 3 + self.pmax
         cp0 = np.zeros((K, P))
@@ -204,8 +204,8 @@ class BundleProblem:
                 Lc = np.linalg.cholesky(Pm)
             except np.linalg.LinAlgError:
                 bad = oi[both][np.argmin(np.linalg.det(cov[both]))]
-                raise InputError(f"observation {bad + 1} (photo {photos.ids[obs.photo[bad]]!r}, point "
-                                 f"{points.ids[obs.point[bad]]!r}) has a covariance that is not positive definite",
+                raise InputError(f"observation {bad + 1} (photo {str(photos.ids[obs.photo[bad]])!r}, point "
+                                 f"{str(points.ids[obs.point[bad]])!r}) has a covariance that is not positive definite",
                                  field="cov") from None
             L[both] = np.transpose(Lc, (0, 2, 1))
         for r in (0, 1):
@@ -309,7 +309,7 @@ class BundleProblem:
             if (cnt > 1).any():
                 k = u[np.argmax(cnt > 1)]
                 ph, pt = divmod(int(k), len(points) + 1)
-                raise InputError(f"point {points.ids[pt]!r} is measured twice in photo {photos.ids[ph]!r}; "
+                raise InputError(f"point {str(points.ids[pt])!r} is measured twice in photo {str(photos.ids[ph])!r}; "
                                  "keep one measurement (or switch one off)", field="observations")
             n_pts_photo = np.bincount(obs.photo[oi], minlength=len(photos))
             eo_free = (photos.sigma_eo != 0).any(axis=1)
@@ -326,18 +326,18 @@ class BundleProblem:
                 if weak_ph.size:
                     i = weak_ph[0]
                     raise AdjustmentError(
-                        f"photo {photos.ids[i]!r} has only {n_pts_photo[i]} observed point(s); its orientation needs "
+                        f"photo {str(photos.ids[i])!r} has only {n_pts_photo[i]} observed point(s); its orientation needs "
                         "at least 3 (better 4 or more) — add points, fix its orientation, or set on_weak = 'drop'")
                 p = weak_pt[0]
                 ph = obs.photo[oi][obs.point[oi] == p][0]
                 raise AdjustmentError(
-                    f"point {points.ids[p]!r} is observed in only one photo ({photos.ids[ph]!r}) and has no control: "
+                    f"point {str(points.ids[p])!r} is observed in only one photo ({str(photos.ids[ph])!r}) and has no control: "
                     "it cannot be determined — add a measurement in another photo, remove it, or set on_weak = 'drop'")
             drop = np.isin(obs.photo, weak_ph) | np.isin(obs.point, weak_pt)
             for i in weak_ph:
-                self.warnings.append(f"photo {photos.ids[i]!r} dropped: only {n_pts_photo[i]} observed point(s)")
+                self.warnings.append(f"photo {str(photos.ids[i])!r} dropped: only {n_pts_photo[i]} observed point(s)")
             for p in weak_pt:
-                self.warnings.append(f"point {points.ids[p]!r} dropped: observed in only one photo")
+                self.warnings.append(f"point {str(points.ids[p])!r} dropped: observed in only one photo")
             act = act & ~drop
         return act  # pragma: no cover
 
@@ -401,7 +401,7 @@ class BundleProblem:
             sel[pts.index_of(list(st.datum_points))] = True
             unused = sel & ~self.point_used
             if unused.any():
-                raise InputError(f"datum point {pts.ids[np.argmax(unused)]!r} is not observed", field="datum_points")
+                raise InputError(f"datum point {str(pts.ids[np.argmax(unused)])!r} is not observed", field="datum_points")
         sel &= self.pt_free.all(axis=1)
         if sel.sum() < 3:
             raise AdjustmentError("free network: the inner constraints need at least 3 observed points with free "
@@ -682,7 +682,7 @@ def _chol3(V, prob):
         det = np.linalg.det(V)
         tr = np.einsum("pii->p", V)
         bad = int(np.argmin(det / np.maximum(tr, 1e-300) ** 3))
-        pid = prob.block.points.ids[prob.elim_points[bad]]
+        pid = str(prob.block.points.ids[prob.elim_points[bad]])
         raise AdjustmentError(f"point {pid!r} cannot be determined: its rays are (nearly) parallel or it is "
                               "seen from one photo only — remove it or add observations") from None
 
@@ -901,11 +901,11 @@ def _linear_cost(prob, lin, pred, dx, dp) -> float:
 def _check_initial(prob: BundleProblem, st: BundleState):
     bad = prob.photo_used & ~np.isfinite(np.concatenate([st.X0, st.opk], axis=1)).all(axis=1)
     if bad.any():
-        raise AdjustmentError(f"photo {prob.block.photos.ids[np.argmax(bad)]!r} has no initial orientation "
+        raise AdjustmentError(f"photo {str(prob.block.photos.ids[np.argmax(bad)])!r} has no initial orientation "
                               "(compute initial values first)")
     bad = prob.point_used & ~np.isfinite(st.XYZ).all(axis=1)
     if bad.any():
-        raise AdjustmentError(f"point {prob.block.points.ids[np.argmax(bad)]!r} has no initial coordinates "
+        raise AdjustmentError(f"point {str(prob.block.points.ids[np.argmax(bad)])!r} has no initial coordinates "
                               "(compute initial values first)")
 
 

@@ -306,7 +306,7 @@ def _report(res: BundleResult, extras, o, block) -> str:
             continue
         R = res.correlation_camera(j)[np.ix_(free, free)]
         nm = [res.cam_param_names[j][t] for t in free]
-        L += ["", f"Correlations of camera {block.cameras.ids[j]!r}:", "",
+        L += ["", f"Correlations of camera {str(block.cameras.ids[j])!r}:", "",
               "| | " + " | ".join(nm) + " |", "|---" * (len(nm) + 1) + "|"]
         for a in range(len(nm)):
             L.append(f"| {nm[a]} | " + " | ".join(f"{R[a, b]:+.2f}" for b in range(len(nm))) + " |")

@@ -1,0 +1,161 @@
+"""Covariances and redundancy numbers against a dense reference built from finite-difference
+Jacobians, and against Monte Carlo spread."""
+
+import numpy as np
+import pytest
+
+from pipeline.model import FREE
+from plugins.bundle import BundleSettings, adjust
+from plugins.bundle.collinearity import project_observations
+
+from .synth import make_block
+
+
+def _dense_reference(res):
+    """Full normal matrix from numeric derivatives of the projection w.r.t. every unknown."""
+    prob = res.problem
+    blk = res.block_in
+    st = res.state
+    obs = blk.observations
+    oi = np.flatnonzero(res.obs_active)
+
+    def f(cam, X0, opk, XYZ):
+        pr = project_observations(obs.photo[oi], obs.point[oi], XYZ, X0, opk, blk.photos.camera, cam,
+                                  blk.cameras.ap_model, prob.meta, jacobians=False)
+        return pr.xy.reshape(-1)
+
+    unknowns = []   # (kind, i, t)
+    for j in range(prob.K):
+        for t in range(st.cam_params.shape[1]):
+            if prob.g_cam[j, t] >= 0:
+                unknowns.append(("cam", j, t))
+    for i in range(prob.m):
+        for t in range(6):
+            if prob.g_eo[i, t] >= 0:
+                unknowns.append(("eo", i, t))
+    for p in range(prob.n):
+        for t in range(3):
+            if prob.pt_free[p, t]:
+                unknowns.append(("pt", p, t))
+    A = np.zeros((2 * len(oi), len(unknowns)))
+    for u, (kind, i, t) in enumerate(unknowns):
+        cols = []
+        for sgn in (1, -1):
+            cam, X0, opk, XYZ = st.cam_params.copy(), st.X0.copy(), st.opk.copy(), st.XYZ.copy()
+            if kind == "cam":
+                h = max(1e-6 * abs(cam[i, t]), 1e-13) if t >= 3 else 1e-6
+            else:
+                h = 1e-7
+            if kind == "cam":
+                cam[i, t] += sgn * h
+            elif kind == "eo":
+                (X0 if t < 3 else opk)[i, t % 3] += sgn * h
+            else:
+                XYZ[i, t] += sgn * h
+            cols.append(f(cam, X0, opk, XYZ))
+        A[:, u] = (cols[0] - cols[1]) / (2 * h)
+    P = np.zeros((2 * len(oi), 2 * len(oi)))
+    for r, k in enumerate(oi):
+        P[2 * r:2 * r + 2, 2 * r:2 * r + 2] = np.linalg.inv(obs.cov[k])
+    N = A.T @ P @ A
+    return unknowns, A, P, N
+
+
+def _compare(res):
+    unknowns, A, P, N = _dense_reference(res)
+    Q = np.linalg.inv(N)
+    var = res.variance_factor
+    prob = res.problem
+    # camera, EO and point variances
+    for u, (kind, i, t) in enumerate(unknowns):
+        if kind == "cam":
+            got = res.cov_cameras[i][t, t]
+        elif kind == "eo":
+            got = res.cov_eo[i, t, t]
+        else:
+            got = res.cov_points[i, t, t]
+        assert got == pytest.approx(var * Q[u, u], rel=2e-5), (kind, i, t)
+    # a full 3×3 point block and a camera–camera correlation
+    p = next(i for kind, i, t in unknowns if kind == "pt")
+    idx = [u for u, (kind, i, t) in enumerate(unknowns) if kind == "pt" and i == p]
+    assert np.allclose(res.cov_points[p], var * Q[np.ix_(idx, idx)], rtol=2e-5, atol=1e-12 * var * Q[idx[0], idx[0]])
+    # redundancy numbers and P Qvv P
+    Qvv = np.linalg.inv(P) - A @ Q @ A.T
+    R = Qvv @ P
+    PQP = P @ Qvv @ P
+    oi = np.flatnonzero(res.obs_active)
+    assert np.allclose(res.redundancy[oi].reshape(-1), np.diag(R), atol=2e-6)
+    assert np.allclose(np.einsum("kii->ki", res.PQvvP[oi]).reshape(-1), np.diag(PQP), rtol=1e-4,
+                       atol=1e-6 * np.abs(np.diag(PQP)).max())
+    assert res.redundancy.sum() == pytest.approx(res.dof, rel=1e-8)
+
+
+def test_precision_matches_dense_reference():
+    blk, _ = make_block(model="brown", n_photos=5, n_points=14, noise_mm=0.002, rng=np.random.default_rng(2),
+                        n_control=5)
+    res = adjust(blk)
+    _compare(res)
+
+
+def test_correlated_image_coordinates_dense_reference():
+    blk, _ = make_block(model="none", n_photos=5, n_points=14, noise_mm=0.0, n_control=5)
+    obs = blk.observations
+    rng = np.random.default_rng(4)
+    sx, sy = rng.uniform(0.5e-3, 2e-3, len(obs)), rng.uniform(0.5e-3, 2e-3, len(obs))
+    rho = rng.uniform(-0.8, 0.8, len(obs))
+    cov = np.zeros((len(obs), 2, 2))
+    cov[:, 0, 0], cov[:, 1, 1] = sx ** 2, sy ** 2
+    cov[:, 0, 1] = cov[:, 1, 0] = rho * sx * sy
+    noise = np.einsum("kij,kj->ki", np.linalg.cholesky(cov), rng.standard_normal((len(obs), 2)))
+    blk = blk.replace(observations=obs.replace(xy=obs.xy + noise, cov=cov))
+    res = adjust(blk)
+    _compare(res)
+
+
+def test_weighted_control_and_eo_priors_dense_reference():
+    blk, truth = make_block(model="none", n_photos=5, n_points=14, noise_mm=0.002, rng=np.random.default_rng(8),
+                            n_control=6)
+    pts = blk.points
+    sigma = np.array(pts.sigma)
+    sigma[:6] = 0.002                                   # weighted full control
+    sigma[6] = [np.inf, np.inf, 0.0]                    # height control
+    sigma[7] = [0.0, 0.0, np.inf]                       # planimetric control
+    role = pts.role.copy()
+    role[6], role[7] = "z", "xy"
+    res = adjust(blk.replace(points=pts.replace(sigma=sigma, role=role)))
+    # weighted constraints count as observations in the redundancy
+    prob = res.problem
+    assert res.dof == prob.n_obs_rows + 18 - prob.n_unknowns
+    assert res.cov_points[6][2, 2] == 0.0 and res.cov_points[7][0, 0] == 0.0
+    assert res.cov_points[6][0, 0] > 0 and res.cov_points[0][0, 0] < 0.002 ** 2 * res.variance_factor
+
+
+@pytest.mark.parametrize("n_sim", [100, pytest.param(500, marks=pytest.mark.slow)])
+def test_monte_carlo_spread_matches_reported_covariance(n_sim):
+    """Repeated noisy simulations: the spread of the estimates matches the reported σ."""
+    sig = 0.002
+    blk, truth = make_block(model="brown", n_photos=6, n_points=25, noise_mm=0.0, n_control=5)
+    obs = blk.observations
+    rng = np.random.default_rng(123)
+    est_c, est_pt, est_eo, s0 = [], [], [], []
+    ref = None
+    for _ in range(n_sim):
+        noisy = blk.replace(observations=obs.replace(xy=obs.xy + sig * rng.standard_normal(obs.xy.shape),
+                                                     cov=np.broadcast_to(np.eye(2) * sig ** 2, obs.cov.shape)))
+        res = adjust(noisy, start=None if ref is None else ref.state)
+        ref = ref or res
+        est_c.append(res.state.cam_params[0, :5])
+        est_pt.append(res.state.XYZ[10])
+        est_eo.append(np.r_[res.state.X0[2], res.state.opk[2]])
+        s0.append(res.sigma0_hat)
+    # reported (a-priori scaled) standard deviations from the noise-free geometry
+    var0 = 1.0 / ref.variance_factor
+    pred_c = np.sqrt(np.diag(ref.cov_cameras[0])[:5] * var0)
+    pred_pt = np.sqrt(np.diag(ref.cov_points[10]) * var0)
+    pred_eo = np.sqrt(np.diag(ref.cov_eo[2]) * var0)
+    for est, pred in ((est_c, pred_c), (est_pt, pred_pt), (est_eo, pred_eo)):
+        emp = np.std(np.array(est), axis=0, ddof=1)
+        ratio = emp / pred
+        # sample std of n_sim draws: relative sd ≈ 1/√(2 n) ≈ 9 %; allow 4 of those
+        assert np.all(np.abs(ratio - 1) < 4 / np.sqrt(2 * n_sim)), ratio
+    assert np.mean(s0) == pytest.approx(1.0, abs=0.03)
