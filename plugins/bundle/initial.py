@@ -174,7 +174,7 @@ def resection(xy, XYZ, c, xp=0.0, yp=0.0, *, ap_model="none", ap=None, meta=None
             out = _refine_eo(xy, XYZ, c, xp, yp, ap_model, ap, meta, X0c, opkc, max_iter, tol)
         except np.linalg.LinAlgError:
             continue
-        if best is None or out[2] < best[2]:
+        if best is None or out[2] < 0.9 * best[2] - 1e-12:   # prefer the first (expected) method on ties
             best = out + (meth,)
     if best is None:
         raise AdjustmentError("resection did not converge (degenerate point configuration)")
