@@ -70,34 +70,84 @@ def precision(prob: BundleProblem, lin, red, st, chunk_bytes: float = 6.4e7):
     if n_e:
         Li = red["Li"]
         B = red["B"]
-        order = np.argsort(prob.pidx, kind="stable")
-        pts_sorted = prob.pidx[order]
-        c = max(1, int(chunk_bytes / (24.0 * max(n_x, 1))))
-        for p0 in range(0, n_e, c):
-            p1 = min(n_e, p0 + c)
-            Bc = B.dense_cols(p0, p1)                             # (n_x, 3c)
-            M = Qx @ Bc if n_x else np.zeros((0, 3 * (p1 - p0)))  # K⁻¹ B_p
-            nc = p1 - p0
-            T = np.einsum("rpa,rpb->pab", Bc.reshape(n_x, nc, 3), M.reshape(n_x, nc, 3))
-            T[:, [0, 1, 2], [0, 1, 2]] += 1.0
-            Lc = Li[p0:p1]
-            Qpp[p0:p1] = np.einsum("pba,pbc,pcd->pad", Lc, T, Lc)
-            a, b = np.searchsorted(pts_sorted, [p0, p1])
-            ob = order[a:b]
-            if ob.size == 0:
-                continue
-            Mpad = np.vstack([M[:n_g], np.zeros((1, 3 * nc))])
-            loc = prob.pidx[ob] - p0
-            Mk = Mpad[cidx[ob][:, :, None], 3 * loc[:, None, None] + np.arange(3)]   # (kb, q, 3)
-            Qcp = -bmm(Mk, Li[prob.pidx[ob]])                                         # (kb, q, 3)
-            JQ = np.matmul(Jc[ob], Qcp)                                                # (kb, 2, 3)
-            X = bmm(JQ, np.transpose(Jp[ob], (0, 2, 1)))
-            H[ob] += X + np.transpose(X, (0, 2, 1))
-            JpQ = bmm(Jp[ob], Qpp[prob.pidx[ob]])
-            H[ob] += bmm(JpQ, np.transpose(Jp[ob], (0, 2, 1)))
+        if B.mode == "pairs":
+            _points_by_pairs(prob, Qx, B, Li, Jc, Jp, H, Qpp)
+        else:
+            _points_by_chunks(prob, Qx, B, Li, Jc, Jp, H, Qpp, chunk_bytes)
         # fixed coordinates of partly controlled points are not unknowns
         Qpp *= prob.elim_free[:, :, None] & prob.elim_free[:, None, :]
     return dict(Qx=Qx, Qpp=Qpp, H=H)
+
+
+def _add_point_terms(prob, ob, Mk, Li, Jc, Jp, H, Qpp):
+    """H_k += 2 sym(Jc Qcp Jpᵀ) + Jp Qpp Jpᵀ for observations ``ob`` given ``Mk = (K⁻¹ B_p)[cidx_k]``."""
+    Qcp = -bmm(Mk, Li[prob.pidx[ob]])                                         # (kb, q, 3)
+    JQ = np.matmul(Jc[ob], Qcp)                                                # (kb, 2, 3)
+    X = bmm(JQ, np.transpose(Jp[ob], (0, 2, 1)))
+    H[ob] += X + np.transpose(X, (0, 2, 1))
+    JpQ = bmm(Jp[ob], Qpp[prob.pidx[ob]])
+    H[ob] += bmm(JpQ, np.transpose(Jp[ob], (0, 2, 1)))
+
+
+def _points_by_chunks(prob, Qx, B, Li, Jc, Jp, H, Qpp, chunk_bytes):
+    """Dense route: ``K⁻¹ B`` for chunks of points (few points seen by many photos)."""
+    n_g, n_e = prob.n_g, prob.n_e
+    n_x = Qx.shape[0]
+    cidx = prob.cidx
+    order = np.argsort(prob.pidx, kind="stable")
+    pts_sorted = prob.pidx[order]
+    c = max(1, int(chunk_bytes / (24.0 * max(n_x, 1))))
+    for p0 in range(0, n_e, c):
+        p1 = min(n_e, p0 + c)
+        Bc = B.dense_cols(p0, p1)                             # (n_x, 3c)
+        M = Qx @ Bc if n_x else np.zeros((0, 3 * (p1 - p0)))  # K⁻¹ B_p
+        nc = p1 - p0
+        T = np.einsum("rpa,rpb->pab", Bc.reshape(n_x, nc, 3), M.reshape(n_x, nc, 3))
+        T[:, [0, 1, 2], [0, 1, 2]] += 1.0
+        Lc = Li[p0:p1]
+        Qpp[p0:p1] = np.einsum("pba,pbc,pcd->pad", Lc, T, Lc)
+        a, b = np.searchsorted(pts_sorted, [p0, p1])
+        ob = order[a:b]
+        if ob.size == 0:
+            continue
+        Mpad = np.vstack([M[:n_g], np.zeros((1, 3 * nc))])
+        loc = prob.pidx[ob] - p0
+        Mk = Mpad[cidx[ob][:, :, None], 3 * loc[:, None, None] + np.arange(3)]   # (kb, q, 3)
+        _add_point_terms(prob, ob, Mk, Li, Jc, Jp, H, Qpp)
+
+
+def _points_by_pairs(prob, Qx, B, Li, Jc, Jp, H, Qpp):
+    """Sparse route: per point, only the rows of K⁻¹ its observations touch (short tracks).
+
+    ``M_k = Σ_l K⁻¹[cidx_k, cidx_l] B_l + K⁻¹[cidx_k, λ] Bc_p`` and
+    ``T_p = Σ_k B_kᵀ M_k + Bc_pᵀ (K⁻¹[λ, ·] B_p)``.
+    """
+    n_g, n_c = prob.n_g, prob.n_c
+    q = prob.q
+    Qg = np.zeros((n_g + 1, n_g + 1))
+    Qg[:n_g, :n_g] = Qx[:n_g, :n_g]
+    if n_c:
+        Qgc = np.zeros((n_g + 1, n_c))
+        Qgc[:n_g] = Qx[:n_g, n_g:]
+        Qcc = Qx[n_g:, n_g:]
+    for obs_mat, _ in prob.track_groups():
+        N, t = obs_mat.shape
+        C = prob.cidx[obs_mat].reshape(N, t * q)                               # (N, tq)
+        X = B.Bk[obs_mat].reshape(N, t * q, 3)
+        Qsub = Qg[C[:, :, None], C[:, None, :]]                                # (N, tq, tq)
+        M = np.matmul(Qsub, X)                                                 # (N, tq, 3)
+        pts = prob.pidx[obs_mat[:, 0]]
+        if n_c:
+            Bcp = B.Bc[pts]                                                    # (N, n_c, 3)
+            M += np.matmul(Qgc[C], Bcp)
+        T = np.matmul(np.transpose(X, (0, 2, 1)), M)                           # (N, 3, 3)
+        if n_c:
+            lamB = np.matmul(np.transpose(Qgc[C], (0, 2, 1)), X) + np.matmul(Qcc[None], Bcp)   # (N, n_c, 3)
+            T += np.matmul(np.transpose(Bcp, (0, 2, 1)), lamB)
+        T[:, [0, 1, 2], [0, 1, 2]] += 1.0
+        Lc = Li[pts]
+        Qpp[pts] = bmm(bmm(np.transpose(Lc, (0, 2, 1)), T), Lc)
+        _add_point_terms(prob, obs_mat.ravel(), M.reshape(N * t, q, 3), Li, Jc, Jp, H, Qpp)
 
 
 def reliability_rows(prob: BundleProblem, H: np.ndarray):

@@ -159,3 +159,28 @@ def test_monte_carlo_spread_matches_reported_covariance(n_sim):
         # sample std of n_sim draws: relative sd ≈ 1/√(2 n) ≈ 9 %; allow 4 of those
         assert np.all(np.abs(ratio - 1) < 4 / np.sqrt(2 * n_sim)), ratio
     assert np.mean(s0) == pytest.approx(1.0, abs=0.03)
+
+
+@pytest.mark.parametrize("datum", ["control", "free-points", "free-centres"])
+def test_schur_strategies_agree(monkeypatch, datum):
+    """dense / pairs / sparse forms of B Bᵀ and both precision routes give the same numbers."""
+    from pipeline.model import FREE
+    from plugins.bundle.solver import BundleProblem
+
+    blk, _ = make_block(model="brown", n_photos=6, n_points=30, noise_mm=0.002, rng=np.random.default_rng(1))
+    st = BundleSettings()
+    if datum != "control":
+        pts = blk.points
+        blk = blk.replace(points=pts.replace(role=np.array(["tie"] * len(pts)), sigma=np.full((len(pts), 3), FREE)))
+        st = BundleSettings(datum="free", datum_centres=datum == "free-centres")
+    out = {}
+    for mode in ("dense", "pairs", "sparse"):
+        monkeypatch.setattr(BundleProblem, "gram_mode", lambda self, m=mode: m)
+        out[mode] = adjust(blk, st)
+    ref = out["dense"]
+    for mode in ("pairs", "sparse"):
+        r = out[mode]
+        assert np.allclose(r.state.XYZ, ref.state.XYZ, rtol=0, atol=1e-10)
+        assert np.allclose(r.cov_points, ref.cov_points, rtol=1e-8, atol=1e-12 * np.abs(ref.cov_points).max())
+        assert np.allclose(r.redundancy, ref.redundancy, atol=1e-9)
+        assert np.allclose(r.cov_cameras[0], ref.cov_cameras[0], rtol=1e-8, atol=1e-14)
