@@ -13,7 +13,7 @@ from pipeline.stats.snapshot import Snapshot
 
 from .collinearity import EO_NAMES
 from .initial import initial_values
-from .precision import precision, reliability_rows
+from .precision import precision, predicted_variance, reliability_rows
 from .solver import BundleProblem, BundleSettings, BundleState, solve_bundle
 
 __all__ = ["adjust", "BundleResult", "check_point_rmse"]
@@ -235,7 +235,16 @@ def adjust(block: Block, settings: BundleSettings | None = None, *, row_active=N
         r, PQ = reliability_rows(prob, pre["H"])
         red_all[prob.oi] = r
         PQ_all[prob.oi] = PQ
-        snapshot = _snapshot(block, prob, v_all, red_all, PQ_all, vtpv, dof, settings.sigma0)
+        # predicted residuals of the rows left out (for tests of removed observations)
+        out_rows = ~prob.row_active & np.isfinite(v_all)
+        sv_pred = np.full((k_all, 2), np.nan)
+        out_obs = np.flatnonzero(out_rows.any(axis=1))
+        if out_obs.size:
+            aq = predicted_variance(prob, st, red, Qx, pre["Qpp"], out_obs)
+            var_l = np.einsum("kii->ki", block.observations.cov[out_obs])
+            sv_pred[out_obs] = np.sqrt(var_l + settings.sigma0 ** 2 * aq)
+        sv_pred[~out_rows] = np.nan
+        snapshot = _snapshot(block, prob, v_all, red_all, PQ_all, vtpv, dof, settings.sigma0, sv_pred)
     timings["covariance"] = time.perf_counter() - t1
     timings["total"] = time.perf_counter() - t0
     # check points: role 'check' with surveyed coordinates, adjusted as tie points
@@ -265,7 +274,7 @@ def _project_all(prob: BundleProblem, st: BundleState) -> np.ndarray:
     return out
 
 
-def _snapshot(block, prob, v_all, r_all, PQ_all, vtpv, dof, sigma0) -> Snapshot:
+def _snapshot(block, prob, v_all, r_all, PQ_all, vtpv, dof, sigma0, sv_pred=None) -> Snapshot:
     obs = block.observations
     k = len(obs)
     act = prob.row_active  # (k, 2) incl. obs-level activity
@@ -283,4 +292,5 @@ def _snapshot(block, prob, v_all, r_all, PQ_all, vtpv, dof, sigma0) -> Snapshot:
     return Snapshot(v=v.reshape(-1), Pv=Pv.reshape(-1), PQvvP=PQd.reshape(-1), r=r_all.reshape(-1),
                     sigma_l=sig.reshape(-1), vtpv=float(vtpv), dof=int(dof), sigma0=float(sigma0),
                     active=act.reshape(-1), labels=labels, group=group, PQvvP_blocks=blocks,
-                    meta={"source": "bundle", "obs_rows": "row 2i = x, 2i+1 = y of observation i"})
+                    meta={"source": "bundle", "obs_rows": "row 2i = x, 2i+1 = y of observation i"},
+                    v_pred=v_all.reshape(-1), sigma_v_pred=None if sv_pred is None else sv_pred.reshape(-1))

@@ -167,3 +167,45 @@ def reliability_rows(prob: BundleProblem, H: np.ndarray):
     r *= ra
     PQ *= ra[:, :, None] & ra[:, None, :]
     return r, PQ
+
+
+def predicted_variance(prob: BundleProblem, st, red, Qx: np.ndarray, Qpp: np.ndarray, obs_idx: np.ndarray):
+    """``diag(a Qxx aᵀ)`` (len, 2) of block observations ``obs_idx`` that are *not* in the
+    adjustment (inactive): the cofactor of their prediction from all the others (nan where the
+    photo or the point is not adjusted)."""
+    from .collinearity import project_observations
+
+    obs = prob.block.observations
+    idx = np.asarray(obs_idx, int)
+    out = np.full((len(idx), 2), np.nan)
+    ph, pt = obs.photo[idx], obs.point[idx]
+    ok = prob.photo_used[ph] & prob.point_used[pt]
+    if not ok.any():
+        return out
+    sel = np.flatnonzero(ok)
+    ph, pt = ph[sel], pt[sel]
+    pr = project_observations(ph, pt, st.XYZ, st.X0, st.opk, prob.block.photos.camera, st.cam_params,
+                              prob.block.cameras.ap_model, prob.meta)
+    cam = prob.block.photos.camera[ph]
+    n_g = prob.n_g
+    C = np.concatenate([prob.g_cam[cam], prob.g_eo[ph], prob.g_pt[pt]], axis=1)
+    J = np.concatenate([pr.J_cam, pr.J_eo, pr.J_point], axis=2)
+    J = J * (C >= 0)[:, None, :]
+    C = np.where(C >= 0, C, n_g)
+    Qg = np.zeros((n_g + 1, n_g + 1))
+    Qg[:n_g, :n_g] = Qx[:n_g, :n_g]
+    H = np.einsum("kiq,kqr,kjr->kij", J, Qg[C[:, :, None], C[:, None, :]], J)
+    e = prob.elim_of[pt]
+    Jp = pr.J_point * prob.pt_free[pt][:, None, :]
+    B = red["B"]
+    Li = red["Li"]
+    for p in np.unique(e[e >= 0]):
+        rows = np.flatnonzero(e == p)
+        M = Qx @ B.dense_cols(p, p + 1)                         # (n_x, 3) = K⁻¹ B_p
+        Mpad = np.vstack([M[:n_g], np.zeros((1, 3))])
+        Qcp = -Mpad[C[rows]] @ Li[p]                             # (r, q, 3)
+        X = np.einsum("kiq,kqa,kja->kij", J[rows], Qcp, Jp[rows])
+        H[rows] += X + np.transpose(X, (0, 2, 1))
+        H[rows] += np.einsum("kia,ab,kjb->kij", Jp[rows], Qpp[p], Jp[rows])
+    out[sel] = np.einsum("kii->ki", H)
+    return out

@@ -184,3 +184,25 @@ def test_schur_strategies_agree(monkeypatch, datum):
         assert np.allclose(r.cov_points, ref.cov_points, rtol=1e-8, atol=1e-12 * np.abs(ref.cov_points).max())
         assert np.allclose(r.redundancy, ref.redundancy, atol=1e-9)
         assert np.allclose(r.cov_cameras[0], ref.cov_cameras[0], rtol=1e-8, atol=1e-14)
+
+
+def test_predicted_residual_of_a_removed_observation():
+    """v_pred / sigma_v_pred of a removed row equals the w-test of that row when it is active
+    (uncorrelated x, y: w = ∇̂/σ_∇̂ = v_pred/σ_v_pred, Baarda)."""
+    from pipeline import stats
+
+    blk, _ = make_block(model="brown", n_photos=6, n_points=25, noise_mm=0.002, rng=np.random.default_rng(9),
+                        n_control=5)
+    obs = blk.observations
+    xy = obs.xy.copy()
+    k = 40
+    xy[k, 0] += 0.015
+    blk = blk.replace(observations=obs.replace(xy=xy, cov=np.broadcast_to(np.eye(2) * 0.002 ** 2, obs.cov.shape)))
+    full = adjust(blk)
+    w_full = stats.w_test(full.snapshot)[2 * k]
+    rows = np.ones(2 * len(obs), bool)
+    rows[2 * k] = False
+    snap = full.refit(rows)
+    w_pred = snap.v_pred[2 * k] / snap.sigma_v_pred[2 * k]
+    assert w_pred == pytest.approx(w_full, rel=2e-3)        # equal up to the non-linearity
+    assert np.isnan(snap.sigma_v_pred[2 * k + 1]) and snap.active[2 * k + 1]
