@@ -26,7 +26,16 @@ def test_stage_runs_and_logs(tmp_path):
     assert {"vx", "wy", "mdb_x", "decision"} <= set(t.columns)
     assert "Camera parameters" in res.report
     path = log_stage(BundleAdjustment, res, tmp_path / "bundle.rrd")
-    assert path.stat().st_size > 1000
+    from pipeline.recording import read_recording
+
+    rec = read_recording(path)
+    ents = {e.path: e for e in rec.entities}
+    for p in ("/world/points", "/world/photos/P1", "/images/P1/residuals", "/cameras/cam/distortion",
+              "/convergence/vtpv", "/bundle/report"):
+        assert p in ents, p
+    assert "iteration" in ents["/convergence/vtpv"].timelines
+    assert ents["/convergence/vtpv"].rows == b.iterations + 1
+    assert {"Transform3D", "Pinhole"} <= {c.split(":")[0] for c in ents["/world/photos/P1"].columns}
 
 
 def test_ids_rejects_a_planted_blunder(tmp_path):
