@@ -31,7 +31,8 @@ The errors
   a user who wants the paper's noise level sets ``sigma_image_um`` to about 40 (the
   ``control-study`` project does).
 * Control survey noise: ``sigma_control_mm`` per coordinate (theodolite intersection with a
-  1" Wild T2 from 5.8 m over a 5 m base: ≈ 0.2 mm).
+  1" Wild T2 from 5.8 m over a 5 m base: 1" is 0.03 mm at 5.8 m, so with centring and pointing
+  ≈ 0.05 mm per coordinate).
 
 Randomness comes only through the ``rng`` argument; the draws do not depend on the control
 case, so the same ``rng`` seed gives the same noise for every case (a fair comparison).
@@ -116,6 +117,7 @@ class TestFieldConfig:
     calibrate_iop : c, xp, yp free (True) or fixed at the calibrated values (False).
     blunders : gross errors added to observations: ``({"photo", "point", "dx", "dy"}, …)`` in mm.
     margin_mm : a target is measured when its true image lies this far inside the format.
+    systematic_scale : factor on every systematic error of :data:`SYSTEMATIC_ERRORS`.
     """
 
     __test__ = False  # not a pytest class
@@ -124,12 +126,13 @@ class TestFieldConfig:
     block: Literal["block", "single-model"] = "block"
     with_ap_errors: bool = True
     sigma_image_um: float = 4.0
-    sigma_control_mm: float = 0.2
+    sigma_control_mm: float = 0.05
     control_weighted: bool = True
     ap_model: str = "none"
     calibrate_iop: bool = False
     blunders: tuple = ()
     margin_mm: float = 2.0
+    systematic_scale: float = 1.0
 
     def __post_init__(self):
         if self.case not in CASES:
@@ -286,8 +289,8 @@ def inside_format(xy: np.ndarray, margin_mm: float = 0.0) -> np.ndarray:
 
 CONTROL_CASES: dict[int, dict[str, tuple[str, ...]]] = {
     1: {"full": ("1", "21"), "z": ("5",)},
-    2: {"full": ("1", "21", "7", "10", "13", "15"), "z": ("5",)},
-    3: {"full": ("1", "21", "3", "19", "12", "11"), "z": ("5",)},
+    2: {"full": ("1", "21"), "z": ("5", "3", "19", "12", "11"), "xy": ("7", "10", "13", "15")},
+    3: {"full": ("1", "21"), "z": ("5", "7", "10", "13", "15"), "xy": ("3", "19", "12", "11")},
     4: {"full": ("1", "5", "17", "21", "3", "19", "12", "11", "8", "14"), "xy": ("7", "10", "13", "15")},
     5: {"full": ("1", "5", "17", "21", "3", "19", "7", "10", "14"), "z": ("2", "4", "18", "20", "12", "11")},
     6: {"full": ("1", "5", "17", "21", "3", "19", "6", "11", "12", "16", "8", "14", "10"), "xy": ("2", "20")},
@@ -299,11 +302,16 @@ def control_configuration(case: int) -> dict[str, str]:
     """Role of each of the 21 targets in control case 1–6 (``full``, ``xy``, ``z``, ``check``).
 
     Modelled on the paper's Figure 3 / Table 2 (the figure itself is not in the OCR text); the
-    corners are 1, 5, 17, 21, the edge middles 3 (bottom), 19 (top), 6/12 (left), 11/16 (right):
+    corners are 1, 5, 17, 21, the edge middles 3 (bottom), 19 (top), 12 (left), 11 (right), the
+    interior points 7, 8, 9, 10, 13, 14, 15:
 
     1. minimal outline: corners 1 and 21 XYZ, corner 5 Z only — exactly the 7 datum constraints;
-    2. case 1 + four interior points XYZ (7, 10, 13, 15): stiffens the block's interior;
-    3. case 1 + four outline points XYZ at the edge middles (3, 19, 12, 11): same count as 2;
+    2. case 1 + planimetric (XY) control inside the block (7, 10, 13, 15) and height (Z) control
+       at the four edge middles (3, 19, 12, 11): +12 constraints, as the paper's 34 → 46;
+    3. the same eight places with the types swapped: XY on the outline, Z inside.  The paper:
+       "the same number of control points at the same places in a different form, same dof …
+       planimetric control that stiffens the block's interior rather than planimetric and height
+       control on the outline";
     4. many points, planimetry-heavy: ten XYZ + four XY (38 constraints);
     5. many points, height-heavy: nine XYZ + six Z (33 constraints);
     6. many well-distributed points: thirteen XYZ + two XY (43 constraints).
@@ -371,7 +379,8 @@ def simulate_testfield(config: TestFieldConfig, rng: np.random.Generator) -> tup
     photo_ids = _photo_ids(config)
     point_ids, XYZ = target_field()
     X0, opk = true_orientation(photo_ids)
-    sys_params = SYSTEMATIC_ERRORS if config.with_ap_errors else {}
+    sys_params = ({k: v * config.systematic_scale for k, v in SYSTEMATIC_ERRORS.items()}
+                  if config.with_ap_errors else {})
     c = FOCAL_MM + sys_params.get("dc", 0.0)
     xp, yp = sys_params.get("dxp", 0.0), sys_params.get("dyp", 0.0)
     distortion = {k: v for k, v in sys_params.items() if k not in ("dc", "dxp", "dyp")}

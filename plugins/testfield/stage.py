@@ -37,7 +37,7 @@ class TestFieldOptions:
                                         "affinity, c/xp/yp offsets; docs/testfield.md)")
     sigma_image_um: float = option(4.0, "image measurement noise per coordinate, µm (also the a-priori "
                                         "sigma); ≈ 40 reproduces the paper's σ̂0 level")
-    sigma_control_mm: float = option(0.2, "control survey noise per coordinate, mm (also the a-priori "
+    sigma_control_mm: float = option(0.05, "control survey noise per coordinate, mm (also the a-priori "
                                           "sigma of weighted control)")
     control_weighted: bool = option(True, "control points enter as weighted constraints (true) or fixed")
     ap_model: Literal["none", "ebner12", "brown"] = option(
@@ -48,6 +48,7 @@ class TestFieldOptions:
     blunders: list[dict] = option([], "gross errors added to image observations: a list of tables "
                                       "{photo, point, dx, dy} (mm)")
     margin_mm: float = option(2.0, "a target is measured when its image lies this far inside the format")
+    systematic_scale: float = option(1.0, "multiply the systematic image errors by this factor")
 
     def __post_init__(self):
         if self.case not in CONTROL_CASES:
@@ -77,7 +78,7 @@ class TestFieldSource(Stage):
             sigma_image_um=options.sigma_image_um, sigma_control_mm=options.sigma_control_mm,
             control_weighted=options.control_weighted, ap_model=options.ap_model,
             calibrate_iop=options.calibrate_iop, blunders=tuple(options.blunders),
-            margin_mm=options.margin_mm)
+            margin_mm=options.margin_mm, systematic_scale=options.systematic_scale)
         rng = np.random.default_rng(options.seed) if options.seed is not None else ctx.rng
         try:
             block, truth = simulate_testfield(config, rng)

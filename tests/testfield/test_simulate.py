@@ -78,13 +78,15 @@ def test_control_cases_and_degrees_of_freedom():
     assert dofs == [40, 52, 52, 71, 66, 76]
     assert constraint_count(control_configuration(1)) == 7            # exactly the datum
     c2, c3 = control_configuration(2), control_configuration(3)
-    assert sorted(c2.values()) == sorted(c3.values()) and c2 != c3     # same count, other places
-    # case 2 adds interior points, case 3 edge points (not on the bounding rows/columns)
+    assert sorted(c2.values()) == sorted(c3.values()) and c2 != c3     # same count and kinds
+    assert {p for p, r in c2.items() if r != "check"} == {p for p, r in c3.items() if r != "check"}
+    # same places, other types: case 2 has its XY control inside the block, case 3 on the outline
     _, XYZ = target_field()
     lo, hi = XYZ[:, :2].min(0), XYZ[:, :2].max(0)
-    added = lambda c: [int(p) - 1 for p, r in c.items() if r != "check" and control_configuration(1)[p] == "check"]
-    margin = lambda k: np.min(np.r_[XYZ[k, :2] - lo, hi - XYZ[k, :2]])
-    assert min(margin(k) for k in added(c2)) > max(margin(k) for k in added(c3))
+    margin = lambda p: np.min(np.r_[XYZ[int(p) - 1, :2] - lo, hi - XYZ[int(p) - 1, :2]])
+    xy2 = [p for p, r in c2.items() if r == "xy"]
+    xy3 = [p for p, r in c3.items() if r == "xy"]
+    assert min(map(margin, xy2)) > 0.25 > max(map(margin, xy3))
 
 
 def test_projection_against_opencv(sim):

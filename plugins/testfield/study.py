@@ -1,0 +1,562 @@
+"""``control-study``: the paper's Tables 2–4 on the simulated test field, and whether the paper's
+conclusions hold there.
+
+For each of ``repetitions`` realisations of the noise (the *same* noise for every control case,
+with and without additional parameters — common random numbers, so the comparisons are paired),
+the six control configurations are adjusted by the bundle (``plugins.bundle.adjust``) twice:
+
+* without additional parameters (c, xp, yp fixed at the calibrated values) — Table 2;
+* with Ebner's 12 parameters (and dc, dxp, dyp free when ``calibrate_iop``), selected by the
+  paper's rule — remove the parameter with the largest correlation |ρ| > ``rho_max``, one after
+  another, then the insignificant ones (t-test at ``ap_alpha``) — Table 3.  The selection is the
+  bundle's (:func:`plugins.bundle.apselect.select_aps`: correlations among the camera's
+  parameters); when the block is singular with every AP free (case 1) the study's own
+  :func:`select_additional_parameters` takes over (weak priors while selecting, correlations
+  with the exterior orientations too, c, xp, yp as candidates);
+
+and the single model at 4.0 m is adjusted with the control of ``single_model_case`` and APs —
+Table 4.  Check-point errors are adjusted minus surveyed over the points whose role is
+``check`` (``Sxy = √((Sx² + Sy²)/2)``, cm).  The tables report the RMS over all realisations;
+:func:`conclusions` tests each of the paper's statements on the paired realisations.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Callable, Literal
+
+import numpy as np
+
+from pipeline.errors import AdjustmentError
+from pipeline.options import option
+from pipeline.report import markdown_table
+from pipeline.stage import Context, Stage, StageResult, TableData
+
+from .simulate import CASES, TestFieldConfig, simulate_testfield
+
+PAPER_TABLE2 = {  # case: (dof, sigma0 µm, Sx, Sy, Sxy, Sz) cm
+    1: (34, 51.90, 0.3253, 0.0984, 0.2403, 4.6310), 2: (46, 47.78, 0.0768, 0.0334, 0.0592, 0.3110),
+    3: (46, 45.35, 0.0813, 0.0348, 0.0625, 0.3485), 4: (87, 38.63, 0.0691, 0.0299, 0.0533, 0.2475),
+    5: (82, 41.15, 0.0747, 0.0305, 0.0570, 0.2301), 6: (92, 39.91, 0.0824, 0.0271, 0.0613, 0.2905),
+}
+PAPER_TABLE3 = {  # case: (Sx, Sy, Sxy, Sz) cm, APs kept
+    1: (0.3022, 0.0943, 0.2238, 2.9455, "b1 b2 b3 b4 b5 b6 b7 b9 b11"),
+    2: (0.0715, 0.0301, 0.0549, 0.2902, "b1 b2 b7 b8 b12"), 3: (0.0760, 0.0306, 0.0579, 0.3125, "b1 b2 b3 b7 b11"),
+    4: (0.0641, 0.0270, 0.0492, 0.2206, "b3 b4 b6 b7 b8 b12"), 5: (0.0701, 0.0279, 0.0533, 0.2155, "b3 b5 b6 b8 b12"),
+    6: (0.0779, 0.0250, 0.0579, 0.2741, "b3 b9 b10 b11"),
+}
+PAPER_TABLE4 = {"single model": (0.0704, 0.0466, 0.0597, 0.2398), "block": (0.0701, 0.0279, 0.0533, 0.2155)}
+
+IOP_NAMES = ("c", "xp", "yp")
+
+
+# --------------------------------------------------------------------------------------------
+# additional-parameter selection (the paper's rule)
+
+
+@dataclass
+class Selection:
+    """Outcome of :func:`select_additional_parameters`."""
+
+    result: object                  # the final BundleResult (kept parameters free)
+    kept: list[str]                 # names of the free camera parameters
+    removed: list[tuple[str, float, str]] = field(default_factory=list)  # (name, |ρ|, with what)
+    adjustments: int = 0
+
+
+def _with_camera_sigmas(block, sig: np.ndarray):
+    """Block whose camera 0 has the a-priori sigmas ``sig`` = [c, xp, yp, ap...] (ap values 0
+    where fixed)."""
+    cam = block.cameras
+    sigma_iop = cam.sigma_iop.copy()
+    sigma_iop[0] = sig[:3]
+    sigma_ap = cam.sigma_ap.copy()
+    sigma_ap[0] = sig[3:]
+    ap = cam.ap.copy()
+    ap[0, sig[3:] == 0] = 0.0
+    return block.replace(cameras=cam.replace(sigma_iop=sigma_iop, sigma_ap=sigma_ap, ap=ap))
+
+
+def _weak_priors(block, names: list[str], effect_mm: float) -> np.ndarray:
+    """A-priori sigma per camera parameter that lets it move the image by at most ``effect_mm``
+    over the format (weak enough not to bias a determinable parameter; bounds a singular one)."""
+    from plugins.bundle.apmodels import get_ap_model
+    from plugins.bundle.solver import BundleSettings, camera_meta
+
+    cam = block.cameras
+    model = get_ap_model(cam.ap_model[0])
+    meta = camera_meta(block, BundleSettings())[0]
+    w, h = cam.format_mm[0] / 2
+    gx, gy = np.meshgrid(np.linspace(-w, w, 9), np.linspace(-h, h, 7))
+    gx, gy = gx.ravel(), gy.ravel()
+    J = model.jacobian_params(gx, gy, np.zeros((gx.size, model.n_params)), np.full(gx.size, cam.c[0]), meta)
+    effect = np.abs(J).max(axis=(0, 1))
+    ap_sig = effect_mm / np.where(effect > 0, effect, 1.0)
+    return np.concatenate([[effect_mm * cam.c[0] / w, effect_mm, effect_mm], ap_sig])
+
+
+def select_additional_parameters(block, settings=None, *, rho_max: float = 0.75, alpha: float = 0.05,
+                                 candidates=None, weak_effect_mm: float = 1.0,
+                                 adjust_fn: Callable | None = None) -> Selection:
+    """The paper's AP selection: adjust with every candidate parameter, find the largest
+    correlation |ρ| of a candidate with any other unknown (camera, exterior orientation), remove
+    (fix at 0 / at the calibrated value) that candidate — of an AP–AP pair the less significant
+    one — and repeat until no |ρ| exceeds ``rho_max``.  Then (``alpha > 0``) the significance
+    test SPEC §2 asks for: remove the parameter with the smallest ``|x̂/σ̂|`` while that is below
+    Student's ``t(1 − alpha/2, dof)``, one at a time.
+
+    ``candidates``: names among ``c, xp, yp`` and the AP model's parameters (default: every camera
+    parameter that is free in ``block``).  While selecting, candidates carry weak a-priori sigmas
+    (each can move the image by ``weak_effect_mm``) so that a singular combination shows as
+    |ρ| → 1 instead of failing; the final adjustment has the kept ones free.
+    """
+    from plugins.bundle.adjust import adjust
+    from plugins.bundle.solver import BundleSettings
+
+    adjust_fn = adjust_fn or adjust
+    settings = settings or BundleSettings()
+    cam = block.cameras
+    from plugins.bundle.apmodels import get_ap_model
+
+    names = list(IOP_NAMES) + list(get_ap_model(cam.ap_model[0]).params)
+    sig0 = np.concatenate([cam.sigma_iop[0], cam.sigma_ap[0][:len(names) - 3]])
+    cand = [n for n, s in zip(names, sig0) if s != 0] if candidates is None else list(candidates)
+    weak = _weak_priors(block, names, weak_effect_mm)
+    removed = []
+    count = 0
+    while True:
+        sig = np.array([weak[k] if n in cand else 0.0 for k, n in enumerate(names)])
+        res = adjust_fn(_with_camera_sigmas(block, sig), settings)
+        count += 1
+        if not cand:
+            break
+        rho, partner, t = _candidate_correlations(res, names, cand)
+        k = int(np.argmax(rho))
+        if rho[k] <= rho_max:
+            break
+        drop = cand[k]
+        if partner[k] in cand and t[cand.index(partner[k])] < t[k]:
+            drop = partner[k]
+        removed.append((drop, float(rho[k]), partner[k] if drop == cand[k] else cand[k]))
+        cand.remove(drop)
+    while True:   # the kept set must be determinable without the weak priors
+        final_sig = np.array([np.inf if n in cand else 0.0 for n in names])
+        try:
+            res = adjust_fn(_with_camera_sigmas(block, final_sig), settings)
+            count += 1
+            break
+        except AdjustmentError:
+            count += 1
+            if not cand:
+                raise
+            rho, partner, _ = _candidate_correlations(res, names, cand)
+            k = int(np.argmax(rho))
+            removed.append((cand[k], float(rho[k]), f"{partner[k]} (singular without priors)"))
+            cand.remove(cand[k])
+            sig = np.array([weak[j] if n in cand else 0.0 for j, n in enumerate(names)])
+            res = adjust_fn(_with_camera_sigmas(block, sig), settings)
+    while alpha > 0 and cand and res.dof > 0:
+        from scipy.stats import t as student
+
+        _, _, t = _candidate_correlations(res, names, cand)
+        k = int(np.argmin(t))
+        crit = float(student.ppf(1 - alpha / 2, res.dof))
+        if t[k] >= crit:
+            break
+        removed.append((cand[k], float("nan"), f"not significant (|t| = {t[k]:.2f} < {crit:.2f})"))
+        cand.remove(cand[k])
+        res = adjust_fn(_with_camera_sigmas(block, np.array([np.inf if n in cand else 0.0 for n in names])),
+                        settings)
+        count += 1
+    return Selection(result=res, kept=list(cand), removed=removed, adjustments=count)
+
+
+def _candidate_correlations(res, names, cand):
+    """For each candidate: largest |ρ| with another global unknown, that unknown's name, |x/σ|."""
+    from plugins.bundle.diagnose import parameter_names
+
+    prob = res.problem
+    Q = res.Qx[:prob.n_g, :prob.n_g]
+    d = np.sqrt(np.clip(np.diag(Q), 1e-300, None))
+    R = Q / np.outer(d, d)
+    labels = parameter_names(prob)
+    cam_name = {int(g): n for n, g in zip(names, prob.g_cam[0]) if g >= 0}
+    rho, partner, t = [], [], []
+    for n in cand:
+        g = prob.g_cam[0, names.index(n)]
+        row = np.abs(R[g]).copy()
+        row[g] = 0.0
+        j = int(np.argmax(row))
+        rho.append(row[j])
+        partner.append(cam_name.get(j, labels[j]))
+        val = res.state.cam_params[0, names.index(n)] - (res.block_in.cameras.c[0] if n == "c" else 0.0)
+        t.append(abs(val) / (d[g] * np.sqrt(res.variance_factor)))
+    return np.array(rho), partner, np.array(t)
+
+
+# --------------------------------------------------------------------------------------------
+# the study
+
+
+@dataclass(frozen=True)
+class StudyConfig:
+    """What the study simulates and adjusts (see :class:`ControlStudy` options)."""
+
+    repetitions: int = 20
+    sigma_image_um: float = 40.0
+    sigma_control_mm: float = 0.05
+    with_ap_errors: bool = True
+    systematic_scale: float = 1.0
+    ap_model: str = "ebner12"
+    calibrate_iop: bool = False
+    rho_max: float = 0.75
+    ap_alpha: float = 0.05
+    ap_selection: str = "bundle"
+    cases: tuple = CASES
+    single_model_case: int | None = 5
+
+
+def _check_rmse(res, block) -> np.ndarray:
+    """(Sx, Sy, Sz) in m over the role-'check' points: adjusted minus surveyed."""
+    pts = block.points
+    m = pts.role == "check"
+    d = res.state.XYZ[m] - pts.XYZ[m]
+    return np.sqrt(np.mean(d * d, axis=0))
+
+
+def _run(block, with_aps: bool, cfg: StudyConfig):
+    from plugins.bundle.adjust import adjust
+    from plugins.bundle.solver import BundleSettings
+
+    settings = BundleSettings(covariance=with_aps, tol_obs=1e-4, max_iter=50)
+    if not with_aps:
+        return adjust(block, settings), [], ""
+    if cfg.ap_selection == "bundle":
+        from plugins.bundle.apselect import select_aps
+
+        try:
+            sel = select_aps(block, settings, rho_max=cfg.rho_max, alpha=cfg.ap_alpha)
+            return sel.result, [k["parameter"] for k in sel.kept], "bundle"
+        except AdjustmentError:
+            pass   # singular with every candidate free (e.g. case 1): the study's selection copes
+    sel = select_additional_parameters(block, settings, rho_max=cfg.rho_max, alpha=cfg.ap_alpha)
+    return sel.result, sel.kept, "study"
+
+
+def control_study(cfg: StudyConfig, seed: int, progress: Callable | None = None) -> dict:
+    """Run the study; returns ``{"rows": [...], "tables": {...}, "conclusions": [...]}``.
+
+    Each row: repetition, block ("block"/"single-model"), case, aps (bool), dof, sigma0_um,
+    Sx, Sy, Sz (m), kept (AP names).  ``progress(i, total)`` is called after each realisation.
+    """
+    rows = []
+    jobs = [("block", c) for c in cfg.cases]
+    if cfg.single_model_case is not None:
+        jobs.append(("single-model", cfg.single_model_case))
+    for rep in range(cfg.repetitions):
+        for kind, case in jobs:
+            for with_aps in ((False, True) if kind == "block" else (True,)):
+                tf = TestFieldConfig(case=case, block=kind, with_ap_errors=cfg.with_ap_errors,
+                                     sigma_image_um=cfg.sigma_image_um, sigma_control_mm=cfg.sigma_control_mm,
+                                     ap_model=cfg.ap_model if with_aps else "none",
+                                     calibrate_iop=with_aps and cfg.calibrate_iop,
+                                     systematic_scale=cfg.systematic_scale)
+                block, _ = simulate_testfield(tf, np.random.default_rng([seed, rep]))
+                row = {"repetition": rep, "block": kind, "case": case, "aps": with_aps}
+                try:
+                    res, kept, method = _run(block, with_aps, cfg)
+                except AdjustmentError as e:
+                    rows.append({**row, "dof": -1, "sigma0_um": np.nan, "Sx": np.nan, "Sy": np.nan, "Sz": np.nan,
+                                 "kept": [], "selection": "", "error": str(e)})
+                    continue
+                S = _check_rmse(res, block)
+                rows.append({**row, "dof": res.dof, "sigma0_um": res.sigma0_hat * cfg.sigma_image_um,
+                             "Sx": S[0], "Sy": S[1], "Sz": S[2], "kept": kept, "selection": method,
+                             "error": ""})
+        if progress:
+            progress(rep + 1, cfg.repetitions)
+    tables = summarise(rows)
+    return {"rows": rows, "tables": tables, "conclusions": conclusions(rows, cfg)}
+
+
+def _pooled(rows, key) -> float:
+    return float(np.sqrt(np.mean([r[key] ** 2 for r in rows])))
+
+
+def summarise(rows) -> dict:
+    """Tables 2, 3 (block, without / with APs) and 4 (single model vs block) in cm: RMS over the
+    realisations of each realisation's check-point RMSE."""
+    out = {}
+    for name, kind, aps in (("table2", "block", False), ("table3", "block", True), ("single", "single-model", True)):
+        cases = sorted({r["case"] for r in rows if r["block"] == kind and r["aps"] == aps})
+        tab = []
+        for c in cases:
+            sel = [r for r in rows if r["block"] == kind and r["aps"] == aps and r["case"] == c and not r["error"]]
+            if not sel:
+                continue
+            Sx, Sy, Sz = (_pooled(sel, k) * 100 for k in ("Sx", "Sy", "Sz"))
+            kept = {}
+            methods = {}
+            for r in sel:
+                if r.get("selection"):
+                    methods[r["selection"]] = methods.get(r["selection"], 0) + 1
+                for a in r["kept"]:
+                    kept[a] = kept.get(a, 0) + 1
+            tab.append({"case": c, "dof": int(np.median([r["dof"] for r in sel])),
+                        "sigma0_um": float(np.mean([r["sigma0_um"] for r in sel])),
+                        "Sx": Sx, "Sy": Sy, "Sxy": float(np.sqrt((Sx ** 2 + Sy ** 2) / 2)), "Sz": Sz,
+                        "kept": " ".join(f"{a}({n})" for a, n in sorted(kept.items(), key=lambda kv: -kv[1])),
+                        "selection": " ".join(f"{m}({n})" for m, n in sorted(methods.items())),
+                        "failed": sum(1 for r in rows if r["block"] == kind and r["aps"] == aps and r["case"] == c
+                                      and r["error"])})
+        out[name] = tab
+    return out
+
+
+def _paired(rows, a: dict, b: dict, key: str):
+    """Per-realisation values of ``key`` for selections a and b (dicts of row filters)."""
+    pick = lambda f: {r["repetition"]: r for r in rows if not r["error"] and all(r[k] == v for k, v in f.items())}
+    ra, rb = pick(a), pick(b)
+    reps = sorted(set(ra) & set(rb))
+    va = np.array([_xy(ra[i], key) for i in reps])
+    vb = np.array([_xy(rb[i], key) for i in reps])
+    return va, vb
+
+
+def _xy(r, key):
+    return float(np.sqrt((r["Sx"] ** 2 + r["Sy"] ** 2) / 2)) if key == "Sxy" else float(r[key])
+
+
+def _claim(rows, text, a, b, keys=("Sxy", "Sz")) -> dict:
+    """Does selection a beat selection b (smaller RMSE) in each key?  Pooled RMSE, the change in
+    %, the share of realisations where a < b (ties count half) and a standard error of the %
+    change."""
+    out = {"claim": text, "keys": {}}
+    holds = True
+    for key in keys:
+        va, vb = _paired(rows, a, b, key)
+        if va.size == 0:
+            continue
+        pa, pb = np.sqrt(np.mean(va ** 2)), np.sqrt(np.mean(vb ** 2))
+        change = 100.0 * (pa / pb - 1.0)
+        # standard error of the % change by the delta method on the paired squared errors
+        d = va ** 2 / pb ** 2 - vb ** 2 * pa ** 2 / pb ** 4
+        se = 100.0 * 0.5 * (pb / pa) * np.std(d, ddof=1) / np.sqrt(va.size) if va.size > 1 else float("nan")
+        tie = np.isclose(va, vb, rtol=1e-6, atol=0.0)   # e.g. no AP kept: the same adjustment
+        share = float(np.mean((va < vb) & ~tie) + 0.5 * np.mean(tie))
+        ok = bool(pa < pb)
+        holds &= ok
+        out["keys"][key] = {"a_cm": pa * 100, "b_cm": pb * 100, "change_pct": change, "se_pct": se,
+                            "share": share, "holds": ok, "significant": bool(abs(change) > 2 * se)}
+    out["holds"] = holds
+    out["verdict"] = _verdict(out["keys"].values())
+    return out
+
+
+def _verdict(keys) -> str:
+    """holds / holds, not significant / mixed / does not hold / contradicted (2 standard errors)."""
+    keys = list(keys)
+    better = [k["holds"] for k in keys]
+    sig = [k["significant"] for k in keys]
+    if all(better):
+        return "holds" if all(sig) else "holds, not significant"
+    if not any(better):
+        return "contradicted" if any(sig) else "does not hold, not significant"
+    return "mixed" + (" (significant)" if any(s for s, b in zip(sig, better)) else "")
+
+
+def conclusions(rows, cfg: StudyConfig) -> list[dict]:
+    """The paper's statements (SPEC §2), each tested on the paired realisations."""
+    blk = lambda c, aps=False: {"block": "block", "case": c, "aps": aps}
+    out = []
+    cases = set(cfg.cases)
+    if {1, 2, 3}.issubset(cases):
+        for c in (2, 3):
+            out.append(_claim(rows, f"more control improves accuracy: case {c} beats case 1", blk(c), blk(1)))
+    if {2, 3, 4, 5, 6}.issubset(cases):
+        for hi in (4, 5, 6):
+            for lo in (2, 3):
+                out.append(_claim(rows, f"more control improves accuracy: case {hi} beats case {lo}", blk(hi), blk(lo)))
+    if {2, 3}.issubset(cases):
+        out.append(_claim(rows, "the same control stiffening the interior beats the outline: case 2 beats case 3",
+                          blk(2), blk(3)))
+    if {4, 5}.issubset(cases):
+        out.append(_claim(rows, "paper detail: case 4 has the better planimetry than case 5", blk(4), blk(5), ("Sxy",)))
+        out.append(_claim(rows, "paper detail: case 5 has the better height than case 4", blk(5), blk(4), ("Sz",)))
+    for c in cfg.cases:
+        out.append(_claim(rows, f"self-calibration improves case {c}", blk(c, True), blk(c, False)))
+    sm = cfg.single_model_case
+    if sm is not None and sm in cases:
+        out.append(_claim(rows, f"the block at 1.4 m beats the single model at 4.0 m (case {sm}, with APs; "
+                                "paper: by about 10 %)", blk(sm, True),
+                          {"block": "single-model", "case": sm, "aps": True}))
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# the stage
+
+
+@dataclasses.dataclass(frozen=True)
+class ControlStudyOptions:
+    repetitions: int = option(10, "number of simulated realisations (the same noise for every case and "
+                                  "with/without APs); the tables give the RMS over them")
+    seed: int | None = option(None, "seed of the simulations; default: the project's seed for this stage")
+    sigma_image_um: float = option(40.0, "image noise per coordinate (µm); 40 ≈ the paper's σ̂0, 4 a comparator")
+    sigma_control_mm: float = option(0.05, "control survey noise per coordinate (mm)")
+    with_ap_errors: bool = option(True, "simulate the known systematic image errors")
+    systematic_scale: float = option(1.0, "multiply the systematic image errors by this factor")
+    ap_model: str = option("ebner12", "AP model of the self-calibrating runs ('ebner12' as the paper, or 'brown')")
+    calibrate_iop: bool = option(False, "with APs, c, xp, yp (the paper's dc, dxp, dyp) are free too (the "
+                                        "bundle's selection keeps them; the study's treats them as candidates)")
+    ap_selection: Literal["bundle", "study"] = option(
+        "bundle", "AP selection: the bundle's (plugins/bundle/apselect.py; the study's own when the block is "
+                  "singular with every AP free) or always the study's (correlations with the orientations too)")
+    rho_max: float = option(0.75, "AP selection: remove parameters correlated above this, one after another")
+    ap_alpha: float = option(0.05, "then remove parameters not significant at this level (t-test), one after "
+                                   "another; 0 keeps every parameter that passed the correlation rule")
+    cases: list[int] = option([1, 2, 3, 4, 5, 6], "control cases to run")
+    single_model: bool = option(True, "also adjust the single model at 4.0 m (Table 4)")
+    single_model_case: int = option(5, "control case of the single-model comparison (the paper: 5)")
+
+    def __post_init__(self):
+        if self.repetitions < 1:
+            raise ValueError("repetitions must be at least 1")
+        bad = [c for c in self.cases if c not in CASES]
+        if bad or not self.cases:
+            raise ValueError(f"cases must be a non-empty list drawn from {list(CASES)}, got {self.cases}")
+        if self.single_model_case not in CASES:
+            raise ValueError(f"single_model_case must be one of {list(CASES)}")
+        if not 0 < self.rho_max < 1:
+            raise ValueError("rho_max must lie between 0 and 1")
+        if not 0 <= self.ap_alpha < 1:
+            raise ValueError("ap_alpha must lie in [0, 1)")
+        if self.ap_model not in ("ebner12", "brown"):
+            raise ValueError("ap_model must be 'ebner12' or 'brown'")
+
+
+class ControlStudy(Stage):
+    summary = "Paper 001's control-configuration study (Tables 2–4) on the simulated test field"
+    reads = ()
+    writes = ("study",)
+    Options = ControlStudyOptions
+
+    def run(self, inputs, options: ControlStudyOptions, ctx: Context) -> StageResult:
+        cfg = StudyConfig(repetitions=options.repetitions, sigma_image_um=options.sigma_image_um,
+                          sigma_control_mm=options.sigma_control_mm, with_ap_errors=options.with_ap_errors,
+                          systematic_scale=options.systematic_scale, ap_model=options.ap_model,
+                          calibrate_iop=options.calibrate_iop, rho_max=options.rho_max, ap_alpha=options.ap_alpha,
+                          ap_selection=options.ap_selection,
+                          cases=tuple(sorted(set(options.cases))),
+                          single_model_case=options.single_model_case if options.single_model else None)
+        seed = options.seed if options.seed is not None else int(ctx.rng.integers(2**31))
+        bar = iter(ctx.progress.track(range(cfg.repetitions), total=cfg.repetitions, what="realisation"))
+        study = control_study(cfg, seed, progress=lambda i, n: next(bar, None))
+        for _ in bar:
+            pass
+        study["config"] = dataclasses.asdict(cfg)
+        study["seed"] = seed
+        held = [c for c in study["conclusions"] if c["holds"]]
+        summary = {"repetitions": cfg.repetitions, "seed": seed, "sigma_image_um": cfg.sigma_image_um,
+                   "conclusions_holding": len(held), "conclusions": len(study["conclusions"]),
+                   "table2": [{k: v for k, v in r.items() if k != "kept"} for r in study["tables"]["table2"]],
+                   "table3": study["tables"]["table3"], "single": study["tables"]["single"],
+                   "claims": [{"claim": c["claim"], "holds": c["holds"], "verdict": c["verdict"],
+                               **{f"{k}_change_pct": round(v["change_pct"], 1) for k, v in c["keys"].items()}}
+                              for c in study["conclusions"]]}
+        return StageResult(artefacts={"study": study}, summary=summary, report=study_report(study),
+                           tables=_tables(study), data=study)
+
+    def log(self, result: StageResult, rec, ctx: Context) -> None:
+        import rerun as rr
+
+        tabs = result.data["tables"]
+        for name, label in (("table2", "without_aps"), ("table3", "with_aps")):
+            for row in tabs[name]:
+                rec.set_time("case", sequence=row["case"])
+                for key in ("Sxy", "Sz", "sigma0_um"):
+                    rec.log(f"study/{key}/{label}", rr.Scalars([row[key]]))
+                for key, idx in (("Sxy", 4), ("Sz", 5)):
+                    rec.log(f"study/{key}/paper_{label}",
+                            rr.Scalars([PAPER_TABLE2[row["case"]][idx] if name == "table2"
+                                        else PAPER_TABLE3[row["case"]][idx - 2]]))
+
+
+def _tables(study) -> dict:
+    out = {}
+    for name, desc in (("table2", "Table 2: check-point RMSE (cm) without additional parameters"),
+                       ("table3", "Table 3: check-point RMSE (cm) with selected additional parameters"),
+                       ("single", "Table 4: single model at 4.0 m (with selected APs)")):
+        rows = study["tables"][name]
+        if rows:
+            out[name] = TableData({k: [r[k] for r in rows] for k in rows[0]}, desc)
+    rows = study["rows"]
+    out["realisations"] = TableData({
+        "repetition": [r["repetition"] for r in rows], "block": [r["block"] for r in rows],
+        "case": [r["case"] for r in rows], "aps": [r["aps"] for r in rows], "dof": [r["dof"] for r in rows],
+        "sigma0_um": [r["sigma0_um"] for r in rows], "Sx_cm": [100 * r["Sx"] for r in rows],
+        "Sy_cm": [100 * r["Sy"] for r in rows], "Sz_cm": [100 * r["Sz"] for r in rows],
+        "kept": [" ".join(r["kept"]) for r in rows], "selection": [r.get("selection", "") for r in rows],
+        "error": [r["error"] for r in rows]}, "every adjustment of the study")
+    out["conclusions"] = TableData({
+        "claim": [c["claim"] for c in study["conclusions"]], "holds": [c["holds"] for c in study["conclusions"]],
+        "verdict": [c["verdict"] for c in study["conclusions"]],
+        **{f"{k}_{f}": [c["keys"].get(k, {}).get(f, float("nan")) for c in study["conclusions"]]
+           for k in ("Sxy", "Sz") for f in ("change_pct", "se_pct", "share")}},
+        "the paper's conclusions on the simulation: % change of the pooled RMSE, its standard error, "
+        "share of realisations where the claim holds")
+    return out
+
+
+def study_report(study) -> str:
+    cfg = study["config"]
+    t2, t3, sm = study["tables"]["table2"], study["tables"]["table3"], study["tables"]["single"]
+    lines = [f"{cfg['repetitions']} realisations (seed {study['seed']}), image noise σ = {cfg['sigma_image_um']:g} µm, "
+             f"control σ = {cfg['sigma_control_mm']:g} mm, systematic image errors "
+             f"{'×' + format(cfg['systematic_scale'], 'g') if cfg['with_ap_errors'] else 'off'}; APs: "
+             f"{cfg['ap_model']}{' + c, xp, yp' if cfg['calibrate_iop'] else ''} selected ({cfg['ap_selection']}'s "
+             f"selection) with |ρ| ≤ {cfg['rho_max']}"
+             f"{', then t-tests at α = ' + format(cfg['ap_alpha'], 'g') if cfg['ap_alpha'] > 0 else ''}. "
+             "RMSE over the check points (cm), RMS over the realisations; paper values in brackets.", "",
+             "**Table 2** (no additional parameters)", ""]
+    rows = []
+    for r in t2:
+        p = PAPER_TABLE2.get(r["case"])
+        rows.append([r["case"], f"{r['dof']} ({p[0]})", f"{r['sigma0_um']:.2f} ({p[1]:.2f})",
+                     *(f"{r[k]:.4f} ({p[i]:.4f})" for i, k in zip(range(2, 6), ("Sx", "Sy", "Sxy", "Sz")))])
+    lines += [markdown_table(["case", "dof", "σ0 µm", "Sx", "Sy", "Sxy", "Sz"], rows), ""]
+    lines += ["**Table 3** (with selected additional parameters; parameters kept and in how many realisations)", ""]
+    rows = []
+    for r in t3:
+        p = PAPER_TABLE3.get(r["case"])
+        rows.append([r["case"], r["dof"], f"{r['sigma0_um']:.2f}",
+                     *(f"{r[k]:.4f} ({p[i]:.4f})" for i, k in enumerate(("Sx", "Sy", "Sxy", "Sz"))),
+                     f"{r['kept'] or '—'} ({p[4]})", r["selection"] + (f", {r['failed']} failed" if r["failed"] else "")])
+    lines += [markdown_table(["case", "dof", "σ0 µm", "Sx", "Sy", "Sxy", "Sz", "APs kept (paper)", "selection"], rows),
+              "", "(dof: median over the realisations; selection: whose AP selection ran, and how often.)", ""]
+    if sm:
+        b = next((r for r in t3 if r["case"] == sm[0]["case"]), None)
+        rows = [["single model 4.0 m", *(f"{sm[0][k]:.4f}" for k in ("Sx", "Sy", "Sxy", "Sz")),
+                 " ".join(f"{v:.4f}" for v in PAPER_TABLE4["single model"])]]
+        if b:
+            rows.append(["block 1.4 m", *(f"{b[k]:.4f}" for k in ("Sx", "Sy", "Sxy", "Sz")),
+                         " ".join(f"{v:.4f}" for v in PAPER_TABLE4["block"])])
+        lines += [f"**Table 4** (control case {sm[0]['case']}, with APs)", "",
+                  markdown_table(["", "Sx", "Sy", "Sxy", "Sz", "paper Sx Sy Sxy Sz"], rows), ""]
+    lines += ["**The paper's conclusions on the simulation** (change of the pooled RMSE of the first against "
+              "the second configuration, ± its standard error over the paired realisations; share of "
+              "realisations in which the first is better). A verdict is significant when the change exceeds two "
+              "standard errors.", ""]
+    rows = []
+    for c in study["conclusions"]:
+        cells = []
+        for k in ("Sxy", "Sz"):
+            v = c["keys"].get(k)
+            cells.append("—" if v is None else f"{v['change_pct']:+.1f} % ± {v['se_pct']:.1f} ({100 * v['share']:.0f} %)")
+        v = c["verdict"]
+        rows.append([c["claim"], v if v.startswith("holds") else f"**{v}**", *cells])
+    lines += [markdown_table(["statement", "on the simulation", "Sxy", "Sz"], rows), ""]
+    lines.append("Independent-model triangulation (the paper's Table 5) is compared by the independent-models "
+                 "study, not here.")
+    return "\n".join(lines)

@@ -1,0 +1,37 @@
+"""The bundled projects of the test field and the AICON network load, and the cheap ones run."""
+
+from __future__ import annotations
+
+import pytest
+
+from pipeline.plugins import PluginManager
+from pipeline.project import load_project
+from pipeline.runner import run_project
+
+
+@pytest.mark.parametrize("name", ["testfield/study.toml", "testfield/block.toml", "aicon/aicon.toml"])
+def test_fixture_projects_validate(repo_root, name):
+    project = load_project(repo_root / "fixtures" / name, PluginManager())
+    assert project.stages
+
+
+def test_testfield_project_runs(repo_root, tmp_path):
+    out = run_project(repo_root / "fixtures/testfield/block.toml", tmp_path / "run", verbose=False)
+    assert out.ok, out.message
+    block = out.artefacts["block"]
+    assert len(block.photos) == 10 and block.cameras.ap_model[0] == "ebner12"
+
+
+def test_aicon_project_reads_shared_data(repo_root, shared_data, tmp_path):
+    """fixtures/aicon/aicon.toml names ../../../shared/data/...: from <repo>/fixtures/aicon that is
+    <repo's parent>/shared/data, where CI (and this checkout) keep the shared data."""
+    if (repo_root.parent / "shared" / "data").resolve() != shared_data.resolve():
+        pytest.skip(f"shared data is not beside the repository ({shared_data})")
+    out = run_project(repo_root / "fixtures/aicon/aicon.toml", tmp_path / "run", verbose=False)
+    assert out.ok, out.message
+    source = next(s for s in out.stages if s.id == "source")
+    assert source.summary["photos"] == 115 and source.summary["perturbed"]
+    bundle = next(s for s in out.stages if s.id == "bundle")
+    # from positions ±5 cm, angles ±1°, c ±0.2 mm and zero distortion back to the exported solution
+    assert bundle.summary["iterations"] <= 10
+    assert bundle.summary["sigma0_hat"] == pytest.approx(0.968, abs=0.005)
