@@ -552,36 +552,50 @@ class BundleProblem:
         if getattr(self, "_gram_mode", None) is None:
             n_e = self.n_e
             cnt = np.bincount(self.pidx[self.obs_elim], minlength=n_e).astype(float)
-            pairs = float(np.sum(cnt ** 2)) * self.q * self.q
+            pairs = float(np.sum(cnt * (cnt + 1) / 2)) * self.q * self.q
             nnz_col = np.minimum(cnt * self.q, self.n_g)
             sparse = 3.0 * float(np.sum(nnz_col ** 2)) * 4.0
             dense = float(self.n_g + self.n_c) ** 2 * 3 * n_e / 10.0 + 3.0 * len(self.oi) * self.q
             dense_bytes = 8.0 * (self.n_g + 1) * 3 * n_e
             pair_bytes = 8.0 * pairs
-            costs = {"sparse": sparse, "pairs": 2.0 * pairs if pair_bytes < 6e8 else np.inf,
+            costs = {"sparse": sparse, "pairs": 3.0 * pairs if pair_bytes < 6e8 else np.inf,
                      "dense": dense if dense_bytes < 4e8 else np.inf}
             self._gram_mode = min(costs, key=costs.get)
         return self._gram_mode
 
     def track_groups(self):
         """Observations of each eliminated point grouped by track length: list of
-        ``(obs_mat (N_t, t), flat (N_t·(t q)²,))`` with the flat (row, col) indices into U."""
+        ``(obs_mat (N_t, t), pairs)``; ``pairs = (ia, ib, half, flat)`` are the observation pairs
+        ``a ≤ b`` of a track, 0.5 on ``a = b``, and the flat (row, col) indices of their q×q
+        blocks in U — ``B Bᵀ = A + Aᵀ`` with ``A = Σ half · B_a B_bᵀ``."""
         if getattr(self, "_tracks", None) is None:
             sel = np.flatnonzero(self.obs_elim)
             order = sel[np.argsort(self.pidx[sel], kind="stable")]
             cnt = np.bincount(self.pidx[sel], minlength=self.n_e)
             start = np.r_[0, np.cumsum(cnt)[:-1]]
-            ng1 = self.n_g + 1
-            itype = np.int32 if ng1 * ng1 < 2 ** 31 else np.int64
             groups = []
             for t in np.unique(cnt[cnt > 0]):
                 pts = np.flatnonzero(cnt == t)
-                obs_mat = order[start[pts][:, None] + np.arange(t)]
-                rows = self.cidx[obs_mat].reshape(len(pts), t * self.q).astype(itype)
-                flat = (rows[:, :, None] * itype(ng1) + rows[:, None, :]).ravel()
-                groups.append((obs_mat, flat))
+                groups.append((order[start[pts][:, None] + np.arange(t)], None))
             self._tracks = groups
         return self._tracks
+
+    def track_pairs(self):
+        """The ``pairs`` of :meth:`track_groups`, built on first use (memory ~ Σ t(t+1)/2 q²)."""
+        if getattr(self, "_pairs", None) is None:
+            ng1 = self.n_g + 1
+            itype = np.int32 if ng1 * ng1 < 2 ** 31 else np.int64
+            out = []
+            for obs_mat, _ in self.track_groups():
+                t = obs_mat.shape[1]
+                ia, ib = np.triu_indices(t)
+                ra = self.cidx[obs_mat[:, ia]].astype(itype)             # (N, P, q)
+                rb = self.cidx[obs_mat[:, ib]].astype(itype)
+                flat = (ra[:, :, :, None] * itype(ng1) + rb[:, :, None, :]).ravel()
+                half = np.where(ia == ib, 0.5, 1.0)[None, :, None, None]
+                out.append((obs_mat, ia, ib, half, flat))
+            self._pairs = out
+        return self._pairs
 
     # ------------------------------------------------------------------------------------------
     def constraint_rows(self, st: BundleState):
@@ -718,12 +732,13 @@ class _BMatrix:
         ng1 = n_g + 1
         if self.mode == "pairs":
             acc = np.zeros(ng1 * ng1)
-            for obs_mat, flat in prob.track_groups():
-                t = obs_mat.shape[1]
-                X = self.Bk[obs_mat].reshape(obs_mat.shape[0], t * prob.q, 3)
-                G = np.matmul(X, np.transpose(X, (0, 2, 1)))
+            for obs_mat, ia, ib, half, flat in prob.track_pairs():
+                Xa = self.Bk[obs_mat[:, ia]]                                   # (N, P, q, 3)
+                Xb = self.Bk[obs_mat[:, ib]]
+                G = np.matmul(Xa, np.swapaxes(Xb, 2, 3)) * half
                 acc += np.bincount(flat, G.ravel(), minlength=ng1 * ng1)
-            out[:n_g, :n_g] = acc.reshape(ng1, ng1)[:-1, :-1]
+            A = acc.reshape(ng1, ng1)[:-1, :-1]
+            out[:n_g, :n_g] = A + A.T
         else:
             S = self.sparse()[:n_g]
             out[:n_g, :n_g] = (S @ S.T).toarray()
