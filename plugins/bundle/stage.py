@@ -246,6 +246,12 @@ def _summary(res: BundleResult, extras, o) -> dict:
         out["ap_selection"] = extras["selection"].summary()
     out["cameras"] = [r for j in range(len(res.block_in.cameras)) for r in res.camera_table(j)]
     out["sigma0_um_equivalent"] = _sigma0_um(res)
+    if isinstance(out.get("check_points"), dict) and out["check_points"].get("n"):
+        out["check_points"]["unit"] = res.block_in.object_unit
+    flagged = out.get("data_snooping", {}).get("n_flagged")
+    out["headline"] = (f"σ̂0 = {res.sigma0_hat:.3g} (dof {res.dof}, {res.iterations} iterations)"
+                       + (f"; {flagged} coordinate(s) flagged by data snooping" if flagged else "")
+                       + (f"; IDS removed {len(extras['ids'].removed_labels)}" if extras.get("ids") is not None else ""))
     return out
 
 
@@ -345,6 +351,11 @@ def _tables(res: BundleResult, extras, decision, block) -> dict:
         "sX": sp[:, 0], "sY": sp[:, 1], "sZ": sp[:, 2], "rays": rays,
         "dX_check": dXYZ[:, 0], "dY_check": dXYZ[:, 1], "dZ_check": dXYZ[:, 2]},
         f"adjusted object points ({block.object_unit}) with a-posteriori σ; check points: adjusted − surveyed")
+    chk = pts.role == "check"
+    if chk.any():
+        tables["check_points"] = TableData({
+            "point": pts.ids[chk].tolist(), "dX": dXYZ[chk, 0], "dY": dXYZ[chk, 1], "dZ": dXYZ[chk, 2]},
+            f"check points: adjusted − surveyed ({block.object_unit})")
     rows = [r for j in range(len(block.cameras)) for r in res.camera_table(j)]
     tables["cameras"] = TableData({k: [r[k] for r in rows] for k in
                                    ("camera", "parameter", "value", "sigma", "status", "apriori_sigma")},

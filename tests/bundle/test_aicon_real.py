@@ -33,4 +33,6 @@ def test_aicon_converges_from_perturbed_start(aicon):
     assert np.linalg.norm(res.state.XYZ[i] - res.state.XYZ[j]) == pytest.approx(1389.688, abs=0.01)
     # sub-µm image residuals: σ̂0 × 0.5 µm
     assert 0.2 < res.sigma0_hat * 0.5 < 0.6
-    assert res.redundancy.sum() == pytest.approx(res.dof - 1, abs=1.0)
+    # image rows carry all the redundancy but the scale bar's share (0 ≤ r_distance ≤ 1; here the bar
+    # alone fixes the free network's scale, so its share is 0 up to rounding)
+    assert res.dof - 1 <= res.redundancy.sum() <= res.dof + 1e-6
