@@ -5,6 +5,9 @@ PY      = $(VENV)/bin/python
 BAARDA  = $(VENV)/bin/baarda
 STAMP   = $(VENV)/.installed
 RUN    ?= runs/demo
+# Tests and benchmarks run single-threaded BLAS: on a shared 2-core machine threaded OpenBLAS
+# makes the small dense solves of the bundle much slower, and timings become irreproducible.
+TESTENV = OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1
 
 .PHONY: demo test test-slow bench venv clean
 
@@ -22,13 +25,13 @@ demo: $(STAMP)
 	@echo "Run directory: $(RUN)   (inspect with: $(BAARDA) review $(RUN))"
 
 test: $(STAMP)
-	$(PY) -m pytest -q
+	$(TESTENV) $(PY) -m pytest -q
 
 test-slow: $(STAMP)
-	$(PY) -m pytest -q -m slow
+	$(TESTENV) $(PY) -m pytest -q -m slow
 
 bench: $(STAMP)
-	$(PY) -m pytest -q -s -m benchmark
+	$(TESTENV) $(PY) -m pytest -q -s -m benchmark
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache
