@@ -37,27 +37,6 @@ AP_NAMES = ("A1", "A2", "A3", "B1", "B2", "C1", "C2")
 # parsed records
 
 
-class ScaleBar(tuple):
-    """``(id_a, id_b, distance, sigma)`` — the entry of ``Block.meta["distances"]``.
-
-    A plain tuple (unpacks and compares as one) that also answers ``d["from"]``, ``d["to"]``,
-    ``d["distance"]`` and ``d["sigma"]``, so readers written against either spelling work.
-    """
-
-    _KEYS = {"from": 0, "a": 0, "to": 1, "b": 1, "distance": 2, "sigma": 3}
-
-    def __new__(cls, a: str, b: str, distance: float, sigma: float):
-        return super().__new__(cls, (str(a), str(b), float(distance), float(sigma)))
-
-    def __getitem__(self, key):
-        if isinstance(key, str):
-            try:
-                key = self._KEYS[key]
-            except KeyError:
-                raise KeyError(key) from None
-        return super().__getitem__(key)
-
-
 @dataclass(frozen=True)
 class AiconCamera:
     """One camera of the ``.ior``; ``c`` as in the file (negative), lengths in mm."""
@@ -384,7 +363,7 @@ def aicon_block(export: AiconExport, *, image_sigma_um: float | None = None, sel
                          path=export.files["phc"], line=int(ms["line"][bad]), field="sx")
     obs = Observations.make([iidx[ms["image"][k]] for k in rows], [pidx[ms["point"][k]] for k in rows],
                             ms["xy"][rows], sigma=sxy, active=active[rows])
-    distances = [ScaleBar(a, b, d, s) for (_, a, b, d, s, flag, _) in export.scales if flag != 0]
+    distances = [(a, b, d, s) for (_, a, b, d, s, flag, _) in export.scales if flag != 0]
     for a, b, _, _ in distances:
         for q in (a, b):
             if q not in pidx:
