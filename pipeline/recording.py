@@ -53,7 +53,9 @@ def log_values(rec, entity: str, values: dict) -> None:
     for k, v in _flatten(values).items():
         if isinstance(v, (bool, np.bool_)):
             flat[k] = [bool(v)]
-        elif isinstance(v, (int, float, np.integer, np.floating)) and np.isfinite(v):
+        elif isinstance(v, (int, np.integer)):
+            flat[k] = np.array([v], dtype=np.int64)  # ints stay ints: rerun keeps one type per name
+        elif isinstance(v, (float, np.floating)) and np.isfinite(v):
             flat[k] = [float(v)]
         elif isinstance(v, str):
             flat[k] = [v]
