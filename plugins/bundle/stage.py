@@ -282,7 +282,10 @@ def _report(res: BundleResult, extras, o, block) -> str:
                  f"(α′ = {gt.alpha:.3g}): {'REJECTED' if gt.rejected else 'accepted'}")
     ds = extras.get("snooping")
     if ds is not None:
-        L.append(f"- data snooping: |w| > {ds.critical:.3f}: {int(ds.flagged.sum())} coordinate(s) flagged")
+        L.append(f"- data snooping: |w| > {ds.critical:.3f}: {int(ds.flagged.sum())} coordinate(s) flagged"
+                 + (f" (expected under H0 at α0 = {ds.alpha0:g}: about {ds.alpha0 * int(res.snapshot.active.sum()):.0f})"
+                    if getattr(ds, "alpha0", None) else ""))
+        L.extend(_flagged_lines(res, ds))
     ids = extras.get("ids")
     if ids is not None:
         L.append(f"- iterated data snooping: {len(ids.removed)} coordinate(s) rejected "
@@ -320,6 +323,21 @@ def _report(res: BundleResult, extras, o, block) -> str:
     if sel is not None:
         L += ["", "### Additional-parameter selection", "", sel.markdown()]
     return "\n".join(L)
+
+
+def _flagged_lines(res: BundleResult, ds, most: int = 15) -> list[str]:
+    """The largest flagged standardized residuals, with photo, point and coordinate."""
+    idx = np.flatnonzero(ds.flagged)
+    if not len(idx):
+        return []
+    idx = idx[np.argsort(-np.abs(ds.w[idx]))]
+    rows = ["", f"  Largest flagged (of {len(idx)}; all in bundle_observations.csv, column `decision`):", "",
+            "  | observation | v (µm) | r | w | ∇̂ (µm) | MDB (µm) |", "  |---|---|---|---|---|---|"]
+    snap = res.snapshot
+    for i in idx[:most]:
+        rows.append(f"  | {snap.labels[i]} | {1000 * snap.v[i]:+.3f} | {snap.r[i]:.3f} | {ds.w[i]:+.2f} | "
+                    f"{1000 * ds.nabla_hat[i]:+.3f} | {1000 * ds.mdb[i]:.3f} |")
+    return rows + [""]
 
 
 def _tables(res: BundleResult, extras, decision, block) -> dict:
