@@ -1,0 +1,166 @@
+"""BAL problem-49: baarda's bundle and pycolmap's bundle adjustment from the same start.
+
+Run as a script (from the repository root)::
+
+    .venv/bin/python benchmarks/bal_vs_pycolmap.py [--path FILE] [--repeat N] [--datum points|centres]
+                                                   [--tol-rel 1e-6] [--max-iter 200] [--no-redundancy]
+
+or through ``make bench`` (``tests/benchmarks/test_bal_speed.py``).  Prints, for both solvers, the
+final cost ½ Σ (v/px)² evaluated with *one* definition (baarda's collinearity on the same active
+observations), each solver's own final cost, iterations and times, the time ratio
+baarda / pycolmap, and the extra time baarda needs for the redundancy numbers of every
+observation.  Details and the measured numbers: ``docs/benchmarks.md``.
+
+The problem: one RADIAL camera (f, k1, k2) per photo, free network (no control).  The file has 31
+observations of points behind their camera; COLMAP's cost gives them a zero residual while
+baarda's collinearity fits them, so they are switched off for both solvers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+DEFAULT_PATH = "bal/problem-49-7776-pre.txt"
+
+
+def shared_data() -> Path:
+    for c in ([Path(os.environ["BAARDA_SHARED_DATA"])] if os.environ.get("BAARDA_SHARED_DATA") else []) + \
+             [ROOT.parent / "shared" / "data", Path("/work/shared/data")]:
+        if c.is_dir():
+            return c
+    raise SystemExit("shared data folder not found (set BAARDA_SHARED_DATA)")
+
+
+def load_problem(path: Path):
+    """The BAL file as a block (1 px = 1 µm, σ = 1 px), observations behind the camera switched off."""
+    from scipy.spatial.transform import Rotation
+
+    from plugins.bal.bal import block_from_bal, read_bal
+
+    problem = read_bal(path)
+    P = problem.cameras[problem.cam]
+    depth = np.einsum("kij,kj->ki", Rotation.from_rotvec(P[:, :3]).as_matrix(), problem.points[problem.pt])[:, 2]
+    front = depth + P[:, 5] < 0            # BAL's camera looks down −Z
+    block = block_from_bal(problem, pixel_mm=0.001, sigma_px=1.0)
+    return block.replace(observations=block.observations.replace(active=front)), int((~front).sum())
+
+
+def cost_px(block) -> float:
+    """½ Σ ‖v‖² in pixels over the active observations, with baarda's collinearity (one definition)."""
+    from plugins.colmap_io.convert import project_block
+
+    obs = block.observations
+    a = obs.active
+    v = (obs.xy[a] - project_block(block, obs.photo[a], obs.point[a])) / block.cameras.pixel_mm[0]
+    return 0.5 * float(np.sum(v * v))
+
+
+def run_baarda(block, *, datum_on: str = "points", tol_rel: float = 1e-6, max_iter: int = 200,
+               redundancy: bool = True) -> dict:
+    """baarda's bundle (free network, inner constraints on ``datum_on``); times from its own split."""
+    from plugins.bundle import BundleSettings, adjust
+
+    settings = BundleSettings(datum="free", datum_centres=datum_on == "centres", tol_rel=tol_rel, max_iter=max_iter,
+                              covariance=redundancy)
+    t0 = time.perf_counter()
+    res = adjust(block, settings)
+    total = time.perf_counter() - t0
+    tm = dict(res.timings)
+    cov = tm.get("covariance", 0.0) if redundancy else 0.0
+    return {"result": res, "iterations": res.iterations, "own_cost": res.vtpv / 2, "seconds": total - cov,
+            "redundancy_seconds": cov, "timings": tm,
+            "cost": cost_px(res.block.replace(observations=block.observations))}
+
+
+def run_pycolmap(block, *, max_iter: int = 200, function_tolerance: float = 1e-6, num_threads: int = -1) -> dict:
+    """pycolmap's Ceres bundle adjustment from the block's values: RADIAL per camera, f and k1, k2
+    refined, principal point fixed, no gauge fixing (as Ceres solves BAL problems)."""
+    import pycolmap
+
+    from plugins.crosscheck.pycolmap_ba import (SolverSettings, block_to_reconstruction, block_with_solution,
+                                                read_solution, run_adjuster)
+
+    t0 = time.perf_counter()
+    obs = block.observations
+    ext = np.abs(obs.xy[obs.active]).max() / block.cameras.pixel_mm[0]
+    size = np.full((len(block.cameras), 2), 2 * int(np.ceil(ext)) + 2)
+    rec, recmap = block_to_reconstruction(block, ["RADIAL"] * len(block.cameras), size)
+    config = pycolmap.BundleAdjustmentConfig()
+    for i in rec.images:
+        config.add_image(i)
+    t_build = time.perf_counter() - t0
+    solver = SolverSettings(max_iterations=max_iter, function_tolerance=function_tolerance, gradient_tolerance=1e-10,
+                            parameter_tolerance=1e-8, num_threads=num_threads, covariance=False)
+    out, _ = run_adjuster(rec, config, {"focal": True, "principal_point": False, "extra": True}, solver)
+    sol = read_solution(rec, recmap, block.cameras.pixel_mm, block)
+    out.update(own_cost=out["final_cost"], build_seconds=t_build, cost=cost_px(block_with_solution(block, sol)))
+    return out
+
+
+def run(path: Path | None = None, *, repeat: int = 1, datum_on: str = "points", tol_rel: float = 1e-6,
+        max_iter: int = 200, redundancy: bool = True, num_threads: int = -1, stream=sys.stdout) -> dict:
+    """Solve with both (``repeat`` times each, best time kept) and print the comparison."""
+    path = Path(path) if path else shared_data() / DEFAULT_PATH
+    block, behind = load_problem(path)
+    start = cost_px(block)
+    b = p = None
+    for _ in range(repeat):
+        pb = run_pycolmap(block, max_iter=max_iter, function_tolerance=tol_rel, num_threads=num_threads)
+        p = pb if p is None or pb["seconds"] < p["seconds"] else p
+        bb = run_baarda(block, datum_on=datum_on, tol_rel=tol_rel, max_iter=max_iter, redundancy=redundancy)
+        b = bb if b is None or bb["seconds"] < b["seconds"] else b
+    ratio = b["seconds"] / p["seconds"]
+    s = block.summary()
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    lines = [
+        f"machine: {os.cpu_count()} cores, load average {load:.2f} (other processes slow both solvers)",
+        f"BAL {path.name}: {s['photos']} cameras, {s['points']} points, {s['active_observations']} observations "
+        f"({behind} behind their camera switched off); start cost ½Σ(v/px)² = {start:.6g}",
+        f"stopping rule for both: relative cost decrease < {tol_rel:g} (Ceres function_tolerance; baarda tol_rel), "
+        f"at most {max_iter} iterations; best of {repeat}",
+        "",
+        f"{'':10s} {'final cost':>14s} {'own cost':>14s} {'iterations':>10s} {'solve s':>9s}",
+        f"{'baarda':10s} {b['cost']:14.6f} {b['own_cost']:14.6f} {b['iterations']:10d} {b['seconds']:9.3f}",
+        f"{'pycolmap':10s} {p['cost']:14.6f} {p['own_cost']:14.6f} {p['iterations']:10d} {p['seconds']:9.3f}",
+        "",
+        f"time ratio baarda / pycolmap: {ratio:.2f}  (goal ≤ 1.5 now, ≤ 1.0 later)",
+        f"final costs differ by {abs(b['cost'] - p['cost']) / p['cost']:.2e} (relative)",
+        f"baarda split: " + ", ".join(f"{k} {v:.3f} s" for k, v in b["timings"].items()),
+        f"pycolmap: {p['linear_solver']}, {p['threads']} thread(s), {p['termination']} ({p['message']}); problem "
+        f"set-up {p['setup_seconds']:.3f} s, reconstruction built in {p['build_seconds']:.3f} s",
+    ]
+    if redundancy:
+        lines.append(f"redundancy numbers of every observation: +{b['redundancy_seconds']:.3f} s = "
+                     f"{b['redundancy_seconds'] / b['seconds']:.2f} × one solve (goal ≤ 2)")
+    print("\n".join(lines), file=stream, flush=True)
+    return {"baarda": {k: v for k, v in b.items() if k != "result"}, "pycolmap": p, "ratio": ratio,
+            "start_cost": start, "behind": behind, "result": b["result"]}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--path", type=Path, default=None, help=f"BAL file (default: <shared data>/{DEFAULT_PATH})")
+    ap.add_argument("--repeat", type=int, default=1, help="runs per solver; the fastest is reported")
+    ap.add_argument("--datum", choices=("points", "centres"), default="points",
+                    help="baarda's inner constraints on the points or the projection centres")
+    ap.add_argument("--tol-rel", type=float, default=1e-6, help="relative cost decrease that stops both solvers")
+    ap.add_argument("--max-iter", type=int, default=200)
+    ap.add_argument("--threads", type=int, default=-1, help="pycolmap threads (-1: all cores)")
+    ap.add_argument("--no-redundancy", action="store_true", help="skip baarda's redundancy numbers")
+    a = ap.parse_args(argv)
+    sys.path.insert(0, str(ROOT))
+    run(a.path, repeat=a.repeat, datum_on=a.datum, tol_rel=a.tol_rel, max_iter=a.max_iter,
+        redundancy=not a.no_redundancy, num_threads=a.threads)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.path.insert(0, str(ROOT))
+    raise SystemExit(main())
