@@ -42,9 +42,11 @@ class IndependentModelsOptions:
     strips: list[list[str]] = option(
         [], "with 'consecutive': photo ids of each strip in order, e.g. [[\"11\", \"12\"], [\"21\", \"22\"]]; "
             "empty: photo-table order, neighbours with ≥ 5 common points")
-    model_weights: Literal["intersection", "equal"] = option(
-        "intersection", "weights of the model coordinates: each point's covariance from the space "
-                        "intersection, or one diagonal covariance per model (RMS of those)")
+    model_weights: Literal["propagated", "intersection", "equal"] = option(
+        "propagated", "weights of the model coordinates: image errors propagated through the relative "
+                      "orientation and the intersection ('propagated'), each point's covariance from the "
+                      "space intersection alone ('intersection'), or one diagonal covariance per model "
+                      "(RMS of those, 'equal')")
     projection_centres: bool = option(True, "include the projection centres as model points (tie "
                                             "neighbouring models of a strip)")
     pc_sigma_factor: float = option(1.0, "projection centres get the median model-point covariance "
@@ -156,7 +158,16 @@ def _summary(result: IndependentModelResult, stats: dict, block) -> dict:
              "rcond": ro.rcond, "n_flagged": int(st["snooping"].flagged.sum()),
              "flagged": st["snooping"].flagged_labels}
         models.append(d)
+    rm = blk.check["rmse"]
+    unit = block.object_unit
+    check_points = {"n": int(rm["n"]), **{k: float(rm[k]) for k in ("Sx", "Sy", "Sxy", "Sz")}, "unit": unit}
+    f, u = (100.0, "cm") if unit == "m" else (1.0, unit)
+    headline = (f"{len(result.relative)} models; block σ̂0 = {blk.sigma0_hat:.3g} (dof {blk.dof}, global test "
+                f"{'rejected' if gt.rejected else 'accepted'}), {int(ds.flagged.sum())} coordinate(s) flagged"
+                + (f"; check points ({rm['n']}): Sxy {rm['Sxy'] * f:.4g} {u}, Sz {rm['Sz'] * f:.4g} {u}"
+                   if rm["n"] else "; no check points"))
     return {
+        "headline": headline, "check_points": check_points,
         "models": len(result.relative), "method": result.options["method"],
         "parameters": result.options["parameters"],
         "block": {"sigma0_hat": blk.sigma0_hat, "dof": blk.dof, "iterations": blk.iterations,
@@ -274,7 +285,7 @@ def _tables(result: IndependentModelResult, stats: dict, block) -> dict:
                        "dZ": chk["dXYZ"][:, 2]}, f"check points: adjusted − surveyed ({unit})")
     return {"models": models, "ro_tests": ro_tests, "ro_points": ro_points,
             "transformations": transformations, "points": points, "residuals": residuals,
-            "control": control, "check": check}
+            "control": control, "check_points": check}
 
 
 def _report(result: IndependentModelResult, stats: dict, s: dict, block) -> str:

@@ -43,12 +43,21 @@ def test_run_and_log(tmp_path):
     removed = [lab for v in s["ro_removed"].values() for lab in v]
     assert removed and all(f"point {pid} py" in lab for lab in removed)
     assert f"point {pid}" in res.report and "Sxy" in res.report
-    for name in ("models", "ro_tests", "ro_points", "transformations", "points", "residuals", "control", "check"):
+    for name in ("models", "ro_tests", "ro_points", "transformations", "points", "residuals", "control",
+                 "check_points"):
         assert len(res.tables[name]) > 0, name
     art = res.artefacts["adjustment"]
     assert isinstance(art, AdjustmentArtefact) and art.obs_rows.shape == (art.snapshot.n, 2)
     assert art.refit(art.snapshot.active).n == art.snapshot.n
     assert res.artefacts["independent-models"].rmse == s["check_rmse"]
+    # the comparison convention (docs/plugins.md): headline, check_points dict and table
+    cp, tab = s["check_points"], res.tables["check_points"]
+    assert cp["unit"] == "m" and cp["n"] == len(tab) == 22 and "22" in s["headline"]
+    d = np.column_stack([np.asarray(tab.columns[c], float) for c in ("dX", "dY", "dZ")])
+    S = np.sqrt(np.mean(d ** 2, axis=0))   # recomputed from the table's errors
+    assert [cp["Sx"], cp["Sy"], cp["Sz"]] == pytest.approx(S, rel=1e-12)
+    assert cp["Sxy"] == pytest.approx(np.sqrt((S[0] ** 2 + S[1] ** 2) / 2), rel=1e-12)
+    assert list(tab.columns)[:4] == ["point", "dX", "dY", "dZ"]
 
     rec = read_recording(log_stage(IndependentModels, res, tmp_path / "im.rrd"))
     paths = {e.path for e in rec.entities}
@@ -75,3 +84,16 @@ def test_degenerate_block_is_reported(tmp_path):
     none = Points.make(pts.ids, pts.XYZ, np.where(pts.role == "check", "check", "tie"))
     with pytest.raises(AdjustmentError, match="datum missing"):
         run_stage(IndependentModels, {"block": block.replace(points=none)}, {}, tmp_path=tmp_path)
+
+
+def test_stage_defaults_are_the_workflow_defaults(tmp_path):
+    """The stage's default weights are the documented default ('propagated'), so a study calling
+    independent_model_block(block) and a project running the stage get the same numbers."""
+    from plugins.indmodel import independent_model_block
+
+    block, _ = make_block(n_strips=2, n_photos=3, noise_mm=0.004, rng=np.random.default_rng(4))
+    res = run_stage(IndependentModels, {"block": _weighted(block)}, {}, tmp_path=tmp_path)
+    ref = independent_model_block(_weighted(block))
+    assert ref.options["model_weights"] == "propagated"
+    assert res.summary["check_points"]["Sz"] == ref.rmse["Sz"]
+    assert res.summary["block"]["sigma0_hat"] == ref.sigma0_hat
