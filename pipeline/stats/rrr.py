@@ -53,11 +53,15 @@ def recursive_residuals(A, l, P=None, order=None, sigma0: float = 1.0) -> np.nda
     deviation ``σ0 √(1/p_k + a_k N_{k−1}⁻¹ a_kᵀ)``.  ``P`` may be None, a vector or a full matrix
     (then the rows are whitened with the lower Cholesky factor of ``Σ = P⁻¹`` in the given order,
     which makes the k-th whitened row depend on rows 1 … k only).  Σ w_k² = RSS / σ0².
-    The first ``u`` rows must determine the unknowns.
+    If the first ``u`` rows do not determine the unknowns (e.g. a stack of independent Helmert
+    transformations ordered pair by pair), ``u`` independent rows among all but the last are moved
+    to the front (column-pivoted QR).  The last row's recursive residual and the sum of squares do
+    not depend on the order of the rows before it, so this changes none of RRR's statistics.
     """
-    A = np.asarray(A, dtype=float)
+    A = A.toarray() if hasattr(A, "toarray") else np.asarray(A, dtype=float)
     l = np.asarray(l, dtype=float).reshape(-1)
     order = np.arange(A.shape[0]) if order is None else np.asarray(order, dtype=int)
+    order = _determining_start(A, order)
     A, l = A[order], l[order]
     m, u = A.shape
     if P is None:
@@ -91,6 +95,22 @@ def recursive_residuals(A, l, P=None, order=None, sigma0: float = 1.0) -> np.nda
         Ninv = Ninv - np.outer(Na, Na) / d
         x = x + Na * (e / d)
     return out
+
+
+def _determining_start(A: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """``order`` with its first u rows spanning the unknowns (the last row stays last)."""
+    u = A.shape[1]
+    if len(order) <= u:
+        return order
+    head = A[order[:u]]
+    sv = np.linalg.svd(head, compute_uv=False)
+    if sv.size and sv[-1] > 1e-10 * max(sv[0], 1e-300):
+        return order
+    body = order[:-1]
+    _, _, piv = sla.qr(A[body].T, mode="economic", pivoting=True)
+    first = body[np.sort(piv[:u])]
+    rest = np.array([i for i in body if i not in set(first.tolist())], dtype=int)
+    return np.concatenate([first, rest, order[-1:]])
 
 
 @dataclass(frozen=True, eq=False)
