@@ -149,7 +149,10 @@ def _obs_label(art: AdjustmentArtefact, block, row: int) -> str:
 
 def _summary(report: BlunderReport, block, art) -> dict:
     ids = block.observation_ids()
+    per = [f"{m}: {', '.join(r.rejected_labels[:4]) or 'none'}{' …' if len(r.rejected_labels) > 4 else ''}"
+           for m, r in report.methods.items() if not r.skipped]
     return {
+        "headline": f"{report.adjustment}: " + "; ".join(per) + f" (decisive: {report.decide_by}, {report.action})",
         "adjustment": report.adjustment, "decide_by": report.decide_by, "action": report.action,
         "methods": {m: ({"rejected": r.rejected_labels,
                          "decisions": [dataclasses.asdict(d) for d in r.decisions]} if not r.skipped

@@ -25,6 +25,26 @@ def _nice_max(v: float) -> float:
     return 10 * e
 
 
+def _wrap(text: str, width_px: int, font, scale: float) -> list[str]:
+    """Greedy word wrap to ``width_px``; a single over-long word is cut."""
+    lines, cur = [], ""
+    for word in text.replace(":", ": ").split():
+        trial = f"{cur} {word}".strip()
+        if cv2.getTextSize(trial, font, scale, 1)[0][0] <= width_px or not cur:
+            cur = trial
+        else:
+            lines.append(cur)
+            cur = word
+    if cur:
+        lines.append(cur)
+    out = []
+    for ln in lines:
+        while cv2.getTextSize(ln, font, scale, 1)[0][0] > width_px and len(ln) > 3:
+            ln = ln[:-2] + "…" if ln.endswith("…") else ln[:-1]
+        out.append(ln)
+    return out
+
+
 def checkpoint_chart(methods: list[dict], unit: str, title: str = "Check-point errors per method",
                      width: int = 1000, height: int = 520) -> np.ndarray:
     """BGR image. ``methods``: dicts with ``name``, ``Sx``, ``Sy``, ``Sxy``, ``Sz`` and optional
@@ -68,8 +88,7 @@ def checkpoint_chart(methods: list[dict], unit: str, title: str = "Check-point e
                 for e in np.abs(errs[:, comp]):
                     if np.isfinite(e):
                         cv2.circle(img, (xm, int(top + ph - ph * min(e, vmax) / vmax)), 3, INK, -1, cv2.LINE_AA)
-        name = str(m["name"])
-        for ln, part in enumerate([name[i:i + 22] for i in range(0, len(name), 22)][:3]):
+        for ln, part in enumerate(_wrap(str(m["name"]), int(gw * 0.9), font, 0.42)[:3]):
             cv2.putText(img, part, (int(x0), top + ph + 20 + 16 * ln), font, 0.42, INK, 1, cv2.LINE_AA)
     lx = left
     for k in keys:

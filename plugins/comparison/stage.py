@@ -48,6 +48,8 @@ def collect_methods(previous) -> list[dict]:
         variants = {st.id: cp} if _is_rmse(cp) else {f"{st.id}: {k}": v for k, v in cp.items() if _is_rmse(v)}
         table = st.result.tables.get("check_points")
         for name, d in variants.items():
+            if not d.get("n") or not any(np.isfinite(float(d.get(k, np.nan) or np.nan)) for k in ("Sx", "Sy", "Sz")):
+                continue  # an adjustment without check points
             m = {"name": name, "stage": st.id, "use": st.use, "n": d.get("n"), "unit": d.get("unit", "")}
             for k in KEYS:
                 v = d.get(k)

@@ -227,8 +227,15 @@ def _summary(art: ScreeningArtefact, flagged_obs, block, options) -> dict:
             "parameters": dict(zip(("a", "b", "tx", "ty"), map(float, s.adjustment.x))),
             "notes": s.notes,
         })
-    return {"pairs": pairs, "skipped": [list(x) for x in art.skipped],
-            "flagged_observations": [list(block.observation_ids()[i]) for i in flagged_obs],
+    flagged_ids = [list(block.observation_ids()[i]) for i in flagged_obs]
+    worst = [f"{p['pair'][0]}→{p['pair'][1]}: {p['most_suspicious']['row']} (w {p['most_suspicious']['w']})"
+             for p in pairs if p["most_suspicious"] is not None and any(p["flagged"].values())]
+    headline = (f"{len(pairs)} pair(s) screened; {len(flagged_ids)} image point(s) flagged"
+                + (f" — most suspicious {', '.join(worst[:3])}" if worst else "")
+                + (f"; {sum(len(p['swaps']) for p in pairs)} swapped pair(s) of point numbers"
+                   if any(p["swaps"] for p in pairs) else ""))
+    return {"headline": headline, "pairs": pairs, "skipped": [list(x) for x in art.skipped],
+            "flagged_observations": flagged_ids,
             "deactivated": bool(options.deactivate and len(flagged_obs)), "flag_by": list(options.flag_by)}
 
 
