@@ -61,7 +61,8 @@ def _cmd_stages(args) -> int:
             cls = info.cls
             print(f"{'':<{width}}  reads: {', '.join(cls.reads) or '—'}; writes: {', '.join(cls.writes) or '—'}")
             for o in describe(cls.Options):
-                print(f"{'':<{width}}    {o['name']} ({o['type']}, default {o['default']!r}): {o['doc']}")
+                dflt = "required" if o["required"] else f"default {o['default']!r}"
+                print(f"{'':<{width}}    {o['name']} ({o['type']}, {dflt}): {o['doc']}")
     for name, err in sorted(pm.load_errors.items()):
         print(f"{name:<{width}}  (not loaded)  {err}", file=sys.stderr)
     return 0

@@ -44,10 +44,11 @@ def describe(options_cls: type) -> list[dict]:
     hints = typing.get_type_hints(options_cls)
     out = []
     for f in dataclasses.fields(options_cls):
+        required = f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
         default = f.default if f.default is not dataclasses.MISSING else (
             f.default_factory() if f.default_factory is not dataclasses.MISSING else None)
         out.append({"name": f.name, "type": _type_name(hints[f.name]), "default": default,
-                    "doc": f.metadata.get("doc", "")})
+                    "required": required, "doc": f.metadata.get("doc", "")})
     return out
 
 
