@@ -14,7 +14,7 @@ from pipeline.stats.snapshot import Snapshot
 from .collinearity import EO_NAMES
 from .initial import initial_values
 from .precision import precision, predicted_variance, reliability_rows
-from .solver import BundleProblem, BundleSettings, BundleState, solve_bundle
+from .solver import BundleProblem, BundleSettings, BundleState, final_system, solve_bundle
 
 __all__ = ["adjust", "BundleResult", "check_point_rmse"]
 
@@ -191,14 +191,16 @@ def adjust(block: Block, settings: BundleSettings | None = None, *, row_active=N
         if need:
             work = initial_values(block, ap_meta=settings.ap_meta)
     t_init = time.perf_counter() - t0
+    t_prob = time.perf_counter()
     prob = BundleProblem(block, settings, obs_active=obs_active, row_active=row_active)
+    t_prob = time.perf_counter() - t_prob
     st0 = start if start is not None else prob.initial_state(work)
-    prob, st, info = solve_bundle(block, settings, start=st0, problem=prob)
+    prob, st, info = solve_bundle(block, settings, start=st0, problem=prob, final=False)
     timings = dict(info["timings"])
+    timings["setup"] += t_prob                    # building the problem is set-up too
     timings["initial_values"] = t_init
     t1 = time.perf_counter()
     want_cov = settings.covariance if covariance is None else covariance
-    lin, red = info["lin"], info["red"]
     k_all = len(block.observations)
     v_all = block.observations.xy - _project_all(prob, st)
     dof = prob.dof
@@ -214,6 +216,7 @@ def adjust(block: Block, settings: BundleSettings | None = None, *, row_active=N
     snapshot = None
     Qx = None
     if want_cov:
+        lin, red = final_system(prob, st, info["proj"])     # the precision's normal equations
         pre = precision(prob, lin, red, st)
         Qx = pre["Qx"]
         Qg = np.zeros((prob.n_g + 1, prob.n_g + 1))

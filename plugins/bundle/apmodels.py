@@ -87,6 +87,15 @@ class APModel:
     def jacobian_c(self, xbar, ybar, params, c, meta):
         return np.zeros((np.asarray(xbar).shape[0], 2))
 
+    def jacobians(self, xbar, ybar, params, c, meta, cols):
+        """All derivatives at once (the bundle's inner loop): ``(J_params[:, :, cols] (n, 2, len(cols)),
+        J_xy (n, 2, 2), J_c (n, 2) or None when Δ does not depend on c)``.  Models may override this
+        to share work between the three; the default calls the separate methods."""
+        cols = np.asarray(cols, int)
+        Jp = self.jacobian_params(xbar, ybar, params, c, meta)[:, :, cols] if len(cols) else \
+            np.zeros((np.asarray(xbar).shape[0], 2, 0))
+        return Jp, self.jacobian_xy(xbar, ybar, params, c, meta), self.jacobian_c(xbar, ybar, params, c, meta)
+
     def __repr__(self):
         return f"<AP model {self.name!r}: {', '.join(self.params) or 'no parameters'}>"
 
@@ -283,6 +292,105 @@ class _RadialDecentringAffine(LinearAPModel):
         D[:, 0, 0, 5] = 1.0
         D[:, 0, 1, 6] = 1.0
         return D
+
+    # -- direct formulas (no (n, 2, 2, 7) basis arrays; terms with all-zero parameters skipped) --------
+    def _terms(self, xbar, ybar, params, meta):
+        x = np.asarray(xbar, float)
+        y = np.asarray(ybar, float)
+        P = _rows(params, x.shape[0], 7)
+        if P.shape[1] < 7:
+            P = np.concatenate([P, np.zeros((P.shape[0], 7 - P.shape[1]))], axis=1)
+        nz = [bool(np.any(P[:, j])) for j in range(7)]
+        r0sq = self._r0(meta, x.shape[0]) ** 2
+        return x, y, P, nz, r0sq, x * x + y * y
+
+    @staticmethod
+    def _poly(r2, K1, K2, K3, nz):
+        """``K1 r² + K2 r⁴ + K3 r⁶`` and its derivative w.r.t. r² (Horner; zero K2, K3 skipped)."""
+        if nz[2]:
+            inner, dinner = K2 + r2 * K3, 2.0 * K2 + 3.0 * K3 * r2
+        elif nz[1]:
+            inner, dinner = K2, 2.0 * K2
+        else:
+            return K1 * r2, K1
+        return r2 * (K1 + r2 * inner), K1 + r2 * dinner
+
+    def distortion(self, xbar, ybar, params, c, meta):
+        x, y, P, nz, r0sq, r2 = self._terms(xbar, ybar, params, meta)
+        dx = np.zeros_like(x)
+        dy = np.zeros_like(y)
+        if nz[0] or nz[1] or nz[2]:
+            rad, _ = self._poly(r2, P[:, 0], P[:, 1], P[:, 2], nz)
+            if np.any(r0sq):
+                rad = rad - self._poly(r0sq, P[:, 0], P[:, 1], P[:, 2], nz)[0]
+            dx += x * rad
+            dy += y * rad
+        if nz[3]:
+            dx += P[:, 3] * (r2 + 2 * x * x)
+            dy += 2 * P[:, 3] * x * y
+        if nz[4]:
+            dx += 2 * P[:, 4] * x * y
+            dy += P[:, 4] * (r2 + 2 * y * y)
+        if nz[5]:
+            dx += P[:, 5] * x
+        if nz[6]:
+            dx += P[:, 6] * y
+        return dx, dy
+
+    def jacobian_xy(self, xbar, ybar, params, c, meta):
+        return self.jacobians(xbar, ybar, params, c, meta, ())[1]
+
+    def jacobians(self, xbar, ybar, params, c, meta, cols):
+        x, y, P, nz, r0sq, r2 = self._terms(xbar, ybar, params, meta)
+        n = x.shape[0]
+        D = np.zeros((n, 2, 2))
+        if nz[0] or nz[1] or nz[2]:
+            rad, drad = self._poly(r2, P[:, 0], P[:, 1], P[:, 2], nz)
+            if np.any(r0sq):
+                rad = rad - self._poly(r0sq, P[:, 0], P[:, 1], P[:, 2], nz)[0]
+            t = 2.0 * drad
+            xy2 = t * x * y
+            D[:, 0, 0] = rad + t * x * x
+            D[:, 0, 1] = xy2
+            D[:, 1, 0] = xy2
+            D[:, 1, 1] = rad + t * y * y
+        if nz[3]:
+            p1 = P[:, 3]
+            D[:, 0, 0] += 6 * p1 * x
+            D[:, 0, 1] += 2 * p1 * y
+            D[:, 1, 0] += 2 * p1 * y
+            D[:, 1, 1] += 2 * p1 * x
+        if nz[4]:
+            p2 = P[:, 4]
+            D[:, 0, 0] += 2 * p2 * y
+            D[:, 0, 1] += 2 * p2 * x
+            D[:, 1, 0] += 2 * p2 * x
+            D[:, 1, 1] += 6 * p2 * y
+        if nz[5]:
+            D[:, 0, 0] += P[:, 5]
+        if nz[6]:
+            D[:, 0, 1] += P[:, 6]
+        cols = [int(j) for j in cols]
+        Jp = np.zeros((n, 2, len(cols)))
+        for a, j in enumerate(cols):
+            if j < 3:
+                e = j + 1
+                rad = r2 ** e
+                if np.any(r0sq):
+                    rad = rad - r0sq ** e
+                Jp[:, 0, a] = x * rad
+                Jp[:, 1, a] = y * rad
+            elif j == 3:
+                Jp[:, 0, a] = r2 + 2 * x * x
+                Jp[:, 1, a] = 2 * x * y
+            elif j == 4:
+                Jp[:, 0, a] = 2 * x * y
+                Jp[:, 1, a] = r2 + 2 * y * y
+            elif j == 5:
+                Jp[:, 0, a] = x
+            else:
+                Jp[:, 0, a] = y
+        return Jp, D, None
 
 
 class Brown(_RadialDecentringAffine):

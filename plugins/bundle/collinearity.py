@@ -12,7 +12,7 @@ photo: ``[X0, Y0, Z0, ω, φ, κ]``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -21,7 +21,7 @@ from pipeline.geometry import rotation_from_opk_many
 
 from .apmodels import get_ap_model
 
-__all__ = ["rotation_and_derivatives", "Projection", "project_observations", "IOP_NAMES", "EO_NAMES"]
+__all__ = ["rotation_and_derivatives", "Projection", "Projector", "project_observations", "IOP_NAMES", "EO_NAMES"]
 
 IOP_NAMES = ("c", "xp", "yp")
 EO_NAMES = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
@@ -86,7 +86,8 @@ class Projection:
 
     xy (k, 2); xbar (k, 2) ideal reduced coordinates; W (k,) depth (negative in front);
     J_eo (k, 2, 6) w.r.t. X0 Y0 Z0 ω φ κ; J_point (k, 2, 3) w.r.t. X Y Z;
-    J_cam (k, 2, 3 + p) w.r.t. c, xp, yp, ap_1 … ap_p (p = width of ``cam_params`` − 3).
+    J_cam (k, 2, 3 + p) w.r.t. c, xp, yp, ap_1 … ap_p (p = width of ``cam_params`` − 3), or only
+    the columns a :class:`Projector` was asked for (``cam_cols``).
     """
 
     xy: np.ndarray
@@ -95,6 +96,162 @@ class Projection:
     J_eo: np.ndarray | None = None
     J_point: np.ndarray | None = None
     J_cam: np.ndarray | None = None
+    # what the Jacobians need (kept by Projector.project, not part of the result's meaning)
+    _d: np.ndarray | None = field(default=None, repr=False)          # (k, 3) camera-frame vector U, V, W
+    _c: np.ndarray | None = field(default=None, repr=False)          # (k,) principal distance
+    _R: np.ndarray | None = field(default=None, repr=False)          # (m, 3, 3)
+    _opk: np.ndarray | None = field(default=None, repr=False)
+    _cam_params: np.ndarray | None = field(default=None, repr=False)
+
+
+class Projector:
+    """The collinearity equations of one fixed set of observations.
+
+    Everything that depends only on *which* observations are projected — camera of each
+    observation, the groups of observations sharing an AP model (and meta) — is worked out once,
+    so that an iteration only does arithmetic.  ``project`` evaluates the image coordinates and
+    keeps what ``jacobians`` needs; ``jacobians`` adds the analytic derivatives (rotation
+    derivatives per photo: ``∂d/∂angle = s × d`` with the axial vector ``s`` of ``∂R/∂angle Rᵀ``).
+
+    ``cam_cols`` (optional) restricts ``J_cam`` to those camera-parameter columns
+    (indices into ``[c, xp, yp, ap_1 …]``).
+    """
+
+    def __init__(self, obs_photo, obs_point, photo_camera, cam_models: Sequence[str],
+                 cam_meta: Sequence[Mapping] | None = None, *, cam_cols=None):
+        self.obs_photo = np.asarray(obs_photo, np.intp)
+        self.obs_point = np.asarray(obs_point, np.intp)
+        self.photo_camera = np.asarray(photo_camera, np.intp)
+        k = self.obs_photo.shape[0]
+        self.k = k
+        self.cam = self.photo_camera[self.obs_photo] if k else np.zeros(0, np.intp)
+        models = np.asarray(cam_models, dtype=str)
+        metas = list(cam_meta) if cam_meta is not None else [{} for _ in range(len(models))]
+        self.cam_cols = None if cam_cols is None else np.asarray(cam_cols, int)
+        # observation groups with one AP model and one meta; sel None = every observation
+        self.groups = []
+        for name in (np.unique(models[self.cam]) if k else []):
+            model = get_ap_model(name)
+            if model.n_params == 0:
+                continue
+            cams_m = np.flatnonzero(models == name)
+            grps = [cams_m] if _same_meta([metas[j] for j in cams_m]) else [[j] for j in cams_m]
+            for grp in grps:
+                mask = np.isin(self.cam, grp)
+                if not mask.any():
+                    continue
+                sel = None if mask.all() else np.flatnonzero(mask)
+                self.groups.append((model, sel, metas[grp[0]]))
+
+    # ------------------------------------------------------------------------------------------
+    def project(self, XYZ, X0, opk, cam_params, *, R=None) -> Projection:
+        """Image coordinates of every observation (no Jacobians yet)."""
+        cam_params = np.asarray(cam_params, float)
+        opk = np.asarray(opk, float)
+        if R is None:
+            R = rotation_from_opk_many(opk)
+        ph = self.obs_photo
+        D = XYZ[self.obs_point] - X0[ph]                  # (k, 3)
+        d = bmv(R[ph], D)
+        U, V, W = d[:, 0], d[:, 1], d[:, 2]
+        cp = cam_params[self.cam]
+        c = cp[:, 0]
+        f = -c / W
+        xy = np.empty((self.k, 2))
+        xbar = np.empty((self.k, 2))
+        np.multiply(f, U, out=xbar[:, 0])
+        np.multiply(f, V, out=xbar[:, 1])
+        np.add(cp[:, 1], xbar[:, 0], out=xy[:, 0])
+        np.add(cp[:, 2], xbar[:, 1], out=xy[:, 1])
+        for model, sel, meta in self.groups:
+            p = model.n_params
+            if sel is None:
+                dx, dy = model.distortion(xbar[:, 0], xbar[:, 1], cp[:, 3:3 + p], c, meta)
+                xy[:, 0] += dx
+                xy[:, 1] += dy
+            else:
+                dx, dy = model.distortion(xbar[sel, 0], xbar[sel, 1], cp[sel, 3:3 + p], c[sel], meta)
+                xy[sel, 0] += dx
+                xy[sel, 1] += dy
+        return Projection(xy=xy, xbar=xbar, W=W, _d=d, _c=c, _R=R, _opk=opk, _cam_params=cam_params)
+
+    def jacobians(self, pr: Projection, *, dR=None) -> Projection:
+        """Add ``J_eo``, ``J_point``, ``J_cam`` to ``pr`` (a result of :meth:`project`), in place."""
+        k = self.k
+        cam_params = pr._cam_params
+        ptot = cam_params.shape[1]
+        cols = np.arange(ptot) if self.cam_cols is None else self.cam_cols
+        if dR is None:
+            _, dR = rotation_and_derivatives(pr._opk)
+        d, c, W = pr._d, pr._c, pr.W
+        xb, yb = pr.xbar[:, 0], pr.xbar[:, 1]
+        # the model's image derivative D = ∂Δ/∂(x̄, ȳ) (Jxy = I + D), ∂Δ/∂ap and ∂Δ/∂c
+        ap_cols = cols[cols >= 3] - 3
+        J_cam = np.zeros((k, 2, len(cols)))
+        Jxy = None
+        Jc_model = None
+        for model, sel, meta in self.groups:
+            p = model.n_params
+            want = ap_cols[ap_cols < p]
+            s = slice(None) if sel is None else sel
+            prm = cam_params[self.cam[s], 3:3 + p]
+            Jp, Dxy, Jcm = model.jacobians(xb[s], yb[s], prm, c[s], meta, want)
+            if Jxy is None:
+                Jxy = np.zeros((k, 2, 2))
+            Jxy[s] = Dxy
+            if Jcm is not None:
+                if Jc_model is None:
+                    Jc_model = np.zeros((k, 2))
+                Jc_model[s] = Jcm
+            if len(want):
+                pos = np.flatnonzero((cols >= 3) & (cols - 3 < p))
+                if sel is None:
+                    J_cam[:, :, pos] = Jp
+                else:
+                    J_cam[np.ix_(sel, [0, 1], pos)] = Jp
+        # ∂(x̄, ȳ)/∂d = f [[1, 0, −U/W], [0, 1, −V/W]], f = −c/W; JG = (I + D) ∂(x̄, ȳ)/∂d
+        f = -c / W
+        u = d[:, 0] / W
+        v = d[:, 1] / W
+        JG = np.empty((k, 2, 3))
+        if Jxy is None:
+            JG[:, 0, 0] = f
+            JG[:, 0, 1] = 0.0
+            JG[:, 0, 2] = -f * u
+            JG[:, 1, 0] = 0.0
+            JG[:, 1, 1] = f
+            JG[:, 1, 2] = -f * v
+        else:
+            Jxy[:, 0, 0] += 1.0
+            Jxy[:, 1, 1] += 1.0
+            np.multiply(Jxy[:, :, 0], f[:, None], out=JG[:, :, 0])
+            np.multiply(Jxy[:, :, 1], f[:, None], out=JG[:, :, 1])
+            JG[:, :, 2] = -(JG[:, :, 0] * u[:, None] + JG[:, :, 1] * v[:, None])
+        ph = self.obs_photo
+        J_point = bmm(JG, pr._R[ph])                      # ∂/∂X = JG R
+        # ∂d/∂angle = ∂R/∂angle (X − X0) = S_a d with S_a = ∂R/∂angle Rᵀ skew: s_a × d
+        S = np.einsum("maij,mkj->maik", dR, pr._R)        # (m, 3, 3, 3)
+        sv = np.stack([S[:, :, 2, 1], S[:, :, 0, 2], S[:, :, 1, 0]], axis=2)   # (m, 3 angles, 3)
+        # J_angle[:, i, a] = JG_i · (s_a × d) = s_a · (d × JG_i)
+        h = np.cross(d[:, None, :], JG)                   # (k, 2, 3)
+        J_eo = np.empty((k, 2, 6))
+        J_eo[:, :, :3] = -J_point
+        J_eo[:, :, 3:] = bmm(h, np.transpose(sv[ph], (0, 2, 1)))
+        # camera: ∂/∂c = (I + D)(x̄, ȳ)/c + the model's own ∂Δ/∂c; ∂/∂xp = (1, 0), ∂/∂yp = (0, 1)
+        for j, t in enumerate(cols.tolist()):
+            if t == 0:
+                if Jxy is None:
+                    J_cam[:, :, j] = pr.xbar / c[:, None]
+                else:
+                    J_cam[:, :, j] = bmv(Jxy, pr.xbar / c[:, None])
+                if Jc_model is not None:
+                    J_cam[:, :, j] += Jc_model
+            elif t == 1:
+                J_cam[:, 0, j] = 1.0
+            elif t == 2:
+                J_cam[:, 1, j] = 1.0
+        pr.J_eo, pr.J_point, pr.J_cam = J_eo, J_point, J_cam
+        return pr
 
 
 def project_observations(obs_photo: np.ndarray, obs_point: np.ndarray, XYZ: np.ndarray,
@@ -113,83 +270,10 @@ def project_observations(obs_photo: np.ndarray, obs_point: np.ndarray, XYZ: np.n
     cam_models : (K,) registered AP model names; cam_meta : (K,) dicts (``b``, ``r0`` …).
     R_dR : optional precomputed ``rotation_and_derivatives(opk)``.
     """
-    obs_photo = np.asarray(obs_photo, int)
-    obs_point = np.asarray(obs_point, int)
-    cam_params = np.asarray(cam_params, float)
-    k = obs_photo.shape[0]
-    ptot = cam_params.shape[1]
-    if R_dR is None:
-        R_dR = rotation_and_derivatives(opk) if jacobians else (rotation_from_opk_many(opk), None)
-    R, dR = R_dR
-    cam = np.asarray(photo_camera, int)[obs_photo]
-    D = XYZ[obs_point] - X0[obs_photo]                # (k, 3)
-    Rk = R[obs_photo]
-    d = bmv(Rk, D)
-    U, V, W = d[:, 0], d[:, 1], d[:, 2]
-    c = cam_params[cam, 0]
-    xbar = -c * U / W
-    ybar = -c * V / W
-    xy = np.empty((k, 2))
-    xy[:, 0] = cam_params[cam, 1] + xbar
-    xy[:, 1] = cam_params[cam, 2] + ybar
-    Jxy = None
-    J_ap = None
-    J_c_model = None
-    if jacobians:
-        Jxy = np.zeros((k, 2, 2))
-        Jxy[:, 0, 0] = 1.0
-        Jxy[:, 1, 1] = 1.0
-        J_ap = np.zeros((k, 2, ptot - 3))
-        J_c_model = np.zeros((k, 2))
-    models = np.asarray(cam_models, dtype=str)
-    metas = list(cam_meta) if cam_meta is not None else [{} for _ in range(len(models))]
-    for name in np.unique(models[cam]) if k else []:
-        model = get_ap_model(name)
-        p = model.n_params
-        if p == 0:
-            continue
-        cams_m = np.flatnonzero(models == name)
-        sel_mask = np.isin(cam, cams_m)
-        # meta may differ per camera: evaluate camera by camera when it does
-        groups = [cams_m] if _same_meta([metas[j] for j in cams_m]) else [[j] for j in cams_m]
-        for grp in groups:
-            sel = np.flatnonzero(sel_mask & np.isin(cam, grp)) if len(groups) > 1 else np.flatnonzero(sel_mask)
-            if sel.size == 0:
-                continue
-            meta = metas[grp[0]]
-            prm = cam_params[cam[sel], 3:3 + p]
-            xb, yb, cc = xbar[sel], ybar[sel], c[sel]
-            dx, dy = model.distortion(xb, yb, prm, cc, meta)
-            xy[sel, 0] += dx
-            xy[sel, 1] += dy
-            if jacobians:
-                J_ap[sel, :, :p] = model.jacobian_params(xb, yb, prm, cc, meta)
-                Jxy[sel] += model.jacobian_xy(xb, yb, prm, cc, meta)
-                J_c_model[sel] = model.jacobian_c(xb, yb, prm, cc, meta)
-    out = Projection(xy=xy, xbar=np.column_stack([xbar, ybar]), W=W)
-    if not jacobians:
-        return out
-    # ∂(x̄, ȳ)/∂d  (k, 2, 3)
-    G = np.zeros((k, 2, 3))
-    G[:, 0, 0] = -c / W
-    G[:, 0, 2] = c * U / (W * W)
-    G[:, 1, 1] = -c / W
-    G[:, 1, 2] = c * V / (W * W)
-    JG = bmm(Jxy, G)                                  # (k, 2, 3) ∂(x, y)/∂d
-    J_point = bmm(JG, Rk)                             # ∂/∂X = JG R
-    J_eo = np.empty((k, 2, 6))
-    J_eo[:, :, :3] = -J_point
-    dd = bmv(dR[obs_photo], D[:, None, :])            # (k, 3 angles, 3): ∂d/∂angle
-    J_eo[:, :, 3:] = bmm(JG, np.transpose(dd, (0, 2, 1)))
-    J_cam = np.zeros((k, 2, ptot))
-    # ∂(x̄, ȳ)/∂c = (x̄, ȳ)/c  (chain through the AP model) + the model's own ∂/∂c
-    xbc = np.column_stack([xbar / c, ybar / c])
-    J_cam[:, :, 0] = bmv(Jxy, xbc) + J_c_model
-    J_cam[:, 0, 1] = 1.0
-    J_cam[:, 1, 2] = 1.0
-    J_cam[:, :, 3:] = J_ap
-    out.J_eo, out.J_point, out.J_cam = J_eo, J_point, J_cam
-    return out
+    pj = Projector(obs_photo, obs_point, photo_camera, cam_models, cam_meta)
+    R, dR = R_dR if R_dR is not None else (None, None)
+    pr = pj.project(np.asarray(XYZ, float), np.asarray(X0, float), opk, cam_params, R=R)
+    return pj.jacobians(pr, dR=dR) if jacobians else pr
 
 
 def _same_meta(metas) -> bool:

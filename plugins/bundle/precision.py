@@ -17,10 +17,9 @@ bounded (n_x × 3·chunk).
 from __future__ import annotations
 
 import numpy as np
-import scipy.linalg as sla
 
 from .collinearity import bmm
-from .solver import BundleProblem, _solve_reduced
+from .solver import BundleProblem, _solve_reduced, solve_factored
 
 
 def reduced_inverse(prob: BundleProblem, red, st) -> np.ndarray:
@@ -30,10 +29,8 @@ def reduced_inverse(prob: BundleProblem, red, st) -> np.ndarray:
         return np.zeros((0, 0))
     if "factor" not in red:
         _solve_reduced(prob, red, st)
-    kind, fac = red["factor"]
     s = red["scale"]
-    eye = np.eye(n_x)
-    Ki = sla.cho_solve(fac, eye, check_finite=False) if kind == "chol" else sla.lu_solve(fac, eye, check_finite=False)
+    Ki = solve_factored(red["factor"], np.eye(n_x))
     Ki = 0.5 * (Ki + Ki.T)
     return Ki * s[:, None] * s[None, :]
 

@@ -34,7 +34,7 @@ from pipeline.errors import AdjustmentError, InputError
 from pipeline.model import Block
 
 from .apmodels import get_ap_model
-from .collinearity import EO_NAMES, IOP_NAMES, bmm, bmv, project_observations, rotation_and_derivatives
+from .collinearity import EO_NAMES, IOP_NAMES, Projector, bmm, bmv
 
 __all__ = ["Distance", "BundleSettings", "BundleState", "BundleProblem", "solve_bundle"]
 
@@ -295,6 +295,31 @@ class BundleProblem:
         self.n_obs_rows = int(self.row_active[oi].sum())
         self.dof = (self.n_obs_rows + len(self.prior_g_idx) + len(self.prior_p_idx) + len(self.dist_l)
                     + self.n_c - self.n_unknowns)
+        self._setup_iteration()
+
+    def _setup_iteration(self):
+        """What every iteration reuses: the projector (camera of each observation, AP-model groups),
+        the Jacobian columns that feed ``cidx``, the photo segments' columns, the observation →
+        point summation matrix."""
+        P = 3 + self.pmax
+        sel = {"cam": np.zeros(0, int), "eo": np.zeros(0, int), "pt": np.zeros(0, int)}
+        off = 0
+        for name, w in self.col_groups:
+            sel[name] = self.col_keep[(self.col_keep >= off) & (self.col_keep < off + w)] - off
+            off += w
+        self.jac_cols = (sel["cam"], sel["eo"], sel["pt"])
+        photos = self.block.photos
+        self.projector = Projector(self.obs_photo, self.obs_point, photos.camera, self.block.cameras.ap_model,
+                                   self.meta, cam_cols=sel["cam"])
+        self.col_mask_all = bool(self.col_mask.all())
+        self.pt_mask_all = bool(self.pt_mask.all())
+        self.L_rows = np.stack([self.L[:, 0, 0], self.L[:, 1, 1]], axis=1)[:, :, None]
+        self.seg_len = (self.seg_end - self.seg_start).astype(np.intp)
+        self.seg_cols = self.cidx[self.seg_start, :self.q_ph]                # (n_seg, q_ph)
+        k = len(self.oi)
+        # Σ over the observations of each eliminated point (row n_e: observations of no such point)
+        self.obs_to_point = sp.csr_matrix((np.ones(k), (self.pidx, np.arange(k))), shape=(self.n_e + 1, k))
+        self.datum_on_elim = bool(self.n_c and len(self.datum_elim))
 
     # ------------------------------------------------------------------------------------------
     def _check_weak(self, act):
@@ -442,9 +467,8 @@ class BundleProblem:
 
     # ------------------------------------------------------------------------------------------
     def project(self, st: BundleState, jacobians: bool):
-        return project_observations(self.obs_photo, self.obs_point, st.XYZ, st.X0, st.opk,
-                                    self.block.photos.camera, st.cam_params,
-                                    self.block.cameras.ap_model, self.meta, jacobians=jacobians)
+        pr = self.projector.project(st.XYZ, st.X0, st.opk, st.cam_params)
+        return self.projector.jacobians(pr) if jacobians else pr
 
     def residual_parts(self, st: BundleState, proj=None):
         """Whitened image residuals e (k, 2), prior residuals (global, points), distances."""
@@ -465,31 +489,38 @@ class BundleProblem:
                      + np.sum((s0 * dd / self.dist_s) ** 2)) if len(e) or len(dg) else 0.0
 
     # ------------------------------------------------------------------------------------------
-    def linearize(self, st: BundleState):
-        """Whitened Jacobians and normal-equation pieces at ``st``."""
+    def linearize(self, st: BundleState, proj=None):
+        """Whitened Jacobians and normal-equation pieces at ``st``.
+
+        ``proj``: the projection of ``st`` already computed (the accepted trial step's), so the
+        residuals are not evaluated twice; its Jacobians are added here."""
         t0 = time.perf_counter()
-        proj = self.project(st, True)
+        if proj is None or proj._d is None:
+            proj = self.project(st, False)
+        if proj.J_eo is None:
+            self.projector.jacobians(proj)
         parts = self.residual_parts(st, proj)
         v, e, dg, dpv, dd, _ = parts
-        blocks = []
-        for name, _ in self.col_groups:
-            blocks.append({"cam": proj.J_cam, "eo": proj.J_eo, "pt": proj.J_point}[name])
-        Jc = np.concatenate(blocks, axis=2)[:, :, self.col_keep] if blocks else np.zeros((len(e), 2, 0))
-        Jc = self.whiten(Jc)
-        Jc *= self.col_mask[:, None, :]
+        k = len(e)
+        sc, se, spt = self.jac_cols
+        Jc = np.empty((k, 2, self.q))
+        a, b = len(sc), len(sc) + len(se)
+        Jc[:, :, :a] = proj.J_cam
+        Jc[:, :, a:b] = proj.J_eo if len(se) == 6 else proj.J_eo[:, :, se]
+        Jc[:, :, b:] = proj.J_point[:, :, spt]
+        Jc = self.whiten(Jc, out=Jc)
+        if not self.col_mask_all:
+            Jc *= self.col_mask[:, None, :]
         Jp = self.whiten(proj.J_point)
-        Jp *= self.pt_mask[:, None, :]
-        U = self.gram_U(Jc)
+        if not self.pt_mask_all:
+            Jp *= self.pt_mask[:, None, :]
+        U, g = self.gram_U(Jc, e)
         ng1 = self.n_g + 1
-        g = np.bincount(self.cidx.ravel(), (Jc[:, 0, :] * e[:, 0, None] + Jc[:, 1, :] * e[:, 1, None]).ravel(),
-                        minlength=ng1)[:-1]
-        ne1 = self.n_e + 1
-        Vk = bmm(np.transpose(Jp, (0, 2, 1)), Jp).reshape(-1, 9)
-        V = np.stack([np.bincount(self.pidx, Vk[:, t], minlength=ne1) for t in range(9)], axis=1)
-        V = V.reshape(ne1, 3, 3)[:-1]
+        Vk = Jp[:, 0, :, None] * Jp[:, 0, None, :]
+        Vk += Jp[:, 1, :, None] * Jp[:, 1, None, :]
+        V = (self.obs_to_point @ Vk.reshape(k, 9))[:-1].reshape(-1, 3, 3)
         Jpe = Jp[:, 0, :] * e[:, 0, None] + Jp[:, 1, :] * e[:, 1, None]
-        bp = np.stack([np.bincount(self.pidx, Jpe[:, t], minlength=ne1) for t in range(3)], axis=1)[:-1]
-        Wk = Jc[:, 0, :, None] * Jp[:, 0, None, :] + Jc[:, 1, :, None] * Jp[:, 1, None, :]
+        bp = (self.obs_to_point @ Jpe)[:-1]
         # priors
         np.add.at(U, (self.prior_g_idx, self.prior_g_idx), self.prior_g_w)
         np.add.at(g, self.prior_g_idx, self.prior_g_w * dg)
@@ -521,53 +552,67 @@ class BundleProblem:
             V[pi, ci, ci] = 1.0
             bp[fixed] = 0.0
         Jd, dcols = dist_lin if len(self.dist_l) else (None, None)
-        return dict(U=U, g=g, V=V, bp=bp, Wk=Wk, Jc=Jc, Jp=Jp, e=e, v=v, parts=parts, proj=proj,
+        return dict(U=U, g=g, V=V, bp=bp, Jc=Jc, Jp=Jp, e=e, v=v, parts=parts, proj=proj,
                     Jd=Jd, dcols=dcols, t=time.perf_counter() - t0)
 
-    def whiten(self, J):
+    def whiten(self, J, out=None):
         """``L J`` for (k, 2, c) Jacobians."""
         if self.L_diag:
-            return J * np.stack([self.L[:, 0, 0], self.L[:, 1, 1]], axis=1)[:, :, None]
+            return np.multiply(J, self.L_rows, out=out)
         return bmm(self.L, J)
 
-    def gram_U(self, Jc):
-        """``Σ_k Jc_kᵀ Jc_k`` scattered into (n_g, n_g): per photo with BLAS for the photo-constant
-        columns, by bincount for the few observations of global points."""
+    def gram_U(self, Jc, e=None):
+        """``Σ_k Jc_kᵀ Jc_k`` scattered into (n_g, n_g) (and ``Σ_k Jc_kᵀ e_k`` when ``e`` is given):
+        per photo with BLAS for the photo-constant columns, by bincount for the few observations
+        of global points."""
         ng1 = self.n_g + 1
         Up = np.zeros((ng1, ng1))
+        gp = np.zeros(ng1)
         q_ph = self.q_ph
-        for s0, s1 in zip(self.seg_start, self.seg_end):
-            A = Jc[s0:s1, :, :q_ph].reshape(-1, q_ph)
-            idx = self.cidx[s0, :q_ph]
+        whole = q_ph == self.q
+        for s0, s1, idx in zip(self.seg_start.tolist(), self.seg_end.tolist(), self.seg_cols):
+            A = Jc[s0:s1].reshape(-1, q_ph) if whole else Jc[s0:s1, :, :q_ph].reshape(-1, q_ph)
             Up[np.ix_(idx, idx)] += A.T @ A
+            if e is not None:
+                gp[idx] += A.T @ e[s0:s1].reshape(-1)
         if len(self.gp_obs):
             J = Jc[self.gp_obs]
             outer = bmm(np.transpose(J, (0, 2, 1)), J)
             outer[:, :q_ph, :q_ph] = 0.0          # counted above
             Up += np.bincount(self.flatU_gp, outer.ravel(), minlength=ng1 * ng1).reshape(ng1, ng1)
-        return Up[:-1, :-1]
+            if e is not None:
+                eg = e[self.gp_obs]
+                gv = J[:, 0, q_ph:] * eg[:, 0, None] + J[:, 1, q_ph:] * eg[:, 1, None]
+                gp += np.bincount(self.cidx[self.gp_obs, q_ph:].ravel(), gv.ravel(), minlength=ng1)
+        if e is None:
+            return Up[:-1, :-1]
+        return Up[:-1, :-1], gp[:-1]
 
     def gram_mode(self) -> str:
         """Cheapest way to form ``B Bᵀ`` for this problem (cost model in flops-equivalents)."""
         if getattr(self, "_gram_mode", None) is None:
             n_e = self.n_e
             cnt = np.bincount(self.pidx[self.obs_elim], minlength=n_e).astype(float)
-            pairs = float(np.sum(cnt * (cnt + 1) / 2)) * self.q * self.q
+            q = self.q_ph
+            n_pairs = float(np.sum(cnt * (cnt - 1) / 2))
+            n_seg = len(self.seg_start)
+            photo_pairs = min(n_pairs, n_seg * (n_seg - 1) / 2)
+            # pairs: one small BLAS product per photo pair (≈ 30 µs-equivalents of overhead each),
+            # the gathered blocks and the per-photo diagonal
+            pairs = (2 * 3 * q * q / 4 + 2 * 3 * q * 2) * n_pairs + 3e4 * photo_pairs + len(self.oi) * 3 * q * q / 4
             nnz_col = np.minimum(cnt * self.q, self.n_g)
             sparse = 3.0 * float(np.sum(nnz_col ** 2)) * 4.0
             dense = float(self.n_g + self.n_c) ** 2 * 3 * n_e / 10.0 + 3.0 * len(self.oi) * self.q
             dense_bytes = 8.0 * (self.n_g + 1) * 3 * n_e
-            pair_bytes = 8.0 * pairs
-            costs = {"sparse": sparse, "pairs": 3.0 * pairs if pair_bytes < 6e8 else np.inf,
+            pair_bytes = 16.0 * n_pairs + 8.0 * photo_pairs * q * q
+            costs = {"sparse": sparse, "pairs": pairs if pair_bytes < 6e8 else np.inf,
                      "dense": dense if dense_bytes < 4e8 else np.inf}
             self._gram_mode = min(costs, key=costs.get)
         return self._gram_mode
 
     def track_groups(self):
         """Observations of each eliminated point grouped by track length: list of
-        ``(obs_mat (N_t, t), pairs)``; ``pairs = (ia, ib, half, flat)`` are the observation pairs
-        ``a ≤ b`` of a track, 0.5 on ``a = b``, and the flat (row, col) indices of their q×q
-        blocks in U — ``B Bᵀ = A + Aᵀ`` with ``A = Σ half · B_a B_bᵀ``."""
+        ``(obs_mat (N_t, t), None)`` (built once)."""
         if getattr(self, "_tracks", None) is None:
             sel = np.flatnonzero(self.obs_elim)
             order = sel[np.argsort(self.pidx[sel], kind="stable")]
@@ -580,22 +625,53 @@ class BundleProblem:
             self._tracks = groups
         return self._tracks
 
-    def track_pairs(self):
-        """The ``pairs`` of :meth:`track_groups`, built on first use (memory ~ Σ t(t+1)/2 q²)."""
-        if getattr(self, "_pairs", None) is None:
-            ng1 = self.n_g + 1
-            itype = np.int32 if ng1 * ng1 < 2 ** 31 else np.int64
-            out = []
+    def pair_plan(self, chunk_pairs: int = 1 << 15):
+        """The observation pairs of every eliminated point, grouped by photo pair (built once).
+
+        ``B Bᵀ`` (global part) is ``Σ_photos Y_aᵀ Y_a + Σ_{a<b} (S_ab + S_abᵀ)`` with
+        ``S_ab = Σ_{p seen in a and b} B_ap B_bpᵀ``: one BLAS product per photo pair over the
+        stacked blocks of their common points.  Returns a dict: ``oa, ob`` (observations of each
+        pair, photo of ``oa`` < photo of ``ob``, sorted by photo pair), ``gs, ge`` (pair range of
+        each photo pair), ``flat`` / ``flat_diag`` (where the q×q blocks go in the (n_g+1)² matrix),
+        ``chunks`` (photo-pair ranges gathered together, ≤ ``chunk_pairs`` pairs unless one photo
+        pair alone has more)."""
+        if getattr(self, "_pair_plan", None) is None:
+            n_seg = len(self.seg_start)
+            seg_of = np.repeat(np.arange(n_seg), self.seg_len)
+            oa_l, ob_l = [np.zeros(0, np.intp)], [np.zeros(0, np.intp)]
             for obs_mat, _ in self.track_groups():
                 t = obs_mat.shape[1]
-                ia, ib = np.triu_indices(t)
-                ra = self.cidx[obs_mat[:, ia]].astype(itype)             # (N, P, q)
-                rb = self.cidx[obs_mat[:, ib]].astype(itype)
-                flat = (ra[:, :, :, None] * itype(ng1) + rb[:, :, None, :]).ravel()
-                half = np.where(ia == ib, 0.5, 1.0)[None, :, None, None]
-                out.append((obs_mat, ia, ib, half, flat))
-            self._pairs = out
-        return self._pairs
+                if t < 2:
+                    continue
+                ia, ib = np.triu_indices(t, 1)
+                oa_l.append(obs_mat[:, ia].ravel())
+                ob_l.append(obs_mat[:, ib].ravel())
+            oa, ob = np.concatenate(oa_l), np.concatenate(ob_l)
+            sa, sb = seg_of[oa], seg_of[ob]
+            swap = sa > sb
+            oa, ob = np.where(swap, ob, oa), np.where(swap, oa, ob)
+            sa, sb = np.minimum(sa, sb), np.maximum(sa, sb)
+            key = sa.astype(np.int64) * n_seg + sb
+            o = np.lexsort((oa, key))
+            oa, ob, key, sa, sb = oa[o], ob[o], key[o], sa[o], sb[o]
+            gs = np.flatnonzero(np.r_[True, key[1:] != key[:-1]]) if len(key) else np.zeros(0, int)
+            ge = np.r_[gs[1:], len(key)].astype(int)
+            ng1 = self.n_g + 1
+            itype = np.int32 if ng1 * ng1 < 2 ** 31 else np.int64
+            ra = self.seg_cols[sa[gs]].astype(itype)
+            rb = self.seg_cols[sb[gs]].astype(itype)
+            flat = (ra[:, :, None] * itype(ng1) + rb[:, None, :]).ravel()
+            rd = self.seg_cols.astype(itype)
+            flat_diag = (rd[:, :, None] * itype(ng1) + rd[:, None, :]).ravel()
+            chunks = []
+            g0 = 0
+            for g in range(1, len(gs) + 1):
+                if g == len(gs) or ge[g] - gs[g0] > chunk_pairs:
+                    chunks.append((g0, g))
+                    g0 = g
+            self._pair_plan = dict(oa=oa, ob=ob, gs=gs.tolist(), ge=ge.tolist(), flat=flat, flat_diag=flat_diag,
+                                   chunks=chunks)
+        return self._pair_plan
 
     # ------------------------------------------------------------------------------------------
     def constraint_rows(self, st: BundleState):
@@ -641,19 +717,22 @@ class BundleProblem:
     # ------------------------------------------------------------------------------------------
     def reduced_system(self, lin, st: BundleState, lam: float = 0.0):
         """Schur complement: K (n_x, n_x), rhs (n_x,), the factors needed to back-substitute."""
-        U, g, V, bp, Wk = lin["U"], lin["g"], lin["V"], lin["bp"], lin["Wk"]
+        U, g, V, bp = lin["U"], lin["g"], lin["V"], lin["bp"]
+        Jc, Jp = lin["Jc"], lin["Jp"]
         n_g, n_e, n_c = self.n_g, self.n_e, self.n_c
         if lam > 0:
             U = U + lam * np.diag(np.diag(U))
             V = V + lam * np.einsum("pii->pi", V)[:, :, None] * np.eye(3)
-        Lp = _chol3(V, self)
-        Li = np.linalg.inv(Lp)                                     # (n_e, 3, 3) lower
+        Li = _chol3_inv(V, self)                                   # (n_e, 3, 3) lower, L⁻¹ with V = L Lᵀ
         Li1 = np.concatenate([Li, np.eye(3)[None]], axis=0)        # dummy point for global-point obs
-        Bk = bmm(Wk, np.transpose(Li1[self.pidx], (0, 2, 1)))      # W_k L⁻ᵀ
+        # B_k = W_k L⁻ᵀ = Jcᵀ (Jp L⁻ᵀ), held transposed: BkT (k, 3, q)
+        Jh = bmm(Jp, np.transpose(Li1[self.pidx], (0, 2, 1)))
+        BkT = Jh[:, 0, :, None] * Jc[:, 0, None, :]
+        BkT += Jh[:, 1, :, None] * Jc[:, 1, None, :]
         Cg, Cp = self.constraint_rows(st)
         n_x = n_g + n_c
         Bc = np.einsum("pac,pba->pcb", Cp, Li) if n_c else None   # (n_e, n_c, 3) = Cpᵀ L⁻ᵀ
-        B = _BMatrix(self, Bk, Bc)
+        B = _BMatrix(self, BkT, Bc)
         K = np.zeros((n_x, n_x))
         K[:n_g, :n_g] = U
         if n_c:
@@ -701,22 +780,49 @@ def _chol3(V, prob):
                               "seen from one photo only — remove it or add observations") from None
 
 
+def _chol3_inv(V, prob):
+    """``L⁻¹`` of ``V = L Lᵀ`` for every 3×3 block (closed form; LAPACK's error path when a block
+    is not positive definite)."""
+    a00, a10, a11 = V[:, 0, 0], V[:, 1, 0], V[:, 1, 1]
+    a20, a21, a22 = V[:, 2, 0], V[:, 2, 1], V[:, 2, 2]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        l00 = np.sqrt(a00)
+        l10 = a10 / l00
+        l20 = a20 / l00
+        l11 = np.sqrt(a11 - l10 * l10)
+        l21 = (a21 - l20 * l10) / l11
+        l22 = np.sqrt(a22 - l20 * l20 - l21 * l21)
+        i00, i11, i22 = 1.0 / l00, 1.0 / l11, 1.0 / l22
+        Li = np.zeros_like(V)
+        Li[:, 0, 0], Li[:, 1, 1], Li[:, 2, 2] = i00, i11, i22
+        Li[:, 1, 0] = -l10 * i00 * i11
+        Li[:, 2, 1] = -l21 * i11 * i22
+        Li[:, 2, 0] = (l10 * l21 - l11 * l20) * i00 * i11 * i22
+    if not np.isfinite(Li).all():
+        return np.linalg.inv(_chol3(V, prob))
+    return Li
+
+
 class _BMatrix:
-    """``B = [W V^{-1/2}; Cpᵀ V^{-1/2}]`` (n_x × 3 n_e), held as per-observation blocks ``Bk``
-    (k, q, 3) plus the constraint blocks ``Bc`` (n_e, n_c, 3).
+    """``B = [W V^{-1/2}; Cpᵀ V^{-1/2}]`` (n_x × 3 n_e), held as per-observation blocks, transposed:
+    ``BkT`` (k, 3, q) (``Bk`` (k, q, 3) is a view), plus the constraint blocks ``Bc`` (n_e, n_c, 3).
 
     ``gram() = B Bᵀ`` is computed by the cheapest of three strategies:
     ``dense`` (BLAS on the dense n_g × 3n_e matrix: few points, many photos per point),
-    ``pairs`` (one q×q product per pair of observations of the same point, grouped by track
-    length: many points with short tracks, e.g. BAL), ``sparse`` (scipy CSR product).
+    ``pairs`` (one BLAS product per photo pair over the blocks of their common points, see
+    :meth:`BundleProblem.pair_plan`: many points with short tracks, e.g. BAL),
+    ``sparse`` (scipy CSR product).
     """
 
-    def __init__(self, prob: BundleProblem, Bk, Bc):
+    def __init__(self, prob: BundleProblem, BkT, Bc):
         self.prob = prob
-        self.Bk, self.Bc = Bk, Bc
-        n_g, n_e = prob.n_g, prob.n_e
-        self.n_x = n_g + prob.n_c
+        self.BkT, self.Bc = BkT, Bc
+        self.n_x = prob.n_g + prob.n_c
         self.mode = prob.gram_mode()
+
+    @property
+    def Bk(self):
+        return np.swapaxes(self.BkT, 1, 2)
 
     # -- the Schur product ---------------------------------------------------------------------
     def gram(self):
@@ -730,28 +836,40 @@ class _BMatrix:
             out[:] = D @ D.T
             return out
         ng1 = n_g + 1
+        q = prob.q_ph
+        X = self.BkT if q == prob.q else np.ascontiguousarray(self.BkT[:, :, :q])
         if self.mode == "pairs":
-            acc = np.zeros(ng1 * ng1)
-            for obs_mat, ia, ib, half, flat in prob.track_pairs():
-                Xa = self.Bk[obs_mat[:, ia]]                                   # (N, P, q, 3)
-                Xb = self.Bk[obs_mat[:, ib]]
-                G = np.matmul(Xa, np.swapaxes(Xb, 2, 3)) * half
-                acc += np.bincount(flat, G.ravel(), minlength=ng1 * ng1)
-            A = acc.reshape(ng1, ng1)[:-1, :-1]
-            out[:n_g, :n_g] = A + A.T
+            pl = prob.pair_plan()
+            gs, ge, oa, ob = pl["gs"], pl["ge"], pl["oa"], pl["ob"]
+            S = np.empty((len(gs), q, q))
+            for g0, g1 in pl["chunks"]:
+                p0, p1 = gs[g0], ge[g1 - 1]
+                XA = X[oa[p0:p1]]
+                XB = X[ob[p0:p1]]
+                for g in range(g0, g1):
+                    a, b = gs[g] - p0, ge[g] - p0
+                    np.matmul(XA[a:b].reshape(-1, q).T, XB[a:b].reshape(-1, q), out=S[g])
+            A = np.bincount(pl["flat"], S.ravel(), minlength=ng1 * ng1).reshape(ng1, ng1)
+            Dg = np.empty((len(prob.seg_start), q, q))
+            for j, (s0, s1) in enumerate(zip(prob.seg_start.tolist(), prob.seg_end.tolist())):
+                Y = X[s0:s1].reshape(-1, q)
+                np.matmul(Y.T, Y, out=Dg[j])
+            A = A + A.T
+            A += np.bincount(pl["flat_diag"], Dg.ravel(), minlength=ng1 * ng1).reshape(ng1, ng1)
+            out[:n_g, :n_g] = A[:-1, :-1]
         else:
             S = self.sparse()[:n_g]
             out[:n_g, :n_g] = (S @ S.T).toarray()
         if n_c:
-            # cross terms with the constraint rows: Σ_k Bk Bc[p]ᵀ, and Bc Bcᵀ
-            sel = prob.obs_elim
-            Bck = self.Bc[prob.pidx[sel]]                                   # (k', n_c, 3)
-            X = np.matmul(self.Bk[sel], np.transpose(Bck, (0, 2, 1)))      # (k', q, n_c)
-            rows = prob.cidx[sel]
-            cross = np.stack([np.bincount(rows.ravel(), X[:, :, j].ravel(), minlength=ng1)[:-1]
-                              for j in range(n_c)], axis=1)
-            out[:n_g, n_g:] = cross
-            out[n_g:, :n_g] = cross.T
+            if prob.datum_on_elim:
+                # cross terms with the constraint rows, Σ_k B_k Bc_pᵀ, per photo
+                BcT1 = np.concatenate([np.swapaxes(self.Bc, 1, 2), np.zeros((1, 3, n_c))], axis=0)
+                Z = BcT1[prob.pidx]                                             # (k, 3, n_c)
+                cross = np.zeros((ng1, n_c))
+                for s0, s1, idx in zip(prob.seg_start.tolist(), prob.seg_end.tolist(), prob.seg_cols):
+                    cross[idx] += X[s0:s1].reshape(-1, q).T @ Z[s0:s1].reshape(-1, n_c)
+                out[:n_g, n_g:] = cross[:-1]
+                out[n_g:, :n_g] = cross[:-1].T
             Bcf = np.transpose(self.Bc, (1, 0, 2)).reshape(n_c, -1)
             out[n_g:, n_g:] = Bcf @ Bcf.T
         return out
@@ -760,10 +878,12 @@ class _BMatrix:
     def matvec(self, z):
         """``B z`` for z (n_e, 3)."""
         prob = self.prob
+        q = prob.q_ph
         z1 = np.vstack([z.reshape(-1, 3), np.zeros((1, 3))])
-        y = (self.Bk * z1[prob.pidx][:, None, :]).sum(axis=2)              # (k, q)
+        y = np.matmul(z1[prob.pidx][:, None, :], self.BkT[:, :, :q])[:, 0, :]     # (k, q)
+        ys = np.add.reduceat(y, prob.seg_start, axis=0)                           # per photo
         out = np.zeros(self.n_x)
-        out[:prob.n_g] = np.bincount(prob.cidx.ravel(), y.ravel(), minlength=prob.n_g + 1)[:-1]
+        out[:prob.n_g] = np.bincount(prob.seg_cols.ravel(), ys.ravel(), minlength=prob.n_g + 1)[:-1]
         if prob.n_c and prob.n_e:
             out[prob.n_g:] = np.einsum("pca,pa->c", self.Bc, z.reshape(-1, 3))
         return out
@@ -771,10 +891,11 @@ class _BMatrix:
     def rmatvec(self, x):
         """``Bᵀ x`` as (n_e, 3)."""
         prob = self.prob
-        xg = np.append(x[:prob.n_g], 0.0)[prob.cidx]                        # (k, q)
-        y = (self.Bk * xg[:, :, None]).sum(axis=1)                          # (k, 3)
-        ne1 = prob.n_e + 1
-        out = np.stack([np.bincount(prob.pidx, y[:, a], minlength=ne1) for a in range(3)], axis=1)[:-1]
+        q = prob.q_ph
+        xg = np.append(x[:prob.n_g], 0.0)[prob.seg_cols]                     # (n_seg, q)
+        xk = np.repeat(xg, prob.seg_len, axis=0)                              # (k, q)
+        y = np.matmul(self.BkT[:, :, :q], xk[:, :, None])[:, :, 0]           # (k, 3)
+        out = (prob.obs_to_point @ y)[:-1]
         if prob.n_c and prob.n_e:
             out += np.einsum("pca,c->pa", self.Bc, x[prob.n_g:])
         return out
@@ -809,44 +930,47 @@ class _BMatrix:
 
 
 def solve_bundle(block: Block, settings: BundleSettings | None = None, *, obs_active=None, row_active=None,
-                 start: BundleState | None = None, problem: BundleProblem | None = None):
+                 start: BundleState | None = None, problem: BundleProblem | None = None, final: bool = True):
     """Run the adjustment (see :func:`plugins.bundle.adjust` for the public entry point).
 
-    Returns ``(problem, state, info)``; ``info`` holds the history, the final linearisation and
-    reduced system, the factorisation and timings.
+    Returns ``(problem, state, info)``; ``info`` holds the history, timings and — with ``final``
+    (the default) — the linearisation and reduced system at the solution (``lin``, ``red``, what
+    the precision needs; ``info["proj"]`` is the solution's projection either way).
     """
     settings = settings or BundleSettings()
     t0 = time.perf_counter()
     prob = problem or BundleProblem(block, settings, obs_active=obs_active, row_active=row_active)
     st = (start or prob.initial_state()).copy()
     _check_initial(prob, st)
-    timings = {"setup": time.perf_counter() - t0, "linearize": 0.0, "solve": 0.0}
-    history = []
-    lam = 0.0
     parts = prob.residual_parts(st)
     cost = prob.cost(st, parts)
+    timings = {"setup": time.perf_counter() - t0, "linearize": 0.0, "solve": 0.0, "residuals": 0.0}
+    history = []
+    lam = 0.0
     history.append({"iteration": 0, "vtpv": cost, "lambda": 0.0, "max_step_sigma": float("nan")})
     converged = False
     it = 0
     eps_cost = 1e-12 * max(1, prob.n_obs_rows)
     nu = 2.0
     for it in range(1, settings.max_iter + 1):
-        lin = prob.linearize(st)
+        lin = prob.linearize(st, parts[-1])            # the accepted step's projection, Jacobians added
         timings["linearize"] += lin["t"]
         while True:
             ts = time.perf_counter()
             red = prob.reduced_system(lin, st, lam)
             dx, fac = _solve_reduced(prob, red, st, diagnose=(it == 1 and lam == 0.0))
             dp = prob.back_substitute(red, dx)
-            timings["solve"] += time.perf_counter() - ts
             pred = _pred(prob, lin, dx, dp)        # J̃Δ: change of each observation in units of its σ
             max_step = float(np.max(np.abs(pred))) if pred.size else 0.0
+            gain = cost - _linear_cost(prob, lin, pred, dx, dp)
+            tr = time.perf_counter()
+            timings["solve"] += tr - ts
             new = prob.apply(st, dx[:prob.n_g], dp)
             new_parts = prob.residual_parts(new)
             new_cost = prob.cost(new, new_parts)
+            timings["residuals"] += time.perf_counter() - tr
             if not np.isfinite(new_cost):
                 new_cost = np.inf
-            gain = cost - _linear_cost(prob, lin, pred, dx, dp)
             rho = (cost - new_cost) / gain if gain > 0 else (1.0 if new_cost <= cost else -1.0)
             if gain <= eps_cost and new_cost <= cost + eps_cost:
                 break                                 # nothing left to gain: converged
@@ -883,19 +1007,26 @@ def solve_bundle(block: Block, settings: BundleSettings | None = None, *, obs_ac
             "raise max_iter, check the initial values, or look for gross errors", state=st)
         err.history = history
         raise err
-    ts = time.perf_counter()
-    lin = prob.linearize(st)
-    red = prob.reduced_system(lin, st, 0.0)
-    timings["linearize"] += time.perf_counter() - ts
-    info = dict(history=history, iterations=it, lin=lin, red=red, timings=timings, vtpv=cost)
+    info = dict(history=history, iterations=it, timings=timings, vtpv=cost, proj=parts[-1])
+    if final:
+        lin, red = final_system(prob, st, parts[-1])
+        info.update(lin=lin, red=red)
     return prob, st, info
+
+
+def final_system(prob: BundleProblem, st: BundleState, proj=None):
+    """Linearisation and undamped reduced system at the solution (for the precision)."""
+    lin = prob.linearize(st, proj)
+    return lin, prob.reduced_system(lin, st, 0.0)
 
 
 def _pred(prob, lin, dx, dp) -> np.ndarray:
     """Whitened change J̃Δ of every observation (k, 2)."""
-    pred = bmv(lin["Jc"], np.append(dx[:prob.n_g], 0.0)[prob.cidx])
+    xk = np.append(dx[:prob.n_g], 0.0)[prob.cidx]                          # (k, q)
+    pred = np.matmul(lin["Jc"], xk[:, :, None])[:, :, 0]
     if prob.n_e:
-        pred += bmv(lin["Jp"], np.vstack([dp, np.zeros((1, 3))])[prob.pidx])
+        pk = np.vstack([dp, np.zeros((1, 3))])[prob.pidx]
+        pred += np.matmul(lin["Jp"], pk[:, :, None])[:, :, 0]
     return pred
 
 
@@ -925,7 +1056,13 @@ def _check_initial(prob: BundleProblem, st: BundleState):
 
 
 def _solve_reduced(prob: BundleProblem, red, st, diagnose=False):
-    """Solve K Δ = rhs with Jacobi scaling; on singularity raise a datum / parameter diagnosis."""
+    """Solve K Δ = rhs with Jacobi scaling; on singularity raise a datum / parameter diagnosis.
+
+    Without inner constraints K is positive definite: Cholesky.  With them K is the saddle-point
+    matrix ``[[N, C], [Cᵀ, −E]]`` (E = the constraints' share of the eliminated points); it is
+    solved through the Cholesky factor of ``M = N + C Cᵀ`` (positive definite when C fixes the
+    datum) and an n_c × n_c system — exactly the bordered solution (see :func:`solve_factored`).
+    """
     K, rhs = red["K"], red["rhs"]
     n_g, n_c = prob.n_g, prob.n_c
     if n_g == 0:
@@ -946,16 +1083,49 @@ def _solve_reduced(prob: BundleProblem, red, st, diagnose=False):
             piv = np.diag(fac[1][0]) ** 2
             if piv.min() < 1e-11:
                 raise np.linalg.LinAlgError
-            y = sla.cho_solve(fac[1], rhs * s, check_finite=False)
         else:
-            fac = ("lu", sla.lu_factor(Ks, check_finite=False))
-            u = np.abs(np.diag(fac[1][0]))
-            if u.min() < 1e-11 * u.max():
+            C = Ks[:n_g, n_g:]
+            E = -Ks[n_g:, n_g:]
+            M = Ks[:n_g, :n_g] + C @ C.T
+            cf = sla.cho_factor(M, lower=False, check_finite=False)
+            piv = np.diag(cf[0]) ** 2
+            if piv.min() < 1e-11 * np.max(np.diag(M)):
                 raise np.linalg.LinAlgError
-            y = sla.lu_solve(fac[1], rhs * s, check_finite=False)
+            IE = np.eye(n_c) - E
+            Yc = sla.cho_solve(cf, C, check_finite=False)             # M⁻¹ C
+            Z = C.T @ Yc @ IE + E
+            zf = sla.lu_factor(Z, check_finite=False)
+            u = np.abs(np.diag(zf[0]))
+            if u.min() < 1e-11 * max(u.max(), 1.0):
+                raise np.linalg.LinAlgError
+            fac = ("bordered", (cf, C, Yc, IE, zf))
+        y = solve_factored(fac, rhs * s)
+        if not np.isfinite(y).all():
+            raise np.linalg.LinAlgError
     except (np.linalg.LinAlgError, ValueError):
         from .diagnose import raise_rank_defect
         raise_rank_defect(prob, red, st)
     red["factor"] = fac
     red["scale"] = s
     return y * s, fac
+
+
+def solve_factored(fac, r):
+    """Solve with a factorisation of :func:`_solve_reduced` (scaled system); ``r`` (n_x,) or (n_x, j).
+
+    ``bordered``: ``N Δ + C k = b``, ``Cᵀ Δ − E k = r_c``.  Adding C × the second row to the first
+    gives ``M Δ + C (I − E) k = b + C r_c`` with ``M = N + C Cᵀ``, so ``Δ = y₀ − M⁻¹C (I − E) k``,
+    ``y₀ = M⁻¹ (b + C r_c)``, and the second row becomes
+    ``(Cᵀ M⁻¹ C (I − E) + E) k = Cᵀ y₀ − r_c`` (n_c × n_c; the identity at an undamped step).
+    """
+    kind, f = fac
+    if kind == "chol":
+        return sla.cho_solve(f, r, check_finite=False)
+    if kind == "lu":
+        return sla.lu_solve(f, r, check_finite=False)
+    cf, C, Yc, IE, zf = f
+    n_g = C.shape[0]
+    b, rc = r[:n_g], r[n_g:]
+    y0 = sla.cho_solve(cf, b + C @ rc, check_finite=False)
+    k = sla.lu_solve(zf, C.T @ y0 - rc, check_finite=False)
+    return np.concatenate([y0 - Yc @ (IE @ k), k], axis=0)
