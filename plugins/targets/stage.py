@@ -9,6 +9,7 @@ points, other size) is a warning and the image is skipped; only "no usable image
 
 from __future__ import annotations
 
+import dataclasses
 import glob
 import re
 from dataclasses import dataclass, field
@@ -19,7 +20,7 @@ import numpy as np
 
 from pipeline.errors import InputError
 from pipeline.geometry import rotation_from_opk
-from pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points
+from pipeline.model import FIXED, FREE, Block, Cameras, Observations, Pairs, Photos, Points
 from pipeline.options import option
 from pipeline.stage import Context, Stage, StageResult, TableData
 
@@ -35,10 +36,11 @@ IOP = ("c", "xp", "yp")
 
 @dataclass(frozen=True)
 class TargetOptions:
-    images: list[str] = field(metadata={"doc": "image files or glob patterns, relative to the project file "
-                                               "(required)"})
     target: Literal["chessboard", "charuco", "aruco", "circles-grid", "circles"] = field(
         metadata={"doc": "target type (required); 'circles' takes ids from the layout of an input block (matching)"})
+    images: list[str] = option([], "image files or glob patterns, relative to the project file; empty: the "
+                                   "'images' artefact of an earlier stage (e.g. testfield-render), whose pixel "
+                                   "pitch then replaces pixel_mm")
     squares: list[int] = option([], "chessboard / ChArUco: squares along x and y (OpenCV's 9×6 inner-corner "
                                     "sample board is [10, 7])")
     square_size: float = option(0.0, "side of a square (circle grid: centre spacing), in 'unit'")
@@ -95,6 +97,16 @@ class TargetOptions:
                              dictionary=self.dictionary, legacy_pattern=self.legacy_pattern)
 
 
+def pairs_of_layout(layout: Block, block: Block) -> Pairs:
+    """The layout's stereo pairs whose two photos are both in ``block`` (by photo id), re-indexed to
+    ``block``'s photos: a detection that skips a photo drops its pairs, keeps the others."""
+    pos = {str(p): k for k, p in enumerate(block.photos.ids)}
+    ids = layout.photos.ids
+    keep = [(pos[str(ids[a])], pos[str(ids[b])]) for a, b in zip(layout.pairs.left, layout.pairs.right)
+            if str(ids[a]) in pos and str(ids[b]) in pos]
+    return Pairs(left=np.array([a for a, _ in keep], int), right=np.array([b for _, b in keep], int))
+
+
 def find_images(patterns: list[str], base: Path) -> list[Path]:
     """Files matching the patterns (sorted per pattern, first occurrence kept)."""
     out, seen = [], set()
@@ -140,7 +152,7 @@ class TargetDetection(Stage):
     """Detect ArUco markers, ChArUco boards, chessboards or circular targets in images → block."""
 
     summary = "OpenCV target detection in images → block (image observations in mm, board as control)"
-    reads = ("block?",)
+    reads = ("block?", "images?")
     writes = ("block",)
     Options = TargetOptions
 
@@ -148,12 +160,22 @@ class TargetDetection(Stage):
         import cv2
 
         geom = options.geometry()
-        if not options.images:
-            raise InputError("option 'images' (files or glob patterns) is required", field="images",
-                             path=ctx.project_file)
-        files = find_images(options.images, ctx.project_dir)
-        if not files:
-            raise InputError(f"no image matches {options.images}", field="images", path=ctx.project_file)
+        art_ids = None
+        if options.images:
+            files = find_images(options.images, ctx.project_dir)
+            if not files:
+                raise InputError(f"no image matches {options.images}", field="images", path=ctx.project_file)
+        else:
+            art = inputs.get("images")
+            if art is None:
+                raise InputError("option 'images' is empty and no earlier stage wrote an 'images' artefact: give "
+                                 "image files or glob patterns", field="images", path=ctx.project_file)
+            files = [Path(f) for f in art.paths]
+            if not files:
+                raise InputError("the 'images' artefact of the earlier stage holds no image", field="images",
+                                 path=ctx.project_file)
+            options = dataclasses.replace(options, pixel_mm=float(art.pixel_mm))
+            art_ids = [str(i) for i in art.photo_ids]
         layout = inputs.get("block") if options.target == "circles" else None
         if options.target == "circles" and layout is None:
             raise InputError("target 'circles' takes its ids from an input block (layout points and approximate "
@@ -166,7 +188,7 @@ class TargetDetection(Stage):
             except ValueError as e:
                 raise InputError(str(e), field="detector_params", path=ctx.project_file) from None
         sigma_px = options.sigma_px or DEFAULT_SIGMA_PX[options.target]
-        photo_ids = _photo_ids(files)
+        photo_ids = art_ids or _photo_ids(files)
 
         rows, dets, logged = [], [], []
         for file, pid in ctx.progress.track(list(zip(files, photo_ids)), what="images"):
@@ -342,8 +364,9 @@ class TargetDetection(Stage):
         obs = Observations.make(obs_photo, obs_point, np.concatenate(obs_xy), sigma=np.array(sig))
         meta = dict(layout.meta)
         meta["targets"] = {"target": "circles", "pixel_convention": "opencv"}
-        return Block(cameras=cams, photos=layout.photos.take(ph_idx), points=layout.points.take(pt_idx),
-                     observations=obs, object_unit=layout.object_unit, meta=meta)
+        block = Block(cameras=cams, photos=layout.photos.take(ph_idx), points=layout.points.take(pt_idx),
+                      observations=obs, object_unit=layout.object_unit, meta=meta)
+        return block.replace(pairs=pairs_of_layout(layout, block))
 
     def _report(self, options, files, rows, block, ref, sigma_px) -> str:
         used = [r for r in rows if r["status"] == "ok"]

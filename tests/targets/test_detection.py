@@ -347,8 +347,8 @@ def test_stage_contract_and_project(shared_data, tmp_path):
     from pipeline.testing import check_stage, run_project_text
 
     check_stage(TargetDetection, "opencv-targets")
-    with pytest.raises(InputError, match="required option 'images'"):
-        parse_options(TargetOptions, {"target": "charuco"})
+    with pytest.raises(InputError, match="required option 'target'"):
+        parse_options(TargetOptions, {"images": ["a.png"]})
     folder = shared_data / "opencv-charuco"
     out = run_project_text(f"""
 [[stage]]
