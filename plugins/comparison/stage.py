@@ -3,7 +3,9 @@
 Convention (docs/plugins.md): a stage that compares its results with check points reports
 ``summary["check_points"] = {"n", "Sx", "Sy", "Sxy", "Sz", "unit"}`` (or a dict of such dicts,
 one per variant, for a stage that runs several) and a table ``check_points`` with columns
-``point, dX, dY, dZ`` (adjusted minus surveyed). A one-line finding comes from
+``point, dX, dY, dZ`` (adjusted minus surveyed). A study that pools several realisations adds
+``"realisations"`` to its dict; ``n`` stays the check points of one realisation and the report shows
+``n × realisations``. A one-line finding comes from
 ``summary["headline"]`` or else from the first line of the stage's report.
 """
 
@@ -34,6 +36,17 @@ def headline(result) -> str:
     return "(no report)"
 
 
+def _count(m) -> str:
+    """The n column: check points, times the realisations a study pooled (``"6 × 20"``)."""
+    if m["n"] is None:
+        return ""
+    return f"{m['n']} × {m['realisations']}" if m.get("realisations") else str(m["n"])
+
+
+def _percent(x: float) -> str:
+    return f"{x:.1f}" if np.isfinite(x) else "—"
+
+
 def _is_rmse(d) -> bool:
     return isinstance(d, dict) and all(k in d for k in ("Sx", "Sy", "Sz"))
 
@@ -50,7 +63,8 @@ def collect_methods(previous) -> list[dict]:
         for name, d in variants.items():
             if not d.get("n") or not any(np.isfinite(float(d.get(k, np.nan) or np.nan)) for k in ("Sx", "Sy", "Sz")):
                 continue  # an adjustment without check points
-            m = {"name": name, "stage": st.id, "use": st.use, "n": d.get("n"), "unit": d.get("unit", "")}
+            m = {"name": name, "stage": st.id, "use": st.use, "n": d.get("n"),
+                 "realisations": d.get("realisations"), "unit": d.get("unit", "")}
             for k in KEYS:
                 v = d.get(k)
                 m[k] = float(v) if v is not None else float("nan")
@@ -96,10 +110,14 @@ class Comparison(Stage):
             rows = []
             for m in methods:
                 pct = [100.0 * (m[k] - ref[k]) / ref[k] if ref[k] else float("nan") for k in ("Sxy", "Sz")]
-                rows.append([m["name"], m["n"] if m["n"] is not None else "", *(m[k] for k in KEYS), *pct])
-                summary["methods"][m["name"]] = {k: m[k] for k in KEYS} | {"n": m["n"]}
+                rows.append([m["name"], _count(m), *(m[k] for k in KEYS), *map(_percent, pct)])
+                summary["methods"][m["name"]] = ({k: m[k] for k in KEYS} | {"n": m["n"]}
+                                                 | ({"realisations": m["realisations"]} if m["realisations"] else {}))
+            pooled = ["", "n: check points; n × r: n check points in each of r realisations, pooled."] \
+                if any(m["realisations"] for m in methods) else []
             lines += [f"Check-point RMSE ({unit}; adjusted minus surveyed; percent relative to **{ref['name']}**):",
-                      "", markdown_table(["method", "n", "Sx", "Sy", "Sxy", "Sz", "ΔSxy %", "ΔSz %"], rows), "",
+                      "", markdown_table(["method", "n", "Sx", "Sy", "Sxy", "Sz", "ΔSxy %", "ΔSz %"], rows),
+                      *pooled, "",
                       "![check-point errors per method](comparison_checkpoints.png)", ""]
             img = checkpoint_chart(methods, unit)
             figures["checkpoints"] = png_bytes(img)

@@ -57,6 +57,9 @@ WEAK_RCOND = 1e-6
 CRITICAL_HINT = ("the points lie on or near a critical surface (for example all in one plane that "
                  "contains the base, on one line, or on a circular cylinder through both projection "
                  "centres with its axis parallel to the base)")
+UNDETERMINED = 1e-12
+"""A parameter whose (dimensionless) normal-equation diagonal is at most this fraction of the
+largest, or of its own before the point unknowns are eliminated, is undetermined (rounding)."""
 
 
 def pair_poses(p, parameters: str, bx: float):
@@ -219,12 +222,47 @@ def _cofactor(cov_left, cov_right, n, sigma0):
     return Q / sigma0 ** 2
 
 
-def _conditioning(N: np.ndarray, names, what: str, min_rcond: float, check: bool = True) -> float:
-    """Reciprocal condition number of the unit-diagonal scaled N; raise when below ``min_rcond``."""
-    d = np.sqrt(np.maximum(np.diag(N), 1e-300))
-    Ns = N / d[:, None] / d[None, :]
-    w, V = np.linalg.eigh(Ns)
-    rcond = float(w[0] / w[-1]) if w[-1] > 0 else 0.0
+def _conditioning(N: np.ndarray, names, what: str, min_rcond: float, check: bool = True, *,
+                  scale: np.ndarray, gross: np.ndarray | None = None) -> float:
+    """Reciprocal condition number (≥ 0) of the unit-diagonal scaled N; raise when below ``min_rcond``.
+
+    A parameter is undetermined when its information ``N_jj`` (made dimensionless by the step
+    ``scale``: base components relative to bx) is at most :data:`UNDETERMINED` of the largest,
+    or, for a Schur complement, of its own information before the point unknowns were eliminated
+    (``gross``): what is left is rounding.  Dividing by such a diagonal would make the scaled
+    matrix meaningless, so it is named instead.  With ``check`` False (a run that did not
+    converge) nothing is raised and a singular system reports 0.
+    """
+    N = np.asarray(N, float)
+    if not np.all(np.isfinite(N)):
+        if not check:
+            return 0.0
+        raise AdjustmentError(f"{what}: the normal equations are not finite: {CRITICAL_HINT}")
+    s2 = np.asarray(scale, float) ** 2
+    info = np.diag(N) * s2
+    ref = np.full(info.shape, np.max(info, initial=0.0))
+    if gross is not None:
+        ref = np.maximum(ref, np.diag(gross) * s2)
+    lost = info <= UNDETERMINED * ref
+    if lost.any():
+        if not check:
+            return 0.0
+        which = ", ".join(names[j] for j in np.flatnonzero(lost))
+        raise AdjustmentError(
+            f"{what}: the normal equations are singular: the image coordinates do not determine "
+            f"{which}: {CRITICAL_HINT}")
+    d = np.sqrt(np.diag(N))
+    with np.errstate(over="ignore"):
+        Ns = N / d[:, None] / d[None, :]
+    try:
+        if not np.all(np.isfinite(Ns)):
+            raise np.linalg.LinAlgError("scaled normal matrix not finite")
+        w, V = np.linalg.eigh(Ns)
+    except np.linalg.LinAlgError as e:
+        if not check:
+            return 0.0
+        raise AdjustmentError(f"{what}: the normal equations are singular ({e}): {CRITICAL_HINT}") from None
+    rcond = float(max(w[0], 0.0) / w[-1]) if w[-1] > 0 else 0.0
     if check and not rcond >= min_rcond:
         combo = V[:, 0] / d
         combo = combo / np.max(np.abs(combo))
@@ -419,6 +457,11 @@ def relative_orientation(xy_left, xy_right, interior_left, interior_right=None, 
         except AdjustmentError as e:
             first_error = first_error or e
             continue
+        except np.linalg.LinAlgError as e:  # a singular 3×3 point block or normal matrix
+            first_error = first_error or AdjustmentError(
+                f"{name}: the normal equations are singular from the {label} initial values "
+                f"({e}): {CRITICAL_HINT}")
+            continue
         if not sol["converged"]:
             hint = (f"; the normal equations are poorly conditioned (reciprocal condition "
                     f"{sol['rcond']:.1e}): {CRITICAL_HINT}" if sol["rcond"] < WEAK_RCOND else "")
@@ -479,7 +522,7 @@ def _solve_coplanarity(l, Q, p0, parameters, bx, il, ir, act, rows, names, max_i
         Wt = 1.0 / M
         N = A.T @ (A * Wt[:, None])
         if it == 1:
-            _conditioning(N, names, name, min_rcond)
+            _conditioning(N, names, name, min_rcond, scale=scale)
         fac = factor_normal_equations(N, names)
         dp = solve_normal(fac, -A.T @ (Wt * w))
         k = Wt * (A @ dp + w)
@@ -493,7 +536,7 @@ def _solve_coplanarity(l, Q, p0, parameters, bx, il, ir, act, rows, names, max_i
     F, A, B = coplanarity_condition(lhat, p, parameters, bx, il, ir)
     M = np.einsum("ni,nij,nj->n", B, Qa, B)
     N = A.T @ (A / M[:, None])
-    rcond = _conditioning(N, names, name, min_rcond, check=converged)
+    rcond = _conditioning(N, names, name, min_rcond, check=converged, scale=scale)
     e = lhat - la
     vtpv = float(np.einsum("ni,ni->", e, np.linalg.solve(Qa, e[..., None])[..., 0]))
     R1, _, R2, _, X02, _ = pair_poses(p, parameters, bx)
@@ -583,7 +626,7 @@ def _solve_collinearity(l, Q, p0, parameters, bx, il, ir, act, rows, names, max_
         S = Npp - np.einsum("nij,njk,nlk->il", NpX, NXXi, NpX)
         rhs = gp - np.einsum("nij,njk,nk->i", NpX, NXXi, gX)
         if it == 1:
-            _conditioning(S, names, name, min_rcond)
+            _conditioning(S, names, name, min_rcond, scale=scale, gross=Npp)
         fac = factor_normal_equations(0.5 * (S + S.T), names)
         dp = solve_normal(fac, rhs)
         dX = np.einsum("nij,nj->ni", NXXi, gX - np.einsum("nji,j->ni", NpX, dp))
@@ -597,8 +640,9 @@ def _solve_collinearity(l, Q, p0, parameters, bx, il, ir, act, rows, names, max_
     JpP = np.einsum("nai,nab->nib", Jp, P)
     NpX = np.einsum("nib,nbj->nij", JpP, JX)
     NXX = np.einsum("nai,nab,nbj->nij", JX, P, JX)
-    S = np.einsum("nib,nbj->ij", JpP, Jp) - np.einsum("nij,njk,nlk->il", NpX, np.linalg.inv(NXX), NpX)
-    rcond = _conditioning(S, names, name, min_rcond, check=converged)
+    Npp = np.einsum("nib,nbj->ij", JpP, Jp)
+    S = Npp - np.einsum("nij,njk,nlk->il", NpX, np.linalg.inv(NXX), NpX)
+    rcond = _conditioning(S, names, name, min_rcond, check=converged, scale=scale, gross=Npp)
     R1, _, R2, _, X02, _ = pair_poses(p, parameters, bx)
     n_front = _count_in_front(la, R1, R2, X02, il, ir)
     return {"p": p, "X": X, "iterations": it, "converged": converged,

@@ -363,7 +363,7 @@ def log_independent_models(rec, result: IndependentModelResult, stats: dict, roo
                                                   labels=[f"{1e3 * p:.1f} µm" for p in ro.py[ok]]), static=True)
         rec.log(f"{base}/relative_orientation", rr.AnyValues(
             **{nm: [float(v)] for nm, v in zip(ro.param_names, ro.p)}, sigma0_hat=[float(ro.sigma0_hat)],
-            dof=[float(ro.dof)]), static=True)
+            dof=[int(ro.dof)]), static=True)
         lines.append(f"- {base}/y_parallax: residual y-parallax ×{k:.3g} along the model y-axis")
     # the block
     pts = blk.XYZ
