@@ -43,6 +43,11 @@ def _count(m) -> str:
     return f"{m['n']} × {m['realisations']}" if m.get("realisations") else str(m["n"])
 
 
+def _value(x: float) -> str:
+    """An RMSE in the report: four significant digits (values range from µm in metres to cm)."""
+    return f"{x:.4g}" if np.isfinite(x) else "—"
+
+
 def _percent(x: float) -> str:
     return f"{x:.1f}" if np.isfinite(x) else "—"
 
@@ -110,7 +115,7 @@ class Comparison(Stage):
             rows = []
             for m in methods:
                 pct = [100.0 * (m[k] - ref[k]) / ref[k] if ref[k] else float("nan") for k in ("Sxy", "Sz")]
-                rows.append([m["name"], _count(m), *(m[k] for k in KEYS), *map(_percent, pct)])
+                rows.append([m["name"], _count(m), *(_value(m[k]) for k in KEYS), *map(_percent, pct)])
                 summary["methods"][m["name"]] = ({k: m[k] for k in KEYS} | {"n": m["n"]}
                                                  | ({"realisations": m["realisations"]} if m["realisations"] else {}))
             pooled = ["", "n: check points; n × r: n check points in each of r realisations, pooled."] \

@@ -134,11 +134,25 @@ class PycolmapCrossCheck(Stage):
 
 def _summary(cc: CrossCheck, tol: Tolerances, failures: list) -> dict:
     q = {k: {a: b for a, b in v.items()} for k, v in cc.quantities.items()}
-    return {"equivalent": cc.plan.exact, "covariance_comparable": cc.plan.covariance_comparable,
+    return {"headline": _headline(cc, failures), "equivalent": cc.plan.exact, "covariance_comparable": cc.plan.covariance_comparable,
             "passed": not failures, "failures": failures, "start": cc.start, "object_size": cc.object_size,
             "quantities": q, "pycolmap": dict(cc.pycolmap),
             "cameras": [{"id": p.id, "mode": p.mode, "colmap_model": p.colmap_model} for p in cc.plan.cameras],
             "refine": cc.plan.refine, "notes": cc.notes}
+
+
+def _headline(cc: CrossCheck, failures: list) -> str:
+    """One line for the run's comparison: verdict, the largest point and residual differences."""
+    q = cc.quantities
+    diffs = ", ".join(f"{_LABELS[k]} max {q[k]['max']:.2g} {q[k]['unit']}" for k in ("points", "residuals")
+                      if k in q and q[k]["n"])
+    if failures:
+        verdict = f"baarda and pycolmap differ beyond the tolerances ({len(failures)} quantit{'y' if len(failures) == 1 else 'ies'})"
+    elif cc.plan.exact:
+        verdict = "baarda and pycolmap agree within the tolerances"
+    else:
+        verdict = "not an equivalent problem for pycolmap (see notes); differences only"
+    return f"{verdict}: {diffs}" if diffs else verdict
 
 
 def _report(cc: CrossCheck, tol: Tolerances, failures: list) -> str:

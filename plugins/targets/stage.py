@@ -138,6 +138,13 @@ def _photo_ids(files: list[Path]) -> list[str]:
     return [str(f) for f in files]
 
 
+def _points_origin(options, block) -> str:
+    """Where the object points of the detection's block come from, for the report."""
+    if options.target == "circles":
+        return "ids and coordinates from the input block's layout"
+    return "control, board frame" if (block.points.role == "full").any() else "tie"
+
+
 def _downscale(gray: np.ndarray, max_size: int) -> tuple[np.ndarray, float]:
     import cv2
 
@@ -372,7 +379,7 @@ class TargetDetection(Stage):
         used = [r for r in rows if r["status"] == "ok"]
         lines = [f"Target type **{options.target}**: {len(used)} of {len(files)} image(s) used, "
                  f"{len(block.observations)} image points, {len(block.points)} object points "
-                 f"({'control, board frame' if (block.points.role == 'full').any() else 'tie'}); a-priori sigma "
+                 f"({_points_origin(options, block)}); a-priori sigma "
                  f"{sigma_px:g} px = {sigma_px * options.pixel_mm * 1000:g} µm at pitch {options.pixel_mm:g} mm.", "",
                  "| image | camera | points | status | note |", "|---|---|---:|---|---|"]
         for r in rows:

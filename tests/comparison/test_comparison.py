@@ -70,8 +70,9 @@ def test_pooled_realisations_show_in_n(tmp_path):
     out = run_project_text(text, tmp_path, plugins=pm)
     assert out.ok, out.message
     report = (out.run_dir / "report.md").read_text()
-    assert "| a | 6 | 0.0010 | 0.0020 | 0.0016 | 0.0040 | 0.0 | 0.0 |" in report
-    assert "| b | 6 × 20 | 0.0015 | 0.0030 | 0.0024 | 0.0060 | 50.0 | 50.0 |" in report
+    # four significant digits: Sxy = √((1² + 2²)/2) mm = 1.581 mm, and 1.5 × that for b
+    assert "| a | 6 | 0.001 | 0.002 | 0.001581 | 0.004 | 0.0 | 0.0 |" in report
+    assert "| b | 6 × 20 | 0.0015 | 0.003 | 0.002372 | 0.006 | 50.0 | 50.0 |" in report
     assert "n × r: n check points in each of r realisations, pooled" in report
     methods = out.stages[-1].summary["methods"]
     assert methods["b"]["n"] == 6 and methods["b"]["realisations"] == 20

@@ -129,8 +129,10 @@ def test_exceeded_tolerance_fails_the_stage(pinhole, tmp_path):
                    {"tol_points": 1e-3, "tol_residuals_px": 10.0, "tol_cost": 1.0, "tol_intrinsics": 10.0,
                     "tol_angles": 1e-3, "tol_covariance": 1.0}, tmp_path=tmp_path)
     assert ok.summary["passed"]
+    assert ok.summary["headline"].startswith("baarda and pycolmap agree within the tolerances: object points max 0.005 m")
     warn = run_stage(PycolmapCrossCheck, {"block": block, "bundle": bad}, {"on_exceed": "warn"}, tmp_path=tmp_path)
     assert not warn.summary["passed"] and any("object points" in w for w in warn.warnings)
+    assert warn.summary["headline"].startswith("baarda and pycolmap differ beyond the tolerances")
 
 
 def test_held_parameters_keep_the_optimum():
@@ -170,6 +172,7 @@ def test_not_equivalent_model_is_reported(tmp_path):
     out = run_stage(PycolmapCrossCheck, {"block": blk, "bundle": res}, {}, tmp_path=tmp_path)
     s = out.summary
     assert not s["equivalent"] and s["passed"]
+    assert s["headline"].startswith("not an equivalent problem for pycolmap")
     assert s["cameras"][0]["mode"] == "corrected"
     assert any("ebner12" in n and "no COLMAP counterpart" in n for n in s["notes"])
     # first order: the distortion's slope times the residuals — far below the noise, not rounding
