@@ -1,7 +1,7 @@
 """The ``baarda`` command.
 
     baarda run PROJECT.toml [--out DIR] [--quiet]   run a project, write a run directory
-    baarda validate PROJECT.toml                    check a project without running it
+    baarda validate PROJECT.toml                    check a project and its input files without running it
     baarda stages [--verbose]                       list installed stages (and their options)
     baarda review RUN_DIR                           what each recording holds, read back from the files
 
@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
 import sys
 from pathlib import Path
 
@@ -39,9 +38,11 @@ def _cmd_run(args) -> int:
 
 def _cmd_validate(args) -> int:
     from .plugins import PluginManager
-    from .project import load_project
+    from .project import load_project, validate_inputs
 
     project = load_project(args.project, PluginManager())
+    for w in validate_inputs(project):
+        print(f"warning {w}", file=sys.stderr)
     print(f"{args.project}: valid — {len(project.stages)} stage(s): "
           + " → ".join(f"{s.id} ({s.use})" for s in project.stages))
     return 0
@@ -70,6 +71,7 @@ def _cmd_stages(args) -> int:
 
 def _cmd_review(args) -> int:
     from .recording import read_recording
+    from .runner import viewer_command
 
     run_dir = Path(args.run_dir)
     if not run_dir.is_dir():
@@ -110,8 +112,7 @@ def _cmd_review(args) -> int:
         print(f"All {len(files)} recordings share recording id {ids.pop()}; they open as one recording.")
     else:
         print(f"warning: recordings carry {len(ids)} different recording ids")
-    viewer = shutil.which("rerun") or str(Path(sys.executable).with_name("rerun"))
-    print(f"Open them in the viewer:  {viewer} {run_dir}/*.rrd")
+    print(f"Open them in the viewer:  {viewer_command()} {run_dir}/*.rrd")
     return 0
 
 
@@ -126,7 +127,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--out", help="run directory (default: runs/<project>-<timestamp>)")
     r.add_argument("--quiet", action="store_true", help="no progress output")
     r.set_defaults(func=_cmd_run)
-    v = sub.add_parser("validate", help="check a project without running it")
+    v = sub.add_parser("validate", help="check a project and its input files without running it")
     v.add_argument("project")
     v.set_defaults(func=_cmd_validate)
     s = sub.add_parser("stages", help="list installed stages")

@@ -12,18 +12,25 @@
     [stage.options]
     path = "data1.cmp"           # paths are relative to the project file
 
-Validation (``baarda validate``) checks the file, that every stage is installed, every option is
-known and of the right type, and that every artefact a stage reads is written by an earlier one.
-Every mistake is an :class:`~pipeline.errors.InputError` naming the file, the line and the key.
+:func:`load_project` checks the file, that every stage is installed, every option is known and
+of the right type, and that every artefact a stage reads is written by an earlier one.
+:func:`validate_inputs` (``baarda validate`` runs both) then checks what the options name: every
+input path exists, and each stage's own ``validate(options, ctx)`` hook passes (a source stage
+parses its files there).  Every mistake is an :class:`~pipeline.errors.InputError` naming the
+file, the line and the key.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import glob
 import re
 import tomllib
+import types
+import typing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, get_args, get_origin
 
 from .errors import InputError
 from .options import parse_options
@@ -42,6 +49,7 @@ class StageSpec:
     raw_options: dict
     line: int | None
     package: str = ""
+    option_lines: dict[str, int] = field(default_factory=dict)
 
 
 @dataclass
@@ -181,5 +189,103 @@ def load_project(path: str | Path, plugins: PluginManager) -> Project:
         for name in info.cls.writes:
             available[name] = sid
         project.stages.append(StageSpec(id=sid, use=use, cls=info.cls, options=options, raw_options=raw,
-                                        line=line, package=info.package))
+                                        line=line, package=info.package,
+                                        option_lines={key: loc.key(k, key) for key in raw}))
     return project
+
+
+# -- what the options name -------------------------------------------------------------------------
+
+PATH_ROLES = ("input", "glob", "prefix", "output")
+"""Roles of options naming files (a stage's ``paths`` class attribute; see pipeline/stage.py)."""
+
+_ROLES_NOT_YET_DECLARED = {
+    "plugins.colmap_io.stage.ColmapExport": {"path": "output"},
+    "plugins.aicon.stage.AiconSource": {"path": "prefix"},
+    "plugins.targets.stage.TargetDetection": {"images": "glob", "detector_params": "input"},
+}
+"""Roles of built-in stages that do not declare ``paths`` themselves yet (a stage's own ``paths``
+wins).  Transitional: each entry belongs in its stage class."""
+
+
+def path_roles(cls: type) -> dict[str, str]:
+    """``{option: role}`` for every option of stage ``cls`` that names files.
+
+    Options typed ``Path``, ``Path | None`` or ``list[Path]`` are inputs; the stage's ``paths``
+    attribute adds options or overrides roles.
+    """
+    hints = typing.get_type_hints(cls.Options)
+    roles = {}
+    for f in dataclasses.fields(cls.Options):
+        tp = hints[f.name]
+        args = get_args(tp) if get_origin(tp) in (typing.Union, types.UnionType, list, tuple) else ()
+        if tp is Path or Path in args:
+            roles[f.name] = "input"
+    declared = getattr(cls, "paths", None)
+    if declared is None:
+        declared = _ROLES_NOT_YET_DECLARED.get(f"{cls.__module__}.{cls.__qualname__}", {})
+    for name, role in dict(declared).items():
+        if role not in PATH_ROLES:
+            raise ValueError(f"{cls.__qualname__}.paths: role of '{name}' must be one of "
+                             f"{', '.join(PATH_ROLES)}, got {role!r}")
+        roles[name] = role
+    return roles
+
+
+def _missing(value: Any, role: str, base: Path) -> str | None:
+    """What is missing of an option's value with ``role`` (None when everything exists)."""
+    values = [value] if isinstance(value, (str, Path)) else list(value or [])
+    full = [p if p.is_absolute() else base / p
+            for p in (Path(str(v)).expanduser() for v in values if str(v) not in ("", "."))]
+    if role == "glob":
+        literal = [p for p in full if not glob.has_magic(str(p))]
+        for p in literal:
+            if not p.exists():
+                return f"file not found: {p}"
+        if full and not literal and not any(glob.glob(str(p)) for p in full):
+            return "no file matches " + ", ".join(str(p) for p in full)
+        return None
+    for p in full:
+        if p.exists():
+            continue
+        if role == "prefix" and p.parent.is_dir() and any(q.name.startswith(p.name + ".")
+                                                           for q in p.parent.iterdir()):
+            continue
+        what = "no file or folder starts with" if role == "prefix" else "file or folder not found:"
+        return f"{what} {p}"
+    return None
+
+
+def stage_context(project: Project, spec: StageSpec, **kw):
+    """The :class:`~pipeline.stage.Context` of ``spec`` in ``project`` (``kw``: run_dir, progress…)."""
+    from .stage import Context
+
+    return Context(stage_id=spec.id, project_dir=project.directory, seed=project.seed,
+                   project_file=project.path, object_unit=project.object_unit,
+                   option_lines=dict(spec.option_lines), stage_line=spec.line, **kw)
+
+
+def validate_inputs(project: Project) -> list[str]:
+    """Check what a loaded project's options name, without running anything.
+
+    For every stage in order: each option naming files (:func:`path_roles`) is resolved against
+    the project file and must exist; then the stage's ``validate(options, ctx)`` hook, if any,
+    runs (a source stage parses its files there).  The first mistake raises :class:`InputError`
+    (the project file, the option's line and name for a missing path; the input file's own line
+    and field for a mistake inside it).  Returns the warnings of the hooks as ``"[id] text"``.
+    """
+    warnings = []
+    for spec in project.stages:
+        for name, role in path_roles(spec.cls).items():
+            if role == "output":
+                continue
+            problem = _missing(getattr(spec.options, name), role, project.directory)
+            if problem:
+                raise InputError(problem, project.path, spec.option_lines.get(name, spec.line), name)
+        hook = getattr(spec.cls, "validate", None)
+        if hook is None:
+            continue
+        ctx = stage_context(project, spec)
+        spec.cls().validate(spec.options, ctx)
+        warnings += [f"[{spec.id}] {w}" for w in ctx.warnings]
+    return warnings

@@ -15,6 +15,7 @@ A stage that fails leaves the files of the stages before it intact; the run stop
 from __future__ import annotations
 
 import datetime as _dt
+import shutil
 import sys
 import time
 import traceback
@@ -25,10 +26,10 @@ from typing import Any
 from . import __version__
 from .errors import BaardaError, InputError
 from .plugins import PluginManager
-from .project import Project, load_project
+from .project import Project, load_project, stage_context
 from .recording import log_text, log_values, new_recording_id, open_recording
 from .report import jsonable, write_json, write_table, write_toml
-from .stage import Context, EarlierStage, Progress, StageResult
+from .stage import EarlierStage, Progress, StageResult
 
 RUN_MARKER = "results.json"
 
@@ -104,9 +105,8 @@ def run_project(project_path: str | Path, out: str | Path | None = None, *,
     for k, (spec, rec) in enumerate(zip(project.stages, records)):
         if verbose:
             print(f"[{k + 1}/{n}] {spec.id} ({spec.use}) …", file=stream, flush=True)
-        ctx = Context(stage_id=spec.id, project_dir=project.directory, run_dir=run_dir, seed=project.seed,
-                      progress=Progress(spec.id, stream=stream, enabled=verbose), project_file=project.path,
-                      object_unit=project.object_unit, previous=list(previous))
+        ctx = stage_context(project, spec, run_dir=run_dir, previous=list(previous),
+                            progress=Progress(spec.id, stream=stream, enabled=verbose))
         inputs = {}
         for name in spec.cls.reads:
             key = name.rstrip("?")
@@ -163,6 +163,16 @@ def run_project(project_path: str | Path, out: str | Path | None = None, *,
     return RunOutcome(ok=ok, run_dir=run_dir, project=project, stages=records, message=message, artefacts=store)
 
 
+def viewer_command() -> str:
+    """The rerun viewer that matches the SDK that wrote the recordings: the ``rerun`` beside this
+    Python (``.venv/bin/rerun`` in baarda's virtual environment, which is not on PATH unless the
+    environment is activated), else ``rerun`` from PATH."""
+    beside = Path(sys.executable).with_name("rerun")
+    if beside.exists():
+        return str(beside)
+    return shutil.which("rerun") or "rerun"
+
+
 def _write_recording(run_dir, spec, stage, result, ctx, rec, recording_id):
     fname = f"{spec.id}.rrd"
     rr_stream = open_recording(run_dir / fname, recording_id)
@@ -204,7 +214,7 @@ def _write_report(run_dir, project, records, recording_id, started):
     if project.description:
         lines += [project.description, ""]
     lines += [f"- project file: `{project.path}`", f"- started: {started}, baarda {__version__}",
-              f"- recording id: `{recording_id}` (open all recordings: `rerun {run_dir}/*.rrd`)", "",
+              f"- recording id: `{recording_id}` (open all recordings: `{viewer_command()} {run_dir}/*.rrd`)", "",
               "| stage | uses | status | time (s) |", "|---|---|---|---|"]
     lines += [f"| {r.id} | {r.use} | {r.status} | {r.seconds:.2f} |" for r in records]
     lines.append("")

@@ -9,7 +9,15 @@ A stage is a class with
 * ``run(inputs, options, ctx) -> StageResult`` — the work.  Pure with respect to its inputs:
   it returns new artefacts, never modifies what it was given;
 * ``log(result, rec, ctx)`` (optional) — writes the stage's rerun recording.  Logging lives here,
-  never in ``run`` and never in numerical code.
+  never in ``run`` and never in numerical code;
+* ``validate(options, ctx)`` (optional) — what ``baarda validate`` checks beyond the options:
+  a source stage reads and checks its input files here (raising :class:`InputError`) without
+  adjusting anything.  ``ctx.run_dir`` is None and there are no artefacts;
+* ``paths`` (optional) — ``{option name: role}`` for options naming files.  An option typed
+  ``Path`` (or ``Path | None``, ``list[Path]``) is an ``"input"`` relative to the project file
+  that must exist; other roles: ``"glob"`` (list of files or glob patterns), ``"prefix"`` (a
+  path or the common prefix of several files, e.g. ``…/example`` for ``example.ior``),
+  ``"output"`` (written by the stage, never checked).  See :func:`pipeline.project.validate_inputs`.
 
 Stages are found through the entry-point group ``baarda.stages`` (see :mod:`pipeline.plugins`).
 The runner gives each stage a :class:`Context` with the project directory, a seeded random
@@ -26,6 +34,7 @@ from typing import Any, ClassVar, Iterable, Iterator, Mapping
 
 import numpy as np
 
+from .errors import InputError
 from .options import NoOptions
 
 
@@ -123,6 +132,10 @@ class Context:
     project_file: Path | None = None
     object_unit: str = "m"
     previous: list = field(default_factory=list)
+    option_lines: dict[str, int] = field(default_factory=dict)
+    """Line of each option the project sets, in ``project_file`` (for :meth:`option_error`)."""
+    stage_line: int | None = None
+    """Line of the stage's ``[[stage]]`` table in ``project_file``."""
 
     def __post_init__(self):
         if self.progress is None:
@@ -138,6 +151,14 @@ class Context:
         """A path from the project file, relative to the project's directory."""
         p = Path(path).expanduser()
         return p if p.is_absolute() else (self.project_dir / p)
+
+    def option_error(self, message: str, key: str) -> InputError:
+        """An :class:`InputError` naming the project file, the line of option ``key`` and ``key``.
+
+        For mistakes that belong to an option rather than to a file it names (``raise
+        ctx.option_error("comparator file not found: …", "path")``).
+        """
+        return InputError(message, self.project_file, self.option_lines.get(key, self.stage_line), key)
 
     def warn(self, text: str) -> None:
         self.warnings.append(text)
@@ -157,6 +178,12 @@ class Stage:
 
     def log(self, result: StageResult, rec: Any, ctx: Context) -> None:
         """Write the stage's recording (default: nothing beyond the runner's summary)."""
+
+    def validate(self, options: Any, ctx: Context) -> None:
+        """Check the stage's inputs without running it (``baarda validate``); default: nothing.
+
+        Raise :class:`~pipeline.errors.InputError` for the first mistake; ``ctx.warn`` for doubts.
+        """
 
 
 REQUIRED_ATTRS = ("summary", "reads", "writes", "Options", "run")

@@ -47,11 +47,20 @@ class ComparatorSource(Stage):
     writes = ("block",)
     Options = ComparatorOptions
 
-    def run(self, inputs, options: ComparatorOptions, ctx: Context) -> StageResult:
+    def validate(self, options: ComparatorOptions, ctx: Context) -> None:
+        """``baarda validate``: read and check the file, interior orientation and tolerance included."""
+        _, parsed, interior, _, _ = self._read(options, ctx)
+        build_block(parsed, interior)
+
+    def _read(self, options: ComparatorOptions, ctx: Context):
+        """Parse the file, fit the interior orientation and apply the tolerance (warnings to ctx)."""
         if str(options.path) in ("", "."):
-            raise InputError("option 'path' is required: the comparator file to read",
-                             ctx.project_file, None, "path")
+            raise ctx.option_error("option 'path' is required: the comparator file to read", "path")
         path = ctx.resolve(options.path)
+        if not path.exists():
+            raise ctx.option_error(f"comparator file not found: {path}", "path")
+        if path.is_dir():
+            raise ctx.option_error(f"expected a comparator file, got a directory: {path}", "path")
         parsed = parse_comparator(path)
         interior = interior_orientation(parsed, None if options.transform == "file" else options.transform)
         tol_mm = options.io_tolerance_um / 1000.0
@@ -63,13 +72,17 @@ class ComparatorSource(Stage):
             if options.on_tolerance == "fail":
                 raise InputError(msg, path, v.line, f"fid {v.fiducial}")
             warnings.append(f"{path}:{v.line}: {msg}")
-            ctx.warn(f"{path}:{v.line}: {msg}")
         for res in interior.values():
             if res.fit.dof == 0:
-                text = (f"{path}:{res.photo_line}: photo {res.photo}: {len(res.fiducials)} fiducials give no "
-                        f"redundancy for the {res.fit.kind} interior orientation; it cannot be checked")
-                warnings.append(text)
-                ctx.warn(text)
+                warnings.append(f"{path}:{res.photo_line}: photo {res.photo}: {len(res.fiducials)} fiducials give "
+                                f"no redundancy for the {res.fit.kind} interior orientation; it cannot be checked")
+        for w in warnings:
+            ctx.warn(w)
+        return path, parsed, interior, violations, warnings
+
+    def run(self, inputs, options: ComparatorOptions, ctx: Context) -> StageResult:
+        path, parsed, interior, violations, warnings = self._read(options, ctx)
+        tol_mm = options.io_tolerance_um / 1000.0
         block = build_block(parsed, interior)
         return StageResult(
             artefacts={"block": block},
