@@ -67,7 +67,7 @@ def precision(prob: BundleProblem, lin, red, st, chunk_bytes: float = 6.4e7):
     if n_e:
         Li = red["Li"]
         B = red["B"]
-        if B.mode == "pairs":
+        if prob.precision_route() == "pairs":
             _points_by_pairs(prob, Qx, B, Li, Jc, Jp, H, Qpp)
         else:
             _points_by_chunks(prob, Qx, B, Li, Jc, Jp, H, Qpp, chunk_bytes)

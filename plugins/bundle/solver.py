@@ -610,6 +610,25 @@ class BundleProblem:
             self._gram_mode = min(costs, key=costs.get)
         return self._gram_mode
 
+    def precision_route(self) -> str:
+        """How :func:`plugins.bundle.precision.precision` forms the points' cofactors (cost model in
+        flops-equivalents, independent of :meth:`gram_mode`, which chooses the Schur product):
+        ``"pairs"`` — per point only the (t q)² block of K⁻¹ its t observations touch (short
+        tracks, e.g. aerial blocks, BAL) — or ``"chunks"`` — K⁻¹ B for blocks of points, n_x² per
+        point (few points seen by many photos, e.g. close range).  The pairs route gathers the
+        blocks of all points of one track length at once; past 2e8 bytes it is not used."""
+        if getattr(self, "_precision_route", None) is None:
+            cnt = np.bincount(self.pidx[self.obs_elim], minlength=self.n_e).astype(float)
+            tq = cnt * self.q
+            n_x = self.n_g + self.n_c
+            pairs = float(np.sum(4.0 * tq * tq * 3 + 3.0 * tq * self.n_c))
+            chunks = 3.0 * n_x * n_x * self.n_e + 3.0 * len(self.oi) * self.q * 3
+            lengths, inverse = np.unique(cnt, return_inverse=True) if self.n_e else (np.zeros(0), np.zeros(0, int))
+            group_bytes = np.bincount(inverse, 8.0 * tq * tq, minlength=len(lengths)) if self.n_e else np.zeros(1)
+            fits = float(group_bytes.max(initial=0.0)) < 2e8
+            self._precision_route = "pairs" if fits and pairs < chunks else "chunks"
+        return self._precision_route
+
     def track_groups(self):
         """Observations of each eliminated point grouped by track length: list of
         ``(obs_mat (N_t, t), None)`` (built once)."""

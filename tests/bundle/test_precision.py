@@ -174,12 +174,14 @@ def test_schur_strategies_agree(monkeypatch, datum):
         blk = blk.replace(points=pts.replace(role=np.array(["tie"] * len(pts)), sigma=np.full((len(pts), 3), FREE)))
         st = BundleSettings(datum="free", datum_centres=datum == "free-centres")
     out = {}
-    for mode in ("dense", "pairs", "sparse"):
+    for mode, route in (("dense", "chunks"), ("pairs", "pairs"), ("sparse", "chunks"), ("dense", "pairs"),
+                        ("pairs", "chunks")):
         monkeypatch.setattr(BundleProblem, "gram_mode", lambda self, m=mode: m)
-        out[mode] = adjust(blk, st)
-    ref = out["dense"]
-    for mode in ("pairs", "sparse"):
-        r = out[mode]
+        monkeypatch.setattr(BundleProblem, "precision_route", lambda self, r=route: r)
+        out[mode, route] = adjust(blk, st)
+    ref = out["dense", "chunks"]
+    for key in list(out)[1:]:
+        r = out[key]
         assert np.allclose(r.state.XYZ, ref.state.XYZ, rtol=0, atol=1e-10)
         assert np.allclose(r.cov_points, ref.cov_points, rtol=1e-8, atol=1e-12 * np.abs(ref.cov_points).max())
         assert np.allclose(r.redundancy, ref.redundancy, atol=1e-9)
