@@ -22,6 +22,11 @@ from .artefact import AdjustmentArtefact
 from .decide import METHODS, BlunderSettings, MethodResult, row_statistics, run_methods
 
 
+TABLE_DECIMALS = {"v": 6, "r": 6, "w": 4, "tau": 4, "nabla_hat": 6, "mdb": 6}
+"""Decimals of the per-row statistics in the CSV tables of blunder-rejection and helmert-screening
+(lengths and r to 6, the test values w and τ to 4)."""
+
+
 @dataclasses.dataclass(frozen=True)
 class BlunderOptions:
     method: Literal["data-snooping", "ids", "pope", "rrr", "all"] = option(
@@ -37,7 +42,10 @@ class BlunderOptions:
                                     "4.13 = Baarda's B-method value")
     alpha_pope: float = option(0.001, "Pope: two-sided level per residual (τ critical value, dof of each step)")
     alpha_rrr: float = option(0.001, "RRR: probability that the whole procedure rejects anything in clean data")
-    rho: int = option(0, "RRR: number of suspects; 0 = ⌈0.20 (n − u)⌉ (Benciolini et al.)")
+    rho: int = option(0, "RRR: number of suspects; 0 = ⌈0.20 (n − u)⌉, which rounds Benciolini et al.'s "
+                         "0.15 < ρ/(n − u) < 0.20 up and can leave that range (3 for n − u = 14). "
+                         "Give at least one more than the gross errors you expect: an error left among "
+                         "the non-suspects masks the others (paper 000's Data 1 needs ρ = 4)")
     n_sim: int = option(20000, "RRR: Monte Carlo repetitions of the whole procedure for the critical value H")
     rrr_critical: float = option(0.0, "RRR: use this critical value H instead of the Monte Carlo one (0 = simulate)")
     max_iter: int = option(50, "IDS / Pope: most rows removed")
@@ -101,7 +109,7 @@ class BlunderRejection:
         stats = row_statistics(art, settings)
         return StageResult(
             artefacts={"blunders": report, "block": out_block},
-            summary=_summary(report, block, art),
+            summary=_summary(report, block, art) | {"rrr_note": _rho_note(report, options, art.snapshot.dof)},
             report=_report(report, block, art, options),
             tables={"observations": _table(report, art, block, stats)},
             data={"report": report, "artefact": art, "block": block},
@@ -130,7 +138,7 @@ class BlunderRejection:
                 rec.log(f"{base}/step", rr.AnyValues(**{k: (str(v) if not isinstance(v, (int, float, bool)) else v)
                                                         for k, v in h.items() if not isinstance(v, list)}))
             rec.reset_time()
-            rec.log(f"{base}/rejected", rr.AnyValues(rows=[d.label for d in res.decisions] or [""],
+            rec.log(f"{base}/rejected", rr.AnyValues(labels=[d.label for d in res.decisions] or [""],
                                                      skipped=res.skipped or ""))
         rec.log("blunders/report", rr.TextDocument(result.report, media_type=rr.MediaType.MARKDOWN))
 
@@ -203,6 +211,9 @@ def _report(report: BlunderReport, block, art: AdjustmentArtefact, options) -> s
                        "H_exp: " + ", ".join(f"{lab} {h:.4f}" for lab, h in zip(s['suspects'], s['H_exp'])) +
                        "; naive Beta quantiles (no selection): " +
                        ", ".join(f"{h:.4f}" for h in s['H_naive']) + ".")
+            note = _rho_note(report, options, snap.dof)
+            if note:
+                out.append(f"- **{note}**")
     ids = block.observation_ids()
     acted = ", ".join(f"{ph}/{pt}" for ph, pt in (ids[i] for i in report.acted_observations)) or "none"
     verb = "marked inactive" if report.action == "remove" else "flagged (action = flag; the block is unchanged)"
@@ -211,14 +222,28 @@ def _report(report: BlunderReport, block, art: AdjustmentArtefact, options) -> s
     return "\n".join(out)
 
 
+def _rho_note(report: BlunderReport, options, dof: int) -> str | None:
+    """When RRR with the default ρ rejected nothing: say that a larger ρ may be needed."""
+    r = report.methods.get("rrr")
+    if r is None or r.skipped or r.rejected or options.rho:
+        return None
+    rho = r.summary["rho"]
+    others = [f"{m} {len(o.rejected)}" for m, o in report.methods.items()
+              if m != "rrr" and not o.skipped and o.rejected]
+    return (f"RRR rejected nothing with the default ρ = {rho} suspects (⌈0.20 (n − u)⌉, n − u = {dof})"
+            + (f" while other methods rejected rows ({', '.join(others)})" if others else "")
+            + ". A gross error left among the non-suspects masks the others, so a larger ρ may be needed: "
+            + f"try rho = {rho + 1}" + ("" if others else " if gross errors are expected") + ".")
+
+
 def _table(report: BlunderReport, art: AdjustmentArtefact, block, stats) -> TableData:
     snap = art.snapshot
     n = snap.n
     cols = {"row": list(range(n)), "label": [str(s) for s in snap.labels],
             "observation": [_obs_label(art, block, i) for i in range(n)],
             "active": [bool(a) for a in snap.active]}
-    for k in ("v", "r", "w", "tau", "nabla_hat", "mdb"):
-        cols[k] = [None if not math.isfinite(x) else round(float(x), 6) for x in stats[k]]
+    for k, nd in TABLE_DECIMALS.items():
+        cols[k] = [None if not math.isfinite(x) else round(float(x), nd) for x in stats[k]]
     for m, r in report.methods.items():
         key = m.replace("-", "_")
         by_row = {d.row: d for d in r.decisions}

@@ -103,3 +103,47 @@ def test_recording_has_iteration_history(tmp_path):
     assert by_path["/blunders/rrr/H_exp"].rows == 4         # ρ = 4 suspects
     assert by_path["/blunders/pope/tau_max"].rows == 2
     assert "/blunders/report" in by_path
+
+
+def test_default_rho_that_rejects_nothing_says_a_larger_rho_may_be_needed(tmp_path):
+    """Data 1 has three gross errors plus the relief point: ⌈0.20 · 14⌉ = 3 suspects mask each other
+    (docs/screening.md), ρ = 4 finds them."""
+    inputs = adjust("data1", tmp_path)
+    res = run_stage(BlunderRejection, inputs, {"n_sim": 2000}, tmp_path=tmp_path)
+    assert res.artefacts["blunders"].methods["rrr"].rejected == []
+    note = ("RRR rejected nothing with the default ρ = 3 suspects (⌈0.20 (n − u)⌉, n − u = 14) while other "
+            "methods rejected rows (data-snooping 7, ids 3, pope 1). A gross error left among the "
+            "non-suspects masks the others, so a larger ρ may be needed: try rho = 4.")
+    assert f"- **{note}**" in res.report and res.summary["rrr_note"] == note
+    # the user's own ρ = 3 is not second-guessed; ρ = 4 rejects, so there is nothing to say
+    for rho in (3, 4):
+        res = run_stage(BlunderRejection, inputs, {"n_sim": 2000, "rho": rho}, tmp_path=tmp_path)
+        assert res.summary["rrr_note"] is None and "larger ρ" not in res.report
+    # clean data (a straight line, 20 points, σ = 1, no method rejects): a softer note
+    rng = np.random.default_rng(5)
+    t = np.linspace(0, 1, 20)
+    A = np.column_stack([np.ones(20), t])
+    model = LinearModel(A, A @ [1.0, 2.0] + rng.normal(0, 1, 20))
+    art = AdjustmentArtefact("line", model.adjust().snapshot, model, -np.ones((20, 2), int))
+    res = run_stage(BlunderRejection, {"adjustment": art, "block": inputs["block"]}, {"n_sim": 2000},
+                    tmp_path=tmp_path)
+    assert not any(m.rejected for m in res.artefacts["blunders"].methods.values())
+    assert res.summary["rrr_note"] == ("RRR rejected nothing with the default ρ = 4 suspects (⌈0.20 (n − u)⌉, "
+                                       "n − u = 18). A gross error left among the non-suspects masks the "
+                                       "others, so a larger ρ may be needed: try rho = 5 if gross errors "
+                                       "are expected.")
+
+
+def test_the_rho_option_does_not_claim_benciolinis_range():
+    from pipeline.options import describe
+
+    doc = next(o["doc"] for o in describe(BlunderRejection.Options) if o["name"] == "rho")
+    assert "can leave that range (3 for n − u = 14)" in doc and "Data 1 needs ρ = 4" in doc
+
+
+def test_recording_names_rejected_labels(tmp_path):
+    res = run_stage(BlunderRejection, adjust("data1", tmp_path), {"rho": 4, "n_sim": 2000}, tmp_path=tmp_path)
+    summary = read_recording(log_stage(BlunderRejection, res, tmp_path / "b.rrd"))
+    cols = {e.path: e.columns for e in summary.entities}
+    assert any("labels" in c for c in cols["/blunders/rrr/rejected"])
+    assert not any(c.split(":")[-1] == "rows" for c in cols["/blunders/rrr/rejected"])
