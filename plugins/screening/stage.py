@@ -16,6 +16,7 @@ from pipeline.errors import InputError
 from pipeline.options import option
 from pipeline.stage import Context, Stage, StageResult, TableData
 from plugins.blunders.artefact import AdjustmentArtefact
+from plugins.blunders.stage import TABLE_DECIMALS
 
 from .helmert import stack_models
 from .screen import FLAG_METHODS, PairScreening, ScreeningSettings, screen_pair
@@ -72,6 +73,15 @@ class PairResult:
     obs_left: np.ndarray    # (m,) indices into block.observations
     obs_right: np.ndarray   # (m,)
     screening: PairScreening
+    after_swaps: PairScreening | None = None
+    """The pair screened again with the detected swaps undone (None without swaps)."""
+    cleared: list[str] = dataclasses.field(default_factory=list)
+    """Labels flagged by the checks that are no longer flagged once the swaps are undone."""
+
+    @property
+    def swap_explains(self) -> bool:
+        """A detected swap accounts for every flag: undone, nothing is flagged any more."""
+        return self.after_swaps is not None and not self.after_swaps.flagged.any()
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -128,10 +138,9 @@ class HelmertScreening:
                 continue
             fmt_l = block.cameras.format_mm[block.photos.camera[li]]
             fmt_r = block.cameras.format_mm[block.photos.camera[ri]]
-            scr = screen_pair(obs.xy[common_l], obs.xy[common_r], ids, settings,
-                              format_left=fmt_l, format_right=fmt_r,
-                              prefix=f"{lid}-{rid} " if multi else "")
-            results.append(PairResult(lid, rid, common_l, common_r, scr))
+            kw = {"format_left": fmt_l, "format_right": fmt_r, "prefix": f"{lid}-{rid} " if multi else ""}
+            scr = screen_pair(obs.xy[common_l], obs.xy[common_r], ids, settings, **kw)
+            results.append(_narrow_by_swaps(PairResult(lid, rid, common_l, common_r, scr), settings, kw))
         if not results:
             raise InputError("no pair could be screened: " + "; ".join(s[2] for s in skipped), src, None, "pair")
         artefact = ScreeningArtefact(results, skipped, settings)
@@ -192,6 +201,31 @@ class HelmertScreening:
         rec.log("screening/report", rr.TextDocument(result.report, media_type=rr.MediaType.MARKDOWN))
 
 
+def _narrow_by_swaps(pair: PairResult, settings: ScreeningSettings, kw: dict) -> PairResult:
+    """Flag what is left once the detected swaps are undone, plus the swapped points.
+
+    Swapped right coordinates smear over every residual of the transformation, so the threshold
+    and τ checks flag points that are fine.  The pair is screened again with the exchanges
+    undone (best first, each point once); the flags are then the swapped points and whatever is
+    still flagged after the correction.  Only when ``swap`` is among ``flag_by``.
+    """
+    scr = pair.screening
+    if not scr.swaps or "swap" not in settings.flag_by:
+        return pair
+    xy_right = scr.xy_right.copy()
+    used: set[int] = set()
+    for sw in scr.swaps:
+        if used.isdisjoint((sw.i, sw.j)):
+            xy_right[[sw.i, sw.j]] = xy_right[[sw.j, sw.i]]
+            used.update((sw.i, sw.j))
+    after = screen_pair(scr.xy_left, xy_right, scr.point_ids,
+                        dataclasses.replace(settings, detect_swaps=False), **kw)
+    flagged = scr.method_flags()["swap"] | after.flagged
+    cleared = [str(lab) for lab in scr.labels[scr.flagged & ~flagged]]
+    return dataclasses.replace(pair, screening=dataclasses.replace(scr, flagged=flagged),
+                               after_swaps=after, cleared=cleared)
+
+
 def _common(block, li: int, ri: int):
     """Observation indices (left, right) of the active points common to both photos, and their ids."""
     obs = block.observations
@@ -224,16 +258,23 @@ def _summary(art: ScreeningArtefact, flagged_obs, block, options) -> dict:
                 "tau": _f(s.pope.tau[i], 2), "nabla_hat": _f(s.snooping.nabla_hat[i])},
             "flagged": {m: [str(x) for x in s.labels[f]] for m, f in flags.items()},
             "swaps": [[s.point_ids[w.i], s.point_ids[w.j]] for w in s.swaps],
+            "after_swaps": None if p.after_swaps is None else {
+                "explains": p.swap_explains, "sigma0_hat": _f(p.after_swaps.adjustment.sigma0_hat, 4),
+                "global_T": _f(p.after_swaps.global_.T, 4),
+                "still_flagged": [str(x) for x in p.after_swaps.labels[p.after_swaps.flagged]],
+                "cleared": p.cleared},
             "parameters": dict(zip(("a", "b", "tx", "ty"), map(float, s.adjustment.x))),
             "notes": s.notes,
         })
     flagged_ids = [list(block.observation_ids()[i]) for i in flagged_obs]
     worst = [f"{p['pair'][0]}→{p['pair'][1]}: {p['most_suspicious']['row']} (w {p['most_suspicious']['w']})"
              for p in pairs if p["most_suspicious"] is not None and any(p["flagged"].values())]
+    swaps = [f"{a}↔{b} in {p['pair'][1]}" + (" (explains every flag)" if p["after_swaps"]
+                                              and p["after_swaps"]["explains"] else "")
+             for p in pairs for a, b in p["swaps"]]
     headline = (f"{len(pairs)} pair(s) screened; {len(flagged_ids)} image point(s) flagged"
-                + (f" — most suspicious {', '.join(worst[:3])}" if worst else "")
-                + (f"; {sum(len(p['swaps']) for p in pairs)} swapped pair(s) of point numbers"
-                   if any(p["swaps"] for p in pairs) else ""))
+                + (f"; swapped point numbers {', '.join(swaps)}" if swaps else
+                   (f" — most suspicious {', '.join(worst[:3])}" if worst else "")))
     return {"headline": headline, "pairs": pairs, "skipped": [list(x) for x in art.skipped],
             "flagged_observations": flagged_ids,
             "deactivated": bool(options.deactivate and len(flagged_obs)), "flag_by": list(options.flag_by)}
@@ -275,6 +316,8 @@ def _report(art: ScreeningArtefact, block, options, flagged_obs) -> str:
             out.append(f"- Swapped point numbers? Exchanging the right coordinates of {s.point_ids[w.i]} and "
                        f"{s.point_ids[w.j]} lowers vᵀPv from {w.vtpv_before:.4g} to {w.vtpv_after:.4g} mm² and "
                        f"both points then pass the w-test (|w| ≤ {max(abs(x) for x in w.w_after):.2f}).")
+        if p.after_swaps is not None:
+            out.append(_swap_finding(p))
         out += [f"- Note: {n}." for n in s.notes]
         out.append("")
     for lid, rid, why in art.skipped:
@@ -284,6 +327,27 @@ def _report(art: ScreeningArtefact, block, options, flagged_obs) -> str:
     out.append(f"Flagged observations ({', '.join(options.flag_by)}): "
                f"{', '.join(f'{ph}/{pt}' for ph, pt in (ids[i] for i in flagged_obs)) or 'none'} — {act}.")
     return "\n".join(out)
+
+
+def _swap_finding(p: PairResult) -> str:
+    """The report's line on what remains once the detected swaps are undone."""
+    s, a = p.screening, p.after_swaps
+    names = " and ".join(f"{s.point_ids[w.i]}↔{s.point_ids[w.j]}" for w in s.swaps)
+    state = (f"σ̂0 = {a.adjustment.sigma0_hat:.4f} mm, global test T = {a.global_.T:.3f} vs F = "
+             f"{a.global_.critical:.3f} → {'rejected' if a.global_.rejected else 'accepted'}")
+    checks = ", ".join(m for m in s.settings.flag_by if m != "swap") or "no other check"
+    cleared = (f" The flags of {', '.join(p.cleared)} come from the swap's smear and disappear once it is "
+               "corrected; they are not flagged." if p.cleared else "")
+    if p.swap_explains:
+        swapped = sorted({s.point_ids[k] for w in s.swaps for k in (w.i, w.j)}, key=s.point_ids.index)
+        return (f"- **Finding: point numbers {names} swapped in photo {p.right}.** With the exchange undone "
+                f"the pair passes ({state}; nothing flagged by {checks}), so only {p.right}/"
+                + f", {p.right}/".join(swapped) + f" are flagged.{cleared}")
+    flags = a.method_flags()
+    still = ", ".join(f"{lab} ({', '.join(m for m in s.settings.flag_by if m != 'swap' and flags[m][k])})"
+                      for k, lab in enumerate(a.labels) if a.flagged[k])
+    return (f"- With {names} undone ({state}) still flagged: {still} — flagged besides the swapped "
+            f"points.{cleared}")
 
 
 def _tables(art: ScreeningArtefact) -> dict:
@@ -302,12 +366,9 @@ def _tables(art: ScreeningArtefact) -> dict:
             cols["label"].append(str(lab))
             cols["left"].append(round(float(s.xy_left[q, c]), 6))
             cols["right_observed"].append(round(float(s.xy_right[q, c]), 6))
-            cols["v"].append(round(float(s.adjustment.v[k]), 6))
-            cols["r"].append(round(float(s.snooping.r[k]), 6))
-            cols["w"].append(round(float(s.snooping.w[k]), 4))
-            cols["tau"].append(round(float(s.pope.tau[k]), 4))
-            cols["nabla_hat"].append(round(float(s.snooping.nabla_hat[k]), 6))
-            cols["mdb"].append(round(float(s.snooping.mdb[k]), 6))
+            for name, value in (("v", s.adjustment.v), ("r", s.snooping.r), ("w", s.snooping.w),
+                                ("tau", s.pope.tau), ("nabla_hat", s.snooping.nabla_hat), ("mdb", s.snooping.mdb)):
+                cols[name].append(round(float(value[k]), TABLE_DECIMALS[name]))
             for m, col in (("data-snooping", "data_snooping"), ("pope", "pope"), ("threshold", "threshold"),
                            ("format", "format")):
                 cols[col].append("reject" if flags[m][k] else "accept")

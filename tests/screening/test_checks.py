@@ -60,6 +60,50 @@ def test_swapped_point_numbers_are_found(tmp_path, a, b):
     assert "Swapped point numbers?" in res.report
 
 
+@pytest.mark.parametrize("a,b", [("2", "6"), ("4", "8"), ("1", "9")])
+def test_a_swap_narrows_the_flags_to_what_the_correct_data_flag(tmp_path, a, b):
+    """The swap smears over every residual (2↔6: threshold flags R/1–R/9 except 5); once it is undone
+    the flags are the swapped points plus those of the correctly numbered data screened on its own."""
+    left, right = centred()
+    ids = [str(i + 1) for i in range(9)]
+    rid = ids.copy()
+    rid[ids.index(a)], rid[ids.index(b)] = b, a
+    swapped_text = cmp_text(left, right, ids, rid)
+
+    def flagged(res):
+        return {pt for _, pt in res.summary["flagged_observations"]}
+
+    for flag_by in (["pope", "threshold", "format", "swap"], ["threshold", "swap"]):
+        truth = screen_text(tmp_path, cmp_text(left, right), flag_by=flag_by)
+        res = screen_text(tmp_path, swapped_text, flag_by=flag_by)
+        pair = res.summary["pairs"][0]
+        assert len(pair["flagged"]["threshold"]) >= 7  # the smear the checks see
+        assert flagged(res) == {a, b} | flagged(truth)
+        truth_s = truth.artefacts["screening"].pairs[0].screening
+        assert pair["after_swaps"]["still_flagged"] == [str(x) for x in truth_s.labels[truth_s.flagged]]
+        assert pair["after_swaps"]["sigma0_hat"] == pytest.approx(truth.summary["pairs"][0]["sigma0_hat"])
+        cleared = set(pair["after_swaps"]["cleared"])
+        assert cleared and not cleared & {f"X{a}", f"Y{a}", f"X{b}", f"Y{b}"}
+        assert f"swapped point numbers {a}↔{b} in R" in res.summary["headline"]
+    # with flag_by threshold + swap the correct data flag nothing: the swap is the whole finding
+    assert flagged(truth) == set() and pair["after_swaps"]["explains"]
+    assert f"**Finding: point numbers {a}↔{b} swapped in photo R.**" in res.report
+    assert "(explains every flag)" in res.summary["headline"]
+    assert len(res.summary["flagged_observations"]) == 2
+
+
+def test_swap_not_in_flag_by_keeps_every_flag(tmp_path):
+    left, right = centred()
+    ids = [str(i + 1) for i in range(9)]
+    rid = ids.copy()
+    rid[1], rid[5] = "6", "2"
+    res = screen_text(tmp_path, cmp_text(left, right, ids, rid), flag_by=["threshold"])
+    pair = res.summary["pairs"][0]
+    assert [sorted(x) for x in pair["swaps"]] == [["2", "6"]] and pair["after_swaps"] is None
+    assert {pt for _, pt in res.summary["flagged_observations"]} == \
+        {lab[1:] for lab in pair["flagged"]["threshold"]}
+
+
 @pytest.mark.parametrize("name", ["printed", "data1", "data2", "data3", "data4"])
 def test_no_swap_is_claimed_for_gross_errors(tmp_path, name):
     fix = Path(__file__).resolve().parents[2] / "fixtures" / "paper000" / f"{name}.cmp"
