@@ -62,13 +62,20 @@ def test_the_intact_project_is_valid(tmp_path, capsys):
     assert "valid — 2 stage(s)" in out.out and out.err == ""
 
 
-def test_b1_bad_number(tmp_path, capsys):
-    text, line = _break("pt  4    70.903    60.735", "pt  4    70.9O3    60.735")
+@pytest.mark.parametrize("old, new, message", [
+    # b1: a bad number
+    ("pt  4    70.903    60.735", "pt  4    70.9O3    60.735", "field 'x': expected a number for x, got '70.9O3'"),
+    # b3: a duplicate point (the first 6 of photo R is on the line before)
+    ("pt  7    70.361    42.833", "pt  6    70.361    42.833",
+     "field 'pt': point '6' measured twice in photo 'R' (first at line {before})"),
+    # b4: a pair naming an absent photo
+    ("pair L R", "pair L Q", "field 'pair': pair L Q: right photo 'Q' is not in this file (photos: L, R)"),
+], ids=["b1-bad-number", "b3-duplicate-point", "b4-pair-photo-absent"])
+def test_mistakes_inside_the_comparator_file(tmp_path, capsys, old, new, message):
+    text, line = _break(old, new)
     rc, out = _validate(tmp_path, capsys, text)
-    assert rc == 2
-    assert out.err == (f"baarda: error: {tmp_path / 'data1.cmp'}:{line}, field 'x': "
-                       "expected a number for x, got '70.9O3'\n")
-    assert "valid" not in out.out
+    assert rc == 2 and "valid" not in out.out
+    assert out.err == f"baarda: error: {tmp_path / 'data1.cmp'}:{line}, {message.format(before=line - 1)}\n"
 
 
 def test_b2_missing_file_names_the_project_line(tmp_path, capsys):
@@ -76,23 +83,6 @@ def test_b2_missing_file_names_the_project_line(tmp_path, capsys):
     assert rc == 2
     assert out.err == (f"baarda: error: {tmp_path / 'p.toml'}:{PATH_LINE}, field 'path': "
                        f"file or folder not found: {tmp_path / 'data1.cmp'}\n")
-
-
-def test_b3_duplicate_point(tmp_path, capsys):
-    text, line = _break("pt  7    70.361    42.833", "pt  6    70.361    42.833")
-    rc, out = _validate(tmp_path, capsys, text)
-    assert rc == 2
-    first = _line_of(DATA1, "pt  6   133.771")
-    assert out.err == (f"baarda: error: {tmp_path / 'data1.cmp'}:{line}, field 'pt': point '6' measured "
-                       f"twice in photo 'R' (first at line {first})\n")
-
-
-def test_b4_pair_photo_absent(tmp_path, capsys):
-    text, line = _break("pair L R", "pair L Q")
-    rc, out = _validate(tmp_path, capsys, text)
-    assert rc == 2
-    assert out.err == (f"baarda: error: {tmp_path / 'data1.cmp'}:{line}, field 'pair': pair L Q: right "
-                       "photo 'Q' is not in this file (photos: L, R)\n")
 
 
 def test_io_tolerance_warning_is_shown_by_validate(tmp_path, capsys):
