@@ -199,14 +199,6 @@ def load_project(path: str | Path, plugins: PluginManager) -> Project:
 PATH_ROLES = ("input", "glob", "prefix", "output")
 """Roles of options naming files (a stage's ``paths`` class attribute; see pipeline/stage.py)."""
 
-_ROLES_NOT_YET_DECLARED = {
-    "plugins.colmap_io.stage.ColmapExport": {"path": "output"},
-    "plugins.aicon.stage.AiconSource": {"path": "prefix"},
-    "plugins.targets.stage.TargetDetection": {"images": "glob", "detector_params": "input"},
-}
-"""Roles of built-in stages that do not declare ``paths`` themselves yet (a stage's own ``paths``
-wins).  Transitional: each entry belongs in its stage class."""
-
 
 def path_roles(cls: type) -> dict[str, str]:
     """``{option: role}`` for every option of stage ``cls`` that names files.
@@ -221,9 +213,7 @@ def path_roles(cls: type) -> dict[str, str]:
         args = get_args(tp) if get_origin(tp) in (typing.Union, types.UnionType, list, tuple) else ()
         if tp is Path or Path in args:
             roles[f.name] = "input"
-    declared = getattr(cls, "paths", None)
-    if declared is None:
-        declared = _ROLES_NOT_YET_DECLARED.get(f"{cls.__module__}.{cls.__qualname__}", {})
+    declared = getattr(cls, "paths", None) or {}
     for name, role in dict(declared).items():
         if role not in PATH_ROLES:
             raise ValueError(f"{cls.__qualname__}.paths: role of '{name}' must be one of "

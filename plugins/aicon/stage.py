@@ -58,6 +58,7 @@ class AiconSource(Stage):
     summary = "Read an AICON 3D Studio export (.ior .eor .obc .phc .scale) into a block"
     reads = ()
     writes = ("block",)
+    paths = {"path": "prefix"}            # an export's common prefix: <path>.ior, .eor, …
     Options = AiconOptions
 
     def run(self, inputs, options: AiconOptions, ctx: Context) -> StageResult:

@@ -123,6 +123,7 @@ class ColmapExport(Stage):
     summary = "block (adjusted if an adjustment of it exists) → COLMAP model folder (text or binary)"
     reads = ("block", "adjustment?")
     writes = ()
+    paths = {"path": "output"}            # the folder written (not checked by validate)
     Options = ColmapExportOptions
 
     def run(self, inputs, options: ColmapExportOptions, ctx: Context) -> StageResult:

@@ -161,6 +161,7 @@ class TargetDetection(Stage):
     summary = "OpenCV target detection in images → block (image observations in mm, board as control)"
     reads = ("block?", "images?")
     writes = ("block",)
+    paths = {"images": "glob", "detector_params": "input"}
     Options = TargetOptions
 
     def run(self, inputs, options: TargetOptions, ctx: Context) -> StageResult:
