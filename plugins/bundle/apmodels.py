@@ -20,8 +20,9 @@ A model is any object with
   ``params (n, p)`` (one row per point, so cameras can be mixed), ``c (n,)``;
 * optionally ``jacobian_params(...) -> (n, 2, p)``, ``jacobian_xy(...) -> (n, 2, 2)``
   (``[[∂Δx/∂x̄, ∂Δx/∂ȳ], [∂Δy/∂x̄, ∂Δy/∂ȳ]]``) and ``jacobian_c(...) -> (n, 2)`` (the partial
-  derivative w.r.t. ``c`` at fixed x̄, ȳ; zero unless the model uses c).  :class:`APModel`
-  supplies central-difference fallbacks, so a third-party model needs only ``distortion``.
+  derivative w.r.t. ``c`` at fixed x̄, ȳ).  :class:`APModel` supplies central-difference
+  fallbacks of all three, so a third-party model needs only ``distortion``; a model whose Δ does
+  not depend on c sets ``uses_c = False`` (exact zero, no extra evaluations).
 
 Register with :func:`register_ap_model`; look up with :func:`get_ap_model`.  Formulas and units of
 the built-in models: ``docs/camera-models.md``.
@@ -45,6 +46,9 @@ class APModel:
     name: str = ""
     params: tuple[str, ...] = ()
     default_sigma: tuple[float, ...] = ()
+    uses_c: bool = True
+    """Whether Δ depends on c (at fixed x̄, ȳ).  Unknown for a third-party model, hence ``True``:
+    ``jacobian_c`` then differentiates numerically.  The built-in models set ``False``."""
 
     @property
     def n_params(self) -> int:
@@ -85,16 +89,27 @@ class APModel:
         return out
 
     def jacobian_c(self, xbar, ybar, params, c, meta):
-        return np.zeros((np.asarray(xbar).shape[0], 2))
+        """``∂(Δx, Δy)/∂c`` at fixed x̄, ȳ, ``(n, 2)``: central differences of :meth:`distortion`
+        (exact zeros when the model declares ``uses_c = False``)."""
+        n = np.asarray(xbar).shape[0]
+        if not self.uses_c:
+            return np.zeros((n, 2))
+        c = np.broadcast_to(np.asarray(c, float), (n,))
+        h = 1e-6 * np.maximum(1.0, np.abs(c))
+        a = self.distortion(xbar, ybar, params, c + h, meta)
+        b = self.distortion(xbar, ybar, params, c - h, meta)
+        return np.column_stack([(a[0] - b[0]) / (2 * h), (a[1] - b[1]) / (2 * h)])
 
     def jacobians(self, xbar, ybar, params, c, meta, cols):
         """All derivatives at once (the bundle's inner loop): ``(J_params[:, :, cols] (n, 2, len(cols)),
         J_xy (n, 2, 2), J_c (n, 2) or None when Δ does not depend on c)``.  Models may override this
-        to share work between the three; the default calls the separate methods."""
+        to share work between the three; the default calls the separate methods (so a model's own
+        or the central-difference ``jacobian_c`` is used unless ``uses_c = False``)."""
         cols = np.asarray(cols, int)
         Jp = self.jacobian_params(xbar, ybar, params, c, meta)[:, :, cols] if len(cols) else \
             np.zeros((np.asarray(xbar).shape[0], 2, 0))
-        return Jp, self.jacobian_xy(xbar, ybar, params, c, meta), self.jacobian_c(xbar, ybar, params, c, meta)
+        Jc = self.jacobian_c(xbar, ybar, params, c, meta) if self.uses_c else None
+        return Jp, self.jacobian_xy(xbar, ybar, params, c, meta), Jc
 
     def __repr__(self):
         return f"<AP model {self.name!r}: {', '.join(self.params) or 'no parameters'}>"
@@ -137,6 +152,8 @@ def _rows(params, n, p):
 class NoAP(LinearAPModel):
     """No additional parameters (pure collinearity with c, xp, yp)."""
 
+    uses_c = False
+
     name = "none"
     params = ()
     default_sigma = ()
@@ -156,6 +173,8 @@ class Ebner12(LinearAPModel):
         Δx =  b1 x̄ + b2 ȳ − b3 (2x̄² − 4b²/3) + b4 x̄ȳ + b5 l + b7 x̄ l + b9 ȳ k + b11 k l
         Δy = −b1 ȳ + b2 x̄ + b3 x̄ȳ − b4 (2ȳ² − 4b²/3) + b6 k + b8 ȳ k + b10 x̄ l + b12 k l
     """
+
+    uses_c = False
 
     name = "ebner12"
     params = tuple(f"b{i}" for i in range(1, 13))
@@ -245,6 +264,8 @@ class _RadialDecentringAffine(LinearAPModel):
     ``Δx = x̄ Σ Ki (r^(2i) − r0^(2i)) + P1 (r² + 2x̄²) + 2 P2 x̄ȳ + B1 x̄ + B2 ȳ``,
     ``Δy = ȳ Σ Ki (r^(2i) − r0^(2i)) + P2 (r² + 2ȳ²) + 2 P1 x̄ȳ``; ``r0 = 0`` for Brown.
     """
+
+    uses_c = False
 
     def _r0(self, meta, n):
         return np.zeros(n)
@@ -449,6 +470,7 @@ class _Adapter(APModel):
         self.name = getattr(inner, "name", "")
         self.params = tuple(inner.params)
         self.default_sigma = tuple(getattr(inner, "default_sigma", (np.inf,) * len(self.params)))
+        self.uses_c = bool(getattr(inner, "uses_c", True))
 
     def distortion(self, xbar, ybar, params, c, meta):
         return self._inner.distortion(xbar, ybar, params, c, meta)
