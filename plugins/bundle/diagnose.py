@@ -50,13 +50,19 @@ def _opk_many(R):
     return np.stack([omega, phi, kappa], axis=1)
 
 
-def datum_motions(prob, st) -> np.ndarray:
-    """(n_g, 7) change of every global unknown under the 7 infinitesimal similarity motions."""
-    G = np.zeros((prob.n_g, 7))
+def _centre_and_radius(prob, st) -> tuple[np.ndarray, float]:
+    """Centroid and RMS distance from it of the used projection centres (the motions' origin and
+    the length that makes rotations, translations and scale comparable)."""
     pos = st.X0[prob.photo_used]
     ctr = pos.mean(axis=0) if len(pos) else np.zeros(3)
     scale = np.sqrt(np.mean(np.sum((pos - ctr) ** 2, axis=1))) if len(pos) else 1.0
-    scale = scale or 1.0
+    return ctr, float(scale or 1.0)
+
+
+def datum_motions(prob, st) -> np.ndarray:
+    """(n_g, 7) change of every global unknown under the 7 infinitesimal similarity motions."""
+    G = np.zeros((prob.n_g, 7))
+    ctr, scale = _centre_and_radius(prob, st)
 
     def pos_motion(X):
         Xc = X - ctr                           # rotations: ΔX = ε × (X − ctr), angles change by ε
@@ -79,9 +85,9 @@ def datum_motions(prob, st) -> np.ndarray:
         # world rotated by ε: R' = R (I − [ε]×)
         Rp = R @ (np.eye(3) - Wx)
         Rm = R @ (np.eye(3) + Wx)
-        d = (_opk_many(Rp) - _opk_many(Rm)) / (2 * h)
-        d = (d + np.pi) % (2 * np.pi) - np.pi
-        dang[:, :, 3 + a] = d
+        diff = _opk_many(Rp) - _opk_many(Rm)
+        diff = (diff + np.pi) % (2 * np.pi) - np.pi      # wrap the difference, not the derivative
+        dang[:, :, 3 + a] = diff / (2 * h)
     eo_motion = np.concatenate([mX, dang], axis=1)        # (m, 6, 7)
     msk = prob.g_eo >= 0
     G[prob.g_eo[msk]] = eo_motion[msk]
@@ -125,22 +131,24 @@ def raise_rank_defect(prob, red, st):
     if usable.any() and n_c == 0:
         Gu = G[:, usable] / gnorm[usable]
         Qg, _ = np.linalg.qr(Gu)
-        cosines = np.linalg.svd(Qg.T @ N, compute_uv=False)
+        U, cosines, _ = np.linalg.svd(Qg.T @ N, full_matrices=False)
         datum_dim = int(np.sum(cosines > 0.99))
-        # which individual motions are free
-        Ku = Ks[:n_g, :n_g]
-        for a in np.flatnonzero(usable):
-            ga = G[:, a] / gnorm[a]
-            if np.linalg.norm(Ku @ ga) < 1e-6:
-                undetermined.append(MOTION_NAMES[a])
+        # motions free on their own: (almost) entirely inside the null space.  N has orthonormal
+        # columns, so ‖Nᵀ g‖ is the cosine of the angle between g and the null space (relative:
+        # independent of units and of the size of the block)
+        inside = np.linalg.norm(N.T @ Gu, axis=0) > 0.99
+        undetermined = [MOTION_NAMES[a] for a in np.flatnonzero(usable)[inside]]
         if datum_dim:
             if datum_dim == 7 or len(undetermined) == 7:
                 msgs.append("no datum: 7 degrees of freedom undetermined (3 translations, 3 rotations, scale) — "
                             "add control points or set datum = 'free'")
             else:
-                what = ", ".join(undetermined) if len(undetermined) == datum_dim else \
-                    f"e.g. {', '.join(undetermined)}" if undetermined else "a combination of rotation and scale"
-                msgs.append(f"incomplete datum: {datum_dim} degree(s) of freedom undetermined ({what}) — "
+                D = Qg @ U[:, :datum_dim]                # the datum part of the null space
+                coef = np.zeros((7, datum_dim))          # … as combinations of the 7 motions
+                coef[usable] = np.linalg.lstsq(G[:, usable], D, rcond=None)[0]
+                _, radius = _centre_and_radius(prob, st)
+                what = _name_motions(coef, radius)
+                msgs.append(f"incomplete datum: {datum_dim} degree(s) of freedom undetermined ({', '.join(what)}) — "
                             "add or spread control points, or set datum = 'free'")
         # remove the datum part from the null space
         if datum_dim:
@@ -172,6 +180,52 @@ def raise_rank_defect(prob, red, st):
     if not msgs:
         msgs.append("the normal equations are singular (rank defect of unknown origin)")
     raise AdjustmentError("; ".join(msgs), state=st)
+
+
+def _name_motions(coef: np.ndarray, radius: float) -> list[str]:
+    """Name the undetermined similarity motions spanned by the columns of ``coef`` (7, k): the
+    coefficients of translations (object units), rotations about the centre of the projection
+    centres (rad) and scale.  A rotation about an axis off the centre is a rotation about the
+    parallel axis through it plus a translation, so the space splits into pure translations and
+    the rotation/scale part; each is named by coordinate axes where it contains them, else by its
+    direction ("rotation about the axis (0.79, −0.58, −0.19)")."""
+    C = coef * np.r_[1.0, 1.0, 1.0, radius, radius, radius, 1.0][:, None]   # as displacements
+    Ua, sa, Vat = np.linalg.svd(C[3:], full_matrices=True)
+    r = int(np.sum(sa > 1e-3 * max(np.abs(C).max(), 1e-300)))
+    trans = C[:3] @ Vat[r:].T                                   # combinations without rotation/scale
+    out = _name_subspace(trans, ("translation X", "translation Y", "translation Z"))
+    out += _name_subspace(Ua[:, :r], ("rotation about X", "rotation about Y", "rotation about Z", "scale"))
+    return out
+
+
+def _name_subspace(B: np.ndarray, labels: tuple[str, ...]) -> list[str]:
+    """Names of an (up to 4-dimensional) subspace of the motions ``labels``: the coordinate axes it
+    contains (cosine > 0.99), then a direction for each remaining dimension."""
+    if B.size == 0:
+        return []
+    U, sv, _ = np.linalg.svd(B, full_matrices=False)
+    B = U[:, sv > 1e-6 * max(sv.max(), 1e-300)]
+    if B.shape[1] == 0:
+        return []
+    named = np.flatnonzero(np.linalg.norm(B, axis=1) > 0.99)       # ‖Bᵀ e_i‖ for the axes e_i
+    out = [labels[i] for i in named]
+    rest = B.copy()
+    if named.size:
+        rest[named] = 0.0                                          # project out the named axes
+    U, sv, _ = np.linalg.svd(rest, full_matrices=False)
+    for vec in U[:, :B.shape[1] - named.size].T:
+        vec = vec if vec[np.argmax(np.abs(vec))] > 0 else -vec
+        if labels[0].startswith("translation"):
+            out.append(f"translation along ({vec[0]:.2f}, {vec[1]:.2f}, {vec[2]:.2f})")
+            continue
+        rot, sc = vec[:3], vec[3]
+        if np.linalg.norm(rot) < 0.1:
+            out.append("scale")
+            continue
+        ax = rot / np.linalg.norm(rot)
+        out.append(f"rotation about the axis ({ax[0]:.2f}, {ax[1]:.2f}, {ax[2]:.2f})"
+                   + (" with scale" if abs(sc) > 0.1 else ""))
+    return out
 
 
 def _short(other: str, this: str) -> str:

@@ -32,7 +32,61 @@ def test_incomplete_datum_names_the_missing_motions():
     sigma[0] = sigma[1] = 0.0
     with pytest.raises(AdjustmentError) as e:
         adjust(blk.replace(points=pts.replace(sigma=sigma)))
-    assert "incomplete datum: 1 degree(s) of freedom undetermined" in str(e.value)
+    msg = str(e.value)
+    assert "incomplete datum: 1 degree(s) of freedom undetermined (rotation about the axis (" in msg
+    # … and the axis is the line through the two points
+    axis = np.array([float(t) for t in msg.split("rotation about the axis (")[1].split(")")[0].split(",")])
+    line = pts.XYZ[1] - pts.XYZ[0]
+    line = line / np.linalg.norm(line) * np.sign(line[np.argmax(np.abs(line))])
+    assert np.allclose(axis, line, atol=0.006)          # printed to 2 decimals
+    assert "cannot be determined" not in msg
+
+
+def _rotate_world(blk, angle_deg, axis=1):
+    """The same block in a world rotated about a coordinate axis (images unchanged)."""
+    from pipeline.geometry import opk_from_rotation, rotation_from_opk_many
+
+    a = np.radians(angle_deg)
+    c, s = np.cos(a), np.sin(a)
+    i, j = [k for k in range(3) if k != axis]
+    Rw = np.eye(3)
+    Rw[i, i], Rw[i, j], Rw[j, i], Rw[j, j] = c, -s, s, c
+    ph, pts = blk.photos, blk.points
+    R = rotation_from_opk_many(ph.opk) @ Rw.T
+    return blk.replace(photos=ph.replace(X0=ph.X0 @ Rw.T, opk=np.array([opk_from_rotation(r) for r in R])),
+                       points=pts.replace(XYZ=pts.XYZ @ Rw.T))
+
+
+@pytest.mark.parametrize("angle", [0.0, 86.0])
+def test_scale_bar_without_control_names_all_six_motions(angle):
+    """A scale bar and no control: 3 translations and 3 rotations are missing — each named, also
+    when the photos are near φ = ±90° (ω, κ change fast there; the datum motions must not wrap)."""
+    blk, truth = make_block(model="none", n_photos=6, n_points=30, n_control=0)
+    blk = _rotate_world(_free(blk), angle)
+    if angle:
+        assert np.abs(np.degrees(blk.photos.opk[:, 1])).max() > 75     # 1/cos φ > π
+    d = float(np.linalg.norm(truth["XYZ"][0] - truth["XYZ"][5]))
+    with pytest.raises(AdjustmentError) as e:
+        adjust(blk, BundleSettings(distances=(Distance("100", "105", d, 1e-5),)))
+    assert str(e.value) == ("incomplete datum: 6 degree(s) of freedom undetermined (translation X, translation Y, "
+                            "translation Z, rotation about X, rotation about Y, rotation about Z) — add or spread "
+                            "control points, or set datum = 'free'")
+
+
+def test_height_control_only_leaves_plane_motions():
+    """Heights of 3 points (not on a line) fix Z, the tilts — and with them nothing in the plane:
+    translation X, Y and rotation about Z remain, plus the scale (which 3 heights cannot fix
+    without a tilt that compensates it)."""
+    blk, _ = make_block(model="none", n_photos=6, n_points=30, n_control=0)
+    pts = blk.points
+    sigma = np.full((len(pts), 3), FREE)
+    sigma[[0, 1, 2], 2] = 0.0
+    with pytest.raises(AdjustmentError) as e:
+        adjust(blk.replace(points=pts.replace(sigma=sigma)))
+    msg = str(e.value)
+    assert msg.startswith("incomplete datum: 4 degree(s) of freedom undetermined (translation X, translation Y, "
+                          "rotation about Z, rotation about the axis (")
+    assert "with scale)" in msg
 
 
 def test_free_network_inner_constraints_keep_the_shape():
