@@ -11,10 +11,12 @@ import dataclasses
 from typing import Literal
 
 import numpy as np
+from scipy import stats as sps
 
-from pipeline.errors import InputError
+from pipeline.errors import AdjustmentError, InputError
 from pipeline.model import Block
 from pipeline.options import option
+from pipeline.report import write_table
 from pipeline.stage import Context, StageResult, TableData
 from pipeline import stats
 from plugins.blunders.artefact import AdjustmentArtefact
@@ -48,9 +50,16 @@ class BundleOptions:
     free: list[str] = option([], "parameter names made free in every camera (applied after 'fix')")
     sigma: dict = option({}, "parameter name -> a-priori sigma (weighted constraint), every camera")
     ebner_b: float = option(0.0, "image base b (mm) of ebner12; 0: 0.4 × format width (60 % overlap)")
+    sigma_eo: list[float] = option(
+        [], "weighted constraints on the given exterior orientations: a-priori σ [X0, Y0, Z0 (object units), "
+            "ω, φ, κ (degrees)] for every photo whose orientation the block gives (0 fixes, inf frees); "
+            "empty: as in the block")
     distances: list[dict] = option(
         [], "extra scale bars: tables {from, to, distance, sigma} (object units); block scale bars are used too")
     sigma0: float = option(1.0, "a-priori standard deviation of unit weight")
+    image_sigma_scale: float = option(
+        1.0, "multiply the a-priori σ of every image coordinate by this factor (a variance component, e.g. "
+             "σ̂0 of an earlier run on the same weights)")
     max_iter: int = option(30, "maximum number of iterations")
     tol_obs: float = option(1e-5, "converged when a correction moves no observation by more than this × its σ")
     tol_rel: float = option(1e-12, "... or when vᵀPv changes by less than this fraction")
@@ -67,6 +76,10 @@ class BundleOptions:
     alpha0: float = option(0.001, "significance level of the w-test (two-sided, per observation)")
     beta0: float = option(0.80, "power for the MDBs")
     max_rejections: int = option(50, "iterated data snooping: at most this many rejected coordinates")
+    ids_stop: Literal["global-test", "w-test"] = option(
+        "global-test", "iterated data snooping stops when the global test accepts (Kok), or goes on while "
+                       "any |w| exceeds the critical value (for a-priori σ scaled from these data, where "
+                       "the global test accepts by construction)")
     covariance: bool = option(True, "compute covariances, redundancy numbers and w-tests")
     arrow_scale: float = option(0.0, "scale of residual arrows in the recording (0: automatic)")
 
@@ -87,6 +100,12 @@ class BundleOptions:
         for name, s in self.sigma.items():
             if not isinstance(s, (int, float)) or s < 0:
                 raise ValueError(f"sigma.{name}: expected a non-negative number, got {s!r}")
+        if self.sigma_eo and (len(self.sigma_eo) != 6 or not all(
+                isinstance(v, (int, float)) and v >= 0 for v in self.sigma_eo)):
+            raise ValueError(f"sigma_eo: expected 6 non-negative numbers [X0, Y0, Z0, ω, φ, κ (deg)], "
+                             f"got {self.sigma_eo!r}")
+        if not self.image_sigma_scale > 0:
+            raise ValueError("image_sigma_scale must be positive")
         for d in self.distances:
             missing = {"from", "to", "distance", "sigma"} - set(d)
             if missing:
@@ -140,7 +159,16 @@ def configure_block(block: Block, o: BundleOptions) -> Block:
         if name not in known:
             raise InputError(f"parameter {name!r} belongs to none of the cameras' models "
                              f"({', '.join(sorted(known))})", field="fix/free/sigma")
-    return block.replace(cameras=cams.replace(ap=ap, sigma_ap=sig, sigma_iop=siop))
+    block = block.replace(cameras=cams.replace(ap=ap, sigma_ap=sig, sigma_iop=siop))
+    if o.sigma_eo:
+        ph = block.photos
+        se = np.array(ph.sigma_eo, float)
+        se[ph.has_orientation] = np.r_[o.sigma_eo[:3], np.radians(o.sigma_eo[3:])]
+        block = block.replace(photos=ph.replace(sigma_eo=se))
+    if o.image_sigma_scale != 1.0:
+        obs = block.observations
+        block = block.replace(observations=obs.replace(cov=obs.cov * o.image_sigma_scale ** 2))
+    return block
 
 
 def settings_from(o: BundleOptions, block: Block) -> BundleSettings:
@@ -167,12 +195,16 @@ class BundleAdjustment:
         settings = settings_from(options, block)
         ctx.progress.message(f"adjusting {len(block.photos)} photos, {len(block.points)} points, "
                              f"{int(block.observations.active.sum())} observations")
-        res = adjust(block, settings, covariance=options.covariance)
-        selection = None
-        if options.ap_selection:
-            selection = select_aps(block, settings, rho_max=options.rho_max, alpha=options.ap_alpha,
-                                   significance=options.ap_significance, result=res)
-            res = selection.result
+        try:
+            res = adjust(block, settings, covariance=options.covariance)
+            selection = None
+            if options.ap_selection:
+                selection = select_aps(block, settings, rho_max=options.rho_max, alpha=options.ap_alpha,
+                                       significance=options.ap_significance, result=res)
+                res = selection.result
+        except AdjustmentError as e:
+            _save_state(e, block, ctx)
+            raise
         for w in res.warnings:
             ctx.warn(w)
         snap = res.snapshot
@@ -183,10 +215,15 @@ class BundleAdjustment:
         if snap is not None:
             extras["global_test"] = stats.global_test(snap, alpha0=options.alpha0, beta0=options.beta0)
             if options.blunders == "ids":
-                ids = stats.iterated_data_snooping(res, snap, alpha0=options.alpha0, beta0=options.beta0,
-                                                   max_iter=options.max_rejections)
+                try:
+                    ids = _iterated_snooping(res, snap, options)
+                except AdjustmentError as e:
+                    _save_state(e, block, ctx)
+                    raise
                 extras["ids"] = ids
                 if ids.removed:
+                    extras["before_ids"] = {"result": res, "snooping": stats.data_snooping(
+                        snap, alpha0=options.alpha0, beta0=options.beta0)}
                     rejected_rows[ids.removed] = True
                     res = getattr(res, "_last_refit", res)
                     snap = res.snapshot
@@ -227,6 +264,71 @@ class BundleAdjustment:
 
 
 # ---------------------------------------------------------------------------------------------
+def _iterated_snooping(res: BundleResult, snap, o: BundleOptions):
+    """Iterated data snooping (:func:`pipeline.stats.iterated_data_snooping`, one row at a time).
+
+    ``ids_stop = "global-test"``: Kok's rule, stop when the global test accepts.  ``"w-test"``: go
+    on while the largest |w| exceeds the critical value — each round is a one-removal run of the
+    library's IDS from the current adjustment (its first step does not wait for the global test)."""
+    if o.ids_stop == "global-test":
+        return stats.iterated_data_snooping(res, snap, alpha0=o.alpha0, beta0=o.beta0, max_iter=o.max_rejections)
+    from pipeline.stats.ids import IDSResult
+
+    removed, labels, history = [], [], []
+    current = snap
+    while True:
+        room = len(removed) < o.max_rejections
+        one = stats.iterated_data_snooping(res, current, alpha0=o.alpha0, beta0=o.beta0, max_iter=int(room))
+        history.append(dataclasses.replace(one.history[0], iteration=len(removed)))
+        if not one.removed:
+            reason = one.stop_reason if room or "max_iter" not in one.stop_reason else \
+                f"max_rejections = {o.max_rejections} reached"
+            break
+        removed += one.removed
+        labels += one.removed_labels
+        current = one.snapshot
+    return IDSResult(removed, labels, history, current, np.array(current.active, bool),
+                     reason + " (ids_stop = 'w-test': the global test does not stop the rejections)", one.critical)
+
+
+def _save_state(err: AdjustmentError, block: Block, ctx: Context) -> None:
+    """Write the last iterate an :class:`AdjustmentError` carries into the run directory
+    (``<stage>_last_eo.csv``, ``_last_points.csv``, ``_last_cameras.csv``) and raise the error again
+    with their names.  Returns without doing anything when there is no state or no run directory."""
+    st = getattr(err, "state", None)
+    if st is None or ctx.run_dir is None:
+        return
+    tables = _state_tables(st, block)
+    names = []
+    for name, table in tables.items():
+        fname = f"{ctx.stage_id}_last_{name}.csv"
+        write_table(ctx.run_dir / fname, table)
+        names.append(fname)
+    new = AdjustmentError(f"{err} — the last state is saved in {ctx.run_dir}: {', '.join(names)}", state=st)
+    if hasattr(err, "history"):
+        new.history = err.history
+    raise new from err
+
+
+def _state_tables(st, block: Block) -> dict:
+    """Exterior orientations (angles in degrees), object points and camera parameters of a state."""
+    ph, pts, cams = block.photos, block.points, block.cameras
+    eo = {"photo": ph.ids.tolist(), "camera": cams.ids[ph.camera].tolist()}
+    for t, n in enumerate(EO_NAMES):
+        eo[n + ("" if t < 3 else "_deg")] = st.X0[:, t] if t < 3 else np.degrees(st.opk[:, t - 3])
+    rows = [(str(cams.ids[j]), name, float(st.cam_params[j, t]))
+            for j in range(len(cams))
+            for t, name in enumerate(["c", "xp", "yp"] + list(get_ap_model(cams.ap_model[j]).params))]
+    return {
+        "eo": TableData(eo, "exterior orientation of the last iterate (angles in degrees)"),
+        "points": TableData({"point": pts.ids.tolist(), "role": pts.role.tolist(), "X": st.XYZ[:, 0],
+                             "Y": st.XYZ[:, 1], "Z": st.XYZ[:, 2]},
+                            f"object points of the last iterate ({block.object_unit})"),
+        "cameras": TableData({"camera": [r[0] for r in rows], "parameter": [r[1] for r in rows],
+                              "value": [r[2] for r in rows]}, "camera parameters of the last iterate"),
+    }
+
+
 def _f(x, nd=4):
     return "–" if x is None or not np.isfinite(x) else f"{x:.{nd}g}"
 
@@ -240,8 +342,17 @@ def _summary(res: BundleResult, extras, o) -> dict:
     ds = extras.get("snooping")
     if ds is not None:
         out["data_snooping"] = {"critical": ds.critical, "n_flagged": int(ds.flagged.sum())}
+    jt = extras.get("joint")
+    if jt is not None:
+        out["joint_test"] = {"critical": jt.critical, "alpha": jt.alpha, "n_tested": int(jt.groups.size),
+                             "n_flagged": int(jt.flagged.sum())}
     if extras.get("ids") is not None:
         out["ids"] = {"removed": extras["ids"].removed_labels, "stop": extras["ids"].stop_reason}
+    before = extras.get("before_ids")
+    if before is not None:     # the adjustment from the initial values, before any rejection
+        r0 = before["result"]
+        out["before_rejection"] = {"iterations": r0.iterations, "sigma0_hat": r0.sigma0_hat, "dof": r0.dof,
+                                   "n_flagged": int(before["snooping"].flagged.sum())}
     if extras.get("selection") is not None:
         out["ap_selection"] = extras["selection"].summary()
     out["cameras"] = [r for j in range(len(res.block_in.cameras)) for r in res.camera_table(j)]
@@ -285,11 +396,28 @@ def _report(res: BundleResult, extras, o, block) -> str:
         L.append(f"- data snooping: |w| > {ds.critical:.3f}: {int(ds.flagged.sum())} coordinate(s) flagged"
                  + (f" (expected under H0 at α0 = {ds.alpha0:g}: about {ds.alpha0 * int(res.snapshot.active.sum()):.0f})"
                     if getattr(ds, "alpha0", None) else ""))
+        L.append(_tail_line(ds, res.snapshot))
         L.extend(_flagged_lines(res, ds))
+    jt = extras.get("joint")
+    if jt is not None and jt.groups.size:
+        L.append(f"- 2-D test per image point, T = (Pv)ᵀ(PQvvP)⁻¹(Pv)/σ0² ~ χ²(2): T > {jt.critical:.3f} "
+                 f"(α = {jt.alpha:g}) at {int(jt.flagged.sum())} of {jt.groups.size} image points (expected under "
+                 f"H0: about {jt.alpha * jt.groups.size:.0f}); per point in bundle_observations.csv "
+                 "(T2d, T2d_critical, T2d_flagged)")
     ids = extras.get("ids")
     if ids is not None:
-        L.append(f"- iterated data snooping: {len(ids.removed)} coordinate(s) rejected "
-                 f"({', '.join(ids.removed_labels[:10])}{' …' if len(ids.removed) > 10 else ''}); stop: {ids.stop_reason}")
+        L.append(f"- iterated data snooping (|w| > {ids.critical:.3f}, one coordinate at a time): "
+                 f"{len(ids.removed)} coordinate(s) rejected; stop: {ids.stop_reason}")
+        before = extras.get("before_ids")
+        if before is not None:
+            r0, ds0 = before["result"], before["snooping"]
+            n0 = int(r0.snapshot.active.sum())
+            L.append(f"  - before the rejections ({r0.iterations} iterations from the initial values): σ̂0 = "
+                     f"{_f(r0.sigma0_hat)}, {int(ds0.flagged.sum())} coordinate(s) with |w| > {ds0.critical:.3f} "
+                     f"(expected under H0: about {ds0.alpha0 * n0:.0f})")
+            L.append("  " + _tail_line(ds0, r0.snapshot))
+            L.append("  " + _radius_line(res, ids))
+        L.extend(_rejected_lines(res, ids))
     if res.check.get("n"):
         c = res.check
         L.append(f"- check points ({c['n']}, adjusted − surveyed): Sx = {_f(c['Sx'])}, Sy = {_f(c['Sy'])}, "
@@ -340,6 +468,60 @@ def _flagged_lines(res: BundleResult, ds, most: int = 15) -> list[str]:
     return rows + [""]
 
 
+def _tail_line(ds, snap) -> str:
+    """How the standardized residuals' tails compare with the normal distribution they follow under
+    H0 — more large |w| than α0·n means gross errors or a-priori σ that do not fit the data."""
+    w = np.abs(ds.w[np.asarray(snap.active, bool) & (np.asarray(snap.r) > 1e-9)])
+    if not w.size:
+        return "- w: no controlled coordinates"
+    parts = [f"|w| > {k:g}: {100 * np.mean(w > k):.2f} % (normal {200 * sps.norm.sf(k):.2f} %)" for k in (2.0, 3.0, 4.0)]
+    return "- distribution of w over " + f"{w.size} coordinates: " + "; ".join(parts)
+
+
+def _radius_line(res: BundleResult, ids) -> str:
+    """Where in the format the rejected coordinates lie: median distance from the principal point."""
+    obs = res.block_in.observations
+    cp = res.state.cam_params[res.block_in.photos.camera[obs.photo]]
+    rad = np.hypot(obs.xy[:, 0] - cp[:, 1], obs.xy[:, 1] - cp[:, 2])
+    act = np.asarray(res.snapshot.active, bool).reshape(-1, 2).any(axis=1) | (np.bincount(
+        np.asarray(ids.removed, int) // 2, minlength=len(obs)) > 0)
+    rej = np.unique(np.asarray(ids.removed, int) // 2)
+    return (f"- distance from the principal point: median {np.median(rad[rej]):.2f} mm for the rejected "
+            f"image points, {np.median(rad[act]):.2f} mm for all")
+
+
+def _rejected_lines(res: BundleResult, ids, most: int = 30) -> list[str]:
+    """The rejected coordinates in the order of rejection, with w when rejected and the predicted
+    residual in the final adjustment (v_pred/σ, the w-test the row would have if it were back)."""
+    if not ids.removed:
+        return []
+    snap = ids.snapshot
+    steps = [h for h in ids.history if h.removed]
+    rows = ["", f"  Rejected (in order; all in bundle_observations.csv, decision = rejected):", "",
+            "  | # | observation | w when rejected | v_pred now (µm) | v_pred/σ now |", "  |---|---|---|---|---|"]
+    for k, (i, h) in enumerate(zip(ids.removed[:most], steps)):
+        vp = snap.v_pred[i] if snap.v_pred is not None else np.nan
+        sp = snap.sigma_v_pred[i] if snap.sigma_v_pred is not None else np.nan
+        rows.append(f"  | {k + 1} | {snap.labels[i]} | {h.w_max:+.2f} | {1000 * vp:+.3f} | {vp / sp:+.2f} |")
+    if len(ids.removed) > most:
+        rows.append(f"  | … | {len(ids.removed) - most} more | | | |")
+    return rows + [""]
+
+
+def _joint_columns(jt, k: int) -> dict:
+    """Per observation: the 2-D statistic, its critical value and the decision (nan / False for
+    image points without two active coordinates)."""
+    T = np.full(k, np.nan)
+    flag = np.zeros(k, bool)
+    crit = np.full(k, np.nan)
+    if jt is not None and jt.groups.size:
+        g = np.asarray(jt.groups, int)
+        T[g] = jt.T
+        flag[g] = jt.flagged
+        crit[g] = jt.critical
+    return {"T2d": T, "T2d_critical": crit, "T2d_flagged": flag.tolist()}
+
+
 def _tables(res: BundleResult, extras, decision, block) -> dict:
     obs = block.observations
     ph_ids = block.photos.ids[obs.photo]
@@ -358,7 +540,9 @@ def _tables(res: BundleResult, extras, decision, block) -> dict:
         "photo": ph_ids.tolist(), "point": pt_ids.tolist(), "x": obs.xy[:, 0], "y": obs.xy[:, 1],
         "vx": v[:, 0], "vy": v[:, 1], "rx": r[:, 0], "ry": r[:, 1], "wx": w[:, 0], "wy": w[:, 1],
         "nabla_x": nab[:, 0], "nabla_y": nab[:, 1], "mdb_x": mdbs[:, 0], "mdb_y": mdbs[:, 1],
-        "decision": decision.tolist()}, "every image observation: residual (mm), redundancy, w-test, MDB (mm)")
+        **_joint_columns(extras.get("joint"), len(obs)),
+        "decision": decision.tolist()},
+        "every image observation: residual (mm), redundancy, w-test, MDB (mm), 2-D test of the point (χ²(2))")
     pts = block.points
     sp = res.point_sigmas()
     rays = np.bincount(obs.point[res.obs_active], minlength=len(pts))

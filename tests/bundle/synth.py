@@ -73,6 +73,20 @@ def make_block(n_photos=8, n_points=40, model="brown", noise_mm=0.0, rng=None, n
     return block, {"X0": X0, "opk": opk, "XYZ": XYZ, "cam": cam}
 
 
+def with_correlated_noise(block, rng, sigma=(0.5e-3, 2e-3), rho=0.8):
+    """``block`` with random correlated image covariances (σx, σy uniform in ``sigma`` mm, ρ uniform
+    in ±``rho``) and image noise drawn from them."""
+    obs = block.observations
+    k = len(obs)
+    sx, sy = rng.uniform(*sigma, k), rng.uniform(*sigma, k)
+    r = rng.uniform(-rho, rho, k)
+    cov = np.zeros((k, 2, 2))
+    cov[:, 0, 0], cov[:, 1, 1] = sx ** 2, sy ** 2
+    cov[:, 0, 1] = cov[:, 1, 0] = r * sx * sy
+    noise = np.einsum("kij,kj->ki", np.linalg.cholesky(cov), rng.standard_normal((k, 2)))
+    return block.replace(observations=obs.replace(xy=obs.xy + noise, cov=cov))
+
+
 def perturb(block, rng, dX0=0.05, dang=0.02, dXYZ=0.03, dc=0.2, ap_zero=True):
     ph, pts, cams = block.photos, block.points, block.cameras
     X0 = ph.X0 + dX0 * rng.standard_normal(ph.X0.shape)

@@ -8,7 +8,7 @@ from pipeline.model import FREE
 from plugins.bundle import BundleSettings, adjust
 from plugins.bundle.collinearity import project_observations
 
-from .synth import make_block
+from .synth import make_block, with_correlated_noise
 
 
 def _dense_reference(res):
@@ -99,20 +99,18 @@ def test_precision_matches_dense_reference():
 
 def test_correlated_image_coordinates_dense_reference():
     blk, _ = make_block(model="none", n_photos=5, n_points=14, noise_mm=0.0, n_control=5)
-    obs = blk.observations
-    rng = np.random.default_rng(4)
-    sx, sy = rng.uniform(0.5e-3, 2e-3, len(obs)), rng.uniform(0.5e-3, 2e-3, len(obs))
-    rho = rng.uniform(-0.8, 0.8, len(obs))
-    cov = np.zeros((len(obs), 2, 2))
-    cov[:, 0, 0], cov[:, 1, 1] = sx ** 2, sy ** 2
-    cov[:, 0, 1] = cov[:, 1, 0] = rho * sx * sy
-    noise = np.einsum("kij,kj->ki", np.linalg.cholesky(cov), rng.standard_normal((len(obs), 2)))
-    blk = blk.replace(observations=obs.replace(xy=obs.xy + noise, cov=cov))
+    blk = with_correlated_noise(blk, np.random.default_rng(4))
     res = adjust(blk)
     _compare(res)
 
 
 def test_weighted_control_and_eo_priors_dense_reference():
+    """Weighted full control, height and planimetric control, and weighted exterior orientation set
+    through the stage option ``sigma_eo`` (degrees): every variance against the dense normal
+    matrix of the image rows plus the prior weights 1/σ² on the constrained unknowns."""
+    from pipeline.options import parse_options
+    from plugins.bundle.stage import BundleOptions, configure_block
+
     blk, truth = make_block(model="none", n_photos=5, n_points=14, noise_mm=0.002, rng=np.random.default_rng(8),
                             n_control=6)
     pts = blk.points
@@ -122,12 +120,51 @@ def test_weighted_control_and_eo_priors_dense_reference():
     sigma[7] = [0.0, 0.0, np.inf]                       # planimetric control
     role = pts.role.copy()
     role[6], role[7] = "z", "xy"
-    res = adjust(blk.replace(points=pts.replace(sigma=sigma, role=role)))
-    # weighted constraints count as observations in the redundancy
+    blk = blk.replace(points=pts.replace(sigma=sigma, role=role))
+    # the given orientations are slightly off the truth, so that the constraints do something
+    ph = blk.photos
+    blk = blk.replace(photos=ph.replace(X0=ph.X0 + 0.003, opk=ph.opk - 0.002))
+    s_eo = [0.004, 0.005, 0.006, 0.1, 0.2, 0.3]         # object units (m), degrees
+    opts = parse_options(BundleOptions, {"sigma_eo": s_eo}, path="<test>")
+    blk = configure_block(blk, opts)
+    sig_rad = np.r_[s_eo[:3], np.radians(s_eo[3:])]
+    assert np.allclose(blk.photos.sigma_eo, sig_rad)
+    res = adjust(blk)
     prob = res.problem
-    assert res.dof == prob.n_obs_rows + 18 - prob.n_unknowns
+    # weighted constraints count as observations in the redundancy: 18 control, 30 orientation
+    assert res.dof == prob.n_obs_rows + 18 + 30 - prob.n_unknowns
     assert res.cov_points[6][2, 2] == 0.0 and res.cov_points[7][0, 0] == 0.0
-    assert res.cov_points[6][0, 0] > 0 and res.cov_points[0][0, 0] < 0.002 ** 2 * res.variance_factor
+    unknowns, A, P, N = _dense_reference(res)
+    for u, (kind, i, t) in enumerate(unknowns):
+        if kind == "eo":
+            N[u, u] += 1.0 / sig_rad[t] ** 2
+        elif kind == "pt" and i < 6:
+            N[u, u] += 1.0 / 0.002 ** 2
+    Q = np.linalg.inv(N)
+    var = res.variance_factor
+    for u, (kind, i, t) in enumerate(unknowns):
+        got = res.cov_eo[i, t, t] if kind == "eo" else res.cov_points[i, t, t] if kind == "pt" else \
+            res.cov_cameras[i][t, t]
+        assert got == pytest.approx(var * Q[u, u], rel=2e-5), (kind, i, t)
+    # the estimate is the minimum of image rows + constraints: the dense normal equations (with
+    # the prior weights) give no further correction at the solution
+    oi = np.flatnonzero(res.obs_active)
+    v = res.residuals[oi].reshape(-1)
+    d_eo = np.hstack([ph.X0 + 0.003 - res.state.X0, ph.opk - 0.002 - res.state.opk])
+    d_pt = pts.XYZ[:6] - res.state.XYZ[:6]
+    rhs = A.T @ P @ v
+    for u, (kind, i, t) in enumerate(unknowns):
+        if kind == "eo":
+            rhs[u] += d_eo[i, t] / sig_rad[t] ** 2
+        elif kind == "pt" and i < 6:
+            rhs[u] += d_pt[i, t] / 0.002 ** 2
+    step = Q @ rhs
+    assert np.max(np.abs(step) / np.sqrt(np.diag(Q))) < 1e-4
+    without = Q @ (A.T @ P @ v)                         # … which the image rows alone would not say
+    assert np.max(np.abs(without) / np.sqrt(np.diag(Q))) > 0.1
+    # vᵀPv includes the orientation constraints: recompute it from the residuals and the priors
+    vtpv = v @ P @ v + np.sum((d_eo / sig_rad) ** 2) + np.sum((d_pt / 0.002) ** 2)
+    assert res.vtpv == pytest.approx(vtpv, rel=1e-9)
 
 
 @pytest.mark.parametrize("n_sim", [100, pytest.param(500, marks=pytest.mark.slow)])
