@@ -36,3 +36,30 @@ def test_aicon_converges_from_perturbed_start(aicon):
     # image rows carry all the redundancy but the scale bar's share (0 ≤ r_distance ≤ 1; here the bar
     # alone fixes the free network's scale, so its share is 0 up to rounding)
     assert res.dof - 1 <= res.redundancy.sum() <= res.dof + 1e-6
+
+
+def test_aicon_weights_explain_the_data_snooping_count(shared_data):
+    """Why fixtures/aicon/aicon.toml scales the file's sx, sy instead of one uniform σ: with one σ
+    for all coordinates the w are a mixture of normals of different widths — far more |w| > 3.29
+    than the normal distribution's 0.1 % (and a large excess kurtosis); with the .phc's own sx, sy
+    (scaled by their variance component σ̂0) the tails come close to normal."""
+    from scipy import stats as sps
+
+    from pipeline import stats
+    from plugins.aicon.reader import aicon_block, read_aicon
+
+    ex = read_aicon(shared_data / "aicon-closerange" / "example")
+    out = {}
+    for name, blk in (("uniform", aicon_block(ex, image_sigma_um=0.41)), ("file", aicon_block(ex))):
+        res = adjust(blk, BundleSettings(datum="free"))
+        if name == "file":      # the variance component of the file's σ, then adjust again
+            s0 = res.sigma0_hat
+            assert 3.5 < s0 < 3.9                                   # the file's σ are ≈ 3.7 × too small
+            obs = blk.observations
+            res = adjust(blk.replace(observations=obs.replace(cov=obs.cov * s0 ** 2)), BundleSettings(datum="free"))
+            assert res.sigma0_hat == pytest.approx(1.0, abs=1e-3)
+        w = stats.w_test(res.snapshot)[res.snapshot.active]
+        out[name] = (np.mean(np.abs(w) > 3.29), sps.kurtosis(w))
+    normal = 2 * sps.norm.sf(3.29)
+    assert out["uniform"][0] > 8 * normal and out["uniform"][1] > 1.5     # 182 of 19 944: 0.91 %
+    assert out["file"][0] < 4 * normal and out["file"][1] < 1.0           # 57 of 19 944: 0.29 %
