@@ -29,3 +29,13 @@ def shared_data() -> Path:
 @pytest.fixture(scope="session")
 def repo_root() -> Path:
     return ROOT
+
+
+SHARED_BESIDE = ROOT.parent / "shared" / "data"
+"""Where the bundled projects (fixtures/) read real data from: paths like ``../../../shared/data/…``
+relative to the project file, i.e. ``shared/data`` beside the repository (as in CI)."""
+
+
+def needs_shared_beside(project: Path) -> bool:
+    """The project names ``shared/data`` and the folder beside the repository is absent."""
+    return "shared/data" in project.read_text() and not SHARED_BESIDE.is_dir()
