@@ -6,11 +6,17 @@ remove that row and adjust again; continue while the global test of the new adju
 ``δ(α′, β0, dof − c, ∞) = δ(α0, β0, 1, ∞)`` — still rejects.  The first snooping step does not
 wait for the global test (Kok; Grün: in practice there is almost always a gross error), unless
 ``gate_first=True`` (Baarda's original order: global test first).
+
+``stop="w-test"`` drops the global test as a stopping rule: rows are removed while the largest
+|w| exceeds K.  That is the rule when the a-priori σ were scaled from these same residuals (a
+variance component): the global test then accepts by construction and would stop with w-values
+far beyond K left.
 """
 
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from typing import Literal
 
 import numpy as np
 
@@ -54,8 +60,12 @@ class IDSResult:
 
 def iterated_data_snooping(model: Refittable, snap: Snapshot, alpha0: float = 0.001,
                            beta0: float = 0.80, critical: float | None = None,
-                           max_iter: int | None = None, gate_first: bool = False) -> IDSResult:
-    """Kok's iterated data snooping starting from ``snap`` (an adjustment of ``model``)."""
+                           max_iter: int | None = None, gate_first: bool = False,
+                           stop: Literal["global-test", "w-test"] = "global-test") -> IDSResult:
+    """Kok's iterated data snooping starting from ``snap`` (an adjustment of ``model``); ``stop``
+    is the stopping rule (module docstring)."""
+    if stop not in ("global-test", "w-test"):
+        raise ValueError(f"stop must be 'global-test' or 'w-test', got {stop!r}")
     K = critical_normal(alpha0) if critical is None else float(critical)
     active = np.array(snap.active, bool)
     current = snap
@@ -68,7 +78,7 @@ def iterated_data_snooping(model: Refittable, snap: Snapshot, alpha0: float = 0.
         i = ds.largest
         wmax = float(ds.w[i]) if i is not None else float("nan")
         go = False
-        if (c > 0 or gate_first) and not gt.rejected:
+        if stop == "global-test" and (c > 0 or gate_first) and not gt.rejected:
             reason = f"global test accepts (T = {gt.T:.4g} <= {gt.critical:.4g}, dof {gt.dof})"
         elif i is None or abs(wmax) <= K:
             reason = f"no |w| above K = {K:.4g}"
@@ -85,5 +95,7 @@ def iterated_data_snooping(model: Refittable, snap: Snapshot, alpha0: float = 0.
         active[i] = False
         removed.append(i)
         current = model.refit(active.copy())
+    if stop == "w-test":
+        reason += " (stop = 'w-test': the global test does not stop the rejections)"
     return IDSResult(removed, [str(snap.labels[i]) for i in removed], history, current,
                      active, reason, K)

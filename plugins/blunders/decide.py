@@ -32,6 +32,7 @@ class BlunderSettings:
     n_sim: int = 20_000
     rrr_critical: float | None = None
     max_iter: int = 50
+    ids_stop: str = "global-test"
 
 
 @dataclass(frozen=True)
@@ -77,7 +78,8 @@ def run_data_snooping(art: AdjustmentArtefact, s: BlunderSettings) -> MethodResu
 
 
 def run_ids(art: AdjustmentArtefact, s: BlunderSettings) -> MethodResult:
-    res = iterated_data_snooping(art.model, art.snapshot, s.alpha0, s.beta0, s.critical_w, s.max_iter)
+    res = iterated_data_snooping(art.model, art.snapshot, s.alpha0, s.beta0, s.critical_w, s.max_iter,
+                                 stop=s.ids_stop)
     dec = [Decision("ids", h.row, h.label, "w", h.w_max, res.critical, h.iteration)
            for h in res.history if h.removed]
     hist = [{"iteration": h.iteration, "dof": h.dof, "T": h.T, "F_critical": h.critical,

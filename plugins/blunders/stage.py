@@ -49,6 +49,9 @@ class BlunderOptions:
     n_sim: int = option(20000, "RRR: Monte Carlo repetitions of the whole procedure for the critical value H")
     rrr_critical: float = option(0.0, "RRR: use this critical value H instead of the Monte Carlo one (0 = simulate)")
     max_iter: int = option(50, "IDS / Pope: most rows removed")
+    ids_stop: Literal["global-test", "w-test"] = option(
+        "global-test", "IDS: stop when the global test accepts (Kok), or go on while any |w| exceeds K "
+                       "(for a-priori σ scaled from these residuals, where the global test accepts by construction)")
 
     def __post_init__(self):
         for name in ("alpha0", "beta0", "alpha_pope", "alpha_rrr"):
@@ -61,7 +64,8 @@ class BlunderOptions:
 
     def settings(self) -> BlunderSettings:
         return BlunderSettings(self.alpha0, self.beta0, self.critical_w or None, self.alpha_pope,
-                               self.alpha_rrr, self.rho, self.n_sim, self.rrr_critical or None, self.max_iter)
+                               self.alpha_rrr, self.rho, self.n_sim, self.rrr_critical or None, self.max_iter,
+                               self.ids_stop)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

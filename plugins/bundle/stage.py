@@ -216,7 +216,8 @@ class BundleAdjustment:
             extras["global_test"] = stats.global_test(snap, alpha0=options.alpha0, beta0=options.beta0)
             if options.blunders == "ids":
                 try:
-                    ids = _iterated_snooping(res, snap, options)
+                    ids = stats.iterated_data_snooping(res, snap, alpha0=options.alpha0, beta0=options.beta0,
+                                                       max_iter=options.max_rejections, stop=options.ids_stop)
                 except AdjustmentError as e:
                     _save_state(e, block, ctx)
                     raise
@@ -264,33 +265,6 @@ class BundleAdjustment:
 
 
 # ---------------------------------------------------------------------------------------------
-def _iterated_snooping(res: BundleResult, snap, o: BundleOptions):
-    """Iterated data snooping (:func:`pipeline.stats.iterated_data_snooping`, one row at a time).
-
-    ``ids_stop = "global-test"``: Kok's rule, stop when the global test accepts.  ``"w-test"``: go
-    on while the largest |w| exceeds the critical value — each round is a one-removal run of the
-    library's IDS from the current adjustment (its first step does not wait for the global test)."""
-    if o.ids_stop == "global-test":
-        return stats.iterated_data_snooping(res, snap, alpha0=o.alpha0, beta0=o.beta0, max_iter=o.max_rejections)
-    from pipeline.stats.ids import IDSResult
-
-    removed, labels, history = [], [], []
-    current = snap
-    while True:
-        room = len(removed) < o.max_rejections
-        one = stats.iterated_data_snooping(res, current, alpha0=o.alpha0, beta0=o.beta0, max_iter=int(room))
-        history.append(dataclasses.replace(one.history[0], iteration=len(removed)))
-        if not one.removed:
-            reason = one.stop_reason if room or "max_iter" not in one.stop_reason else \
-                f"max_rejections = {o.max_rejections} reached"
-            break
-        removed += one.removed
-        labels += one.removed_labels
-        current = one.snapshot
-    return IDSResult(removed, labels, history, current, np.array(current.active, bool),
-                     reason + " (ids_stop = 'w-test': the global test does not stop the rejections)", one.critical)
-
-
 def _save_state(err: AdjustmentError, block: Block, ctx: Context) -> None:
     """Write the last iterate an :class:`AdjustmentError` carries into the run directory
     (``<stage>_last_eo.csv``, ``_last_points.csv``, ``_last_cameras.csv``) and raise the error again

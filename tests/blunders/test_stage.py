@@ -147,3 +147,17 @@ def test_recording_names_rejected_labels(tmp_path):
     cols = {e.path: e.columns for e in summary.entities}
     assert any("labels" in c for c in cols["/blunders/rrr/rejected"])
     assert not any(c.split(":")[-1] == "rows" for c in cols["/blunders/rrr/rejected"])
+
+
+def test_ids_stop_w_test_reaches_the_library(tmp_path):
+    """``ids_stop = "w-test"``: IDS goes on past the global test's acceptance and stops only when
+    no |w| exceeds K (paper 000 Data 1, σ0 = 0.2 mm); Kok's rule is the default."""
+    inputs = adjust("data1", tmp_path)
+    kok = run_stage(BlunderRejection, inputs, {"method": "ids"}, tmp_path=tmp_path).artefacts["blunders"].methods["ids"]
+    wt = run_stage(BlunderRejection, inputs, {"method": "ids", "ids_stop": "w-test"},
+                   tmp_path=tmp_path).artefacts["blunders"].methods["ids"]
+    assert kok.raw.stop_reason.startswith("global test accepts")
+    assert wt.raw.stop_reason.startswith("no |w| above K") and "stop = 'w-test'" in wt.raw.stop_reason
+    assert wt.rejected_labels[:len(kok.rejected_labels)] == kok.rejected_labels
+    with pytest.raises(InputError, match="ids_stop"):
+        run_stage(BlunderRejection, inputs, {"method": "ids", "ids_stop": "never"}, tmp_path=tmp_path)

@@ -45,6 +45,32 @@ def test_ids_max_iter_and_gate_first():
     assert r.removed == [] and len(r.history) == 1
 
 
+def test_ids_w_test_stop_goes_on_where_the_global_test_accepts():
+    """A-priori σ 10 % pessimistic (as when scaled from the residuals): Kok's rule removes the
+    first blunder, then the global test accepts with the second (+5σ) still at |w| > 5; the
+    w-test rule removes it too and stops at the first |w| ≤ K."""
+    n = 300
+    t = np.linspace(-1, 1, n)
+    A = np.column_stack([np.ones(n), t, t ** 2])
+    l = A @ [1.0, 0.5, -0.2] + 0.01 * np.random.default_rng(4).standard_normal(n)
+    l[[40, 200]] += [0.07, -0.05]
+    m = LinearModel(A, l, sigma0=0.011, labels=[f"l{i}" for i in range(n)])
+    s = m.adjust().snapshot
+    kok = iterated_data_snooping(m, s)
+    assert kok.removed_labels == ["l40"] and kok.stop_reason.startswith("global test accepts")
+    left = data_snooping(kok.snapshot)
+    assert kok.snapshot.labels[left.largest] == "l200" and abs(left.w[left.largest]) > 5
+    wt = iterated_data_snooping(m, s, stop="w-test")
+    assert wt.removed_labels[:2] == ["l40", "l200"]
+    final = data_snooping(wt.snapshot)
+    assert np.abs(final.w[wt.snapshot.active]).max() <= wt.critical
+    assert wt.stop_reason.startswith("no |w| above K") and "stop = 'w-test'" in wt.stop_reason
+    # every removal but the last left a |w| above K behind it
+    assert all(abs(h.w_max) > wt.critical for h in wt.history if h.removed)
+    with pytest.raises(ValueError, match="stop must be"):
+        iterated_data_snooping(m, s, stop="never")
+
+
 def test_pope_iterated_uses_sigma0_hat_and_current_dof():
     m = helmert_with_blunders(3, {8: 0.15, 16: -0.2}, sigma=0.01)
     s = m.adjust().snapshot
