@@ -138,3 +138,8 @@ def markdown_table(header: list[str], rows: list[list[Any]], floatfmt: str = ".4
     out = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
     out += ["| " + " | ".join(fmt(v) for v in r) + " |" for r in rows]
     return "\n".join(out)
+
+
+TABLE_DECIMALS = {"v": 6, "r": 6, "w": 4, "tau": 4, "nabla_hat": 6, "mdb": 6}
+"""Decimals of per-row statistics in the stages' CSV tables (helmert-screening, blunder-rejection):
+lengths and redundancy numbers to 6, the test values w and τ to 4."""

@@ -16,15 +16,11 @@ import numpy as np
 
 from pipeline.errors import InputError
 from pipeline.options import option
+from pipeline.report import TABLE_DECIMALS
 from pipeline.stage import Context, StageResult, TableData
 
 from .artefact import AdjustmentArtefact
 from .decide import METHODS, BlunderSettings, MethodResult, row_statistics, run_methods
-
-
-TABLE_DECIMALS = {"v": 6, "r": 6, "w": 4, "tau": 4, "nabla_hat": 6, "mdb": 6}
-"""Decimals of the per-row statistics in the CSV tables of blunder-rejection and helmert-screening
-(lengths and r to 6, the test values w and τ to 4)."""
 
 
 @dataclasses.dataclass(frozen=True)

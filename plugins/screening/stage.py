@@ -14,9 +14,9 @@ import numpy as np
 
 from pipeline.errors import InputError
 from pipeline.options import option
+from pipeline.report import TABLE_DECIMALS
 from pipeline.stage import Context, Stage, StageResult, TableData
 from plugins.blunders.artefact import AdjustmentArtefact
-from plugins.blunders.stage import TABLE_DECIMALS
 
 from .helmert import stack_models
 from .screen import FLAG_METHODS, PairScreening, ScreeningSettings, screen_pair
