@@ -49,6 +49,8 @@ def w_rates(model, alpha0, beta0, N, seed):
 def test_w_test_false_alarm_and_power_at_mdb(design, alpha0, N, request):
     model = request.getfixturevalue(design)
     fa, pw, naive_pw, shift = w_rates(model, alpha0, 0.80, N, seed=11)
+    print(f"\n{design}, α0 = {alpha0}, N = {N}: false-alarm rate per row {fa.min() / N:.5f}–{fa.max() / N:.5f}, "
+          f"power at the MDB {pw.min() / N:.4f}–{pw.max() / N:.4f} (β0 = 0.80)")
     np.testing.assert_allclose(shift, delta0(alpha0, 0.80), rtol=1e-9)  # MDB ↔ δ0
     assert all(binomial_ok(c, N, alpha0) for c in fa), fa / N
     assert all(binomial_ok(c, N, 0.80) for c in pw), pw / N
