@@ -42,7 +42,7 @@ def load_problem(path: Path):
     """The BAL file as a block (1 px = 1 µm, σ = 1 px), observations behind the camera switched off."""
     from scipy.spatial.transform import Rotation
 
-    from plugins.bal.bal import block_from_bal, read_bal
+    from baarda.plugins.bal.bal import block_from_bal, read_bal
 
     problem = read_bal(path)
     P = problem.cameras[problem.cam]
@@ -54,7 +54,7 @@ def load_problem(path: Path):
 
 def cost_px(block) -> float:
     """½ Σ ‖v‖² in pixels over the active observations, with baarda's collinearity (one definition)."""
-    from plugins.colmap_io.convert import project_block
+    from baarda.pipeline.camera.convert import project_block
 
     obs = block.observations
     a = obs.active
@@ -65,7 +65,7 @@ def cost_px(block) -> float:
 def run_baarda(block, *, datum_on: str = "points", tol_rel: float = 1e-6, max_iter: int = 200,
                redundancy: bool = True) -> dict:
     """baarda's bundle (free network, inner constraints on ``datum_on``); times from its own split."""
-    from plugins.bundle import BundleSettings, adjust
+    from baarda.pipeline.adjustment import BundleSettings, adjust
 
     settings = BundleSettings(datum="free", datum_centres=datum_on == "centres", tol_rel=tol_rel, max_iter=max_iter,
                               covariance=redundancy)
@@ -84,7 +84,7 @@ def run_pycolmap(block, *, max_iter: int = 200, function_tolerance: float = 1e-6
     refined, principal point fixed, no gauge fixing (as Ceres solves BAL problems)."""
     import pycolmap
 
-    from plugins.crosscheck.pycolmap_ba import (SolverSettings, block_to_reconstruction, block_with_solution,
+    from baarda.plugins.crosscheck.pycolmap_ba import (SolverSettings, block_to_reconstruction, block_with_solution,
                                                 read_solution, run_adjuster)
 
     t0 = time.perf_counter()

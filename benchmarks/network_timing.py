@@ -6,11 +6,11 @@ Run as a script (from the repository root)::
 
 * the AICON close-range network of the shared data (``aicon-closerange/example``: 115 images,
   self-calibration with AICON's model, scale bars, free network);
-* a simulated aerial block (:func:`plugins.crosscheck.simulate_aerial`; default 20 strips × 10
+* a simulated aerial block (:func:`baarda.pipeline.synthetic.aerial.simulate_aerial`; default 20 strips × 10
   photos = 200 photos, ≈ 9 000 points, ≈ 29 000 observations, control points fixed), with
   pycolmap's solve time of the same problem from the same start (the cross-check machinery).
 
-The split comes from :attr:`plugins.bundle.BundleResult.timings`: set-up = problem set-up +
+The split comes from :attr:`baarda.pipeline.adjustment.BundleResult.timings`: set-up = problem set-up +
 initial values; solve = linearisation + reduced systems (all iterations); covariance = cofactors,
 precision and the redundancy numbers of every observation.
 """
@@ -53,8 +53,8 @@ HEADER = (f"{'network':10s} {'photos':>6s} {'points':>7s} {'obs':>7s} {'iter':>5
 
 
 def time_aicon(data: Path) -> tuple:
-    from plugins.aicon.reader import aicon_block, read_aicon
-    from plugins.bundle import BundleSettings, adjust
+    from baarda.plugins.aicon.reader import aicon_block, read_aicon
+    from baarda.pipeline.adjustment import BundleSettings, adjust
 
     block = aicon_block(read_aicon(data / "aicon-closerange" / "example"))
     t0 = time.perf_counter()
@@ -63,8 +63,8 @@ def time_aicon(data: Path) -> tuple:
 
 
 def time_aerial(n_strips: int = 20, per_strip: int = 10, seed: int = 1) -> tuple:
-    from plugins.bundle import BundleSettings, adjust
-    from plugins.crosscheck import perturb_start, simulate_aerial
+    from baarda.pipeline.adjustment import BundleSettings, adjust
+    from baarda.pipeline.synthetic.aerial import perturb_start, simulate_aerial
 
     rng = np.random.default_rng(seed)
     noisy, _ = simulate_aerial(rng, n_strips=n_strips, photos_per_strip=per_strip)
@@ -89,7 +89,7 @@ def run(data: Path | None = None, *, n_strips: int = 20, per_strip: int = 10, py
     out["aerial"] = {"split": split(res.timings), "wall": wall, "iterations": res.iterations, **block.summary()}
     print(_line("aerial", block, res, wall), file=stream, flush=True)
     if pycolmap:
-        from plugins.crosscheck import SolverSettings, crosscheck
+        from baarda.plugins.crosscheck import SolverSettings, crosscheck
 
         cc = crosscheck(res, solver=SolverSettings(covariance=False))
         s = split(res.timings)

@@ -3,7 +3,7 @@
 Built-in stages register through that same group in baarda's own ``pyproject.toml``; a
 third-party package adds ``[project.entry-points."baarda.stages"] my-stage = "pkg.mod:MyStage"``
 and is found the same way.  Nothing is discovered at import time: a :class:`PluginManager` is
-created by the runner (or by a test, with discovery blocked — see :mod:`pipeline.testing`).
+created by the runner (or by a test, with discovery blocked — see :mod:`baarda.pipeline.testing`).
 """
 
 from __future__ import annotations

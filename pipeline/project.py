@@ -16,7 +16,7 @@
 of the right type, and that every artefact a stage reads is written by an earlier one.
 :func:`validate_inputs` (``baarda validate`` runs both) then checks what the options name: every
 input path exists, and each stage's own ``validate(options, ctx)`` hook passes (a source stage
-parses its files there).  Every mistake is an :class:`~pipeline.errors.InputError` naming the
+parses its files there).  Every mistake is an :class:`~baarda.pipeline.errors.InputError` naming the
 file, the line and the key.
 """
 
@@ -247,7 +247,7 @@ def _missing(value: Any, role: str, base: Path) -> str | None:
 
 
 def stage_context(project: Project, spec: StageSpec, **kw):
-    """The :class:`~pipeline.stage.Context` of ``spec`` in ``project`` (``kw``: run_dir, progress…)."""
+    """The :class:`~baarda.pipeline.stage.Context` of ``spec`` in ``project`` (``kw``: run_dir, progress…)."""
     from .stage import Context
 
     return Context(stage_id=spec.id, project_dir=project.directory, seed=project.seed,

@@ -5,7 +5,7 @@ A stage is a class with
 * ``summary`` — one line: what it does (``baarda stages`` prints it);
 * ``reads`` / ``writes`` — the names of the artefacts it takes and produces (``"block"``,
   ``"screening"``, ``"adjustment"``, …).  A name ending in ``?`` is optional input;
-* ``Options`` — a dataclass of typed, documented options (see :mod:`pipeline.options`);
+* ``Options`` — a dataclass of typed, documented options (see :mod:`baarda.pipeline.options`);
 * ``run(inputs, options, ctx) -> StageResult`` — the work.  Pure with respect to its inputs:
   it returns new artefacts, never modifies what it was given;
 * ``log(result, rec, ctx)`` (optional) — writes the stage's rerun recording.  Logging lives here,
@@ -17,9 +17,9 @@ A stage is a class with
   ``Path`` (or ``Path | None``, ``list[Path]``) is an ``"input"`` relative to the project file
   that must exist; other roles: ``"glob"`` (list of files or glob patterns), ``"prefix"`` (a
   path or the common prefix of several files, e.g. ``…/example`` for ``example.ior``),
-  ``"output"`` (written by the stage, never checked).  See :func:`pipeline.project.validate_inputs`.
+  ``"output"`` (written by the stage, never checked).  See :func:`baarda.pipeline.project.validate_inputs`.
 
-Stages are found through the entry-point group ``baarda.stages`` (see :mod:`pipeline.plugins`).
+Stages are found through the entry-point group ``baarda.stages`` (see :mod:`baarda.pipeline.plugins`).
 The runner gives each stage a :class:`Context` with the project directory, a seeded random
 generator, progress reporting and a place for warnings.
 """
@@ -182,7 +182,7 @@ class Stage:
     def validate(self, options: Any, ctx: Context) -> None:
         """Check the stage's inputs without running it (``baarda validate``); default: nothing.
 
-        Raise :class:`~pipeline.errors.InputError` for the first mistake; ``ctx.warn`` for doubts.
+        Raise :class:`~baarda.pipeline.errors.InputError` for the first mistake; ``ctx.warn`` for doubts.
         """
 
 

@@ -2,7 +2,7 @@
 
 Typical plugin test::
 
-    from pipeline.testing import run_stage, check_stage
+    from baarda.pipeline.testing import run_stage, check_stage
 
     def test_my_stage(tmp_path):
         check_stage(MyStage)                      # protocol, documented options, recording
@@ -14,7 +14,7 @@ Typical plugin test::
         outcome = run_project_text(PROJECT_TOML, tmp_path, plugins=baarda_plugins)
         assert outcome.ok
 
-Fixtures: ``baarda_plugins`` — a :class:`~pipeline.plugins.PluginManager` with entry-point
+Fixtures: ``baarda_plugins`` — a :class:`~baarda.pipeline.plugins.PluginManager` with entry-point
 discovery blocked, so a test sees exactly the stages it registers.
 """
 
@@ -78,7 +78,7 @@ def check_stage(cls: type, name: str | None = None) -> None:
     problems = check_stage_class(cls, name)
     assert not problems, "; ".join(problems)
     for o in describe(cls.Options):
-        assert o["doc"], f"{name}: option '{o['name']}' has no doc (use pipeline.options.option)"
+        assert o["doc"], f"{name}: option '{o['name']}' has no doc (use baarda.pipeline.options.option)"
     # options without a default are required; all others must make an empty table valid
     required = [f.name for f in dataclasses.fields(cls.Options)
                 if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING]

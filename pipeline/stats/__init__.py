@@ -4,23 +4,23 @@ Every adjustment reports a :class:`Snapshot`; the tests below work on snapshots 
 :class:`LinearModel` is the reference linear Gauss–Markov adjustment (small/medium, dense).
 """
 
-from pipeline.stats import tau_distribution
-from pipeline.stats.arrays import snapshot_from_arrays
-from pipeline.stats.baarda import (DataSnoopingResult, ExternalReliability, GlobalTestResult,
+from baarda.pipeline.stats import tau_distribution
+from baarda.pipeline.stats.arrays import snapshot_from_arrays
+from baarda.pipeline.stats.baarda import (DataSnoopingResult, ExternalReliability, GlobalTestResult,
                                    controlled, data_snooping, estimated_errors,
                                    external_reliability, global_test, mdb, w_test)
-from pipeline.stats.critical import (alpha_prime, critical_normal, delta0, global_power,
+from baarda.pipeline.stats.critical import (alpha_prime, critical_normal, delta0, global_power,
                                      w_power)
-from pipeline.stats.ids import IDSResult, IDSStep, iterated_data_snooping
-from pipeline.stats.joint import JointTestResult, joint_test_2d
-from pipeline.stats.linear import (LinearAdjustment, LinearModel, factor_normal_equations,
+from baarda.pipeline.stats.ids import IDSResult, IDSStep, iterated_data_snooping
+from baarda.pipeline.stats.joint import JointTestResult, joint_test_2d
+from baarda.pipeline.stats.linear import (LinearAdjustment, LinearModel, factor_normal_equations,
                                    solve_normal)
-from pipeline.stats.pope import (PopeIteratedResult, PopeResult, PopeStep, pope_iterated,
+from baarda.pipeline.stats.pope import (PopeIteratedResult, PopeResult, PopeStep, pope_iterated,
                                  pope_test)
-from pipeline.stats.rrr import RRRResult, recursive_residuals, rrr
-from pipeline.stats.snapshot import Refittable, Snapshot
-from pipeline.stats.tau_distribution import critical_max as tau_critical_max
-from pipeline.stats.tau_distribution import tau_critical
+from baarda.pipeline.stats.rrr import RRRResult, recursive_residuals, rrr
+from baarda.pipeline.stats.snapshot import Refittable, Snapshot
+from baarda.pipeline.stats.tau_distribution import critical_max as tau_critical_max
+from baarda.pipeline.stats.tau_distribution import tau_critical
 
 __all__ = [
     "Snapshot", "Refittable", "snapshot_from_arrays",

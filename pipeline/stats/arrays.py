@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.stats.snapshot import Snapshot, group_rows, pair_rows
+from baarda.pipeline.stats.snapshot import Snapshot, group_rows, pair_rows
 
 __all__ = ["snapshot_from_arrays"]
 

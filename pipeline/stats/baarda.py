@@ -1,4 +1,4 @@
-"""Baarda's testing theory on a :class:`~pipeline.stats.snapshot.Snapshot` (O(n), vectorised).
+"""Baarda's testing theory on a :class:`~baarda.pipeline.stats.snapshot.Snapshot` (O(n), vectorised).
 
 References: Baarda (1968) *A testing procedure for use in geodetic networks*; Förstner (1985)
 *The reliability of block triangulation*; paper 000 eqs. (1)–(6).
@@ -23,9 +23,9 @@ from typing import NamedTuple
 import numpy as np
 from scipy import stats
 
-from pipeline.stats.critical import alpha_prime, critical_normal
-from pipeline.stats.critical import delta0 as _delta0
-from pipeline.stats.snapshot import Snapshot
+from baarda.pipeline.stats.critical import alpha_prime, critical_normal
+from baarda.pipeline.stats.critical import delta0 as _delta0
+from baarda.pipeline.stats.snapshot import Snapshot
 
 __all__ = [
     "RowTestResult", "GlobalTestResult", "DataSnoopingResult", "ExternalReliability",
@@ -204,7 +204,7 @@ class ExternalReliability(NamedTuple):
 
 
 def external_reliability(model, adjustment, mdb) -> ExternalReliability:
-    """External reliability of a :class:`~pipeline.stats.linear.LinearModel` adjustment.
+    """External reliability of a :class:`~baarda.pipeline.stats.linear.LinearModel` adjustment.
 
     ``∇0x_i = N⁻¹ Aᵀ P e_i ∇0l_i`` for every active row i (Baarda 1968, Förstner 1985) and
     Baarda's scalar summary ``δ̄0_i = √(∇0x_iᵀ N ∇0x_i)/σ0`` which equals ``√((1−r_i)/r_i) δ0``

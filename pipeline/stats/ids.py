@@ -20,9 +20,9 @@ from typing import Literal
 
 import numpy as np
 
-from pipeline.stats.baarda import data_snooping, global_test
-from pipeline.stats.critical import critical_normal
-from pipeline.stats.snapshot import Refittable, Snapshot
+from baarda.pipeline.stats.baarda import data_snooping, global_test
+from baarda.pipeline.stats.critical import critical_normal
+from baarda.pipeline.stats.snapshot import Refittable, Snapshot
 
 __all__ = ["IDSStep", "IDSResult", "iterated_data_snooping"]
 

@@ -5,8 +5,8 @@ For a group g (the x and y rows of one image point) with the 2×2 block ``B_g = 
     T_g = (Pv)_gᵀ B_g⁻¹ (Pv)_g / σ0²  ~ χ²(2) under H0,
 
 the w-test generalised to a 2-D bias (both coordinates of the point wrong).  Needs
-``Snapshot.PQvvP_blocks`` (filled by :class:`~pipeline.stats.linear.LinearModel` and
-:func:`~pipeline.stats.arrays.snapshot_from_arrays`).  Groups whose block is singular (a point
+``Snapshot.PQvvP_blocks`` (filled by :class:`~baarda.pipeline.stats.linear.LinearModel` and
+:func:`~baarda.pipeline.stats.arrays.snapshot_from_arrays`).  Groups whose block is singular (a point
 without redundancy) get ``T = nan`` and are not flagged.
 """
 
@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
-from pipeline.stats.snapshot import Snapshot, pair_rows
+from baarda.pipeline.stats.snapshot import Snapshot, pair_rows
 
 __all__ = ["JointTestResult", "joint_test_2d"]
 

@@ -11,7 +11,7 @@ matrix (correlated observations).  Inactive rows are *removed* from the adjustme
 
 ``A`` may be a dense array or a ``scipy.sparse`` matrix; ``N`` and ``Qxx`` are always dense
 (``u × u``).  Everything is computed with ``scipy.linalg.cho_factor``; a singular ``N`` raises
-:class:`pipeline.errors.AdjustmentError` naming the undetermined unknowns.
+:class:`baarda.pipeline.errors.AdjustmentError` naming the undetermined unknowns.
 """
 
 from __future__ import annotations
@@ -22,8 +22,8 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
-from pipeline.errors import AdjustmentError
-from pipeline.stats.snapshot import Snapshot, pair_rows
+from baarda.pipeline.errors import AdjustmentError
+from baarda.pipeline.stats.snapshot import Snapshot, pair_rows
 
 __all__ = ["LinearModel", "LinearAdjustment", "factor_normal_equations", "solve_normal"]
 

@@ -14,9 +14,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.stats import tau_distribution
-from pipeline.stats.baarda import RowTestResult, controlled, w_test
-from pipeline.stats.snapshot import Refittable, Snapshot
+from baarda.pipeline.stats import tau_distribution
+from baarda.pipeline.stats.baarda import RowTestResult, controlled, w_test
+from baarda.pipeline.stats.snapshot import Refittable, Snapshot
 
 __all__ = ["PopeResult", "PopeStep", "PopeIteratedResult", "pope_test", "pope_iterated"]
 

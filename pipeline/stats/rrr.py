@@ -35,8 +35,8 @@ import numpy as np
 import scipy.linalg as sla
 from scipy import stats
 
-from pipeline.errors import AdjustmentError
-from pipeline.stats.baarda import estimated_errors
+from baarda.pipeline.errors import AdjustmentError
+from baarda.pipeline.stats.baarda import estimated_errors
 
 __all__ = ["RRRResult", "rrr", "recursive_residuals", "DEFAULT_SEED"]
 
@@ -288,7 +288,7 @@ def _as_rng(rng):
 
 def rrr(model, rho: int, alpha: float = 0.001, n_sim: int = 100_000, rng=None, suspects=None,
         active=None, chunk: int | None = None, critical: float | None = None) -> RRRResult:
-    """Recursive Residual Rejection on a :class:`~pipeline.stats.linear.LinearModel`.
+    """Recursive Residual Rejection on a :class:`~baarda.pipeline.stats.linear.LinearModel`.
 
     Parameters
     ----------

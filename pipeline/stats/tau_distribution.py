@@ -98,5 +98,5 @@ def critical_max(alpha: float, dof: int, n_tests: int) -> float:
     return critical(-np.expm1(np.log1p(-alpha) / n_tests), dof)
 
 
-#: top-level name used by :mod:`pipeline.stats`
+#: top-level name used by :mod:`baarda.pipeline.stats`
 tau_critical = critical

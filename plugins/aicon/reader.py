@@ -12,7 +12,7 @@ File formats and the mapping to baarda: ``docs/aicon-format.md``.  In short:
   measurement; ``vx vy`` are AICON's residuals, computed − observed (baarda's sign is the opposite).
 * ``.scale`` — ``index "name" point_a point_b distance sigma flag`` (mm).
 
-Every malformed line raises :class:`~pipeline.errors.InputError` naming the file, the 1-based line
+Every malformed line raises :class:`~baarda.pipeline.errors.InputError` naming the file, the 1-based line
 and the field.
 """
 
@@ -25,8 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.errors import InputError
-from pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points
+from baarda.pipeline.errors import InputError
+from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points
 
 SUFFIXES = ("ior", "eor", "obc", "phc", "scale")
 AP_NAMES = ("A1", "A2", "A3", "B1", "B2", "C1", "C2")
@@ -303,7 +303,7 @@ def read_aicon(path: str | Path) -> AiconExport:
 
 def aicon_block(export: AiconExport, *, image_sigma_um: float | None = None, self_calibration: bool = True,
                 keep_unused: bool = False) -> Block:
-    """The export as a :class:`~pipeline.model.Block` (object unit mm).
+    """The export as a :class:`~baarda.pipeline.model.Block` (object unit mm).
 
     * camera: ``c = −c_AICON`` (positive), ``xp, yp = x0, y0``, ``ap_model = "aicon"`` with
       ``ap = (A1, A2, A3, B1, B2, C1, C2)``; ``r0`` in ``meta["aicon"]["r0"][camera]`` and

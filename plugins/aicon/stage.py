@@ -12,10 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.errors import InputError
-from pipeline.options import option
-from pipeline.report import markdown_table
-from pipeline.stage import Context, Stage, StageResult, TableData
+from baarda.pipeline.errors import InputError
+from baarda.pipeline.options import option
+from baarda.pipeline.report import markdown_table
+from baarda.pipeline.stage import Context, Stage, StageResult, TableData
 
 from .reader import AP_NAMES, aicon_block, perturb_initial_values, read_aicon
 
@@ -95,7 +95,7 @@ class AiconSource(Stage):
     def log(self, result: StageResult, rec, ctx: Context) -> None:
         import rerun as rr
 
-        from pipeline.geometry import rotation_from_opk_many
+        from baarda.pipeline.geometry import rotation_from_opk_many
 
         block = result.data["block"]
         pts, ph, cam = block.points, block.photos, block.cameras

@@ -1,4 +1,4 @@
-"""BAL ("Bundle Adjustment in the Large") text problems → :class:`pipeline.model.Block`.
+"""BAL ("Bundle Adjustment in the Large") text problems → :class:`baarda.pipeline.model.Block`.
 
 File layout (Agarwal et al. 2010): a header ``n_cams n_pts n_obs``; ``n_obs`` lines ``cam pt x y``
 (pixels, origin at the image centre, x right, y up); ``9 n_cams`` camera parameters (Rodrigues
@@ -22,11 +22,11 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.errors import InputError
-from pipeline.geometry import opk_from_rotation
-from pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points
+from baarda.pipeline.errors import InputError
+from baarda.pipeline.geometry import opk_from_rotation
+from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points
 
-from plugins.colmap_io.convert import BROWN
+from baarda.pipeline.camera.convert import BROWN
 
 
 @dataclass(frozen=True, eq=False)

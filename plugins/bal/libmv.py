@@ -14,7 +14,7 @@ Camera model (``OpenCVReprojectionError`` there)::
     u = f xd + cx,  v = f yd + cy
 
 i.e. OpenCV's model with a y-down, z-forward camera frame: the brown mapping of
-:func:`plugins.colmap_io.convert.brown_from_opencv` applies exactly (``fx = fy = f``).
+:func:`baarda.pipeline.camera.convert.brown_from_opencv` applies exactly (``fx = fy = f``).
 """
 
 from __future__ import annotations
@@ -24,10 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.errors import InputError
-from pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points
+from baarda.pipeline.errors import InputError
+from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points
 
-from plugins.colmap_io.convert import BROWN, brown_from_opencv, mm_from_pixels, pose_from_cv
+from baarda.pipeline.camera.convert import BROWN, brown_from_opencv, mm_from_pixels, pose_from_cv
 
 
 @dataclass(frozen=True, eq=False)

@@ -6,12 +6,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-from pipeline.errors import InputError
-from pipeline.options import option
-from pipeline.stage import Context, Stage, StageResult
+from baarda.pipeline.errors import InputError
+from baarda.pipeline.options import option
+from baarda.pipeline.stage import Context, Stage, StageResult
 
-from plugins.colmap_io.rrlog import log_block
-from plugins.colmap_io.stage import reprojection_summary
+from baarda.plugins.colmap.rrlog import log_block
+from baarda.plugins.colmap.stage import reprojection_summary
 
 from .bal import block_from_bal, read_bal
 from .libmv import block_from_libmv, read_libmv

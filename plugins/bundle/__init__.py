@@ -1,21 +1,5 @@
-"""Self-calibrating bundle block adjustment (numerics in submodules, the stage in ``stage.py``).
+"""The ``bundle`` stage: the self-calibrating bundle block adjustment of a block.
 
-Public API::
-
-    from plugins.bundle import adjust, BundleSettings, Distance, BundleResult
-    from plugins.bundle import resection, intersection, initial_values
-    from plugins.bundle import register_ap_model, get_ap_model, APModel, LinearAPModel
-    from plugins.bundle import project_observations
+The numerics are the adjustment core, :mod:`baarda.pipeline.adjustment`; this package holds the
+stage (options, tables, report, recording).
 """
-
-from .adjust import BundleResult, adjust, check_point_rmse
-from .apmodels import APModel, LinearAPModel, ap_model_names, get_ap_model, register_ap_model
-from .collinearity import project_observations, rotation_and_derivatives
-from .initial import initial_values, intersection, resection
-from .solver import BundleSettings, BundleState, Distance
-
-__all__ = [
-    "adjust", "BundleResult", "BundleSettings", "BundleState", "Distance", "check_point_rmse",
-    "APModel", "LinearAPModel", "register_ap_model", "get_ap_model", "ap_model_names",
-    "project_observations", "rotation_and_derivatives", "resection", "intersection", "initial_values",
-]

@@ -15,9 +15,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.geometry import rotation_from_opk_many
+from baarda.pipeline.geometry import rotation_from_opk_many
 
-from .apmodels import get_ap_model
+from baarda.pipeline.camera.models import get_ap_model
 
 ROLE_COLORS = {"full": [220, 40, 40], "xy": [240, 150, 20], "z": [200, 60, 200], "check": [40, 170, 60],
                "tie": [60, 110, 230]}

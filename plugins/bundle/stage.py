@@ -1,7 +1,7 @@
 """Stage ``bundle``: self-calibrating bundle block adjustment (see docs/bundle.md).
 
 Numerics in :mod:`.adjust` / :mod:`.solver` / :mod:`.precision`; statistics from
-:mod:`pipeline.stats`; this module maps options onto the block and the solver, runs AP
+:mod:`baarda.pipeline.stats`; this module maps options onto the block and the solver, runs AP
 selection and blunder handling, and writes report, tables and the recording.
 """
 
@@ -13,19 +13,19 @@ from typing import Literal
 import numpy as np
 from scipy import stats as sps
 
-from pipeline.errors import AdjustmentError, InputError
-from pipeline.model import Block
-from pipeline.options import option
-from pipeline.report import write_table
-from pipeline.stage import Context, StageResult, TableData
-from pipeline import stats
-from plugins.blunders.artefact import AdjustmentArtefact
+from baarda.pipeline.errors import AdjustmentError, InputError
+from baarda.pipeline.model import Block
+from baarda.pipeline.options import option
+from baarda.pipeline.report import write_table
+from baarda.pipeline.stage import Context, StageResult, TableData
+from baarda.pipeline import stats
+from baarda.pipeline.contracts import AdjustmentArtefact
 
-from .adjust import BundleResult, adjust, padded_ap
-from .apmodels import ap_model_names, get_ap_model
-from .apselect import select_aps
-from .collinearity import EO_NAMES
-from .solver import BundleSettings, Distance
+from baarda.pipeline.adjustment.adjust import BundleResult, adjust, padded_ap
+from baarda.pipeline.camera.models import ap_model_names, get_ap_model
+from baarda.pipeline.adjustment.apselect import select_aps
+from baarda.pipeline.adjustment.collinearity import EO_NAMES
+from baarda.pipeline.adjustment.solver import BundleSettings, Distance
 
 ROLE_COLORS = {"full": [220, 40, 40], "xy": [240, 150, 20], "z": [200, 60, 200], "check": [40, 170, 60],
                "tie": [60, 110, 230]}

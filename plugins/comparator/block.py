@@ -1,4 +1,4 @@
-"""Turn a parsed comparator file into a :class:`pipeline.model.Block`.
+"""Turn a parsed comparator file into a :class:`baarda.pipeline.model.Block`.
 
 Interior orientation (fiducial mode) is computed per photo by :mod:`.interior`; the tolerance
 check returns the offending fiducials and leaves the decision (fail or warn) to the stage.
@@ -11,8 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.errors import InputError
-from pipeline.model import Block, Cameras, Observations, Pairs, Photos, Points
+from baarda.pipeline.errors import InputError
+from baarda.pipeline.model import Block, Cameras, Observations, Pairs, Photos, Points
 
 from .interior import MIN_FIDUCIALS, InteriorFit, fit_interior
 from .parser import ComparatorFile

@@ -1,7 +1,7 @@
 """Parse a baarda comparator file (docs/comparator-format.md) into plain records.
 
 This module reads text and checks it; it computes nothing.  Every mistake raises
-:class:`pipeline.errors.InputError` naming the file, the 1-based line and the field.  The
+:class:`baarda.pipeline.errors.InputError` naming the file, the 1-based line and the field.  The
 records keep their line numbers so that later checks (interior orientation, screening) can point
 at the line a user has to fix.
 """
@@ -12,8 +12,8 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from pipeline.errors import InputError
-from pipeline.model import ROLES
+from baarda.pipeline.errors import InputError
+from baarda.pipeline.model import ROLES
 
 from .interior import KINDS
 

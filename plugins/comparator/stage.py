@@ -14,9 +14,9 @@ from typing import Literal
 
 import numpy as np
 
-from pipeline.errors import InputError
-from pipeline.options import REQUIRED, option
-from pipeline.stage import Context, Stage, StageResult, TableData
+from baarda.pipeline.errors import InputError
+from baarda.pipeline.options import REQUIRED, option
+from baarda.pipeline.stage import Context, Stage, StageResult, TableData
 
 from .block import build_block, interior_orientation, tolerance_violations
 from .parser import parse_comparator

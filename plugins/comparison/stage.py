@@ -16,9 +16,9 @@ import re
 
 import numpy as np
 
-from pipeline.options import option
-from pipeline.report import markdown_table
-from pipeline.stage import Stage, StageResult, TableData
+from baarda.pipeline.options import option
+from baarda.pipeline.report import markdown_table
+from baarda.pipeline.stage import Stage, StageResult, TableData
 
 from .plot import checkpoint_chart, png_bytes
 

@@ -10,8 +10,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.errors import BaardaError
-from pipeline.geometry import rotation_from_opk_many
+from baarda.pipeline.errors import BaardaError
+from baarda.pipeline.geometry import rotation_from_opk_many
 
 from .plan import CrossCheckPlan, plan_crosscheck
 from .pycolmap_ba import (PycolmapSolution, SolverSettings, build_reconstruction, estimate_covariance,
@@ -65,7 +65,7 @@ def start_values(result, start: str = "initial", rng: np.random.Generator | None
     """The block pycolmap starts from.
 
     ``"initial"`` — the bundle's input block (its initial values, completed by the bundle's
-    resection/intersection exactly as :func:`plugins.bundle.adjust` does when some are missing);
+    resection/intersection exactly as :func:`baarda.pipeline.adjustment.adjust` does when some are missing);
     ``"perturbed"`` — baarda's adjusted poses and points disturbed by normal draws from ``rng``:
     σ = ``perturbation`` × object size for projection centres and free points, ``perturbation``
     rad for ω φ κ; intrinsics at the input block's values.
@@ -74,7 +74,7 @@ def start_values(result, start: str = "initial", rng: np.random.Generator | None
     if start == "initial":
         need = (~block.photos.has_orientation).any() or (~np.isfinite(block.points.XYZ).all(axis=1)).any()
         if need:
-            from plugins.bundle.initial import initial_values
+            from baarda.pipeline.adjustment.initial import initial_values
 
             block = initial_values(block, ap_meta=result.settings.ap_meta)
         return block
@@ -125,10 +125,10 @@ def crosscheck(result, *, start: str = "initial", rng: np.random.Generator | Non
 
     Parameters
     ----------
-    result : a converged :class:`plugins.bundle.BundleResult` (with covariances, for the σ's).
+    result : a converged :class:`baarda.pipeline.adjustment.BundleResult` (with covariances, for the σ's).
     start : ``"initial"`` or ``"perturbed"`` (see :func:`start_values`).
     rng : generator for ``"perturbed"``.
-    solver : Ceres settings (:class:`plugins.crosscheck.pycolmap_ba.SolverSettings`).
+    solver : Ceres settings (:class:`baarda.plugins.crosscheck.pycolmap_ba.SolverSettings`).
     """
     solver = solver or SolverSettings()
     plan = plan_crosscheck(result)

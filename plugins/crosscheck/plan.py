@@ -6,7 +6,7 @@ switches for the intrinsics (focal length(s), principal point, all extra paramet
 cost ½ Σ ‖r‖² in pixels.  It has no weighted constraints (priors), no partly fixed points or
 poses, no distances and no inner constraints.
 
-The plan maps a converged :class:`plugins.bundle.BundleResult` onto that:
+The plan maps a converged :class:`baarda.pipeline.adjustment.BundleResult` onto that:
 
 * cameras (``mode``):
   ``"refine"`` — a COLMAP model holds the AP model exactly and its parameter groups are free or
@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from plugins.colmap_io.convert import BROWN, FREE_BROWN, UnsupportedCamera, colmap_from_brown
+from baarda.pipeline.camera.convert import BROWN, FREE_BROWN, UnsupportedCamera, colmap_from_brown
 
 __all__ = ["CameraPlan", "CrossCheckPlan", "plan_crosscheck", "behind_camera", "MODEL_ORDER", "brown_vector"]
 
@@ -221,7 +221,7 @@ def _weights(block, prob) -> tuple[np.ndarray, bool, list]:
 def behind_camera(result) -> np.ndarray:
     """(k,) bool: used observations whose point lies behind the camera in baarda's solution
     (``W >= 0``; baarda's image-space z points back out of the lens)."""
-    from plugins.bundle.collinearity import project_observations
+    from baarda.pipeline.adjustment.collinearity import project_observations
 
     prob, st = result.problem, result.state
     obs = result.block_in.observations
@@ -235,7 +235,7 @@ def behind_camera(result) -> np.ndarray:
 
 
 def plan_crosscheck(result) -> CrossCheckPlan:
-    """The plan for a converged bundle (:class:`plugins.bundle.BundleResult`)."""
+    """The plan for a converged bundle (:class:`baarda.pipeline.adjustment.BundleResult`)."""
     prob = result.problem
     block = result.block_in
     cams, photos, points = block.cameras, block.photos, block.points

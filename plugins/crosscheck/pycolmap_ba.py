@@ -1,13 +1,13 @@
 """A baarda bundle as a pycolmap problem: reconstruction, solve, covariance, solution read back.
 
-The reconstruction is built by :func:`plugins.colmap_io.writer.reconstruction_from_block` (cameras
+The reconstruction is built by :func:`baarda.plugins.colmap.writer.reconstruction_from_block` (cameras
 with one trivial rig, images with one trivial frame, one keypoint per observation, 3-D points
 with tracks) from a copy of the block in which
 
 * each camera's pixel is its a-priori σ (``plan.sigma_mm``) — pycolmap's unweighted cost then is
   baarda's weighted one (``docs/crosscheck.md``);
 * the COLMAP model is the one the plan chose (set afterwards with
-  :func:`plugins.colmap_io.convert.colmap_from_brown`);
+  :func:`baarda.pipeline.camera.convert.colmap_from_brown`);
 * poses, points and intrinsics are the start values, except what the plan holds at baarda's
   adjusted values;
 * "corrected" cameras become pinholes and their observations are corrected by baarda's adjusted
@@ -23,8 +23,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from plugins.colmap_io.convert import brown_from_colmap, colmap_from_brown, mm_from_pixels, pose_from_cv
-from plugins.colmap_io.writer import reconstruction_from_block
+from baarda.pipeline.camera.convert import brown_from_colmap, colmap_from_brown, mm_from_pixels, pose_from_cv
+from baarda.plugins.colmap.writer import reconstruction_from_block
 
 from .plan import CrossCheckPlan, brown_vector
 
@@ -104,7 +104,7 @@ def _grid(block, j, sigma) -> tuple[int, int]:
 def corrected_observations(result, plan: CrossCheckPlan) -> np.ndarray:
     """Observations (k, 2) mm; for "corrected" cameras ``l − Δ(x̄̂)`` with baarda's adjusted AP
     model at its adjusted ideal reduced coordinates (so that v = (l − Δ̂) − pinhole exactly)."""
-    from plugins.bundle.collinearity import project_observations
+    from baarda.pipeline.adjustment.collinearity import project_observations
 
     block = result.block_in
     obs = block.observations
@@ -168,7 +168,7 @@ def build_reconstruction(result, plan: CrossCheckPlan, start):
 def block_to_reconstruction(blk, models, size=None):
     """``(reconstruction, RecMap)`` of a block whose cameras are "none"/"brown" with a pixel pitch.
 
-    The writer (:func:`plugins.colmap_io.writer.reconstruction_from_block`, on a copy without COLMAP
+    The writer (:func:`baarda.plugins.colmap.writer.reconstruction_from_block`, on a copy without COLMAP
     meta, so ids are 1, 2, … in block order and each active observation is one keypoint) builds
     cameras, rigs, frames, images and tracks; camera ``j`` then gets the COLMAP model
     ``models[j]`` (None: keep the writer's choice) with :func:`colmap_from_brown`.  ``size``
@@ -380,7 +380,7 @@ def camera_covariance_baarda(cov_params: np.ndarray, model: str, params: np.ndar
                              size, pitch: float, names: list, h: float = 1e-7) -> np.ndarray:
     """Covariance of baarda's ``names`` (from c, xp, yp, K1 … B2) from pycolmap's covariance of the
     free COLMAP parameters ``params[free_idx]`` (central differences through brown_from_colmap)."""
-    from plugins.colmap_io.convert import BROWN
+    from baarda.pipeline.camera.convert import BROWN
 
     order = ["c", "xp", "yp", *BROWN]
     pick = [order.index(n) for n in names]

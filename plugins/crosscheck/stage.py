@@ -1,9 +1,9 @@
 """Stage ``pycolmap-crosscheck``: solve the bundle's problem again with pycolmap and compare.
 
-Reads ``bundle`` (the :class:`plugins.bundle.BundleResult` of the bundle stage; without it the
+Reads ``bundle`` (the :class:`baarda.pipeline.adjustment.BundleResult` of the bundle stage; without it the
 stage adjusts ``block`` itself with the bundle's default settings) and writes ``crosscheck``
-(a :class:`plugins.crosscheck.compare.CrossCheck`).  The stage fails with a
-:class:`~plugins.crosscheck.compare.CrossCheckError` that lists the numbers when a difference of
+(a :class:`baarda.plugins.crosscheck.compare.CrossCheck`).  The stage fails with a
+:class:`~baarda.plugins.crosscheck.compare.CrossCheckError` that lists the numbers when a difference of
 an *equivalent* quantity exceeds its tolerance.  Formulas, conventions and limits:
 ``docs/crosscheck.md``.
 """
@@ -15,10 +15,10 @@ from typing import Literal
 
 import numpy as np
 
-from pipeline.errors import InputError
-from pipeline.options import option
-from pipeline.report import markdown_table
-from pipeline.stage import Context, Stage, StageResult, TableData
+from baarda.pipeline.errors import InputError
+from baarda.pipeline.options import option
+from baarda.pipeline.report import markdown_table
+from baarda.pipeline.stage import Context, Stage, StageResult, TableData
 
 from .compare import CrossCheck, CrossCheckError, Tolerances, crosscheck, exceeded
 from .pycolmap_ba import SolverSettings
@@ -96,7 +96,7 @@ class PycolmapCrossCheck(Stage):
             if block is None:
                 raise InputError("pycolmap-crosscheck needs the 'bundle' artefact (run the bundle stage first) or a "
                                  "'block'", path=ctx.project_file)
-            from plugins.bundle import BundleSettings, adjust
+            from baarda.pipeline.adjustment import BundleSettings, adjust
 
             ctx.warn("no 'bundle' artefact: the block was adjusted here with the bundle's default settings")
             result = adjust(block, BundleSettings())
@@ -221,7 +221,7 @@ def log_crosscheck(rec, cc: CrossCheck, result, arrow_scale: float = 0.0, report
     """Both solutions and their differences under ``crosscheck/…`` (called from ``log`` only)."""
     import rerun as rr
 
-    from pipeline.recording import log_text, log_values
+    from baarda.pipeline.recording import log_text, log_values
 
     st, sol, plan = result.state, cc.solution, cc.plan
     used = plan.point_variable | plan.point_constant

@@ -1,16 +1,16 @@
 """Rendered photos of the simulated test field — pure numerics (arrays in, arrays out).
 
-The test-field simulator (:mod:`plugins.testfield.simulate`) gives a block and its truth; this
+The test-field simulator (:mod:`baarda.pipeline.synthetic.testfield`) gives a block and its truth; this
 module turns them into what a digital camera would deliver and what a detection stage starts
 from:
 
 * :func:`image_size` — pixels ``(W, H)`` of the camera format at a pixel pitch;
-* :func:`truth_from_meta` — the :class:`~plugins.testfield.simulate.Truth` back from
+* :func:`truth_from_meta` — the :class:`~baarda.pipeline.synthetic.testfield.Truth` back from
   ``block.meta["truth"]`` (the simulator stores it there as plain lists);
 * :func:`true_targets` — where each target centre's true image lies in each photo (pixels,
   OpenCV's convention, systematic image errors included): the ground truth of detection;
   :func:`partial_targets` — those whose disk is cut by the image border;
-* :func:`render_photo` — one photo as a ``uint8`` image (:func:`plugins.testfield.render.render_targets`);
+* :func:`render_photo` — one photo as a ``uint8`` image (:func:`baarda.plugins.testfield.render.render_targets`);
 * :func:`layout_block` — the block without image observations, its camera carrying the pixel
   pitch, resolution and format of the rendered images: the layout and approximate orientations a
   ``circles`` detection needs.
@@ -25,9 +25,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.model import Block, Observations
-from plugins.testfield.render import pixel_to_mm, projected_targets, render_targets
-from plugins.testfield.simulate import Truth
+from baarda.pipeline.model import Block, Observations
+from baarda.plugins.testfield.render import pixel_to_mm, projected_targets, render_targets
+from baarda.pipeline.synthetic.testfield import Truth
 
 __all__ = ["RenderSettings", "image_size", "truth_from_meta", "true_targets", "partial_targets",
            "target_radius_px", "render_photo", "layout_block", "uv_to_mm", "OBJECT_UNIT_MM"]
@@ -105,7 +105,7 @@ def partial_targets(truth: Truth, targets: dict, radius: float, pixel_mm: float,
 
 def target_radius_px(truth: Truth, photo: int, radius: float, pixel_mm: float) -> np.ndarray:
     """Radius (pixels, per target) of the targets' images in ``photo`` (distance along the axis)."""
-    from pipeline.geometry import rotation_from_opk
+    from baarda.pipeline.geometry import rotation_from_opk
 
     R = rotation_from_opk(*truth.opk[photo])
     depth = -((truth.XYZ - truth.X0[photo]) @ R.T)[:, 2]

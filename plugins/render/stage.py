@@ -1,9 +1,9 @@
 """Stage ``testfield-render``: photos of the simulated test field as PNG files (docs/rendered-pipeline.md).
 
-The test field comes from the simulator (:mod:`plugins.testfield.simulate`) — either an earlier
+The test field comes from the simulator (:mod:`baarda.pipeline.synthetic.testfield`) — either an earlier
 ``testfield`` stage's block or a simulation run here with the ``testfield`` option table.  Every
 photo is rendered through the true camera with its systematic image errors
-(:func:`plugins.testfield.render.render_targets`) and written as ``<photo id>.png``.  The stage
+(:func:`baarda.plugins.testfield.render.render_targets`) and written as ``<photo id>.png``.  The stage
 writes
 
 * ``images`` (:class:`RenderedImages`): the files, their photo ids, camera, pixel pitch and size;
@@ -23,10 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.errors import InputError
-from pipeline.options import option, parse_options
-from pipeline.report import markdown_table
-from pipeline.stage import Context, Stage, StageResult, TableData
+from baarda.pipeline.errors import InputError
+from baarda.pipeline.options import option, parse_options
+from baarda.pipeline.report import markdown_table
+from baarda.pipeline.stage import Context, Stage, StageResult, TableData
 
 from .photos import (OBJECT_UNIT_MM, RenderSettings, image_size, layout_block, partial_targets, render_photo,
                      target_radius_px, true_targets, truth_from_meta, uv_to_mm)
@@ -90,7 +90,7 @@ class RenderOptions:
 
     def simulation(self, seed: int | None = None):
         """The ``testfield`` stage's options for the simulation (``seed`` used when none is given)."""
-        from plugins.testfield.stage import TestFieldOptions
+        from baarda.plugins.testfield.stage import TestFieldOptions
 
         raw = {**SIMULATION_DEFAULTS, **self.testfield}
         if raw.get("seed") is None and seed is not None:
@@ -185,7 +185,7 @@ class TestFieldRender(Stage):
                 ctx.warn(f"the input block's {len(block.observations)} simulated image observations are dropped: "
                          "the rendered images are measured instead")
             return block
-        from plugins.testfield.stage import TestFieldSource
+        from baarda.plugins.testfield.stage import TestFieldSource
 
         try:
             sim = options.simulation(seed)
@@ -221,7 +221,7 @@ class TestFieldRender(Stage):
     def log(self, result: StageResult, rec, ctx: Context) -> None:
         import rerun as rr
 
-        from plugins.testfield.stage import log_testfield
+        from baarda.plugins.testfield.stage import log_testfield
 
         d = result.data
         log_testfield(rec, d["block"], d["truth"])
@@ -242,7 +242,7 @@ def _display_image(img: np.ndarray, block) -> np.ndarray:
     """The image at the testfield recording's display pitch (0.1 mm), so it fills the camera's frustum."""
     import cv2
 
-    from plugins.testfield.stage import DISPLAY_PIXEL_MM
+    from baarda.plugins.testfield.stage import DISPLAY_PIXEL_MM
 
     w_mm, h_mm = block.cameras.format_mm[0]
     size = (int(round(w_mm / DISPLAY_PIXEL_MM)), int(round(h_mm / DISPLAY_PIXEL_MM)))
@@ -289,7 +289,7 @@ def _targets_table(rows, pixel_mm, size) -> TableData:
 
 
 def _camera_table(truth) -> TableData:
-    from plugins.bundle.apmodels import get_ap_model
+    from baarda.pipeline.camera.models import get_ap_model
 
     names = ["c", "xp", "yp"] + list(get_ap_model("brown").params)
     values = [truth.c, truth.xp, truth.yp] + [float(truth.distortion.get(n, 0.0)) for n in names[3:]]

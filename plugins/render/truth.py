@@ -51,7 +51,7 @@ class DetectionCheck:
 def detection_errors(block) -> DetectionCheck:
     """Detected observations of ``block`` (image mm, converted back to pixels with the camera's
     pitch and resolution, OpenCV convention) against ``block.meta["render"]["targets"]``."""
-    from plugins.colmap_io.convert import pixels_from_mm
+    from baarda.pipeline.camera.convert import pixels_from_mm
 
     truth = block.meta["render"]["targets"]
     partial = block.meta["render"].get("partial", {})
@@ -115,7 +115,7 @@ class TruthCheck:
 
 
 def truth_errors(result, meta: dict | None = None) -> TruthCheck:
-    """A :class:`plugins.bundle.BundleResult` against the simulator's truth (``meta`` defaults to
+    """A :class:`baarda.pipeline.adjustment.BundleResult` against the simulator's truth (``meta`` defaults to
     the adjusted block's ``meta``).  Points and photos are matched by id; the camera's parameters
     are compared with ``c, xp, yp`` and the distortion of the truth as brown parameters (0 for a
     parameter the simulator does not use, e.g. K3)."""

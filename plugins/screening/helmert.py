@@ -1,6 +1,6 @@
 """2-D Helmert (4-parameter similarity) transformation left → right, as a linear model.
 
-Pure numerics: arrays in, :class:`pipeline.stats.LinearModel` / small results out.
+Pure numerics: arrays in, :class:`baarda.pipeline.stats.LinearModel` / small results out.
 
 Observation equations (paper 000; right coordinates observed, left coordinates fixed)::
 
@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from pipeline.stats import LinearModel, w_test
+from baarda.pipeline.stats import LinearModel, w_test
 
 UNKNOWNS = ("a", "b", "tx", "ty")
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.stats import (DataSnoopingResult, GlobalTestResult, LinearAdjustment, LinearModel,
+from baarda.pipeline.stats import (DataSnoopingResult, GlobalTestResult, LinearAdjustment, LinearModel,
                             PopeResult, data_snooping, global_test, pope_test)
 
 from .helmert import SwapCandidate, helmert_model, outside_format, row_labels, swap_trials

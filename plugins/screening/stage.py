@@ -1,7 +1,7 @@
 """Stage ``helmert-screening``: screen every stereo pair by a 2-D Helmert transformation.
 
 See docs/screening.md.  Numerics in :mod:`.helmert` and :mod:`.screen`; statistics from
-:mod:`pipeline.stats`; this module handles the block, options, tables, report and recording.
+:mod:`baarda.pipeline.stats`; this module handles the block, options, tables, report and recording.
 """
 
 from __future__ import annotations
@@ -12,11 +12,11 @@ from typing import Literal
 
 import numpy as np
 
-from pipeline.errors import InputError
-from pipeline.options import option
-from pipeline.report import TABLE_DECIMALS
-from pipeline.stage import Context, Stage, StageResult, TableData
-from plugins.blunders.artefact import AdjustmentArtefact
+from baarda.pipeline.errors import InputError
+from baarda.pipeline.options import option
+from baarda.pipeline.report import TABLE_DECIMALS
+from baarda.pipeline.stage import Context, Stage, StageResult, TableData
+from baarda.pipeline.contracts import AdjustmentArtefact
 
 from .helmert import stack_models
 from .screen import FLAG_METHODS, PairScreening, ScreeningSettings, screen_pair

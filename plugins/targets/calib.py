@@ -1,15 +1,15 @@
 """OpenCV helpers on planar-target detections: start values and the ``cv2.calibrateCamera`` reference.
 
 Everything here works in OpenCV pixels (``"opencv"`` convention) and OpenCV's board frame; results
-are converted to baarda's conventions with :mod:`plugins.colmap_io.convert` and
-:data:`plugins.targets.boards.F_BOARD`.
+are converted to baarda's conventions with :mod:`baarda.pipeline.camera.convert` and
+:data:`baarda.plugins.targets.boards.F_BOARD`.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from plugins.colmap_io.convert import brown_from_opencv, mm_from_pixels, pixels_from_mm, pose_from_cv
+from baarda.pipeline.camera.convert import brown_from_opencv, mm_from_pixels, pixels_from_mm, pose_from_cv
 
 from .boards import F_BOARD
 

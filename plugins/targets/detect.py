@@ -1,7 +1,7 @@
 """Target detection in one image with OpenCV: arrays in, ids and pixel positions out.
 
 Every detector takes a grayscale ``uint8`` image and returns a :class:`Detection` with point ids
-(strings, see :mod:`plugins.targets.boards`) and subpixel positions ``uv (n, 2)`` in OpenCV's
+(strings, see :mod:`baarda.plugins.targets.boards`) and subpixel positions ``uv (n, 2)`` in OpenCV's
 pixel convention (``(0, 0)`` is the centre of the top-left pixel, x right, y down).  A detector
 that finds nothing returns an empty detection with a ``message``; it never raises for an image.
 """

@@ -18,13 +18,13 @@ from typing import Literal
 
 import numpy as np
 
-from pipeline.errors import InputError
-from pipeline.geometry import rotation_from_opk
-from pipeline.model import FIXED, FREE, Block, Cameras, Observations, Pairs, Photos, Points
-from pipeline.options import option
-from pipeline.stage import Context, Stage, StageResult, TableData
+from baarda.pipeline.errors import InputError
+from baarda.pipeline.geometry import rotation_from_opk
+from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Pairs, Photos, Points
+from baarda.pipeline.options import option
+from baarda.pipeline.stage import Context, Stage, StageResult, TableData
 
-from plugins.colmap_io.convert import BROWN, mm_from_pixels, pixels_from_mm, project_block
+from baarda.pipeline.camera.convert import BROWN, mm_from_pixels, pixels_from_mm, project_block
 
 from .boards import BoardGeometry, aruco_dictionary, object_points
 from .calib import initial_focal_px, opencv_calibration, resect
@@ -395,7 +395,7 @@ class TargetDetection(Stage):
     def log(self, result, rec, ctx) -> None:
         import rerun as rr
 
-        from plugins.colmap_io.rrlog import entity_part, log_block
+        from baarda.plugins.colmap.rrlog import entity_part, log_block
 
         for pid, small, uv, ids in result.data["images"]:
             path = f"{ctx.stage_id}/images/{entity_part(pid)}"

@@ -16,9 +16,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.geometry import rotation_from_opk
+from baarda.pipeline.geometry import rotation_from_opk
 
-from .simulate import Truth, physical_distortion, project_truth
+from baarda.pipeline.synthetic.testfield import Truth, physical_distortion, project_truth
 
 
 def mm_to_pixel(xy_mm: np.ndarray, pixel_mm: float, shape: tuple[int, int]) -> np.ndarray:

@@ -11,13 +11,13 @@ from typing import Literal
 
 import numpy as np
 
-from pipeline.errors import InputError
-from pipeline.geometry import rotation_from_opk_many
-from pipeline.options import option
-from pipeline.report import markdown_table
-from pipeline.stage import Context, Stage, StageResult, TableData
+from baarda.pipeline.errors import InputError
+from baarda.pipeline.geometry import rotation_from_opk_many
+from baarda.pipeline.options import option
+from baarda.pipeline.report import markdown_table
+from baarda.pipeline.stage import Context, Stage, StageResult, TableData
 
-from .simulate import (CONTROL_CASES, TestFieldConfig, constraint_count, control_configuration,
+from baarda.pipeline.synthetic.testfield import (CONTROL_CASES, TestFieldConfig, constraint_count, control_configuration,
                        degrees_of_freedom, simulate_testfield)
 
 ROLE_COLORS = {"full": (230, 50, 40), "xy": (240, 150, 20), "z": (40, 110, 230),

@@ -3,13 +3,13 @@ conclusions hold there.
 
 For each of ``repetitions`` realisations of the noise (the *same* noise for every control case,
 with and without additional parameters — common random numbers, so the comparisons are paired),
-the six control configurations are adjusted by the bundle (``plugins.bundle.adjust``) twice:
+the six control configurations are adjusted by the bundle (``baarda.pipeline.adjustment.adjust``) twice:
 
 * without additional parameters (c, xp, yp fixed at the calibrated values) — Table 2;
 * with Ebner's 12 parameters (and dc, dxp, dyp free when ``calibrate_iop``), selected by the
   paper's rule — remove the parameter with the largest correlation |ρ| > ``rho_max``, one after
   another, then the insignificant ones (t-test at ``ap_alpha``) — Table 3.  The selection is the
-  bundle's (:func:`plugins.bundle.apselect.select_aps`: correlations among the camera's
+  bundle's (:func:`baarda.pipeline.adjustment.apselect.select_aps`: correlations among the camera's
   parameters); when the block is singular with every AP free (case 1) the study's own
   :func:`select_additional_parameters` takes over (weak priors while selecting, correlations
   with the exterior orientations too, c, xp, yp as candidates);
@@ -28,12 +28,12 @@ from typing import Callable, Literal
 
 import numpy as np
 
-from pipeline.errors import AdjustmentError
-from pipeline.options import option
-from pipeline.report import markdown_table
-from pipeline.stage import Context, Stage, StageResult, TableData
+from baarda.pipeline.errors import AdjustmentError
+from baarda.pipeline.options import option
+from baarda.pipeline.report import markdown_table
+from baarda.pipeline.stage import Context, Stage, StageResult, TableData
 
-from .simulate import CASES, TestFieldConfig, simulate_testfield
+from baarda.pipeline.synthetic.testfield import CASES, TestFieldConfig, simulate_testfield
 
 PAPER_TABLE2 = {  # case: (dof, sigma0 µm, Sx, Sy, Sxy, Sz) cm
     1: (34, 51.90, 0.3253, 0.0984, 0.2403, 4.6310), 2: (46, 47.78, 0.0768, 0.0334, 0.0592, 0.3110),
@@ -81,8 +81,8 @@ def _with_camera_sigmas(block, sig: np.ndarray):
 def _weak_priors(block, names: list[str], effect_mm: float) -> np.ndarray:
     """A-priori sigma per camera parameter that lets it move the image by at most ``effect_mm``
     over the format (weak enough not to bias a determinable parameter; bounds a singular one)."""
-    from plugins.bundle.apmodels import get_ap_model
-    from plugins.bundle.solver import BundleSettings, camera_meta
+    from baarda.pipeline.camera.models import get_ap_model
+    from baarda.pipeline.adjustment.solver import BundleSettings, camera_meta
 
     cam = block.cameras
     model = get_ap_model(cam.ap_model[0])
@@ -111,13 +111,13 @@ def select_additional_parameters(block, settings=None, *, rho_max: float = 0.75,
     (each can move the image by ``weak_effect_mm``) so that a singular combination shows as
     |ρ| → 1 instead of failing; the final adjustment has the kept ones free.
     """
-    from plugins.bundle.adjust import adjust
-    from plugins.bundle.solver import BundleSettings
+    from baarda.pipeline.adjustment.adjust import adjust
+    from baarda.pipeline.adjustment.solver import BundleSettings
 
     adjust_fn = adjust_fn or adjust
     settings = settings or BundleSettings()
     cam = block.cameras
-    from plugins.bundle.apmodels import get_ap_model
+    from baarda.pipeline.camera.models import get_ap_model
 
     names = list(IOP_NAMES) + list(get_ap_model(cam.ap_model[0]).params)
     sig0 = np.concatenate([cam.sigma_iop[0], cam.sigma_ap[0][:len(names) - 3]])
@@ -174,7 +174,7 @@ def select_additional_parameters(block, settings=None, *, rho_max: float = 0.75,
 
 def _candidate_correlations(res, names, cand):
     """For each candidate: largest |ρ| with another global unknown, that unknown's name, |x/σ|."""
-    from plugins.bundle.diagnose import parameter_names
+    from baarda.pipeline.adjustment.diagnose import parameter_names
 
     prob = res.problem
     Q = res.Qx[:prob.n_g, :prob.n_g]
@@ -226,14 +226,14 @@ def _check_rmse(res, block) -> np.ndarray:
 
 
 def _run(block, with_aps: bool, cfg: StudyConfig):
-    from plugins.bundle.adjust import adjust
-    from plugins.bundle.solver import BundleSettings
+    from baarda.pipeline.adjustment.adjust import adjust
+    from baarda.pipeline.adjustment.solver import BundleSettings
 
     settings = BundleSettings(covariance=with_aps, tol_obs=1e-4, max_iter=50)
     if not with_aps:
         return adjust(block, settings), [], ""
     if cfg.ap_selection == "bundle":
-        from plugins.bundle.apselect import select_aps
+        from baarda.pipeline.adjustment.apselect import select_aps
 
         try:
             sel = select_aps(block, settings, rho_max=cfg.rho_max, alpha=cfg.ap_alpha)
@@ -411,7 +411,7 @@ class ControlStudyOptions:
     calibrate_iop: bool = option(False, "with APs, c, xp, yp (the paper's dc, dxp, dyp) are free too (the "
                                         "bundle's selection keeps them; the study's treats them as candidates)")
     ap_selection: Literal["bundle", "study"] = option(
-        "bundle", "AP selection: the bundle's (plugins/bundle/apselect.py; the study's own when the block is "
+        "bundle", "AP selection: the bundle's (pipeline/adjustment/apselect.py; the study's own when the block is "
                   "singular with every AP free) or always the study's (correlations with the orientations too)")
     rho_max: float = option(0.75, "AP selection: remove parameters correlated above this, one after another")
     ap_alpha: float = option(0.05, "then remove parameters not significant at this level (t-test), one after "

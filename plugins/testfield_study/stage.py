@@ -13,10 +13,10 @@ from typing import Literal
 
 import numpy as np
 
-from pipeline.options import option
-from pipeline.report import markdown_table
-from pipeline.stage import Context, Stage, StageResult, TableData
-from plugins.testfield.simulate import CASES
+from baarda.pipeline.options import option
+from baarda.pipeline.report import markdown_table
+from baarda.pipeline.stage import Context, Stage, StageResult, TableData
+from baarda.pipeline.synthetic.testfield import CASES
 
 from .study import (BUNDLE, BUNDLE_AP, IM, KEYS, PAPER_DISTANCE_CM, PAPER_PERCENT, PAPER_TABLE4, PAPER_TABLE5,
                     SINGLE, SINGLE_AP, VARIANTS, MethodStudyConfig, method_study, with_options)

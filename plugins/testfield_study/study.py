@@ -1,15 +1,15 @@
 """The method study of paper 001 on the simulated test field — pure numerics (no rerun, no files).
 
-For each of ``repetitions`` seeded realisations of the simulated field (``plugins.testfield``), with
+For each of ``repetitions`` seeded realisations of the simulated field (``baarda.plugins.testfield``), with
 one control configuration (the paper's case 5 by default) and *the same* simulated image and control
 measurements for every method (common random numbers, so the comparisons are paired):
 
-* ``bundle, no APs`` — the bundle (``plugins.bundle.adjust``), c, xp, yp fixed, no additional
+* ``bundle, no APs`` — the bundle (``baarda.pipeline.adjustment.adjust``), c, xp, yp fixed, no additional
   parameters (the paper's Table 2 setting);
 * ``bundle, APs`` — the bundle with Ebner's 12 parameters selected by the bundle's own rule
-  (``plugins.bundle.apselect.select_aps``: remove |ρ| > ``rho_max`` one after another, then the
+  (``baarda.pipeline.adjustment.apselect.select_aps``: remove |ρ| > ``rho_max`` one after another, then the
   insignificant ones by t-tests) — the paper's Table 3 setting and the "bundle" of its Tables 4, 5;
-* ``independent models`` — the independent-model block (``plugins.indmodel``: relative orientation
+* ``independent models`` — the independent-model block (``baarda.plugins.independent_models``: relative orientation
   of each of the 8 stereo pairs from the same image coordinates, model coordinates, Ackermann's
   7-parameter block adjustment with the same control) — Table 5;
 * ``single model 4.0 m`` — the stereo pair A, B at 4.0 m with the same control, bundle with selected
@@ -35,10 +35,10 @@ from typing import Callable
 
 import numpy as np
 
-from pipeline.errors import AdjustmentError
-from plugins.testfield.simulate import (FOCAL_MM, SINGLE_MODEL_PHOTOS, STRIPS, TestFieldConfig,
+from baarda.pipeline.errors import AdjustmentError
+from baarda.pipeline.synthetic.testfield import (FOCAL_MM, SINGLE_MODEL_PHOTOS, STRIPS, TestFieldConfig,
                                         simulate_testfield)
-from plugins.testfield.study import PAPER_TABLE2, PAPER_TABLE3, PAPER_TABLE4
+from baarda.plugins.testfield.study import PAPER_TABLE2, PAPER_TABLE3, PAPER_TABLE4
 
 __all__ = ["MethodStudyConfig", "method_study", "run_realisation", "summarise", "compare",
            "field_geometry", "conclusions", "VARIANTS", "PAPER_TABLE4", "PAPER_TABLE5", "PAPER_PERCENT"]
@@ -113,7 +113,7 @@ class MethodStudyConfig:
 
 
 def _bundle_settings():
-    from plugins.bundle.solver import BundleSettings
+    from baarda.pipeline.adjustment.solver import BundleSettings
 
     return BundleSettings(covariance=True, tol_obs=1e-4, max_iter=50)
 
@@ -149,13 +149,13 @@ def _im_row(res, sigma_control_m: float) -> dict:
 def _with_aps(block, cfg: MethodStudyConfig, settings):
     """The bundle's AP selection; the testfield study's selection where the block is singular with
     every AP free (only the minimal control of case 1)."""
-    from plugins.bundle.apselect import select_aps
+    from baarda.pipeline.adjustment.apselect import select_aps
 
     try:
         sel = select_aps(block, settings, rho_max=cfg.rho_max, alpha=cfg.ap_alpha)
         return sel.result, [k["parameter"] for k in sel.kept], "bundle"
     except AdjustmentError:
-        from plugins.testfield.study import select_additional_parameters
+        from baarda.plugins.testfield.study import select_additional_parameters
 
         sel = select_additional_parameters(block, settings, rho_max=cfg.rho_max, alpha=cfg.ap_alpha)
         return sel.result, list(sel.kept), "testfield study"
@@ -166,8 +166,8 @@ def run_realisation(cfg: MethodStudyConfig, seed: int, repetition: int) -> list[
     repetition])``; the same draws for every method).  One row per variant: ``variant,
     repetition, Sx, Sy, Sz`` (m), ``pred`` (3,) predicted RMS (m), ``dof``, ``sigma0_hat``,
     ``kept`` (AP names), ``selection``, ``ids``, ``errors`` (k, 3), ``error`` (message or "")."""
-    from plugins.bundle.adjust import adjust
-    from plugins.indmodel import independent_model_block
+    from baarda.pipeline.adjustment.adjust import adjust
+    from baarda.plugins.independent_models import independent_model_block
 
     settings = _bundle_settings()
     sc = cfg.sigma_control_mm * 1e-3

@@ -7,8 +7,8 @@ import shutil
 import numpy as np
 import pytest
 
-from pipeline.errors import InputError
-from plugins.aicon.reader import aicon_block, perturb_initial_values, read_aicon, resolve_prefix
+from baarda.pipeline.errors import InputError
+from baarda.plugins.aicon.reader import aicon_block, perturb_initial_values, read_aicon, resolve_prefix
 
 
 @pytest.fixture(scope="module")
@@ -27,7 +27,7 @@ def block(export_dir):
 def _project_aicon(X, X0, omega, phi, kappa, c_aicon, x0, y0, A, r0, B, C):
     """Independent AICON projection written from data/README.md, with AICON's own numbers (c < 0).
 
-    Rotation written out element by element (not pipeline.geometry): M = R3(κ) R2(φ) R1(ω);
+    Rotation written out element by element (not baarda.pipeline.geometry): M = R3(κ) R2(φ) R1(ω);
     x = x0 + c_AICON · U/W + Δx, distortion at the projected reduced coordinates.
     """
     so, co = np.sin(omega), np.cos(omega)
@@ -82,8 +82,8 @@ def test_independent_projection_reproduces_phc(export_dir):
 
 def test_block_conventions_reproduce_phc(block):
     """The block's numbers (c > 0, baarda's ω φ κ, the bundle's 'aicon' AP order) projected with
-    pipeline.geometry give the same coordinates as the file: baarda's conventions are AICON's."""
-    from pipeline.geometry import rotation_from_opk_many
+    baarda.pipeline.geometry give the same coordinates as the file: baarda's conventions are AICON's."""
+    from baarda.pipeline.geometry import rotation_from_opk_many
 
     cam = block.cameras
     assert cam.ap_model[0] == "aicon" and cam.c[0] == pytest.approx(28.78507)
@@ -107,7 +107,7 @@ def test_block_conventions_reproduce_phc(block):
 
 def test_bundle_aicon_model_agrees(block):
     """The bundle engineer's 'aicon' AP model gives the same distortion as the formula above."""
-    apmodels = pytest.importorskip("plugins.bundle.apmodels")
+    apmodels = pytest.importorskip("baarda.pipeline.camera.models")
     model = apmodels.get_ap_model("aicon")
     assert tuple(model.params) == ("A1", "A2", "A3", "B1", "B2", "C1", "C2")
     xb = np.array([-15.0, 3.0, 12.0])

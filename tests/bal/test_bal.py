@@ -5,13 +5,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.errors import InputError
-from pipeline.geometry import rotation_from_opk
-from pipeline.stage import Context
-from plugins.bal.bal import bal_reprojection, block_from_bal, read_bal
-from plugins.bal.libmv import block_from_libmv, libmv_reprojection, nearest_rotation, read_libmv
-from plugins.bal.stage import BalOptions, BalSource, LibmvOptions, LibmvSource
-from plugins.colmap_io.stage import reprojection_px, reprojection_summary
+from baarda.pipeline.errors import InputError
+from baarda.pipeline.geometry import rotation_from_opk
+from baarda.pipeline.stage import Context
+from baarda.plugins.bal.bal import bal_reprojection, block_from_bal, read_bal
+from baarda.plugins.bal.libmv import block_from_libmv, libmv_reprojection, nearest_rotation, read_libmv
+from baarda.plugins.bal.stage import BalOptions, BalSource, LibmvOptions, LibmvSource
+from baarda.plugins.colmap.stage import reprojection_px, reprojection_summary
 
 BAL = "problem-49-7776-pre.txt"
 BAL_SMALL = "bal-ladybug-problem-49-7776-pre-shrink-1800.txt"
@@ -207,7 +207,7 @@ def test_nearest_rotation():
 
 
 def test_stages(bal_dir, libmv_dir, tmp_path):
-    from pipeline.recording import open_recording
+    from baarda.pipeline.recording import open_recording
 
     ctx = Context("bal", project_dir=bal_dir)
     res = BalSource().run({}, BalOptions(path=Path(BAL_SMALL)), ctx)
@@ -219,8 +219,8 @@ def test_stages(bal_dir, libmv_dir, tmp_path):
     ctx = Context("libmv", project_dir=libmv_dir)
     res = LibmvSource().run({}, LibmvOptions(path=Path("problem_01.bin"), resolution=[2048, 1080]), ctx)
     assert res.summary["photos"] == 333 and res.summary["resolution"] == (2048, 1080)
-    from pipeline.options import parse_options
-    from pipeline.testing import check_stage
+    from baarda.pipeline.options import parse_options
+    from baarda.pipeline.testing import check_stage
 
     with pytest.raises(InputError, match="required option 'path'"):
         parse_options(BalOptions, {})

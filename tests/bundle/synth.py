@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.geometry import opk_from_rotation
-from pipeline.model import FREE, Block, Cameras, Observations, Photos, Points
-from plugins.bundle.collinearity import project_observations
+from baarda.pipeline.geometry import opk_from_rotation
+from baarda.pipeline.model import FREE, Block, Cameras, Observations, Photos, Points
+from baarda.pipeline.adjustment.collinearity import project_observations
 
 TRUE_AP = {
     "none": [],

@@ -4,18 +4,18 @@ network from initial values perturbed well away from the exported ones."""
 import numpy as np
 import pytest
 
-from plugins.bundle import BundleSettings, adjust
+from baarda.pipeline.adjustment import BundleSettings, adjust
 
 
 @pytest.fixture(scope="module")
 def aicon(shared_data):
-    from plugins.aicon.reader import aicon_block, read_aicon
+    from baarda.plugins.aicon.reader import aicon_block, read_aicon
 
     return aicon_block(read_aicon(shared_data / "aicon-closerange" / "example"), image_sigma_um=0.5)
 
 
 def test_aicon_converges_from_perturbed_start(aicon):
-    from plugins.aicon.reader import perturb_initial_values
+    from baarda.plugins.aicon.reader import perturb_initial_values
 
     ref = adjust(aicon, BundleSettings(datum="free"))
     start = perturb_initial_values(aicon, np.random.default_rng(1), position_sigma=50.0, angle_sigma_deg=1.0,
@@ -45,8 +45,8 @@ def test_aicon_weights_explain_the_data_snooping_count(shared_data):
     (scaled by their variance component σ̂0) the tails come close to normal."""
     from scipy import stats as sps
 
-    from pipeline import stats
-    from plugins.aicon.reader import aicon_block, read_aicon
+    from baarda.pipeline import stats
+    from baarda.plugins.aicon.reader import aicon_block, read_aicon
 
     ex = read_aicon(shared_data / "aicon-closerange" / "example")
     out = {}

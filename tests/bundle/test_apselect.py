@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from plugins.bundle import adjust
-from plugins.bundle.apselect import select_aps
+from baarda.pipeline.adjustment import adjust
+from baarda.pipeline.adjustment.apselect import select_aps
 
 from .synth import make_block
 
@@ -15,7 +15,7 @@ def test_selection_removes_correlated_and_insignificant_aps():
     ap = np.array(cams.ap)
     ap[0, 1:] = 0.0
     ap[0, 5] = 1e-4
-    from plugins.bundle.collinearity import project_observations
+    from baarda.pipeline.adjustment.collinearity import project_observations
     obs = blk.observations
     cam = np.r_[truth["cam"][:3], ap[0]]
     pr = project_observations(obs.photo, obs.point, truth["XYZ"], truth["X0"], truth["opk"], np.zeros(8, int),

@@ -11,7 +11,7 @@ import time
 import numpy as np
 import pytest
 
-from plugins.bundle import BundleSettings, adjust
+from baarda.pipeline.adjustment import BundleSettings, adjust
 
 pytestmark = pytest.mark.benchmark
 
@@ -25,7 +25,7 @@ def _print(name, res, wall):
 
 
 def test_benchmark_aicon(shared_data):
-    from plugins.aicon.reader import aicon_block, perturb_initial_values, read_aicon
+    from baarda.plugins.aicon.reader import aicon_block, perturb_initial_values, read_aicon
 
     blk = aicon_block(read_aicon(shared_data / "aicon-closerange" / "example"))
     start = perturb_initial_values(blk, np.random.default_rng(1), position_sigma=50.0, angle_sigma_deg=1.0,
@@ -36,7 +36,7 @@ def test_benchmark_aicon(shared_data):
 
 
 def test_benchmark_aerial_200():
-    from plugins.crosscheck.simulate import simulate_aerial, perturb_start
+    from baarda.pipeline.synthetic.aerial import simulate_aerial, perturb_start
 
     noisy, exact = simulate_aerial(np.random.default_rng(3), n_strips=20, photos_per_strip=10)
     start = perturb_start(noisy, np.random.default_rng(4), position=1.0, angle=0.002, point=1.0)
@@ -46,7 +46,7 @@ def test_benchmark_aerial_200():
 
 
 def test_benchmark_bal49(shared_data):
-    from plugins.bal.bal import block_from_bal, read_bal
+    from baarda.plugins.bal.bal import block_from_bal, read_bal
 
     blk = block_from_bal(read_bal(shared_data / "bal" / "problem-49-7776-pre.txt"))
     settings = BundleSettings(datum="free", datum_centres=True, max_iter=100, tol_rel=1e-6)

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from pipeline.errors import AdjustmentError, InputError
-from pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points
-from plugins.bundle import BundleSettings, Distance, LinearAPModel, adjust, register_ap_model
+from baarda.pipeline.errors import AdjustmentError, InputError
+from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points
+from baarda.pipeline.adjustment import BundleSettings, Distance, LinearAPModel, adjust, register_ap_model
 
 from .synth import make_block, perturb
 
@@ -44,7 +44,7 @@ def test_incomplete_datum_names_the_missing_motions():
 
 def _rotate_world(blk, angle_deg, axis=1):
     """The same block in a world rotated about a coordinate axis (images unchanged)."""
-    from pipeline.geometry import opk_from_rotation, rotation_from_opk_many
+    from baarda.pipeline.geometry import opk_from_rotation, rotation_from_opk_many
 
     a = np.radians(angle_deg)
     c, s = np.cos(a), np.sin(a)

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from pipeline.errors import AdjustmentError
-from plugins.bundle import adjust, initial_values, intersection, resection
-from plugins.bundle.collinearity import project_observations
+from baarda.pipeline.errors import AdjustmentError
+from baarda.pipeline.adjustment import adjust, initial_values, intersection, resection
+from baarda.pipeline.adjustment.collinearity import project_observations
 
 from .synth import META, TRUE_AP, make_block
 

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from plugins.bundle.apmodels import APModel, get_ap_model
-from plugins.bundle.collinearity import project_observations, rotation_and_derivatives
-from pipeline.geometry import rotation_from_opk_many
+from baarda.pipeline.camera.models import APModel, get_ap_model
+from baarda.pipeline.adjustment.collinearity import project_observations, rotation_and_derivatives
+from baarda.pipeline.geometry import rotation_from_opk_many
 
 from .synth import META, TRUE_AP, make_block
 
@@ -132,7 +132,7 @@ def test_third_party_model_using_c_gets_its_c_derivative(name, model):
     """∂(x, y)/∂c of the full projection (incl. ∂Δ/∂c at fixed x̄, ȳ, by the base class's central
     differences) against central differences of the projection; the ∂Δ/∂c part is a large share
     of it here (≈ 4 %, against a tolerance of 1e-6), so a zero fallback would fail."""
-    from plugins.bundle.apmodels import register_ap_model
+    from baarda.pipeline.camera.models import register_ap_model
 
     register_ap_model(name, model, replace=True)
     ph, pt, truth, _ = _setup("none")
@@ -182,9 +182,9 @@ def test_builtin_models_do_not_depend_on_c(model):
 def test_distance_jacobian_matches_finite_differences():
     """The scale bar's whitened row ∂(σ0/σ_d · |Xa − Xb|)/∂(Xa, Xb) and its share of the gradient
     against central differences of the distance and of vᵀPv (distance residual made large)."""
-    from pipeline.model import FREE
-    from plugins.bundle import BundleSettings, Distance
-    from plugins.bundle.solver import BundleProblem
+    from baarda.pipeline.model import FREE
+    from baarda.pipeline.adjustment import BundleSettings, Distance
+    from baarda.pipeline.adjustment.solver import BundleProblem
 
     blk, truth = make_block(model="none", n_photos=6, n_points=20, noise_mm=0.001, n_control=0)
     pts = blk.points

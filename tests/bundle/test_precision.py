@@ -4,9 +4,9 @@ Jacobians, and against Monte Carlo spread."""
 import numpy as np
 import pytest
 
-from pipeline.model import FREE
-from plugins.bundle import BundleSettings, adjust
-from plugins.bundle.collinearity import project_observations
+from baarda.pipeline.model import FREE
+from baarda.pipeline.adjustment import BundleSettings, adjust
+from baarda.pipeline.adjustment.collinearity import project_observations
 
 from .synth import make_block, with_correlated_noise
 
@@ -108,8 +108,8 @@ def test_weighted_control_and_eo_priors_dense_reference():
     """Weighted full control, height and planimetric control, and weighted exterior orientation set
     through the stage option ``sigma_eo`` (degrees): every variance against the dense normal
     matrix of the image rows plus the prior weights 1/σ² on the constrained unknowns."""
-    from pipeline.options import parse_options
-    from plugins.bundle.stage import BundleOptions, configure_block
+    from baarda.pipeline.options import parse_options
+    from baarda.plugins.bundle.stage import BundleOptions, configure_block
 
     blk, truth = make_block(model="none", n_photos=5, n_points=14, noise_mm=0.002, rng=np.random.default_rng(8),
                             n_control=6)
@@ -201,8 +201,8 @@ def test_monte_carlo_spread_matches_reported_covariance(n_sim):
 @pytest.mark.parametrize("datum", ["control", "free-points", "free-centres"])
 def test_schur_strategies_agree(monkeypatch, datum):
     """dense / pairs / sparse forms of B Bᵀ and both precision routes give the same numbers."""
-    from pipeline.model import FREE
-    from plugins.bundle.solver import BundleProblem
+    from baarda.pipeline.model import FREE
+    from baarda.pipeline.adjustment.solver import BundleProblem
 
     blk, _ = make_block(model="brown", n_photos=6, n_points=30, noise_mm=0.002, rng=np.random.default_rng(1))
     st = BundleSettings()
@@ -228,7 +228,7 @@ def test_schur_strategies_agree(monkeypatch, datum):
 def test_predicted_residual_of_a_removed_observation():
     """v_pred / sigma_v_pred of a removed row equals the w-test of that row when it is active
     (uncorrelated x, y: w = ∇̂/σ_∇̂ = v_pred/σ_v_pred, Baarda)."""
-    from pipeline import stats
+    from baarda.pipeline import stats
 
     blk, _ = make_block(model="brown", n_photos=6, n_points=25, noise_mm=0.002, rng=np.random.default_rng(9),
                         n_control=5)

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from pipeline.errors import AdjustmentError, InputError
-from plugins.bundle import BundleSettings, Distance, adjust
+from baarda.pipeline.errors import AdjustmentError, InputError
+from baarda.pipeline.adjustment import BundleSettings, Distance, adjust
 
 from .synth import make_block, perturb
 

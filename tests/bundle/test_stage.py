@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from pipeline.testing import check_stage, log_stage, run_stage
-from plugins.bundle.stage import BundleAdjustment
+from baarda.pipeline.testing import check_stage, log_stage, run_stage
+from baarda.plugins.bundle.stage import BundleAdjustment
 
 from .synth import make_block, perturb, with_correlated_noise
 
@@ -26,7 +26,7 @@ def test_stage_runs_and_logs(tmp_path):
     assert {"vx", "wy", "mdb_x", "decision"} <= set(t.columns)
     assert "Camera parameters" in res.report
     path = log_stage(BundleAdjustment, res, tmp_path / "bundle.rrd")
-    from pipeline.recording import read_recording
+    from baarda.pipeline.recording import read_recording
 
     rec = read_recording(path)
     ents = {e.path: e for e in rec.entities}
@@ -93,8 +93,8 @@ def test_joint_2d_test_per_image_point_against_closed_form(tmp_path):
 def test_joint_2d_test_false_alarm_rate_monte_carlo():
     """Under H0 the 2-D statistic is χ²(2): over 40 noisy realisations of a small block the share of
     image points with T > χ²(0.9; 2) = 4.605 is 10 % ± 4 binomial σ, and the mean of T is 2."""
-    from pipeline import stats
-    from plugins.bundle import adjust
+    from baarda.pipeline import stats
+    from baarda.pipeline.adjustment import adjust
 
     blk, _ = make_block(model="none", n_photos=5, n_points=20, noise_mm=0.0, n_control=5)
     obs = blk.observations
@@ -117,8 +117,8 @@ def test_non_convergence_saves_the_last_state(tmp_path):
     which hold the last iterate (10 photos, 21 points, 3 + 12 camera parameters)."""
     import csv
 
-    from pipeline.testing import make_plugin_manager, run_project_text
-    from plugins.testfield.stage import TestFieldSource
+    from baarda.pipeline.testing import make_plugin_manager, run_project_text
+    from baarda.plugins.testfield.stage import TestFieldSource
 
     text = """
 [project]
@@ -161,8 +161,8 @@ max_iter = 1
 
 
 def test_sigma_eo_and_image_sigma_scale_options():
-    from pipeline.options import parse_options
-    from plugins.bundle.stage import BundleOptions, configure_block
+    from baarda.pipeline.options import parse_options
+    from baarda.plugins.bundle.stage import BundleOptions, configure_block
 
     blk, _ = make_block(model="none", n_photos=4, n_points=20)
     ph = blk.photos
@@ -208,7 +208,7 @@ def test_testfield_fixture_selects_aps_by_the_papers_rule(repo_root, tmp_path):
     kept camera parameters correlated above 0.75, and the removed ones fixed at 0."""
     from scipy import stats as sps
 
-    from pipeline.runner import run_project
+    from baarda.pipeline.runner import run_project
 
     out = run_project(repo_root / "fixtures/testfield/block.toml", tmp_path / "run", verbose=False)
     assert out.ok, out.message

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from plugins.comparator.interior import fit_interior
+from baarda.plugins.comparator.interior import fit_interior
 
 SQUARE = np.array([[-100.0, -100.0], [100.0, -100.0], [100.0, 100.0], [-100.0, 100.0]])
 

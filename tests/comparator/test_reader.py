@@ -5,9 +5,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.errors import InputError
-from pipeline.testing import check_stage, log_stage, run_stage
-from plugins.comparator.stage import ComparatorSource
+from baarda.pipeline.errors import InputError
+from baarda.pipeline.testing import check_stage, log_stage, run_stage
+from baarda.plugins.comparator.stage import ComparatorSource
 
 FIX = Path(__file__).resolve().parents[2] / "fixtures" / "paper000"
 
@@ -183,7 +183,7 @@ def test_nothing_outside_a_section(tmp_path):
 
 
 def test_recording(tmp_path):
-    from pipeline.recording import read_recording
+    from baarda.pipeline.recording import read_recording
 
     res = run_stage(ComparatorSource, {}, {"path": str(FIX / "fiducial.cmp")}, tmp_path=tmp_path)
     summary = read_recording(log_stage(ComparatorSource, res, tmp_path / "c.rrd"))

@@ -8,11 +8,11 @@ import cv2
 import numpy as np
 import pytest
 
-from pipeline.options import option
-from pipeline.recording import read_recording
-from pipeline.stage import Stage, StageResult, TableData
-from pipeline.testing import check_stage, make_plugin_manager, run_project_text
-from plugins.comparison.stage import Comparison
+from baarda.pipeline.options import option
+from baarda.pipeline.recording import read_recording
+from baarda.pipeline.stage import Stage, StageResult, TableData
+from baarda.pipeline.testing import check_stage, make_plugin_manager, run_project_text
+from baarda.plugins.comparison.stage import Comparison
 
 
 def _fake(errors, name, realisations=None):

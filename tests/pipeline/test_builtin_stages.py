@@ -7,15 +7,15 @@ from importlib.metadata import entry_points
 
 import pytest
 
-from pipeline.plugins import GROUP, PluginManager
-from pipeline.testing import check_stage
+from baarda.pipeline.plugins import GROUP, PluginManager
+from baarda.pipeline.testing import check_stage
 
 PYPROJECT = tomllib.loads((__import__("pathlib").Path(__file__).resolve().parents[2] / "pyproject.toml").read_text())
 DECLARED = PYPROJECT["project"]["entry-points"][GROUP]
 
 
 def test_installed_entry_points_match_pyproject():
-    installed = {ep.name: ep.value for ep in entry_points(group=GROUP) if ep.value.startswith("plugins.")}
+    installed = {ep.name: ep.value for ep in entry_points(group=GROUP) if ep.value.startswith("baarda.plugins.")}
     assert installed == DECLARED, "reinstall (pip install -e .) after changing entry points"
 
 
@@ -33,7 +33,7 @@ def test_builtin_stage_loads_and_follows_protocol(name):
 
 
 def test_stages_command_lists_every_builtin(capsys):
-    from pipeline.cli import main
+    from baarda.pipeline.cli import main
 
     assert main(["stages"]) == 0
     out = capsys.readouterr().out

@@ -9,13 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.cli import main
-from pipeline.errors import InputError
-from pipeline.options import option
-from pipeline.project import load_project
-from pipeline.recording import read_recording
-from pipeline.stage import Stage, StageResult, TableData
-from pipeline.testing import check_stage, make_plugin_manager, run_project_text, run_stage
+from baarda.pipeline.cli import main
+from baarda.pipeline.errors import InputError
+from baarda.pipeline.options import option
+from baarda.pipeline.project import load_project
+from baarda.pipeline.recording import read_recording
+from baarda.pipeline.stage import Stage, StageResult, TableData
+from baarda.pipeline.testing import check_stage, make_plugin_manager, run_project_text, run_stage
 
 
 class NumbersSource(Stage):

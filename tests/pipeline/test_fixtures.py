@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.plugins import PluginManager
-from pipeline.project import load_project
-from pipeline.runner import run_project
+from baarda.pipeline.plugins import PluginManager
+from baarda.pipeline.project import load_project
+from baarda.pipeline.runner import run_project
 
 from conftest import SHARED_BESIDE, needs_shared_beside
 

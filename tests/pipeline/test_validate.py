@@ -12,15 +12,15 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.cli import main
-from pipeline.errors import InputError
-from pipeline.options import option
-from pipeline.project import load_project, path_roles, validate_inputs
-from pipeline.runner import viewer_command
-from pipeline.stage import Stage, StageResult
+from baarda.pipeline.cli import main
+from baarda.pipeline.errors import InputError
+from baarda.pipeline.options import option
+from baarda.pipeline.project import load_project, path_roles, validate_inputs
+from baarda.pipeline.runner import viewer_command
+from baarda.pipeline.stage import Stage, StageResult
 
 from conftest import needs_shared_beside
-from pipeline.testing import make_plugin_manager, run_project_text
+from baarda.pipeline.testing import make_plugin_manager, run_project_text
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA1 = (ROOT / "fixtures" / "paper000" / "data1.cmp").read_text(encoding="utf-8")
@@ -210,7 +210,7 @@ def test_a_default_path_is_checked_too_and_a_class_without_hook_is_fine(tmp_path
 
 def test_every_bundled_project_validates(shared_data):
     """Fixtures whose inputs live in ../shared/data included (hence the shared_data fixture)."""
-    from pipeline.plugins import PluginManager
+    from baarda.pipeline.plugins import PluginManager
 
     pm = PluginManager()
     projects = sorted((ROOT / "fixtures").rglob("*.toml"))

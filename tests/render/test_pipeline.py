@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.runner import run_project
-from pipeline.testing import run_project_text
-from plugins.render.truth import detection_errors, truth_errors
+from baarda.pipeline.runner import run_project
+from baarda.pipeline.testing import run_project_text
+from baarda.plugins.render.truth import detection_errors, truth_errors
 
 ROOT = Path(__file__).resolve().parents[2]
 FIXTURE = ROOT / "fixtures" / "rendered" / "rendered.toml"

@@ -6,16 +6,16 @@ import cv2
 import numpy as np
 import pytest
 
-from pipeline.errors import InputError
-from pipeline.model import Block, Pairs
-from pipeline.recording import read_recording
-from pipeline.testing import check_stage, log_stage, run_stage
-from plugins.colmap_io.convert import pixels_from_mm, project_block
-from plugins.render.photos import image_size, partial_targets, true_targets, truth_from_meta
-from plugins.render.stage import RenderedImages, TestFieldRender
-from plugins.testfield.simulate import TestFieldConfig, simulate_testfield
-from plugins.targets.stage import pairs_of_layout
-from plugins.testfield.stage import TestFieldSource
+from baarda.pipeline.errors import InputError
+from baarda.pipeline.model import Block, Pairs
+from baarda.pipeline.recording import read_recording
+from baarda.pipeline.testing import check_stage, log_stage, run_stage
+from baarda.pipeline.camera.convert import pixels_from_mm, project_block
+from baarda.plugins.render.photos import image_size, partial_targets, true_targets, truth_from_meta
+from baarda.plugins.render.stage import RenderedImages, TestFieldRender
+from baarda.pipeline.synthetic.testfield import TestFieldConfig, simulate_testfield
+from baarda.plugins.targets.stage import pairs_of_layout
+from baarda.plugins.testfield.stage import TestFieldSource
 
 COARSE = {"pixel_mm": 0.1, "supersample": 2}     # 1170 × 830 pixels: fast
 
@@ -59,7 +59,7 @@ def test_files_and_artefacts(rendered):
 
 def test_true_targets_match_the_bundle_projection(rendered):
     """The ground truth of detection, checked with an independent projection: the bundle's
-    collinearity (plugins.bundle) with the true camera written as brown parameters and the true
+    collinearity (baarda.pipeline.adjustment) with the true camera written as brown parameters and the true
     orientations — the simulator has its own projection code."""
     res, _ = rendered
     block = res.artefacts["block"]
@@ -166,10 +166,10 @@ def test_detection_reads_the_images_artefact(rendered, tmp_path):
     """``opencv-targets`` without an ``images`` option takes the render stage's files, photo ids and
     pixel pitch, and keeps the layout's stereo pairs among the photos it uses; without either
     it stops with a message naming the option."""
-    from pipeline.options import parse_options
-    from pipeline.stage import Context
-    from plugins.render.truth import detection_errors
-    from plugins.targets.stage import TargetDetection, TargetOptions
+    from baarda.pipeline.options import parse_options
+    from baarda.pipeline.stage import Context
+    from baarda.plugins.render.truth import detection_errors
+    from baarda.plugins.targets.stage import TargetDetection, TargetOptions
 
     res, _ = rendered
     images, layout = res.artefacts["images"], res.artefacts["block"]

@@ -5,12 +5,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.errors import InputError
-from pipeline.recording import read_recording
-from pipeline.testing import check_stage, log_stage, run_stage
-from plugins.comparator.stage import ComparatorSource
-from plugins.screening.helmert import outside_format
-from plugins.screening.stage import HelmertScreening
+from baarda.pipeline.errors import InputError
+from baarda.pipeline.recording import read_recording
+from baarda.pipeline.testing import check_stage, log_stage, run_stage
+from baarda.plugins.comparator.stage import ComparatorSource
+from baarda.plugins.screening.helmert import outside_format
+from baarda.plugins.screening.stage import HelmertScreening
 
 from .test_paper000 import PRINTED
 

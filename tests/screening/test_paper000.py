@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize_scalar
 
-from pipeline.testing import run_stage
-from plugins.comparator.stage import ComparatorSource
-from plugins.screening.helmert import helmert_design
-from plugins.screening.stage import HelmertScreening
+from baarda.pipeline.testing import run_stage
+from baarda.plugins.comparator.stage import ComparatorSource
+from baarda.plugins.screening.helmert import helmert_design
+from baarda.plugins.screening.stage import HelmertScreening
 
 FIX = Path(__file__).resolve().parents[2] / "fixtures" / "paper000"
 

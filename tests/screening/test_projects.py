@@ -6,11 +6,11 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.plugins import PluginManager
-from pipeline.runner import run_project
-from plugins.blunders.stage import BlunderRejection
-from plugins.comparator.stage import ComparatorSource
-from plugins.screening.stage import HelmertScreening
+from baarda.pipeline.plugins import PluginManager
+from baarda.pipeline.runner import run_project
+from baarda.plugins.blunder_rejection.stage import BlunderRejection
+from baarda.plugins.comparator.stage import ComparatorSource
+from baarda.plugins.screening.stage import HelmertScreening
 
 FIX = Path(__file__).resolve().parents[2] / "fixtures" / "paper000"
 

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from pipeline.stats import LinearModel, Snapshot
+from baarda.pipeline.stats import LinearModel, Snapshot
 
 XL = np.array([97.673, 128.692, 158.014, 93.523, 124.946, 156.755, 93.115, 124.410, 151.576])
 YL = np.array([180.515, 180.423, 180.618, 160.744, 160.523, 159.548, 142.816, 141.949, 141.152])

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from scipy import optimize, stats
 
-from pipeline.stats import alpha_prime, critical_normal, delta0, global_test, w_power
-from pipeline.stats.snapshot import Snapshot
+from baarda.pipeline.stats import alpha_prime, critical_normal, delta0, global_test, w_power
+from baarda.pipeline.stats.snapshot import Snapshot
 
 
 def test_delta0_and_critical_values():

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from pipeline.stats import (LinearModel, Snapshot, data_snooping, iterated_data_snooping,
+from baarda.pipeline.stats import (LinearModel, Snapshot, data_snooping, iterated_data_snooping,
                             joint_test_2d, mdb, pope_iterated, pope_test, snapshot_from_arrays,
                             tau_critical, w_test)
 from stats_helpers import helmert_design

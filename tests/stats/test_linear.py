@@ -5,8 +5,8 @@ import pytest
 import scipy.linalg as sla
 import scipy.sparse as sp
 
-from pipeline.errors import AdjustmentError
-from pipeline.stats import (LinearModel, data_snooping, estimated_errors, external_reliability,
+from baarda.pipeline.errors import AdjustmentError
+from baarda.pipeline.stats import (LinearModel, data_snooping, estimated_errors, external_reliability,
                             joint_test_2d, mdb, snapshot_from_arrays, w_test)
 from stats_helpers import cov_of
 

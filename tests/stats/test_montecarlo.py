@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from pipeline.stats import (critical_normal, delta0, joint_test_2d, mdb, tau_critical,
+from baarda.pipeline.stats import (critical_normal, delta0, joint_test_2d, mdb, tau_critical,
                             tau_critical_max, tau_distribution, w_test)
 
 from stats_helpers import cov_of, operators, stacked
@@ -91,7 +91,7 @@ def test_joint_2d_test_false_alarm(helmert):
 @pytest.fixture(scope="module")
 def tau_sample():
     """τ of the paper-000 regression design (n = 6, u = 2, r = 4) over 40 000 noise vectors."""
-    from pipeline.stats import LinearModel
+    from baarda.pipeline.stats import LinearModel
     x = np.array([-4, -3, -2, -1, 0, 10.0])
     model = LinearModel(np.c_[np.ones(6), x], np.zeros(6), sigma0=0.5)
     snap = model.adjust().snapshot

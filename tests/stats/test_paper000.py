@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from pipeline.stats import (LinearModel, critical_normal, data_snooping, delta0, global_test,
+from baarda.pipeline.stats import (LinearModel, critical_normal, data_snooping, delta0, global_test,
                             iterated_data_snooping, mdb, pope_iterated, recursive_residuals, rrr)
 
 X1 = np.array([-4, -3, -2, -1, 0, 10.0])

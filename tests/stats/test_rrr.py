@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from pipeline.stats import LinearModel, rrr
+from baarda.pipeline.stats import LinearModel, rrr
 from stats_helpers import helmert_design
 
 X1 = np.array([-4, -3, -2, -1, 0, 10.0])
@@ -93,7 +93,7 @@ def test_block_diagonal_design_any_order():
     """Stacked independent 2-D Helmert transformations (one block per stereo pair): the clean set
     ordered pair by pair cannot start the recursion, yet RRR works and its statistics equal the
     direct least-squares sums of squares (order-free)."""
-    from pipeline.stats import LinearModel, recursive_residuals, rrr
+    from baarda.pipeline.stats import LinearModel, recursive_residuals, rrr
 
     rng = np.random.default_rng(5)
     blocks, ls = [], []

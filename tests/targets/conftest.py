@@ -3,9 +3,9 @@ chessboard detector takes several seconds for the 26 images)."""
 
 import pytest
 
-from pipeline.options import parse_options
-from pipeline.stage import Context
-from plugins.targets.stage import TargetDetection, TargetOptions
+from baarda.pipeline.options import parse_options
+from baarda.pipeline.stage import Context
+from baarda.plugins.targets.stage import TargetDetection, TargetOptions
 
 
 def run_targets(folder, **opts):

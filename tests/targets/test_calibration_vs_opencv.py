@@ -9,9 +9,9 @@ solutions must agree to the convergence tolerance of the two solvers.
 import numpy as np
 import pytest
 
-from plugins.targets.calib import opencv_calibration
+from baarda.plugins.targets.calib import opencv_calibration
 
-adjust_mod = pytest.importorskip("plugins.bundle.adjust", reason="the bundle (plugins/bundle) is not installed")
+adjust_mod = pytest.importorskip("baarda.pipeline.adjustment.adjust", reason="the bundle (plugins/bundle) is not installed")
 
 
 def _compare(name, block, result, cam, fixed_k3=False, strict=True):

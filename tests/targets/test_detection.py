@@ -6,16 +6,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.errors import InputError
-from pipeline.model import Block, Cameras, Observations, Photos, Points
-from pipeline.options import parse_options
-from pipeline.stage import Context
-from plugins.colmap_io.convert import pixels_from_mm, project_block
-from plugins.targets.boards import F_BOARD, BoardGeometry, object_points, opencv_board
-from plugins.targets.calib import opencv_calibration
-from plugins.targets.detect import (detect_aruco, detect_blobs, detect_circles_grid, match_to_predicted,
+from baarda.pipeline.errors import InputError
+from baarda.pipeline.model import Block, Cameras, Observations, Photos, Points
+from baarda.pipeline.options import parse_options
+from baarda.pipeline.stage import Context
+from baarda.pipeline.camera.convert import pixels_from_mm, project_block
+from baarda.plugins.targets.boards import F_BOARD, BoardGeometry, object_points, opencv_board
+from baarda.plugins.targets.calib import opencv_calibration
+from baarda.plugins.targets.detect import (detect_aruco, detect_blobs, detect_circles_grid, match_to_predicted,
                                     refine_ellipse_centres)
-from plugins.targets.stage import TargetDetection, TargetOptions
+from baarda.plugins.targets.stage import TargetDetection, TargetOptions
 
 from .conftest import run_targets
 
@@ -312,7 +312,7 @@ def test_broken_images_are_warnings(tmp_path, shared_data):
 
 
 def test_log_images_to_rerun(charuco, tmp_path):
-    from pipeline.recording import open_recording, read_recording
+    from baarda.pipeline.recording import open_recording, read_recording
 
     res, _ = charuco
     rec = open_recording(tmp_path / "t.rrd", "test")
@@ -328,7 +328,7 @@ def test_log_images_to_rerun(charuco, tmp_path):
 def test_charuco_legacy_pattern_even_rows(printed_legacy):
     """A 5 × 6 board (even rows) printed with the pre-4.6 layout is found only with
     legacy_pattern = true, and vice versa; corners land on the drawn square corners."""
-    from plugins.targets.detect import detect_charuco
+    from baarda.plugins.targets.detect import detect_charuco
 
     geom = lambda legacy: BoardGeometry("charuco", squares=(5, 6), square_size=1.0, marker_size=0.7,
                                         legacy_pattern=legacy)
@@ -344,7 +344,7 @@ def test_charuco_legacy_pattern_even_rows(printed_legacy):
 
 
 def test_stage_contract_and_project(shared_data, tmp_path):
-    from pipeline.testing import check_stage, run_project_text
+    from baarda.pipeline.testing import check_stage, run_project_text
 
     check_stage(TargetDetection, "opencv-targets")
     with pytest.raises(InputError, match="required option 'target'"):

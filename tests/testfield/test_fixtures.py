@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import pytest
 
-from pipeline.plugins import PluginManager
-from pipeline.project import load_project
-from pipeline.runner import run_project
+from baarda.pipeline.plugins import PluginManager
+from baarda.pipeline.project import load_project
+from baarda.pipeline.runner import run_project
 
 
 @pytest.mark.parametrize("name", ["testfield/study.toml", "testfield/block.toml", "aicon/aicon.toml"])

@@ -7,8 +7,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from plugins.testfield.render import mm_to_pixel, pixel_to_mm, projected_targets, render_targets
-from plugins.testfield.simulate import TestFieldConfig, simulate_testfield
+from baarda.plugins.testfield.render import mm_to_pixel, pixel_to_mm, projected_targets, render_targets
+from baarda.pipeline.synthetic.testfield import TestFieldConfig, simulate_testfield
 
 PIXEL_MM = 0.04
 SHAPE = (int(83 / PIXEL_MM), int(117 / PIXEL_MM))   # 2075 × 2925

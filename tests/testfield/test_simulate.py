@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from plugins.testfield.simulate import (BLOCK_PHOTOS, CASES, FOCAL_MM, FORMAT_MM, SYSTEMATIC_ERRORS, TABLE1,
+from baarda.pipeline.synthetic.testfield import (BLOCK_PHOTOS, CASES, FOCAL_MM, FORMAT_MM, SYSTEMATIC_ERRORS, TABLE1,
                                         TestFieldConfig, constraint_count, control_configuration,
                                         degrees_of_freedom, inside_format, physical_distortion, project_truth,
                                         simulate_testfield, single_model, target_field)
@@ -98,7 +98,7 @@ def test_projection_against_opencv(sim):
     c = truth.c
     xy, _ = project_truth(truth.XYZ, truth.X0[:1], truth.opk[:1], c, 0.0, 0.0, d)
     # OpenCV camera: x right, y down, looks down +z  →  flip y and z of baarda's camera frame
-    from pipeline.geometry import rotation_from_opk
+    from baarda.pipeline.geometry import rotation_from_opk
     R = np.diag([1.0, -1.0, -1.0]) @ rotation_from_opk(*truth.opk[0])
     rvec, _ = cv2.Rodrigues(R)
     tvec = -R @ truth.X0[0]
@@ -186,7 +186,7 @@ def test_bundle_recovers_the_truth_without_noise():
     """The simulator and the bundle are independent implementations of the same model: with
     (practically) no noise, a self-calibrating bundle with the 'brown' model returns the true
     orientations, points, c, xp, yp and systematic-error parameters of the simulation."""
-    bundle = pytest.importorskip("plugins.bundle")
+    bundle = pytest.importorskip("baarda.pipeline.adjustment")
     cfg = TestFieldConfig(case=6, sigma_image_um=1e-6, sigma_control_mm=1e-9, ap_model="brown", calibrate_iop=True)
     block, truth = simulate_testfield(cfg, np.random.default_rng(0))
     res = bundle.adjust(block, bundle.BundleSettings(tol_obs=1e-8, max_iter=50))

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.errors import InputError
-from pipeline.recording import read_recording
-from pipeline.testing import check_stage, log_stage, run_stage
-from plugins.testfield.stage import TestFieldSource
+from baarda.pipeline.errors import InputError
+from baarda.pipeline.recording import read_recording
+from baarda.pipeline.testing import check_stage, log_stage, run_stage
+from baarda.plugins.testfield.stage import TestFieldSource
 
 
 def test_protocol():

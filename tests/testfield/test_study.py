@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-pytest.importorskip("plugins.bundle.adjust")
+pytest.importorskip("baarda.pipeline.adjustment.adjust")
 
-from pipeline.errors import InputError  # noqa: E402
-from pipeline.testing import check_stage, log_stage, run_stage  # noqa: E402
-from plugins.testfield.simulate import TestFieldConfig, simulate_testfield  # noqa: E402
-from plugins.testfield.study import (ControlStudy, StudyConfig, _claim, control_study,  # noqa: E402
+from baarda.pipeline.errors import InputError  # noqa: E402
+from baarda.pipeline.testing import check_stage, log_stage, run_stage  # noqa: E402
+from baarda.pipeline.synthetic.testfield import TestFieldConfig, simulate_testfield  # noqa: E402
+from baarda.plugins.testfield.study import (ControlStudy, StudyConfig, _claim, control_study,  # noqa: E402
                                      select_additional_parameters)
 
 

@@ -9,7 +9,7 @@ import time
 import cv2
 import pytest
 
-from pipeline.runner import run_project
+from baarda.pipeline.runner import run_project
 
 
 def _check_run(out, repetitions):

@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from plugins.testfield.simulate import FOCAL_MM, TABLE1, simulate_testfield
-from plugins.testfield_study.study import (BUNDLE, BUNDLE_AP, IM, PAPER_PERCENT, SINGLE, SINGLE_AP, VARIANTS,
+from baarda.pipeline.synthetic.testfield import FOCAL_MM, TABLE1, simulate_testfield
+from baarda.plugins.testfield_study.study import (BUNDLE, BUNDLE_AP, IM, PAPER_PERCENT, SINGLE, SINGLE_AP, VARIANTS,
                                            MethodStudyConfig, compare, method_study, run_realisation)
 
 

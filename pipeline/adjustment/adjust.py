@@ -1,0 +1,299 @@
+"""Public entry point of the bundle numerics: :func:`adjust` → :class:`BundleResult`."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from baarda.pipeline.model import Block
+from baarda.pipeline.stats.snapshot import Snapshot
+
+from .collinearity import EO_NAMES
+from .initial import initial_values
+from .precision import precision, predicted_variance, reliability_rows
+from .solver import BundleProblem, BundleSettings, BundleState, final_system, solve_bundle
+
+__all__ = ["adjust", "BundleResult", "check_point_rmse"]
+
+
+def padded_ap(cameras) -> tuple[np.ndarray, np.ndarray]:
+    """``(ap, sigma_ap)`` copies widened to the largest parameter count of the cameras' models;
+    added columns get the model's default sigma (0 beyond a camera's own parameter count)."""
+    from ..camera.models import get_ap_model
+
+    models = [get_ap_model(m) for m in cameras.ap_model.tolist()]
+    p = max([m.n_params for m in models] + [cameras.ap.shape[1]])
+    k = len(cameras)
+    ap = np.zeros((k, p))
+    sig = np.zeros((k, p))
+    w = cameras.ap.shape[1]
+    ap[:, :w] = cameras.ap
+    sig[:, :w] = cameras.sigma_ap
+    for j, m in enumerate(models):
+        if m.n_params > w:
+            sig[j, w:m.n_params] = np.asarray(m.default_sigma, float)[w:]
+    return ap, sig
+
+
+def check_point_rmse(adjusted: np.ndarray, surveyed: np.ndarray) -> dict:
+    """SPEC §2: ``Sx = √(Σ(Xp − XG)²/n)``, likewise Sy, Sz; ``Sxy = √((Sx² + Sy²)/2)``.
+
+    adjusted, surveyed : (n, 3).  Errors are adjusted minus surveyed.
+    """
+    d = np.asarray(adjusted, float) - np.asarray(surveyed, float)
+    n = len(d)
+    if n == 0:
+        return {"n": 0, "Sx": float("nan"), "Sy": float("nan"), "Sxy": float("nan"), "Sz": float("nan")}
+    S = np.sqrt(np.mean(d * d, axis=0))
+    return {"n": n, "Sx": float(S[0]), "Sy": float(S[1]), "Sxy": float(np.sqrt((S[0] ** 2 + S[1] ** 2) / 2)),
+            "Sz": float(S[2]), "errors": d}
+
+
+@dataclass(eq=False)
+class BundleResult:
+    """Everything a converged bundle adjustment produced (pure data + :meth:`refit`).
+
+    Parameters are in the block's units (image mm, object ``object_unit``, angles rad).
+    Covariances are a-posteriori (``σ̂0² Q``) unless ``dof == 0`` (then ``σ0² Q``).
+    """
+
+    block_in: Block
+    settings: BundleSettings
+    state: BundleState
+    problem: BundleProblem = field(repr=False)
+    sigma0: float
+    vtpv: float
+    dof: int
+    iterations: int
+    history: list
+    residuals: np.ndarray            # (k_all, 2) observed − computed for every observation (inactive too)
+    obs_active: np.ndarray           # (k_all,) bool, observations used
+    row_active: np.ndarray           # (k_all, 2) bool
+    snapshot: Snapshot | None
+    cam_param_names: list            # per camera: ["c", "xp", "yp", *ap names]
+    cov_cameras: list                # per camera: (3+p, 3+p) covariance (zeros for fixed)
+    cov_eo: np.ndarray               # (m, 6, 6)
+    cov_points: np.ndarray           # (n, 3, 3) (nan for points not in the adjustment)
+    redundancy: np.ndarray           # (k_all, 2) r_i = (Qvv P)_ii (0 inactive)
+    PQvvP: np.ndarray                # (k_all, 2, 2) blocks of P Qvv P
+    check: dict
+    timings: dict
+    warnings: list
+    Qx: np.ndarray | None = field(default=None, repr=False)   # cofactors of the global unknowns
+    extras: dict = field(default_factory=dict, repr=False)     # stage-level results (tests, AP selection)
+
+    # -- derived -------------------------------------------------------------------------------
+    @property
+    def sigma0_hat(self) -> float:
+        return float(np.sqrt(self.vtpv / self.dof)) if self.dof > 0 else float("nan")
+
+    @property
+    def variance_factor(self) -> float:
+        return self.sigma0_hat ** 2 if self.dof > 0 else self.sigma0 ** 2
+
+    @property
+    def block(self) -> Block:
+        """The input block with adjusted camera parameters, orientations and coordinates."""
+        b = self.block_in
+        cams = b.cameras
+        st = self.state
+        ap, sig = padded_ap(cams)
+        for j, m in enumerate(self.problem.models):
+            ap[j, :m.n_params] = st.cam_params[j, 3:3 + m.n_params]
+        new_cams = cams.replace(c=st.cam_params[:, 0], xp=st.cam_params[:, 1], yp=st.cam_params[:, 2],
+                                ap=ap, sigma_ap=sig)
+        used = self.problem.point_used
+        XYZ = np.where(used[:, None], st.XYZ, b.points.XYZ)
+        ph_used = self.problem.photo_used
+        return b.replace(cameras=new_cams,
+                         photos=b.photos.replace(X0=np.where(ph_used[:, None], st.X0, b.photos.X0),
+                                                 opk=np.where(ph_used[:, None], st.opk, b.photos.opk)),
+                         points=b.points.replace(XYZ=XYZ))
+
+    def camera_table(self, j: int) -> list[dict]:
+        """Each parameter of camera ``j``: name, value, sigma, status (free/weighted/fixed)."""
+        prob = self.problem
+        out = []
+        for t, name in enumerate(self.cam_param_names[j]):
+            s = prob.cam_sigma[j, t]
+            status = "fixed" if s == 0 else ("free" if np.isinf(s) else "weighted")
+            sd = float(np.sqrt(max(self.cov_cameras[j][t, t], 0.0)))
+            out.append({"camera": str(self.block_in.cameras.ids[j]), "parameter": name,
+                        "value": float(self.state.cam_params[j, t]), "sigma": sd if status != "fixed" else 0.0,
+                        "status": status, "apriori_sigma": float(s)})
+        return out
+
+    def correlation_camera(self, j: int) -> np.ndarray:
+        C = self.cov_cameras[j]
+        d = np.sqrt(np.clip(np.diag(C), 0, None))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            R = C / np.outer(d, d)
+        R[~np.isfinite(R)] = 0.0
+        np.fill_diagonal(R, np.where(d > 0, 1.0, 0.0))
+        return R
+
+    def eo_sigmas(self) -> np.ndarray:
+        return np.sqrt(np.clip(np.einsum("mii->mi", self.cov_eo), 0, None))
+
+    def point_sigmas(self) -> np.ndarray:
+        return np.sqrt(np.clip(np.einsum("nii->ni", self.cov_points), 0, None))
+
+    def obs_rows(self) -> np.ndarray:
+        """(2k, 2): scalar snapshot row → (observation index, coordinate 0 = x / 1 = y)."""
+        k = len(self.residuals)
+        return np.column_stack([np.repeat(np.arange(k), 2), np.tile([0, 1], k)])
+
+    def refit(self, active: np.ndarray) -> Snapshot:
+        """Adjust again with only the scalar rows ``active`` (2 per observation: x, y); the start is
+        this solution.  Satisfies :class:`baarda.pipeline.stats.snapshot.Refittable`."""
+        res = adjust(self.block_in, self.settings, row_active=np.asarray(active, bool).reshape(-1, 2),
+                     start=self.state, compute_initial=False)
+        self._last_refit = res
+        return res.snapshot
+
+    def summary(self) -> dict:
+        return {"sigma0_hat": self.sigma0_hat, "vtpv": self.vtpv, "dof": self.dof, "iterations": self.iterations,
+                "observations": int(self.obs_active.sum()), "unknowns": self.problem.n_unknowns,
+                "check_points": {k: v for k, v in self.check.items() if k != "errors"},
+                "timings": self.timings}
+
+
+def adjust(block: Block, settings: BundleSettings | None = None, *, row_active=None, obs_active=None,
+           start: BundleState | None = None, compute_initial: bool = True, covariance: bool | None = None
+           ) -> BundleResult:
+    """Self-calibrating bundle adjustment of ``block``.
+
+    Parameters
+    ----------
+    block : the photogrammetric block (``baarda.pipeline.model.Block``); never modified.
+    settings : :class:`BundleSettings` (datum, convergence, distances, AP meta …).
+    row_active : optional (k, 2) bool — scalar rows used (refit / data snooping); an observation
+        with neither row active is left out.
+    obs_active : optional (k,) bool replacing ``block.observations.active``.
+    start : optional start state (e.g. a previous solution).
+    compute_initial : compute missing orientations/coordinates by resection/intersection.
+
+    Raises
+    ------
+    AdjustmentError : singular system (names the missing datum or parameter), no convergence
+        (``.state`` holds the last iterate), undeterminable photos/points.
+    InputError : duplicate ids, invalid covariances, unknown AP model.
+    """
+    settings = settings or BundleSettings()
+    t0 = time.perf_counter()
+    work = block
+    if start is None and compute_initial:
+        ph, pt = block.photos, block.points
+        need = (~ph.has_orientation).any() or (~np.isfinite(pt.XYZ).all(axis=1)).any()
+        if need:
+            work = initial_values(block, ap_meta=settings.ap_meta)
+    t_init = time.perf_counter() - t0
+    t_prob = time.perf_counter()
+    prob = BundleProblem(block, settings, obs_active=obs_active, row_active=row_active)
+    t_prob = time.perf_counter() - t_prob
+    st0 = start if start is not None else prob.initial_state(work)
+    prob, st, info = solve_bundle(block, settings, start=st0, problem=prob, final=False)
+    timings = dict(info["timings"])
+    timings["setup"] += t_prob                    # building the problem is set-up too
+    timings["initial_values"] = t_init
+    t1 = time.perf_counter()
+    want_cov = settings.covariance if covariance is None else covariance
+    k_all = len(block.observations)
+    v_all = block.observations.xy - _project_all(prob, st)
+    dof = prob.dof
+    vtpv = info["vtpv"]
+    var = vtpv / dof if dof > 0 else settings.sigma0 ** 2
+    P = 3 + prob.pmax
+    names = [["c", "xp", "yp"] + list(m.params) for m in prob.models]
+    cov_cams = [np.zeros((len(nm), len(nm))) for nm in names]
+    cov_eo = np.zeros((prob.m, 6, 6))
+    cov_pts = np.full((prob.n, 3, 3), np.nan)
+    red_all = np.zeros((k_all, 2))
+    PQ_all = np.zeros((k_all, 2, 2))
+    snapshot = None
+    Qx = None
+    if want_cov:
+        lin, red = final_system(prob, st, info["proj"])     # the precision's normal equations
+        pre = precision(prob, lin, red, st)
+        Qx = pre["Qx"]
+        Qg = np.zeros((prob.n_g + 1, prob.n_g + 1))
+        Qg[:prob.n_g, :prob.n_g] = Qx[:prob.n_g, :prob.n_g]
+        dummy = prob.n_g
+        for j, nm in enumerate(names):
+            idx = np.where(prob.g_cam[j, :len(nm)] >= 0, prob.g_cam[j, :len(nm)], dummy)
+            cov_cams[j] = var * Qg[idx[:, None], idx[None, :]]
+        idx = np.where(prob.g_eo >= 0, prob.g_eo, dummy)
+        cov_eo = var * Qg[idx[:, :, None], idx[:, None, :]]
+        cov_pts[~prob.point_used] = np.nan
+        cov_pts[prob.point_used] = 0.0
+        if prob.n_e:
+            cov_pts[prob.elim_points] = var * pre["Qpp"]
+        gp = np.flatnonzero((prob.g_pt >= 0).any(axis=1))
+        if gp.size:
+            idx = np.where(prob.g_pt[gp] >= 0, prob.g_pt[gp], dummy)
+            cov_pts[gp] = var * Qg[idx[:, :, None], idx[:, None, :]]
+        r, PQ = reliability_rows(prob, pre["H"])
+        red_all[prob.oi] = r
+        PQ_all[prob.oi] = PQ
+        # predicted residuals of the rows left out (for tests of removed observations)
+        out_rows = ~prob.row_active & np.isfinite(v_all)
+        sv_pred = np.full((k_all, 2), np.nan)
+        out_obs = np.flatnonzero(out_rows.any(axis=1))
+        if out_obs.size:
+            aq = predicted_variance(prob, st, red, Qx, pre["Qpp"], out_obs)
+            var_l = np.einsum("kii->ki", block.observations.cov[out_obs])
+            sv_pred[out_obs] = np.sqrt(var_l + settings.sigma0 ** 2 * aq)
+        sv_pred[~out_rows] = np.nan
+        snapshot = _snapshot(block, prob, v_all, red_all, PQ_all, vtpv, dof, settings.sigma0, sv_pred)
+    timings["covariance"] = time.perf_counter() - t1
+    timings["total"] = time.perf_counter() - t0
+    # check points: role 'check' with surveyed coordinates, adjusted as tie points
+    pts = block.points
+    chk = np.flatnonzero((pts.role == "check") & prob.point_used & np.isfinite(pts.XYZ).all(axis=1))
+    check = check_point_rmse(st.XYZ[chk], pts.XYZ[chk])
+    check["ids"] = pts.ids[chk].tolist()
+    return BundleResult(block_in=block, settings=settings, state=st, problem=prob, sigma0=settings.sigma0,
+                        vtpv=vtpv, dof=dof, iterations=info["iterations"], history=info["history"],
+                        residuals=v_all, obs_active=prob.obs_active.copy(), row_active=prob.row_active.copy(),
+                        snapshot=snapshot, cam_param_names=names, cov_cameras=cov_cams, cov_eo=cov_eo,
+                        cov_points=cov_pts, redundancy=red_all, PQvvP=PQ_all, check=check, timings=timings,
+                        warnings=list(prob.warnings), Qx=Qx)
+
+
+def _project_all(prob: BundleProblem, st: BundleState) -> np.ndarray:
+    from .collinearity import project_observations
+
+    obs = prob.block.observations
+    ok = np.isfinite(st.X0[obs.photo]).all(axis=1) & np.isfinite(st.XYZ[obs.point]).all(axis=1) \
+        & np.isfinite(st.opk[obs.photo]).all(axis=1)
+    out = np.full((len(obs), 2), np.nan)
+    if ok.any():
+        pr = project_observations(obs.photo[ok], obs.point[ok], st.XYZ, st.X0, st.opk, prob.block.photos.camera,
+                                  st.cam_params, prob.block.cameras.ap_model, prob.meta, jacobians=False)
+        out[ok] = pr.xy
+    return out
+
+
+def _snapshot(block, prob, v_all, r_all, PQ_all, vtpv, dof, sigma0, sv_pred=None) -> Snapshot:
+    obs = block.observations
+    k = len(obs)
+    act = prob.row_active  # (k, 2) incl. obs-level activity
+    v = np.where(act, np.nan_to_num(v_all), 0.0)
+    # P v with P = LᵀL on the active rows of each observation
+    L = np.zeros((k, 2, 2))
+    L[prob.oi] = prob.L
+    Pv = np.einsum("kji,kj->ki", L, np.einsum("kij,kj->ki", L, v))
+    PQd = np.einsum("kii->ki", PQ_all)
+    sig = np.sqrt(np.einsum("kii->ki", obs.cov))
+    ids = block.observation_ids()
+    labels = np.array([f"photo {a} point {b} {c}" for a, b in ids for c in ("x", "y")], dtype=str)
+    group = np.repeat(np.arange(k), 2)
+    blocks = {int(i): PQ_all[i] for i in np.flatnonzero(act.all(axis=1))}
+    return Snapshot(v=v.reshape(-1), Pv=Pv.reshape(-1), PQvvP=PQd.reshape(-1), r=r_all.reshape(-1),
+                    sigma_l=sig.reshape(-1), vtpv=float(vtpv), dof=int(dof), sigma0=float(sigma0),
+                    active=act.reshape(-1), labels=labels, group=group, PQvvP_blocks=blocks,
+                    meta={"source": "bundle", "obs_rows": "row 2i = x, 2i+1 = y of observation i"},
+                    v_pred=v_all.reshape(-1), sigma_v_pred=None if sv_pred is None else sv_pred.reshape(-1))

@@ -1,0 +1,1 @@
+"""Camera models (additional parameters) and conversions between baarda's camera and other tools'."""

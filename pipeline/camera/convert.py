@@ -1,0 +1,239 @@
+"""Pixels ↔ mm, poses and camera models between computer-vision conventions and baarda's.
+
+Pure numerics (arrays in, arrays out); ``docs/colmap.md`` derives every formula here.
+
+Frames
+------
+COLMAP, OpenCV and libmv use a camera frame with x right, **y down, z forward** (a point in front
+of the camera has ``z > 0``) and ``p_cam = R · X + t``.  baarda's image-space frame has x right,
+**y up, z back** (``docs/conventions.md``).  The two differ by ``D = diag(1, −1, −1)``::
+
+    R_cam_from_world (baarda) = D · R_cam_from_world (COLMAP),   X0 = −R_colmapᵀ · t
+
+Pixels
+------
+``"opencv"``: pixel (0, 0) is the *centre* of the top-left pixel (OpenCV).  ``"colmap"``: (0, 0) is
+the top-left *corner* of the image, the centre of the top-left pixel is (0.5, 0.5) (COLMAP's
+documented convention; also Blender/libmv).  With pitch ``p`` (mm) and ``W × H`` pixels::
+
+    opencv:  x_mm = (u − (W − 1)/2) · p     y_mm = −(v − (H − 1)/2) · p
+    colmap:  x_mm = (u − W/2) · p           y_mm = −(v − H/2) · p
+
+Both put the origin at the centre of the format (``docs/conventions.md``, *Pixels ↔ mm*).
+
+Distortion
+----------
+baarda's ``"brown"`` model, ``ap = (K1, K2, K3, P1, P2, B1, B2)``, evaluated at the **ideal** reduced
+image coordinates ``x̄ = −c U/W``, ``ȳ = −c V/W`` (mm)::
+
+    Δx = x̄ (K1 r² + K2 r⁴ + K3 r⁶) + P1 (r² + 2x̄²) + 2 P2 x̄ȳ + B1 x̄ + B2 ȳ
+    Δy = ȳ (K1 r² + K2 r⁴ + K3 r⁶) + P2 (r² + 2ȳ²) + 2 P1 x̄ȳ
+    x = xp + x̄ + Δx,   y = yp + ȳ + Δy
+
+equals OpenCV's model (``fx, fy, k1, k2, p1, p2, k3`` on the normalized point ``xn = X/Z``) with::
+
+    c = fy · p,  B1 = fx/fy − 1,  K1 = k1/c²,  K2 = k2/c⁴,  K3 = k3/c⁶,  P1 = p2/c,  P2 = −p1/c
+
+exactly when ``fx = fy`` or there is no distortion (else the x terms differ by ``B1·distortion``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from baarda.pipeline.geometry import opk_from_rotation, rotation_from_opk_many
+
+BROWN = ("K1", "K2", "K3", "P1", "P2", "B1", "B2")
+"""Column order of ``Cameras.ap`` for the ``"brown"`` AP model (``baarda.pipeline.camera.models.Brown``)."""
+
+PIXEL_CONVENTIONS = ("opencv", "colmap")
+
+D_FLIP = np.diag([1.0, -1.0, -1.0])
+"""Camera frame y-down/z-forward (OpenCV, COLMAP, libmv) ↔ baarda's y-up/z-back."""
+
+
+# --------------------------------------------------------------------------------------------
+# pixels ↔ mm
+# --------------------------------------------------------------------------------------------
+
+def _centre(size, convention: str) -> np.ndarray:
+    w, h = np.asarray(size, float)[..., 0], np.asarray(size, float)[..., 1]
+    if convention == "opencv":
+        return np.stack([(w - 1.0) / 2.0, (h - 1.0) / 2.0], axis=-1)
+    if convention == "colmap":
+        return np.stack([w / 2.0, h / 2.0], axis=-1)
+    raise ValueError(f"pixel convention must be one of {PIXEL_CONVENTIONS}, got {convention!r}")
+
+
+def mm_from_pixels(uv, size, pixel_mm, convention: str = "opencv") -> np.ndarray:
+    """Image coordinates in mm (x right, y up, origin at the format centre) of pixels ``uv (n, 2)``.
+
+    ``size`` is ``(W, H)`` in pixels (or ``(n, 2)`` per point), ``pixel_mm`` the pitch (scalar or
+    ``(n,)``), ``convention`` ``"opencv"`` or ``"colmap"`` (see the module docstring).
+    """
+    uv = np.asarray(uv, float)
+    d = uv - _centre(size, convention)
+    p = np.asarray(pixel_mm, float)[..., None]
+    return np.stack([d[..., 0], -d[..., 1]], axis=-1) * p
+
+
+def pixels_from_mm(xy, size, pixel_mm, convention: str = "opencv") -> np.ndarray:
+    """Inverse of :func:`mm_from_pixels`."""
+    xy = np.asarray(xy, float)
+    p = np.asarray(pixel_mm, float)[..., None]
+    d = xy / p
+    return np.stack([d[..., 0], -d[..., 1]], axis=-1) + _centre(size, convention)
+
+
+# --------------------------------------------------------------------------------------------
+# poses
+# --------------------------------------------------------------------------------------------
+
+def pose_from_cv(R_cv_cam_from_world, t) -> tuple[np.ndarray, np.ndarray]:
+    """``(X0 (3,), opk (3,))`` of a y-down/z-forward pose ``p_cam = R X + t`` (COLMAP, OpenCV, libmv)."""
+    R = np.asarray(R_cv_cam_from_world, float)
+    t = np.asarray(t, float).reshape(3)
+    return -R.T @ t, opk_from_rotation(D_FLIP @ R)
+
+
+def cv_from_pose(X0, opk) -> tuple[np.ndarray, np.ndarray]:
+    """``(R (m, 3, 3), t (m, 3))`` y-down/z-forward ``cam_from_world`` of baarda poses ``X0, opk (m, 3)``."""
+    R = D_FLIP @ rotation_from_opk_many(opk)
+    t = -np.einsum("mij,mj->mi", R, np.asarray(X0, float).reshape(-1, 3))
+    return R, t
+
+
+# --------------------------------------------------------------------------------------------
+# OpenCV-style distortion ↔ brown
+# --------------------------------------------------------------------------------------------
+
+def brown_from_opencv(fx, fy, pixel_mm, k1=0.0, k2=0.0, p1=0.0, p2=0.0, k3=0.0) -> tuple[float, np.ndarray]:
+    """``(c mm, ap (7,))`` of the brown model equal to OpenCV's ``fx, fy (px), k1, k2, p1, p2, k3``.
+
+    Exact when ``fx == fy`` or all distortion coefficients are 0 (see :func:`opencv_brown_exact`).
+    """
+    c = float(fy) * float(pixel_mm)
+    ap = np.array([k1 / c**2, k2 / c**4, k3 / c**6, p2 / c, -p1 / c, fx / fy - 1.0, 0.0], float)
+    return c, ap
+
+
+def opencv_from_brown(c, ap, pixel_mm) -> dict:
+    """OpenCV ``fx, fy, k1, k2, p1, p2, k3`` (pixels, normalized) of a brown camera.
+
+    ``B2`` (shear) has no OpenCV counterpart: ``ValueError`` when it is not 0.
+    """
+    ap = np.zeros(7) if ap is None else np.asarray(ap, float)
+    ap = np.concatenate([ap, np.zeros(max(0, 7 - ap.size))])[:7]
+    K1, K2, K3, P1, P2, B1, B2 = ap
+    if B2 != 0.0:
+        raise ValueError(f"brown B2 = {B2:g} (shear) cannot be written as an OpenCV/COLMAP camera")
+    fy = c / pixel_mm
+    return {"fx": fy * (1.0 + B1), "fy": fy, "k1": K1 * c**2, "k2": K2 * c**4, "k3": K3 * c**6,
+            "p1": -P2 * c, "p2": P1 * c}
+
+
+def opencv_brown_exact(fx, fy, k1=0.0, k2=0.0, p1=0.0, p2=0.0, k3=0.0) -> bool:
+    """True when :func:`brown_from_opencv` is exact (``fx == fy`` or no distortion)."""
+    return bool(fx == fy or (k1 == 0 and k2 == 0 and p1 == 0 and p2 == 0 and k3 == 0))
+
+
+def project_block(block, photo, point) -> np.ndarray:
+    """Image coordinates (mm, ``(k, 2)``) of ``block.points[point]`` in ``block.photos[photo]``
+    with the block's cameras and AP models — the bundle's own collinearity
+    (:func:`baarda.pipeline.adjustment.collinearity.project_observations`).  Used to check conversions against
+    COLMAP's, BAL's and libmv's projections and to predict target positions.
+    """
+    from baarda.pipeline.adjustment.collinearity import project_observations
+    from baarda.pipeline.adjustment.solver import BundleSettings, camera_meta
+
+    cams, ph = block.cameras, block.photos
+    cam_params = np.column_stack([cams.c, cams.xp, cams.yp, cams.ap]) if len(cams) else np.zeros((0, 3))
+    pr = project_observations(np.asarray(photo, int), np.asarray(point, int), block.points.XYZ, ph.X0, ph.opk,
+                              ph.camera, cam_params, cams.ap_model, camera_meta(block, BundleSettings()),
+                              jacobians=False)
+    return pr.xy
+
+
+# --------------------------------------------------------------------------------------------
+# COLMAP camera models
+# --------------------------------------------------------------------------------------------
+
+COLMAP_PARAMS = {
+    "SIMPLE_PINHOLE": ("f", "cx", "cy"),
+    "PINHOLE": ("fx", "fy", "cx", "cy"),
+    "SIMPLE_RADIAL": ("f", "cx", "cy", "k"),
+    "RADIAL": ("f", "cx", "cy", "k1", "k2"),
+    "OPENCV": ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2"),
+    "FULL_OPENCV": ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"),
+}
+"""COLMAP camera models baarda reads and writes (FULL_OPENCV only with k4 = k5 = k6 = 0)."""
+
+FREE_BROWN = {
+    "SIMPLE_PINHOLE": (), "PINHOLE": ("B1",), "SIMPLE_RADIAL": ("K1",), "RADIAL": ("K1", "K2"),
+    "OPENCV": ("K1", "K2", "P1", "P2", "B1"), "FULL_OPENCV": ("K1", "K2", "K3", "P1", "P2", "B1"),
+}
+"""Brown parameters that a COLMAP model has (the others are 0 and held fixed)."""
+
+
+class UnsupportedCamera(ValueError):
+    """A camera that has no exact counterpart on the other side."""
+
+
+def _named(model: str, params) -> dict:
+    names = COLMAP_PARAMS[model]
+    params = np.asarray(params, float).reshape(-1)
+    if params.size != len(names):
+        raise UnsupportedCamera(f"{model} needs {len(names)} parameters, got {params.size}")
+    v = dict(zip(names, params.tolist()))
+    if "f" in v:
+        v["fx"] = v["fy"] = v.pop("f")
+    if "k" in v:
+        v["k1"] = v.pop("k")
+    return v
+
+
+def brown_from_colmap(model: str, params, size, pixel_mm) -> dict:
+    """baarda camera (``c, xp, yp`` mm, ``ap`` (7,) brown) of a COLMAP camera.
+
+    Returns ``{"c", "xp", "yp", "ap", "exact"}``; ``exact`` is False only for OPENCV/FULL_OPENCV
+    with ``fx ≠ fy`` and distortion (then brown differs by ``(fx/fy − 1)·distortion`` in x).
+    Raises :class:`UnsupportedCamera` for other models and FULL_OPENCV with k4–k6 ≠ 0.
+    """
+    if model not in COLMAP_PARAMS:
+        raise UnsupportedCamera(
+            f"COLMAP camera model {model} is not supported (supported: {', '.join(COLMAP_PARAMS)})")
+    v = _named(model, params)
+    if model == "FULL_OPENCV" and any(v[k] != 0.0 for k in ("k4", "k5", "k6")):
+        raise UnsupportedCamera("FULL_OPENCV with k4, k5, k6 ≠ 0 (rational radial model) is not supported")
+    dist = {k: v.get(k, 0.0) for k in ("k1", "k2", "p1", "p2", "k3")}
+    c, ap = brown_from_opencv(v["fx"], v["fy"], pixel_mm, **dist)
+    xp, yp = mm_from_pixels([v["cx"], v["cy"]], size, pixel_mm, "colmap")
+    return {"c": c, "xp": float(xp), "yp": float(yp), "ap": ap,
+            "exact": opencv_brown_exact(v["fx"], v["fy"], **dist)}
+
+
+def colmap_from_brown(c, xp, yp, ap, size, pixel_mm, model: str = "auto") -> tuple[str, np.ndarray]:
+    """``(model, params)`` of the COLMAP camera equal to a brown camera.
+
+    ``model="auto"`` picks the simplest of SIMPLE_PINHOLE, SIMPLE_RADIAL, RADIAL, PINHOLE, OPENCV,
+    FULL_OPENCV that holds the non-zero parameters.  Raises :class:`UnsupportedCamera` when the
+    requested model cannot hold them exactly (B2; B1 together with distortion).
+    """
+    v = opencv_from_brown(c, ap, pixel_mm)
+    cx, cy = pixels_from_mm([xp, yp], size, pixel_mm, "colmap")
+    ap = np.concatenate([np.asarray(ap if ap is not None else [], float), np.zeros(7)])[:7]
+    nonzero = {name for name, val in zip(BROWN, ap) if val != 0.0}
+    if "B1" in nonzero and nonzero & {"K1", "K2", "K3", "P1", "P2"}:
+        raise UnsupportedCamera("brown B1 (fx ≠ fy) together with distortion has no exact COLMAP model")
+    if model == "auto":
+        for m in ("SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "PINHOLE", "OPENCV", "FULL_OPENCV"):
+            if nonzero <= set(FREE_BROWN[m]):
+                model = m
+                break
+    if model not in COLMAP_PARAMS:
+        raise UnsupportedCamera(f"cannot write COLMAP camera model {model} (supported: {', '.join(COLMAP_PARAMS)})")
+    extra = nonzero - set(FREE_BROWN[model])
+    if extra:
+        raise UnsupportedCamera(f"COLMAP {model} cannot hold brown {', '.join(sorted(extra))}")
+    v.update(cx=float(cx), cy=float(cy), k4=0.0, k5=0.0, k6=0.0, f=v["fy"], k=v["k1"])
+    return model, np.array([v[name] for name in COLMAP_PARAMS[model]], float)

@@ -1,0 +1,69 @@
+"""The ``adjustment`` artefact: what an adjusting stage hands to ``blunder-rejection``.
+
+Any stage that adjusts image observations (``helmert-screening``, ``bundle``, a user's own) writes
+an :class:`AdjustmentArtefact` under the artefact name ``"adjustment"``.  ``blunder-rejection``
+needs nothing else: the snapshot for the one-shot tests, ``model.refit(active)`` for the iterated
+ones (IDS, iterated Pope) and — for RRR only — a :class:`baarda.pipeline.stats.LinearModel` (design
+matrix ``A``, observations ``l``, weights ``P``).  ``obs_rows`` ties every scalar row back to the
+block, so that a decision can mark the right observation inactive.
+
+Keep this class minimal: it is shared by several stages (the bundle produces the same class).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from baarda.pipeline.stats.snapshot import Snapshot
+
+
+@dataclass(frozen=True, eq=False)
+class AdjustmentArtefact:
+    """An adjustment's statistics, its refittable model and the row → observation map.
+
+    Attributes
+    ----------
+    name : str
+        Which adjustment this is (``"helmert-screening"``, ``"bundle"``), for reports.
+    snapshot : Snapshot
+        The adjustment as the stage left it (rows already removed by the stage are inactive).
+    model : Refittable
+        ``model.refit(active) -> Snapshot``.  A :class:`baarda.pipeline.stats.LinearModel` (or a
+        linearisation at the solution) also allows RRR; anything else gets data snooping, IDS
+        and Pope only.
+    obs_rows : (n, 2) int array
+        For scalar row i: ``obs_rows[i] = (observation index in block.observations, coordinate)``
+        with coordinate ``0 = x``, ``1 = y``.  Rows that are not image observations (weighted
+        constraints on control points, exterior orientation, …) have ``(-1, -1)``.
+    """
+
+    name: str
+    snapshot: Snapshot
+    model: Any
+    obs_rows: np.ndarray
+
+    def __post_init__(self):
+        rows = np.array(self.obs_rows, dtype=int).reshape(-1, 2)
+        if rows.shape[0] != self.snapshot.n:
+            raise ValueError(f"AdjustmentArtefact {self.name!r}: obs_rows has {rows.shape[0]} rows, "
+                             f"the snapshot {self.snapshot.n}")
+        rows.flags.writeable = False
+        object.__setattr__(self, "obs_rows", rows)
+
+    def refit(self, active) -> Snapshot:
+        """Adjust again with the given active rows (delegates to ``model.refit``)."""
+        return self.model.refit(active)
+
+    @property
+    def supports_rrr(self) -> bool:
+        """True when the model exposes ``A``, ``l`` and ``P`` as a LinearModel does."""
+        return all(hasattr(self.model, k) for k in ("A", "l", "P", "adjust"))
+
+    def observations_of(self, rows) -> np.ndarray:
+        """Sorted unique block-observation indices of the given scalar rows (bool mask or indices)."""
+        idx = np.flatnonzero(rows) if np.asarray(rows).dtype == bool else np.asarray(rows, int)
+        obs = self.obs_rows[idx, 0]
+        return np.unique(obs[obs >= 0])

@@ -1,0 +1,150 @@
+"""Run the configured blunder-rejection methods on an adjustment (no I/O, no logging).
+
+Each method comes from :mod:`baarda.pipeline.stats`; this module only calls them with the settings,
+collects one :class:`Decision` per rejected row (with the statistic that decided it) and
+a per-method history for the recording.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from baarda.pipeline.stats import (data_snooping, estimated_errors, iterated_data_snooping, mdb,
+                            pope_iterated, pope_test, rrr, w_test)
+from baarda.pipeline.stats.critical import delta0 as _delta0
+
+from baarda.pipeline.contracts import AdjustmentArtefact
+
+METHODS = ("data-snooping", "ids", "pope", "rrr")
+
+
+@dataclass(frozen=True)
+class BlunderSettings:
+    alpha0: float = 0.001
+    beta0: float = 0.80
+    critical_w: float | None = None
+    alpha_pope: float = 0.001
+    alpha_rrr: float = 0.001
+    rho: int = 0
+    n_sim: int = 20_000
+    rrr_critical: float | None = None
+    max_iter: int = 50
+    ids_stop: str = "global-test"
+
+
+@dataclass(frozen=True)
+class Decision:
+    """One rejected row: which method, at which step, with which statistic and critical value."""
+
+    method: str
+    row: int
+    label: str
+    statistic: str      # "w", "tau", "H_exp"
+    value: float
+    critical: float
+    step: int           # iteration (IDS, Pope) or suspect number (RRR); 0 for one-shot data snooping
+
+
+@dataclass(frozen=True, eq=False)
+class MethodResult:
+    method: str
+    rejected: list[int]
+    decisions: list[Decision]
+    history: list[dict]
+    summary: dict
+    raw: object = field(repr=False, default=None)
+    skipped: str | None = None   # reason when the method could not run
+
+    @property
+    def rejected_labels(self) -> list[str]:
+        return [d.label for d in self.decisions]
+
+
+def auto_rho(dof: int) -> int:
+    """Benciolini–Mussio–Sansò's photogrammetric rule 0.15 < ρ/(n − u) < 0.20: ρ = ⌈0.20 (n − u)⌉."""
+    return max(1, math.ceil(0.20 * dof - 1e-9))
+
+
+def run_data_snooping(art: AdjustmentArtefact, s: BlunderSettings) -> MethodResult:
+    snap = art.snapshot
+    ds = data_snooping(snap, s.alpha0, s.beta0, s.critical_w)
+    rows = np.flatnonzero(ds.flagged)
+    dec = [Decision("data-snooping", int(i), str(snap.labels[i]), "w", float(ds.w[i]), ds.critical, 0)
+           for i in rows[np.argsort(-np.abs(ds.w[rows]))]]
+    return MethodResult("data-snooping", [d.row for d in dec], dec, [], ds.summary(), ds)
+
+
+def run_ids(art: AdjustmentArtefact, s: BlunderSettings) -> MethodResult:
+    res = iterated_data_snooping(art.model, art.snapshot, s.alpha0, s.beta0, s.critical_w, s.max_iter,
+                                 stop=s.ids_stop)
+    dec = [Decision("ids", h.row, h.label, "w", h.w_max, res.critical, h.iteration)
+           for h in res.history if h.removed]
+    hist = [{"iteration": h.iteration, "dof": h.dof, "T": h.T, "F_critical": h.critical,
+             "alpha_prime": h.alpha_prime, "w_max": h.w_max, "label": h.label, "removed": h.removed}
+            for h in res.history]
+    return MethodResult("ids", [d.row for d in dec], dec, hist, res.summary(), res)
+
+
+def run_pope(art: AdjustmentArtefact, s: BlunderSettings) -> MethodResult:
+    res = pope_iterated(art.model, art.snapshot, s.alpha_pope, s.max_iter)
+    dec = [Decision("pope", h.row, h.label, "tau", _signed_tau(art, res, h), h.critical, h.iteration)
+           for h in res.history if h.removed]
+    hist = [{"iteration": h.iteration, "dof": h.dof, "sigma0_hat": h.sigma0_hat, "tau_critical": h.critical,
+             "tau_max": h.tau_max, "label": h.label, "removed": h.removed} for h in res.history]
+    return MethodResult("pope", [d.row for d in dec], dec, hist, res.summary(), res)
+
+
+def _signed_tau(art, res, step) -> float:
+    """|τ|max of a Pope step with the sign of that row's residual at that step."""
+    if step.iteration == 0:
+        sign = np.sign(art.snapshot.v[step.row]) or 1.0
+    else:
+        active = np.array(art.snapshot.active, bool)
+        active[res.removed[:step.iteration]] = False
+        sign = np.sign(art.model.refit(active).v[step.row]) or 1.0
+    return float(sign * step.tau_max)
+
+
+def run_rrr(art: AdjustmentArtefact, s: BlunderSettings, rng) -> MethodResult:
+    if not art.supports_rrr:
+        return MethodResult("rrr", [], [], [], {}, None,
+                            skipped=f"the adjustment '{art.name}' offers no linear model (A, l, P)")
+    snap = art.snapshot
+    rho = s.rho or auto_rho(snap.dof)
+    res = rrr(art.model, rho, s.alpha_rrr, s.n_sim, rng=rng, active=snap.active, critical=s.rrr_critical)
+    dec = [Decision("rrr", row, lab, "H_exp", float(h), res.H, j)
+           for j, (row, lab, h, rej) in enumerate(zip(res.suspects, res.suspect_labels, res.H_exp, res.rejected))
+           if rej]
+    hist = [{"suspect": j, **{k: v for k, v in h.items() if k != "recursive_residuals"}}
+            for j, h in enumerate(res.history)]
+    summary = res.summary()
+    summary["rho"] = rho
+    return MethodResult("rrr", [d.row for d in dec], dec, hist, summary, res)
+
+
+def run_methods(art: AdjustmentArtefact, methods, s: BlunderSettings, rng) -> dict[str, MethodResult]:
+    """Run each method in ``methods`` (names from :data:`METHODS`) on the adjustment."""
+    out = {}
+    for m in methods:
+        if m == "data-snooping":
+            out[m] = run_data_snooping(art, s)
+        elif m == "ids":
+            out[m] = run_ids(art, s)
+        elif m == "pope":
+            out[m] = run_pope(art, s)
+        elif m == "rrr":
+            out[m] = run_rrr(art, s, rng)
+        else:
+            raise ValueError(f"unknown method {m!r}; expected one of {METHODS}")
+    return out
+
+
+def row_statistics(art: AdjustmentArtefact, s: BlunderSettings) -> dict[str, np.ndarray]:
+    """Per-row statistics of the adjustment as given: v, r, w, τ, ∇̂, MDB."""
+    snap = art.snapshot
+    return {"v": np.asarray(snap.v), "r": np.asarray(snap.r), "w": w_test(snap),
+            "tau": pope_test(snap, s.alpha_pope).tau, "nabla_hat": estimated_errors(snap),
+            "mdb": mdb(snap, _delta0(s.alpha0, s.beta0))}

@@ -1,0 +1,254 @@
+"""Stage ``blunder-rejection``: data snooping, IDS, Pope τ or RRR on any adjustment.
+
+Reads the ``adjustment`` artefact (:class:`.artefact.AdjustmentArtefact`) and the block; writes
+``blunders`` (:class:`BlunderReport`) and the block, with the rejected observations marked
+inactive when ``action = "remove"``.  Statistics: :mod:`baarda.pipeline.stats`; method wiring:
+:mod:`.decide`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Literal
+
+import numpy as np
+
+from baarda.pipeline.errors import InputError
+from baarda.pipeline.options import option
+from baarda.pipeline.report import TABLE_DECIMALS
+from baarda.pipeline.stage import Context, StageResult, TableData
+
+from baarda.pipeline.contracts import AdjustmentArtefact
+from .decide import METHODS, BlunderSettings, MethodResult, row_statistics, run_methods
+
+
+@dataclasses.dataclass(frozen=True)
+class BlunderOptions:
+    method: Literal["data-snooping", "ids", "pope", "rrr", "all"] = option(
+        "all", "method: data-snooping (one pass, σ0 a priori), ids (Kok's iterated data snooping), "
+               "pope (iterated τ test, σ̂0), rrr (recursive residual rejection), or all of them side by side")
+    decide_by: Literal["data-snooping", "ids", "pope", "rrr"] = option(
+        "rrr", "with method = all: the method whose rejections act on the block")
+    action: Literal["flag", "remove"] = option(
+        "flag", "flag: report only; remove: mark the rejected observations inactive in the block")
+    alpha0: float = option(0.001, "data snooping / IDS: two-sided level per residual (K = Φ⁻¹(1 − α0/2))")
+    beta0: float = option(0.80, "power β0 (δ0, MDB and the B-method α′ of IDS's global test)")
+    critical_w: float = option(0.0, "data snooping / IDS: critical value K; 0 = from alpha0 (3.29), "
+                                    "4.13 = Baarda's B-method value")
+    alpha_pope: float = option(0.001, "Pope: two-sided level per residual (τ critical value, dof of each step)")
+    alpha_rrr: float = option(0.001, "RRR: probability that the whole procedure rejects anything in clean data")
+    rho: int = option(0, "RRR: number of suspects; 0 = ⌈0.20 (n − u)⌉, which rounds Benciolini et al.'s "
+                         "0.15 < ρ/(n − u) < 0.20 up and can leave that range (3 for n − u = 14). "
+                         "Give at least one more than the gross errors you expect: an error left among "
+                         "the non-suspects masks the others (paper 000's Data 1 needs ρ = 4)")
+    n_sim: int = option(20000, "RRR: Monte Carlo repetitions of the whole procedure for the critical value H")
+    rrr_critical: float = option(0.0, "RRR: use this critical value H instead of the Monte Carlo one (0 = simulate)")
+    max_iter: int = option(50, "IDS / Pope: most rows removed")
+    ids_stop: Literal["global-test", "w-test"] = option(
+        "global-test", "IDS: stop when the global test accepts (Kok), or go on while any |w| exceeds K "
+                       "(for a-priori σ scaled from these residuals, where the global test accepts by construction)")
+
+    def __post_init__(self):
+        for name in ("alpha0", "beta0", "alpha_pope", "alpha_rrr"):
+            if not 0 < getattr(self, name) < 1:
+                raise ValueError(f"{name} must lie strictly between 0 and 1, got {getattr(self, name)}")
+        if self.rho < 0 or self.n_sim < 0 or self.max_iter < 0:
+            raise ValueError("rho, n_sim and max_iter must not be negative")
+        if self.n_sim == 0 and not self.rrr_critical > 0 and self.method in ("rrr", "all"):
+            raise ValueError("n_sim = 0 needs an explicit rrr_critical")
+
+    def settings(self) -> BlunderSettings:
+        return BlunderSettings(self.alpha0, self.beta0, self.critical_w or None, self.alpha_pope,
+                               self.alpha_rrr, self.rho, self.n_sim, self.rrr_critical or None, self.max_iter,
+                               self.ids_stop)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class BlunderReport:
+    """The ``blunders`` artefact: each method's result and what was done to the block."""
+
+    adjustment: str
+    methods: dict[str, MethodResult]
+    decide_by: str
+    action: str
+    acted_rows: np.ndarray          # scalar rows of the deciding method
+    acted_observations: np.ndarray  # block observation indices marked inactive (or flagged)
+
+
+class BlunderRejection:
+    summary = "Reject gross errors in any adjustment: data snooping, IDS, Pope τ, RRR (side by side)"
+    reads = ("adjustment", "block")
+    writes = ("blunders", "block")
+    Options = BlunderOptions
+
+    def run(self, inputs, options: BlunderOptions, ctx: Context) -> StageResult:
+        art = inputs["adjustment"]
+        block = inputs["block"]
+        if not isinstance(art, AdjustmentArtefact):
+            raise InputError(f"the 'adjustment' artefact is a {type(art).__name__}, expected an "
+                             "AdjustmentArtefact (baarda.pipeline.contracts)", None, None, "adjustment")
+        settings = options.settings()
+        methods = list(METHODS) if options.method == "all" else [options.method]
+        if options.method == "rrr" and not art.supports_rrr:
+            raise InputError(f"method 'rrr' needs a linear model; the adjustment '{art.name}' offers only "
+                             "refit() — use data-snooping, ids or pope", None, None, "method")
+        results = run_methods(art, methods, settings, ctx.rng)
+        for r in results.values():
+            if r.skipped:
+                ctx.warn(f"{r.method} skipped: {r.skipped}")
+        decide = options.method if options.method != "all" else options.decide_by
+        acted_rows = np.array(sorted(results[decide].rejected), int)
+        acted_obs = art.observations_of(acted_rows) if acted_rows.size else np.zeros(0, int)
+        out_block = block
+        if options.action == "remove" and acted_obs.size:
+            active = block.observations.active.copy()
+            active[acted_obs] = False
+            out_block = block.replace(observations=block.observations.replace(active=active))
+        report = BlunderReport(art.name, results, decide, options.action, acted_rows, acted_obs)
+        stats = row_statistics(art, settings)
+        return StageResult(
+            artefacts={"blunders": report, "block": out_block},
+            summary=_summary(report, block, art) | {"rrr_note": _rho_note(report, options, art.snapshot.dof)},
+            report=_report(report, block, art, options),
+            tables={"observations": _table(report, art, block, stats)},
+            data={"report": report, "artefact": art, "block": block},
+        )
+
+    def log(self, result: StageResult, rec, ctx: Context) -> None:
+        import rerun as rr
+
+        report: BlunderReport = result.data["report"]
+        for name, res in report.methods.items():
+            base = f"blunders/{name}"
+            for i, h in enumerate(res.history):
+                rec.set_time("iteration", sequence=i)
+                if name == "ids":
+                    rec.log(f"{base}/T", rr.Scalars(_num(h["T"])))
+                    rec.log(f"{base}/F_critical", rr.Scalars(_num(h["F_critical"])))
+                    rec.log(f"{base}/w_max", rr.Scalars(_num(abs(h["w_max"]))))
+                elif name == "pope":
+                    rec.log(f"{base}/sigma0_hat", rr.Scalars(_num(h["sigma0_hat"])))
+                    rec.log(f"{base}/tau_max", rr.Scalars(_num(h["tau_max"])))
+                    rec.log(f"{base}/tau_critical", rr.Scalars(_num(h["tau_critical"])))
+                elif name == "rrr":
+                    rec.log(f"{base}/H_exp", rr.Scalars(_num(h["H_exp"])))
+                    rec.log(f"{base}/H", rr.Scalars(_num(h["H"])))
+                    rec.log(f"{base}/H_naive", rr.Scalars(_num(h["H_naive"])))
+                rec.log(f"{base}/step", rr.AnyValues(**{k: (str(v) if not isinstance(v, (int, float, bool)) else v)
+                                                        for k, v in h.items() if not isinstance(v, list)}))
+            rec.reset_time()
+            rec.log(f"{base}/rejected", rr.AnyValues(labels=[d.label for d in res.decisions] or [""],
+                                                     skipped=res.skipped or ""))
+        rec.log("blunders/report", rr.TextDocument(result.report, media_type=rr.MediaType.MARKDOWN))
+
+
+def _num(x) -> float:
+    return float("nan") if x is None else float(x)
+
+
+def _obs_label(art: AdjustmentArtefact, block, row: int) -> str:
+    o, c = art.obs_rows[row]
+    if o < 0:
+        return ""
+    ph, pt = block.observation_ids()[o]
+    return f"{ph}/{pt} {'xy'[c]}"
+
+
+def _summary(report: BlunderReport, block, art) -> dict:
+    ids = block.observation_ids()
+    per = [f"{m}: {', '.join(r.rejected_labels[:4]) or 'none'}{' …' if len(r.rejected_labels) > 4 else ''}"
+           for m, r in report.methods.items() if not r.skipped]
+    return {
+        "headline": f"{report.adjustment}: " + "; ".join(per) + f" (decisive: {report.decide_by}, {report.action})",
+        "adjustment": report.adjustment, "decide_by": report.decide_by, "action": report.action,
+        "methods": {m: ({"rejected": r.rejected_labels,
+                         "decisions": [dataclasses.asdict(d) for d in r.decisions]} if not r.skipped
+                        else {"skipped": r.skipped}) | {"details": _plain(r.summary)}
+                    for m, r in report.methods.items()},
+        "acted_on": [list(ids[i]) for i in report.acted_observations],
+    }
+
+
+def _plain(x):
+    if isinstance(x, dict):
+        return {str(k): _plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_plain(v) for v in x]
+    if isinstance(x, np.generic):
+        return x.item()
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    return x
+
+
+def _report(report: BlunderReport, block, art: AdjustmentArtefact, options) -> str:
+    snap = art.snapshot
+    out = [f"Adjustment **{art.name}**: {int(snap.active.sum())} active rows, dof {snap.dof}, "
+           f"σ0 = {snap.sigma0:g}, σ̂0 = {snap.sigma0_hat:.4g}.", "",
+           "| method | rejected (in order) | decisive statistics |", "|---|---|---|"]
+    for m, r in report.methods.items():
+        if r.skipped:
+            out.append(f"| {m} | — | skipped: {r.skipped} |")
+            continue
+        stats = "; ".join(f"{d.label}: {d.statistic} = {d.value:+.4g} vs {d.critical:.4g}" for d in r.decisions)
+        out.append(f"| {m} | {', '.join(r.rejected_labels) or 'nothing'} | {stats or '—'} |")
+    out.append("")
+    for m, r in report.methods.items():
+        if r.skipped:
+            continue
+        if m == "ids":
+            out.append(f"- IDS (K = {r.summary['K']:.3f}) stopped: {r.summary['stop']}.")
+        elif m == "pope":
+            h = r.history[-1]
+            out.append(f"- Pope (α = {r.summary['alpha']:g}) stopped at dof {h['dof']}, σ̂0 = {h['sigma0_hat']:.4g}: "
+                       f"{r.summary['stop']} (|τ|max = {h['tau_max']:.3f}, τc = {h['tau_critical']:.3f}).")
+        elif m == "rrr":
+            s = r.summary
+            out.append(f"- RRR: ρ = {s['rho']}, suspects {', '.join(s['suspects'])} (largest |∇̂| of the full "
+                       f"adjustment); H = {s['H']:.4f} at α = {s['alpha']:g} from {s['n_sim']} Monte Carlo runs "
+                       f"of the whole procedure for this design (95 % interval {s['H_ci'][0]:.4f}–{s['H_ci'][1]:.4f}); "
+                       "H_exp: " + ", ".join(f"{lab} {h:.4f}" for lab, h in zip(s['suspects'], s['H_exp'])) +
+                       "; naive Beta quantiles (no selection): " +
+                       ", ".join(f"{h:.4f}" for h in s['H_naive']) + ".")
+            note = _rho_note(report, options, snap.dof)
+            if note:
+                out.append(f"- **{note}**")
+    ids = block.observation_ids()
+    acted = ", ".join(f"{ph}/{pt}" for ph, pt in (ids[i] for i in report.acted_observations)) or "none"
+    verb = "marked inactive" if report.action == "remove" else "flagged (action = flag; the block is unchanged)"
+    out += ["", f"Decisions of **{report.decide_by}** act on the block: {acted} — {verb}. "
+                "A rejected x or y takes the whole image point out (the block's active flag is per point)."]
+    return "\n".join(out)
+
+
+def _rho_note(report: BlunderReport, options, dof: int) -> str | None:
+    """When RRR with the default ρ rejected nothing: say that a larger ρ may be needed."""
+    r = report.methods.get("rrr")
+    if r is None or r.skipped or r.rejected or options.rho:
+        return None
+    rho = r.summary["rho"]
+    others = [f"{m} {len(o.rejected)}" for m, o in report.methods.items()
+              if m != "rrr" and not o.skipped and o.rejected]
+    return (f"RRR rejected nothing with the default ρ = {rho} suspects (⌈0.20 (n − u)⌉, n − u = {dof})"
+            + (f" while other methods rejected rows ({', '.join(others)})" if others else "")
+            + ". A gross error left among the non-suspects masks the others, so a larger ρ may be needed: "
+            + f"try rho = {rho + 1}" + ("" if others else " if gross errors are expected") + ".")
+
+
+def _table(report: BlunderReport, art: AdjustmentArtefact, block, stats) -> TableData:
+    snap = art.snapshot
+    n = snap.n
+    cols = {"row": list(range(n)), "label": [str(s) for s in snap.labels],
+            "observation": [_obs_label(art, block, i) for i in range(n)],
+            "active": [bool(a) for a in snap.active]}
+    for k, nd in TABLE_DECIMALS.items():
+        cols[k] = [None if not math.isfinite(x) else round(float(x), nd) for x in stats[k]]
+    for m, r in report.methods.items():
+        key = m.replace("-", "_")
+        by_row = {d.row: d for d in r.decisions}
+        cols[key] = ["skipped" if r.skipped else ("reject" if i in by_row else "accept") for i in range(n)]
+        cols[f"{key}_statistic"] = [f"{by_row[i].statistic}={by_row[i].value:.4g}>{by_row[i].critical:.4g}"
+                                    f"@{by_row[i].step}" if i in by_row else "" for i in range(n)]
+    return TableData(cols, "every scalar observation of the adjustment with v, r, w, τ, ∇̂, MDB and the "
+                           "decision of each method (statistic > critical @ step)")

@@ -1,0 +1,161 @@
+"""COLMAP model (binary or text) → :class:`baarda.pipeline.model.Block`.
+
+The files are read with pycolmap (``Reconstruction(path)`` reads either format, with or without the
+``rigs``/``frames`` files of COLMAP ≥ 3.12); the conversion of cameras, poses and pixels is
+:mod:`baarda.pipeline.camera.convert`.  Only registered images and 2-D points that belong to a 3-D
+point become observations; every keypoint is kept in ``block.meta["colmap"]`` so that
+:mod:`baarda.plugins.colmap.writer` can write the images back unchanged.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from baarda.pipeline.errors import InputError
+from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points
+
+from baarda.pipeline.camera.convert import BROWN, FREE_BROWN, UnsupportedCamera, brown_from_colmap, mm_from_pixels, pose_from_cv
+
+MODEL_FILES = ("cameras", "images", "points3D")
+
+
+def model_format(path: str | Path) -> str:
+    """``"binary"`` or ``"text"``: which COLMAP model files a folder holds (InputError if neither)."""
+    p = Path(path)
+    if not p.is_dir():
+        raise InputError("COLMAP model folder not found", path=p)
+    for fmt, ext in (("binary", ".bin"), ("text", ".txt")):
+        if all((p / f"{name}{ext}").is_file() for name in MODEL_FILES):
+            return fmt
+    missing = [f"{n}.bin/.txt" for n in MODEL_FILES if not ((p / f"{n}.bin").is_file() or (p / f"{n}.txt").is_file())]
+    raise InputError(f"not a COLMAP model: missing {', '.join(missing) or 'a consistent set of .bin or .txt files'}",
+                     path=p)
+
+
+def read_reconstruction(path: str | Path):
+    """``pycolmap.Reconstruction`` of a model folder; unreadable files raise InputError."""
+    import pycolmap
+
+    fmt = model_format(path)
+    rec = pycolmap.Reconstruction()
+    try:
+        (rec.read_binary if fmt == "binary" else rec.read_text)(str(path))
+    except Exception as e:  # pycolmap raises RuntimeError/ValueError with its own message
+        raise InputError(f"pycolmap cannot read the {fmt} model (a file truncated or corrupt?): {e}".strip(),
+                         path=path) from None
+    return rec
+
+
+def block_from_reconstruction(rec, *, pixel_mm: float = 0.001, sensor_width_mm: float = 0.0,
+                              sigma_px: float = 1.0, intrinsics: str = "colmap", object_unit: str = "m",
+                              source: str = "") -> tuple[Block, dict]:
+    """Convert a ``pycolmap.Reconstruction`` to a Block.
+
+    pixel_mm : nominal pixel pitch used when ``sensor_width_mm`` is 0 (c = f_px · pixel_mm).
+    sensor_width_mm : when > 0, the pitch of each camera is ``sensor_width_mm / width``.
+    sigma_px : a-priori sigma of each image coordinate, pixels.
+    intrinsics : ``"colmap"`` frees what COLMAP's default bundle refines (focal length and the
+        model's distortion parameters; principal point fixed); ``"fixed"`` holds all; ``"free"``
+        frees all of the model's parameters including the principal point.
+    Returns ``(block, info)``; ``info`` lists inexact camera conversions, skipped images and the
+    number of duplicate observations (a point seen twice in one image: the second is inactive).
+    """
+    if intrinsics not in ("colmap", "fixed", "free"):
+        raise ValueError(f"intrinsics must be 'colmap', 'fixed' or 'free', got {intrinsics!r}")
+    cam_ids = sorted(rec.cameras)
+    cams, inexact = [], []
+    for cid in cam_ids:
+        cam = rec.cameras[cid]
+        size = (int(cam.width), int(cam.height))
+        pitch = sensor_width_mm / size[0] if sensor_width_mm > 0 else pixel_mm
+        model = cam.model.name
+        try:
+            b = brown_from_colmap(model, np.asarray(cam.params), size, pitch)
+        except UnsupportedCamera as e:
+            raise InputError(f"camera {cid}: {e}", path=source or None, field="model") from None
+        if not b["exact"]:
+            inexact.append(cid)
+        sig_iop = [0.0 if intrinsics == "fixed" else FREE,
+                   FREE if intrinsics == "free" else FIXED, FREE if intrinsics == "free" else FIXED]
+        sig_ap = [FREE if (name in FREE_BROWN[model] and intrinsics != "fixed") else FIXED for name in BROWN]
+        cams.append((str(cid), b, size, pitch, model, sig_iop, sig_ap))
+    cameras = Cameras(
+        ids=np.array([c[0] for c in cams], dtype=str),
+        c=[c[1]["c"] for c in cams], xp=[c[1]["xp"] for c in cams], yp=[c[1]["yp"] for c in cams],
+        ap_model=np.array(["brown"] * len(cams), dtype=str),
+        ap=np.array([c[1]["ap"] for c in cams]).reshape(len(cams), len(BROWN)),
+        sigma_iop=np.array([c[5] for c in cams], float).reshape(-1, 3),
+        sigma_ap=np.array([c[6] for c in cams], float).reshape(len(cams), len(BROWN)),
+        format_mm=np.array([[c[2][0] * c[3], c[2][1] * c[3]] for c in cams], float).reshape(-1, 2),
+        pixel_mm=[c[3] for c in cams], resolution=np.array([c[2] for c in cams], int).reshape(-1, 2),
+    )
+    cam_index = {cid: k for k, cid in enumerate(cam_ids)}
+
+    img_ids = sorted(i for i, im in rec.images.items() if im.has_pose)
+    skipped_images = sorted(set(rec.images) - set(img_ids))
+    X0 = np.zeros((len(img_ids), 3))
+    opk = np.zeros((len(img_ids), 3))
+    names, keypoints = [], []
+    for k, iid in enumerate(img_ids):
+        im = rec.images[iid]
+        cfw = im.cam_from_world()
+        X0[k], opk[k] = pose_from_cv(cfw.rotation.matrix(), cfw.translation)
+        names.append(im.name or str(iid))
+        keypoints.append(np.array([p.xy for p in im.points2D], float).reshape(-1, 2))
+    if len(set(names)) != len(names):                       # ids must be unique: fall back to image ids
+        names = [str(i) for i in img_ids]
+    photos = Photos.make(names, camera=[cam_index[rec.images[i].camera_id] for i in img_ids],
+                         X0=X0.reshape(-1, 3), opk=opk.reshape(-1, 3))
+
+    pt_ids = sorted(rec.points3D)
+    pt_index = {pid: k for k, pid in enumerate(pt_ids)}
+    points = Points.make([str(p) for p in pt_ids],
+                         XYZ=np.array([rec.points3D[p].xyz for p in pt_ids], float).reshape(-1, 3), role="tie")
+
+    obs_photo, obs_point, obs_uv, obs_idx = [], [], [], []
+    for k, iid in enumerate(img_ids):
+        for j, p2 in enumerate(rec.images[iid].points2D):
+            if p2.has_point3D() and p2.point3D_id in pt_index:
+                obs_photo.append(k)
+                obs_point.append(pt_index[p2.point3D_id])
+                obs_uv.append(p2.xy)
+                obs_idx.append(j)
+    obs_photo = np.array(obs_photo, int)
+    cam_of_obs = photos.camera[obs_photo]
+    uv = np.array(obs_uv, float).reshape(-1, 2)
+    xy = mm_from_pixels(uv, cameras.resolution[cam_of_obs], cameras.pixel_mm[cam_of_obs], "colmap")
+    # COLMAP can hold a 3-D point twice in one image (two keypoints in one track); baarda takes one
+    # measurement per point and photo: the first is kept, the others are switched off (and still
+    # written back by the writer, so a round trip keeps the model unchanged)
+    obs_point = np.array(obs_point, int)
+    first = np.zeros(len(obs_photo), bool)
+    if len(obs_photo):
+        _, idx = np.unique(obs_photo * (len(pt_ids) + 1) + obs_point, return_index=True)
+        first[idx] = True
+    observations = Observations.make(obs_photo, obs_point, xy, sigma=sigma_px * cameras.pixel_mm[cam_of_obs],
+                                     active=first)
+
+    meta = {
+        "source": source,
+        "colmap": {
+            "camera_ids": cam_ids, "camera_models": [c[4] for c in cams],
+            "image_ids": img_ids, "keypoints_px": keypoints, "point2D_idx": np.array(obs_idx, int),
+            "point3D_ids": pt_ids, "duplicate": ~first,
+            "colors": np.array([rec.points3D[p].color for p in pt_ids], np.uint8).reshape(-1, 3),
+        },
+    }
+    block = Block(cameras=cameras, photos=photos, points=points, observations=observations,
+                  object_unit=object_unit, meta=meta)
+    info = {"inexact_cameras": inexact, "unregistered_images": skipped_images,
+            "duplicate_observations": int((~first).sum())}
+    return block, info
+
+
+def read_colmap(path: str | Path, **kw) -> tuple[Block, dict]:
+    """Read a COLMAP model folder (binary or text) into a Block; see :func:`block_from_reconstruction`."""
+    rec = read_reconstruction(path)
+    block, info = block_from_reconstruction(rec, source=str(path), **kw)
+    info["format"] = model_format(path)
+    return block, info

@@ -1,0 +1,144 @@
+"""Stages ``colmap`` (source: COLMAP model → block) and ``colmap-export`` (block → COLMAP model)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from baarda.pipeline.errors import InputError
+from baarda.pipeline.options import option
+from baarda.pipeline.stage import Context, Stage, StageResult
+
+from baarda.pipeline.camera.convert import COLMAP_PARAMS, project_block
+from .reader import read_colmap
+from .rrlog import log_block
+from .writer import write_colmap
+
+
+def reprojection_px(block) -> np.ndarray:
+    """Image residuals ``observed − computed`` in pixels ``(k, 2)`` of a block with pixel cameras."""
+    obs = block.observations
+    xy = project_block(block, obs.photo, obs.point)
+    return (obs.xy - xy) / block.cameras.pixel_mm[block.photos.camera[obs.photo]][:, None]
+
+
+def reprojection_summary(block) -> dict:
+    """Mean and RMS of the reprojection error (pixels) over active observations."""
+    v = reprojection_px(block)[block.observations.active]
+    e = np.linalg.norm(v, axis=1)
+    return {"mean_px": float(e.mean()) if e.size else float("nan"),
+            "rms_px": float(np.sqrt((e**2).mean())) if e.size else float("nan"),
+            "max_px": float(e.max()) if e.size else float("nan")}
+
+
+@dataclass(frozen=True)
+class ColmapSourceOptions:
+    path: Path = field(metadata={"doc": "COLMAP model folder (cameras, images, points3D as .bin or .txt; "
+                                        "rigs/frames optional), relative to the project file (required)"})
+    pixel_mm: float = option(0.001, "nominal pixel pitch, mm (COLMAP has none): c = f_px · pixel_mm; the "
+                                    "default 1 µm makes µm in reports read as pixels")
+    sensor_width_mm: float = option(0.0, "sensor width, mm; when > 0 the pitch of each camera is "
+                                         "sensor_width_mm / width and pixel_mm is ignored")
+    sigma_px: float = option(1.0, "a-priori sigma of an image coordinate, pixels")
+    intrinsics: Literal["colmap", "fixed", "free"] = option(
+        "colmap", "which interior parameters are unknowns: 'colmap' as COLMAP's bundle (c and the model's "
+                  "distortion terms; principal point fixed), 'fixed' none, 'free' also the principal point")
+    object_unit: Literal["m", "mm", "cm", "ft"] = option("m", "unit of the model's coordinates")
+
+    def __post_init__(self):
+        if self.pixel_mm <= 0 or self.sigma_px <= 0 or self.sensor_width_mm < 0:
+            raise ValueError("pixel_mm and sigma_px must be > 0, sensor_width_mm >= 0")
+
+
+class ColmapSource(Stage):
+    """Read a COLMAP model (binary or text) as a block: cameras in mm with the brown AP model."""
+
+    summary = "COLMAP model (binary or text) → block (cameras in mm, brown distortion, tie points)"
+    reads = ()
+    writes = ("block",)
+    Options = ColmapSourceOptions
+
+    def run(self, inputs, options: ColmapSourceOptions, ctx: Context) -> StageResult:
+        if not str(options.path) or str(options.path) == ".":
+            raise InputError("option 'path' (the COLMAP model folder) is required", field="path",
+                             path=ctx.project_file)
+        path = ctx.resolve(options.path)
+        block, info = read_colmap(path, pixel_mm=options.pixel_mm, sensor_width_mm=options.sensor_width_mm,
+                                  sigma_px=options.sigma_px, intrinsics=options.intrinsics,
+                                  object_unit=options.object_unit)
+        for cid in info["inexact_cameras"]:
+            ctx.warn(f"camera {cid}: OPENCV with fx ≠ fy and distortion is not exactly a brown camera "
+                     "(x differs by (fx/fy − 1)·distortion); see docs/colmap.md")
+        if info["duplicate_observations"]:
+            ctx.warn(f"{info['duplicate_observations']} observation(s) of a point already measured in the same "
+                     "image switched off (COLMAP keeps both; baarda one per point and photo)")
+        if info["unregistered_images"]:
+            ctx.warn(f"{len(info['unregistered_images'])} image(s) without pose skipped")
+        rep = reprojection_summary(block)
+        models = sorted(set(block.meta["colmap"]["camera_models"]))
+        summary = {**block.summary(), "format": info["format"], "camera_models": models,
+                   "reprojection": rep, "pixel_mm": sorted(set(block.cameras.pixel_mm.tolist()))}
+        report = (f"Read the {info['format']} COLMAP model `{path}`: {len(block.cameras)} camera(s) "
+                  f"({', '.join(models)}), {len(block.photos)} images, {len(block.points)} points, "
+                  f"{len(block.observations)} observations.  Reprojection error of the model as read: "
+                  f"mean {rep['mean_px']:.4f} px, RMS {rep['rms_px']:.4f} px.  Pixel pitch "
+                  f"{', '.join(f'{p:g}' for p in summary['pixel_mm'])} mm; cameras use the brown AP model "
+                  f"(docs/colmap.md).")
+        return StageResult(artefacts={"block": block}, summary=summary, report=report, data=block)
+
+    def log(self, result, rec, ctx) -> None:
+        log_block(rec, result.data, root=f"{ctx.stage_id}/block")
+
+
+@dataclass(frozen=True)
+class ColmapExportOptions:
+    path: Path = field(metadata={"doc": "output folder for the COLMAP model (relative paths: inside the run "
+                                        "directory) (required)"})
+    format: Literal["binary", "text"] = option("binary", "COLMAP file format")
+    camera_model: str = option("keep", "'keep' (the model a camera had when read from COLMAP, when it still "
+                                       "holds the parameters), 'auto' (the simplest exact model) or one of "
+                                       + ", ".join(COLMAP_PARAMS))
+
+    def __post_init__(self):
+        if self.camera_model not in ("keep", "auto", *COLMAP_PARAMS):
+            raise ValueError(f"camera_model must be 'keep', 'auto' or one of {', '.join(COLMAP_PARAMS)}")
+
+
+def block_to_export(inputs) -> tuple[object, str]:
+    """The block to write: the adjusted block of an ``adjustment`` artefact (anything with ``.block``
+    and ``.block_in``) when it was computed from the current ``block``, else ``block`` itself."""
+    block = inputs["block"]
+    adj = inputs.get("adjustment")
+    if adj is not None and getattr(adj, "block_in", None) is block and hasattr(adj, "block"):
+        return adj.block, "adjusted"
+    return block, "as given"
+
+
+class ColmapExport(Stage):
+    """Write the block (adjusted, if a bundle ran before) as a COLMAP model."""
+
+    summary = "block (adjusted if an adjustment of it exists) → COLMAP model folder (text or binary)"
+    reads = ("block", "adjustment?")
+    writes = ()
+    paths = {"path": "output"}            # the folder written (not checked by validate)
+    Options = ColmapExportOptions
+
+    def run(self, inputs, options: ColmapExportOptions, ctx: Context) -> StageResult:
+        if not str(options.path) or str(options.path) == ".":
+            raise InputError("option 'path' (the output folder) is required", field="path", path=ctx.project_file)
+        out = Path(options.path).expanduser()
+        if not out.is_absolute():
+            out = (ctx.run_dir or ctx.project_dir) / out
+        block, which = block_to_export(inputs)
+        info = write_colmap(block, out, fmt=options.format, camera_model=options.camera_model)
+        info["block"] = which
+        if info["skipped_photos"]:
+            ctx.warn(f"{len(info['skipped_photos'])} photo(s) without orientation not written")
+        report = (f"Wrote the block ({which}) as a {options.format} COLMAP model to `{out}`: {info['cameras']} camera(s) "
+                  f"({', '.join(sorted(set(info['camera_models'])))}), {info['images']} images, "
+                  f"{info['points3D']} points, {info['observations']} observations.")
+        return StageResult(summary=info, report=report)
+

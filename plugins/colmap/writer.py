@@ -1,0 +1,147 @@
+"""Block → COLMAP model (``pycolmap.Reconstruction``, written as text or binary).
+
+Cameras become COLMAP cameras with one trivial rig each, photos images with one trivial frame
+each (pycolmap ≥ 3.12 layout: cameras, images, points3D, rigs, frames).  A block read from COLMAP
+(``meta["colmap"]``) is written back with its camera, image and point ids, all its keypoints, the
+camera models it had and the point colours; other blocks get ids 1, 2, … and one keypoint per
+observation.  Only active observations of points with known coordinates enter tracks.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from baarda.pipeline.errors import InputError
+
+from baarda.pipeline.camera.convert import UnsupportedCamera, colmap_from_brown, cv_from_pose, pixels_from_mm
+
+
+def _pitch_and_size(cameras, k) -> tuple[float, tuple[int, int]]:
+    pitch = float(cameras.pixel_mm[k])
+    w, h = (int(v) for v in cameras.resolution[k])
+    if not np.isfinite(pitch) or pitch <= 0 or w <= 0 or h <= 0:
+        raise InputError(f"camera {cameras.ids[k]}: a COLMAP camera needs a pixel pitch and a resolution "
+                         f"(pixel_mm={pitch}, resolution={w}×{h})", field="cameras")
+    return pitch, (w, h)
+
+
+def colmap_cameras(cameras, models=None) -> list[tuple[str, np.ndarray]]:
+    """``(model, params)`` per camera; ``models`` (per camera, or None) asks for a COLMAP model.
+
+    A requested model that cannot hold the camera's parameters falls back to ``"auto"``.
+    """
+    out = []
+    for k in range(len(cameras)):
+        pitch, size = _pitch_and_size(cameras, k)
+        ap_model = str(cameras.ap_model[k])
+        if ap_model not in ("brown", "none"):
+            raise InputError(f"camera {cameras.ids[k]}: AP model '{ap_model}' has no COLMAP equivalent "
+                             "(only 'brown' and 'none' can be written)", field="ap_model")
+        ap = cameras.ap[k] if ap_model == "brown" else None
+        want = "auto" if models is None else models[k]
+        try:
+            try:
+                out.append(colmap_from_brown(cameras.c[k], cameras.xp[k], cameras.yp[k], ap, size, pitch, want))
+            except UnsupportedCamera:
+                if want == "auto":
+                    raise
+                out.append(colmap_from_brown(cameras.c[k], cameras.xp[k], cameras.yp[k], ap, size, pitch, "auto"))
+        except (UnsupportedCamera, ValueError) as e:
+            raise InputError(f"camera {cameras.ids[k]}: {e}", field="ap") from None
+    return out
+
+
+def reconstruction_from_block(block, *, camera_model: str = "keep"):
+    """A ``pycolmap.Reconstruction`` of a block.
+
+    camera_model : ``"keep"`` — the model the camera had in COLMAP (if it still fits, else the
+        simplest that does), ``"auto"`` — the simplest exact model, or a COLMAP model name.
+    Photos without orientation are skipped (reported through ``info``).
+    Returns ``(reconstruction, info)``.
+    """
+    import pycolmap
+
+    meta = block.meta.get("colmap") if isinstance(block.meta, dict) else None
+    cams, photos, pts, obs = block.cameras, block.photos, block.points, block.observations
+    same_shape = (meta is not None and len(meta.get("camera_ids", ())) == len(cams)
+                  and len(meta.get("image_ids", ())) == len(photos)
+                  and len(meta.get("point3D_ids", ())) == len(pts)
+                  and len(meta.get("point2D_idx", ())) == len(obs))
+    if camera_model == "keep":
+        models = list(meta["camera_models"]) if same_shape else None
+    elif camera_model == "auto":
+        models = None
+    else:
+        models = [camera_model] * len(cams)
+    cam_params = colmap_cameras(cams, models)
+    cam_ids = list(meta["camera_ids"]) if same_shape else list(range(1, len(cams) + 1))
+    img_ids = list(meta["image_ids"]) if same_shape else list(range(1, len(photos) + 1))
+
+    rec = pycolmap.Reconstruction()
+    for k, (model, params) in enumerate(cam_params):
+        cam = pycolmap.Camera.create_from_model_name(int(cam_ids[k]), model, 1.0, int(cams.resolution[k, 0]),
+                                                     int(cams.resolution[k, 1]))
+        cam.params = params
+        rec.add_camera_with_trivial_rig(cam)
+
+    oriented = photos.has_orientation
+    R, t = cv_from_pose(np.nan_to_num(photos.X0), np.nan_to_num(photos.opk))
+    active = obs.active.copy()
+    if same_shape and "duplicate" in meta:          # COLMAP's own second measurements, off in baarda
+        active |= np.asarray(meta["duplicate"], bool)
+    use = active & oriented[obs.photo] & np.isfinite(pts.XYZ[obs.point]).all(axis=1)
+    # keypoints per image: the original ones (meta) or one per observation
+    keypoints, obs_kp = [], np.full(len(obs), -1)
+    for k in range(len(photos)):
+        rows = np.flatnonzero(obs.photo == k)
+        if same_shape:
+            kp = np.array(meta["keypoints_px"][k], float).reshape(-1, 2)
+            obs_kp[rows] = meta["point2D_idx"][rows]
+        else:
+            cam = photos.camera[k]
+            kp = pixels_from_mm(obs.xy[rows], cams.resolution[cam], cams.pixel_mm[cam], "colmap").reshape(-1, 2)
+            obs_kp[rows] = np.arange(rows.size)
+        keypoints.append(kp)
+    for k in np.flatnonzero(oriented):
+        image = pycolmap.Image(name=str(photos.ids[k]), keypoints=keypoints[k],
+                               camera_id=int(cam_ids[photos.camera[k]]), image_id=int(img_ids[k]))
+        rec.add_image_with_trivial_frame(image, pycolmap.Rigid3d(pycolmap.Rotation3d(R[k]), t[k]))
+
+    colors = meta.get("colors") if same_shape else None
+    pt_ids = list(meta["point3D_ids"]) if same_shape else None
+    written = 0
+    for j in range(len(pts)):
+        rows = np.flatnonzero(use & (obs.point == j))
+        if rows.size == 0:
+            continue
+        track = pycolmap.Track()
+        for r in rows:
+            track.add_element(int(img_ids[obs.photo[r]]), int(obs_kp[r]))
+        color = colors[j] if colors is not None else np.zeros(3, np.uint8)
+        if pt_ids is not None:
+            p3 = pycolmap.Point3D()
+            p3.xyz, p3.track, p3.color = pts.XYZ[j], track, np.asarray(color, np.uint8)
+            rec.add_point3D_with_id(int(pt_ids[j]), p3)
+        else:
+            rec.add_point3D(pts.XYZ[j], track, color)
+        written += 1
+    rec.update_point_3d_errors()
+    info = {"cameras": len(cams), "images": int(oriented.sum()), "points3D": written,
+            "observations": int(use.sum()), "skipped_photos": photos.ids[~oriented].tolist(),
+            "camera_models": [m for m, _ in cam_params]}
+    return rec, info
+
+
+def write_colmap(block, path: str | Path, *, fmt: str = "binary", camera_model: str = "keep") -> dict:
+    """Write a block as a COLMAP model folder (``fmt`` ``"binary"`` or ``"text"``); returns info."""
+    if fmt not in ("binary", "text"):
+        raise ValueError(f"format must be 'binary' or 'text', got {fmt!r}")
+    rec, info = reconstruction_from_block(block, camera_model=camera_model)
+    out = Path(path)
+    out.mkdir(parents=True, exist_ok=True)
+    (rec.write_binary if fmt == "binary" else rec.write_text)(str(out))
+    info["path"] = str(out)
+    info["format"] = fmt
+    return info
