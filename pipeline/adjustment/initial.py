@@ -23,7 +23,9 @@ from baarda.pipeline.geometry import opk_from_rotation, rotation_from_opk_many
 from baarda.pipeline.model import Block
 
 from ..camera.models import get_ap_model
-from .collinearity import project_observations, rotation_and_derivatives
+from baarda.pipeline.geometry.rotations import rotation_and_derivatives
+
+from .collinearity import project_observations
 
 __all__ = ["resection", "intersection", "initial_values", "ResectionResult"]
 

@@ -42,66 +42,10 @@ from __future__ import annotations
 import numpy as np
 
 from baarda.pipeline.geometry import opk_from_rotation, rotation_from_opk_many
+from baarda.pipeline.geometry.image import mm_from_pixels, pixels_from_mm
 
 BROWN = ("K1", "K2", "K3", "P1", "P2", "B1", "B2")
 """Column order of ``Cameras.ap`` for the ``"brown"`` AP model (``baarda.pipeline.camera.models.Brown``)."""
-
-PIXEL_CONVENTIONS = ("opencv", "colmap")
-
-D_FLIP = np.diag([1.0, -1.0, -1.0])
-"""Camera frame y-down/z-forward (OpenCV, COLMAP, libmv) ↔ baarda's y-up/z-back."""
-
-
-# --------------------------------------------------------------------------------------------
-# pixels ↔ mm
-# --------------------------------------------------------------------------------------------
-
-def _centre(size, convention: str) -> np.ndarray:
-    w, h = np.asarray(size, float)[..., 0], np.asarray(size, float)[..., 1]
-    if convention == "opencv":
-        return np.stack([(w - 1.0) / 2.0, (h - 1.0) / 2.0], axis=-1)
-    if convention == "colmap":
-        return np.stack([w / 2.0, h / 2.0], axis=-1)
-    raise ValueError(f"pixel convention must be one of {PIXEL_CONVENTIONS}, got {convention!r}")
-
-
-def mm_from_pixels(uv, size, pixel_mm, convention: str = "opencv") -> np.ndarray:
-    """Image coordinates in mm (x right, y up, origin at the format centre) of pixels ``uv (n, 2)``.
-
-    ``size`` is ``(W, H)`` in pixels (or ``(n, 2)`` per point), ``pixel_mm`` the pitch (scalar or
-    ``(n,)``), ``convention`` ``"opencv"`` or ``"colmap"`` (see the module docstring).
-    """
-    uv = np.asarray(uv, float)
-    d = uv - _centre(size, convention)
-    p = np.asarray(pixel_mm, float)[..., None]
-    return np.stack([d[..., 0], -d[..., 1]], axis=-1) * p
-
-
-def pixels_from_mm(xy, size, pixel_mm, convention: str = "opencv") -> np.ndarray:
-    """Inverse of :func:`mm_from_pixels`."""
-    xy = np.asarray(xy, float)
-    p = np.asarray(pixel_mm, float)[..., None]
-    d = xy / p
-    return np.stack([d[..., 0], -d[..., 1]], axis=-1) + _centre(size, convention)
-
-
-# --------------------------------------------------------------------------------------------
-# poses
-# --------------------------------------------------------------------------------------------
-
-def pose_from_cv(R_cv_cam_from_world, t) -> tuple[np.ndarray, np.ndarray]:
-    """``(X0 (3,), opk (3,))`` of a y-down/z-forward pose ``p_cam = R X + t`` (COLMAP, OpenCV, libmv)."""
-    R = np.asarray(R_cv_cam_from_world, float)
-    t = np.asarray(t, float).reshape(3)
-    return -R.T @ t, opk_from_rotation(D_FLIP @ R)
-
-
-def cv_from_pose(X0, opk) -> tuple[np.ndarray, np.ndarray]:
-    """``(R (m, 3, 3), t (m, 3))`` y-down/z-forward ``cam_from_world`` of baarda poses ``X0, opk (m, 3)``."""
-    R = D_FLIP @ rotation_from_opk_many(opk)
-    t = -np.einsum("mij,mj->mi", R, np.asarray(X0, float).reshape(-1, 3))
-    return R, t
-
 
 # --------------------------------------------------------------------------------------------
 # OpenCV-style distortion ↔ brown

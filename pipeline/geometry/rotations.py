@@ -64,3 +64,36 @@ def project(X: np.ndarray, X0: np.ndarray, R_cam_from_world: np.ndarray, c: floa
     """Ideal collinearity projection (no additional parameters) of points ``X (n, 3)`` → ``(n, 2)`` mm."""
     d = (np.asarray(X, float) - np.asarray(X0, float)) @ np.asarray(R_cam_from_world, float).T
     return np.column_stack([xp - c * d[:, 0] / d[:, 2], yp - c * d[:, 1] / d[:, 2]])
+
+
+def _elem(a, axis):
+    """Elementary rotations R1, R2, R3 (conventions doc) and their derivatives, batched."""
+    c, s = np.cos(a), np.sin(a)
+    n = a.shape[0]
+    R = np.zeros((n, 3, 3))
+    D = np.zeros((n, 3, 3))
+    if axis == 1:
+        R[:, 0, 0] = 1
+        R[:, 1, 1], R[:, 1, 2], R[:, 2, 1], R[:, 2, 2] = c, s, -s, c
+        D[:, 1, 1], D[:, 1, 2], D[:, 2, 1], D[:, 2, 2] = -s, c, -c, -s
+    elif axis == 2:
+        R[:, 1, 1] = 1
+        R[:, 0, 0], R[:, 0, 2], R[:, 2, 0], R[:, 2, 2] = c, -s, s, c
+        D[:, 0, 0], D[:, 0, 2], D[:, 2, 0], D[:, 2, 2] = -s, -c, c, -s
+    else:
+        R[:, 2, 2] = 1
+        R[:, 0, 0], R[:, 0, 1], R[:, 1, 0], R[:, 1, 1] = c, s, -s, c
+        D[:, 0, 0], D[:, 0, 1], D[:, 1, 0], D[:, 1, 1] = -s, c, -c, -s
+    return R, D
+
+
+def rotation_and_derivatives(opk: np.ndarray):
+    """``R_cam_from_world (m, 3, 3)`` and ``dR (m, 3, 3, 3)`` with ``dR[:, a]`` = ∂R/∂(ω, φ, κ)[a]."""
+    opk = np.asarray(opk, float).reshape(-1, 3)
+    R1, D1 = _elem(opk[:, 0], 1)
+    R2, D2 = _elem(opk[:, 1], 2)
+    R3, D3 = _elem(opk[:, 2], 3)
+    R32 = R3 @ R2
+    R = R32 @ R1
+    dR = np.stack([R32 @ D1, R3 @ D2 @ R1, D3 @ R2 @ R1], axis=1)
+    return R, dR

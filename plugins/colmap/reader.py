@@ -16,7 +16,9 @@ import numpy as np
 from baarda.pipeline.errors import InputError
 from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points
 
-from baarda.pipeline.camera.convert import BROWN, FREE_BROWN, UnsupportedCamera, brown_from_colmap, mm_from_pixels, pose_from_cv
+from baarda.pipeline.geometry.image import mm_from_pixels
+from baarda.pipeline.geometry.pose import pose_from_cv
+from baarda.pipeline.camera.convert import BROWN, FREE_BROWN, UnsupportedCamera, brown_from_colmap
 
 MODEL_FILES = ("cameras", "images", "points3D")
 

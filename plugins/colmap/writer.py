@@ -15,7 +15,9 @@ import numpy as np
 
 from baarda.pipeline.errors import InputError
 
-from baarda.pipeline.camera.convert import UnsupportedCamera, colmap_from_brown, cv_from_pose, pixels_from_mm
+from baarda.pipeline.geometry.image import pixels_from_mm
+from baarda.pipeline.geometry.pose import cv_from_pose
+from baarda.pipeline.camera.convert import UnsupportedCamera, colmap_from_brown
 
 
 def _pitch_and_size(cameras, k) -> tuple[float, tuple[int, int]]:

@@ -23,7 +23,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from baarda.pipeline.camera.convert import brown_from_colmap, colmap_from_brown, mm_from_pixels, pose_from_cv
+from baarda.pipeline.geometry.image import mm_from_pixels
+from baarda.pipeline.geometry.pose import pose_from_cv
+from baarda.pipeline.camera.convert import brown_from_colmap, colmap_from_brown
 from baarda.plugins.colmap.writer import reconstruction_from_block
 
 from .plan import CrossCheckPlan, brown_vector

@@ -27,7 +27,7 @@ from baarda.pipeline.geometry import opk_from_rotation
 from baarda.pipeline.stats.linear import LinearModel, factor_normal_equations, solve_normal
 from baarda.pipeline.stats.snapshot import Snapshot
 
-from baarda.pipeline.adjustment.collinearity import rotation_and_derivatives as _rotations
+from baarda.pipeline.geometry.rotations import rotation_and_derivatives as _rotations
 
 __all__ = ["PARAMETER_NAMES", "similarity_closed_form", "similarity_transform", "SimilarityTransform",
            "similarity_jacobian", "apply_similarity"]

@@ -51,7 +51,7 @@ class DetectionCheck:
 def detection_errors(block) -> DetectionCheck:
     """Detected observations of ``block`` (image mm, converted back to pixels with the camera's
     pitch and resolution, OpenCV convention) against ``block.meta["render"]["targets"]``."""
-    from baarda.pipeline.camera.convert import pixels_from_mm
+    from baarda.pipeline.geometry.image import pixels_from_mm
 
     truth = block.meta["render"]["targets"]
     partial = block.meta["render"].get("partial", {})

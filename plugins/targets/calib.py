@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from baarda.pipeline.camera.convert import brown_from_opencv, mm_from_pixels, pixels_from_mm, pose_from_cv
+from baarda.pipeline.geometry.image import mm_from_pixels, pixels_from_mm
+from baarda.pipeline.geometry.pose import pose_from_cv
+from baarda.pipeline.camera.convert import brown_from_opencv
 
 from .boards import F_BOARD
 

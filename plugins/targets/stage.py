@@ -24,7 +24,8 @@ from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Pai
 from baarda.pipeline.options import option
 from baarda.pipeline.stage import Context, Stage, StageResult, TableData
 
-from baarda.pipeline.camera.convert import BROWN, mm_from_pixels, pixels_from_mm, project_block
+from baarda.pipeline.geometry.image import mm_from_pixels, pixels_from_mm
+from baarda.pipeline.camera.convert import BROWN, project_block
 
 from .boards import BoardGeometry, aruco_dictionary, object_points
 from .calib import initial_focal_px, opencv_calibration, resect

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from baarda.pipeline.camera.models import APModel, get_ap_model
-from baarda.pipeline.adjustment.collinearity import project_observations, rotation_and_derivatives
+from baarda.pipeline.adjustment.collinearity import project_observations
+from baarda.pipeline.geometry.rotations import rotation_and_derivatives
 from baarda.pipeline.geometry import rotation_from_opk_many
 
 from .synth import META, TRUE_AP, make_block

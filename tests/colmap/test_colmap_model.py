@@ -8,7 +8,8 @@ import pytest
 from baarda.pipeline.errors import InputError
 from baarda.pipeline.model import Block, Cameras, Observations, Photos, Points
 from baarda.pipeline.stage import Context
-from baarda.pipeline.camera.convert import pixels_from_mm, project_block
+from baarda.pipeline.geometry.image import pixels_from_mm
+from baarda.pipeline.camera.convert import project_block
 from baarda.plugins.colmap.reader import block_from_reconstruction, read_colmap, read_reconstruction
 from baarda.plugins.colmap.stage import ColmapExport, ColmapExportOptions, ColmapSource, ColmapSourceOptions, reprojection_px
 from baarda.plugins.colmap.writer import reconstruction_from_block, write_colmap
