@@ -54,7 +54,7 @@ def load_problem(path: Path):
 
 def cost_px(block) -> float:
     """½ Σ ‖v‖² in pixels over the active observations, with baarda's collinearity (one definition)."""
-    from baarda.pipeline.camera.convert import project_block
+    from baarda.pipeline.adjustment import project_block
 
     obs = block.observations
     a = obs.active

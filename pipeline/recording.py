@@ -138,3 +138,79 @@ def read_recording(path: Path) -> RecordingSummary:
             out.summary_text = val if isinstance(val, str) else None
     out.entities = sorted((e for e in by_path.values() if e.path != "/__properties"), key=lambda e: e.path)
     return out
+
+
+# --------------------------------------------------------------------------------------------
+# helpers every stage's ``log`` uses
+# --------------------------------------------------------------------------------------------
+
+ROLE_COLORS = {"full": (220, 40, 40), "xy": (240, 150, 20), "z": (200, 60, 200), "check": (40, 170, 60),
+               "tie": (60, 110, 230), "pc": (30, 30, 30)}
+"""One palette for point roles (control ``full``/``xy``/``z``, ``check``, ``tie``; ``pc`` for projection
+centres used as model points) in every recording."""
+UNKNOWN_ROLE_COLOR = (150, 150, 150)
+
+
+def role_colors(roles) -> np.ndarray:
+    """``(n, 3)`` uint8 colours of point roles (:data:`ROLE_COLORS`; grey for anything else)."""
+    return np.array([ROLE_COLORS.get(str(r), UNKNOWN_ROLE_COLOR) for r in roles], dtype=np.uint8).reshape(-1, 3)
+
+
+def view_from_photo(xy_mm, format_mm) -> np.ndarray:
+    """2-D view coordinates of image coordinates ``xy_mm (n, 2)`` (x right, y up, origin at the format
+    centre; ``docs/conventions.md``): mm from the format's top-left corner, y down, as rerun's 2-D
+    views draw them.  ``format_mm = (width, height)``."""
+    xy = np.asarray(xy_mm, float).reshape(-1, 2)
+    w, h = np.asarray(format_mm, float)
+    return np.column_stack([xy[:, 0] + w / 2.0, h / 2.0 - xy[:, 1]])
+
+
+def view_vectors(v_mm) -> np.ndarray:
+    """Image-space vectors ``(n, 2)`` (y up) as 2-D view vectors (y down)."""
+    v = np.asarray(v_mm, float).reshape(-1, 2)
+    return np.column_stack([v[:, 0], -v[:, 1]])
+
+
+def entity_part(text: str) -> str:
+    """An entity-path part for an id such as ``"DSC_5305.jpg"``."""
+    import rerun as rr
+
+    return rr.escape_entity_path_part(str(text))
+
+
+def log_block(rec, block, root: str = "block", max_photos: int = 500) -> None:
+    """Log points and oriented photos of ``block`` (at most ``max_photos`` photos).
+
+    Photos are logged as ``Transform3D`` (baarda's ``R_cam_from_world``, relation child-from-parent)
+    plus ``Pinhole`` with ``camera_xyz = RUB`` (x right, y up, z back: baarda's image-space frame)
+    under ``<root>/photos/<id>``; object points as ``Points3D`` under ``<root>/points``.
+    """
+    import rerun as rr
+
+    from .geometry import rotation_from_opk_many
+
+    pts = block.points
+    ok = np.isfinite(pts.XYZ).all(axis=1)
+    if ok.any():
+        colors = np.where((pts.role[ok] == "tie")[:, None], [[160, 160, 160]], [[230, 60, 40]]).astype(np.uint8)
+        rec.log(f"{root}/points", rr.Points3D(pts.XYZ[ok], colors=colors, radii=rr.Radius.ui_points(2.0)),
+                static=True)
+    ph, cams = block.photos, block.cameras
+    oriented = np.flatnonzero(ph.has_orientation)[:max_photos]
+    if oriented.size == 0:
+        return
+    R = rotation_from_opk_many(ph.opk[oriented])
+    for k, Rk in zip(oriented, R):
+        path = f"{root}/photos/{entity_part(ph.ids[k])}"
+        t = -Rk @ ph.X0[k]
+        rec.log(path, rr.Transform3D(translation=t, mat3x3=Rk, relation=rr.TransformRelation.ChildFromParent),
+                static=True)
+        cam = ph.camera[k]
+        pitch = cams.pixel_mm[cam]
+        w, h = cams.resolution[cam]
+        if np.isfinite(pitch) and pitch > 0 and w > 0 and h > 0:
+            f = cams.c[cam] / pitch
+            cx = (w - 1) / 2 + cams.xp[cam] / pitch
+            cy = (h - 1) / 2 - cams.yp[cam] / pitch
+            rec.log(path, rr.Pinhole(image_from_camera=[[f, 0, cx], [0, f, cy], [0, 0, 1]], resolution=[w, h],
+                                     camera_xyz=rr.ViewCoordinates.RUB, image_plane_distance=None), static=True)

@@ -81,23 +81,6 @@ def opencv_brown_exact(fx, fy, k1=0.0, k2=0.0, p1=0.0, p2=0.0, k3=0.0) -> bool:
     return bool(fx == fy or (k1 == 0 and k2 == 0 and p1 == 0 and p2 == 0 and k3 == 0))
 
 
-def project_block(block, photo, point) -> np.ndarray:
-    """Image coordinates (mm, ``(k, 2)``) of ``block.points[point]`` in ``block.photos[photo]``
-    with the block's cameras and AP models — the bundle's own collinearity
-    (:func:`baarda.pipeline.adjustment.collinearity.project_observations`).  Used to check conversions against
-    COLMAP's, BAL's and libmv's projections and to predict target positions.
-    """
-    from baarda.pipeline.adjustment.collinearity import project_observations
-    from baarda.pipeline.adjustment.solver import BundleSettings, camera_meta
-
-    cams, ph = block.cameras, block.photos
-    cam_params = np.column_stack([cams.c, cams.xp, cams.yp, cams.ap]) if len(cams) else np.zeros((0, 3))
-    pr = project_observations(np.asarray(photo, int), np.asarray(point, int), block.points.XYZ, ph.X0, ph.opk,
-                              ph.camera, cam_params, cams.ap_model, camera_meta(block, BundleSettings()),
-                              jacobians=False)
-    return pr.xy
-
-
 # --------------------------------------------------------------------------------------------
 # COLMAP camera models
 # --------------------------------------------------------------------------------------------

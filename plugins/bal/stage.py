@@ -10,8 +10,8 @@ from baarda.pipeline.errors import InputError
 from baarda.pipeline.options import option
 from baarda.pipeline.stage import Context, Stage, StageResult
 
-from baarda.plugins.colmap.rrlog import log_block
-from baarda.plugins.colmap.stage import reprojection_summary
+from baarda.pipeline.adjustment import reprojection_summary
+from baarda.pipeline.recording import log_block
 
 from .bal import block_from_bal, read_bal
 from .libmv import block_from_libmv, read_libmv

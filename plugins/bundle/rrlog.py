@@ -18,9 +18,8 @@ import numpy as np
 from baarda.pipeline.geometry import rotation_from_opk_many
 
 from baarda.pipeline.camera.models import get_ap_model
+from baarda.pipeline.recording import role_colors, view_from_photo, view_vectors
 
-ROLE_COLORS = {"full": [220, 40, 40], "xy": [240, 150, 20], "z": [200, 60, 200], "check": [40, 170, 60],
-               "tie": [60, 110, 230]}
 RED, GREY, BLUE = [230, 40, 40], [150, 150, 150], [40, 90, 230]
 
 
@@ -45,7 +44,7 @@ def log_bundle(rec, res, decision, options, report: str, max_photos: int = 300) 
     pts, photos, obs = block.points, block.photos, block.observations
     used = prob.point_used
     rec.log("world/points", rr.Points3D(st.XYZ[used], labels=pts.ids[used].tolist(),
-                                        colors=[ROLE_COLORS.get(r, GREY) for r in pts.role[used]],
+                                        colors=role_colors(pts.role[used]),
                                         radii=rr.Radius.ui_points(4.0)), static=True)
     R = rotation_from_opk_many(np.nan_to_num(st.opk))
     v = res.residuals
@@ -72,16 +71,15 @@ def log_bundle(rec, res, decision, options, report: str, max_photos: int = 300) 
                                                    camera_xyz=rr.ViewCoordinates.RUB,
                                                    image_plane_distance=float(0.1 * _depth(st, i, obs, sel))),
                 static=True)
-        uv = lambda xy: np.column_stack([xy[:, 0] + fmt[0] / 2, fmt[1] / 2 - xy[:, 1]])
         labels = pts.ids[obs.point[sel]].tolist()
-        rec.log(f"images/{pid}/observed", rr.Points2D(uv(obs.xy[sel]), labels=labels,
+        rec.log(f"images/{pid}/observed", rr.Points2D(view_from_photo(obs.xy[sel], fmt), labels=labels,
                                                       colors=[RED if b else BLUE for b in bad[sel]],
                                                       radii=rr.Radius.ui_points(3.0)), static=True)
         ok = sel[fin[sel]]
         if ok.size:
             vec = v[ok] * scale
             rec.log(f"images/{pid}/residuals",
-                    rr.Arrows2D(origins=uv(computed[ok]), vectors=np.column_stack([vec[:, 0], -vec[:, 1]]),
+                    rr.Arrows2D(origins=view_from_photo(computed[ok], fmt), vectors=view_vectors(vec),
                                 colors=[RED if b else GREY for b in bad[ok]]), static=True)
     # rejected / flagged rays
     rb = np.flatnonzero(bad & prob.photo_used[obs.photo] & used[obs.point])
@@ -103,8 +101,8 @@ def log_bundle(rec, res, decision, options, report: str, max_photos: int = 300) 
         mag = np.hypot(dx, dy)
         dscale = 0.05 * fmt.max() / mag.max() if mag.max() > 0 else 1.0
         rec.log(f"cameras/{_safe(block.cameras.ids[j])}/distortion",
-                rr.Arrows2D(origins=np.column_stack([xb + fmt[0] / 2, fmt[1] / 2 - yb]),
-                            vectors=np.column_stack([dx, -dy]) * dscale,
+                rr.Arrows2D(origins=view_from_photo(np.column_stack([xb, yb]), fmt),
+                            vectors=view_vectors(np.column_stack([dx, dy]) * dscale),
                             labels=[f"{m * 1000:.1f} µm" for m in mag]), static=True)
         rec.log(f"cameras/{_safe(block.cameras.ids[j])}/distortion_scale", rr.AnyValues(arrow_scale=dscale),
                 static=True)

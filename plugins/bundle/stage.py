@@ -27,8 +27,6 @@ from baarda.pipeline.adjustment.apselect import select_aps
 from baarda.pipeline.adjustment.collinearity import EO_NAMES
 from baarda.pipeline.adjustment.solver import BundleSettings, Distance
 
-ROLE_COLORS = {"full": [220, 40, 40], "xy": [240, 150, 20], "z": [200, 60, 200], "check": [40, 170, 60],
-               "tie": [60, 110, 230]}
 
 
 @dataclasses.dataclass(frozen=True)

@@ -12,26 +12,11 @@ from baarda.pipeline.errors import InputError
 from baarda.pipeline.options import option
 from baarda.pipeline.stage import Context, Stage, StageResult
 
-from baarda.pipeline.camera.convert import COLMAP_PARAMS, project_block
+from baarda.pipeline.adjustment import reprojection_summary
+from baarda.pipeline.camera.convert import COLMAP_PARAMS
+from baarda.pipeline.recording import log_block
 from .reader import read_colmap
-from .rrlog import log_block
 from .writer import write_colmap
-
-
-def reprojection_px(block) -> np.ndarray:
-    """Image residuals ``observed − computed`` in pixels ``(k, 2)`` of a block with pixel cameras."""
-    obs = block.observations
-    xy = project_block(block, obs.photo, obs.point)
-    return (obs.xy - xy) / block.cameras.pixel_mm[block.photos.camera[obs.photo]][:, None]
-
-
-def reprojection_summary(block) -> dict:
-    """Mean and RMS of the reprojection error (pixels) over active observations."""
-    v = reprojection_px(block)[block.observations.active]
-    e = np.linalg.norm(v, axis=1)
-    return {"mean_px": float(e.mean()) if e.size else float("nan"),
-            "rms_px": float(np.sqrt((e**2).mean())) if e.size else float("nan"),
-            "max_px": float(e.max()) if e.size else float("nan")}
 
 
 @dataclass(frozen=True)

@@ -15,14 +15,13 @@ import numpy as np
 from baarda.pipeline.errors import InputError
 from baarda.pipeline.options import option
 from baarda.pipeline.report import markdown_table
+from baarda.pipeline.recording import role_colors
 from baarda.pipeline.stage import Context, Stage, StageResult, TableData
 from baarda.pipeline.stats import data_snooping, global_test, iterated_data_snooping
 from baarda.pipeline.contracts import AdjustmentArtefact
 
 from .workflow import IndependentModelResult, independent_model_block
 
-ROLE_COLORS = {"full": (230, 50, 40), "xy": (240, 150, 20), "z": (40, 110, 230),
-               "check": (40, 170, 60), "tie": (150, 150, 150), "pc": (30, 30, 30)}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -368,7 +367,7 @@ def log_independent_models(rec, result: IndependentModelResult, stats: dict, roo
     # the block
     pts = blk.XYZ
     ok = np.all(np.isfinite(pts), axis=1)
-    colors = np.array([ROLE_COLORS.get(r, (150, 150, 150)) for r in blk.role], dtype=np.uint8)
+    colors = role_colors(blk.role)
     rec.log(f"{root}/block/points", rr.Points3D(pts[ok], colors=colors[ok], labels=blk.point_ids[ok].tolist(),
                                                 radii=0.006), static=True)
     extent = float(np.ptp(pts[ok], axis=0).max()) if ok.sum() > 1 else 1.0

@@ -25,7 +25,9 @@ from baarda.pipeline.options import option
 from baarda.pipeline.stage import Context, Stage, StageResult, TableData
 
 from baarda.pipeline.geometry.image import mm_from_pixels, pixels_from_mm
-from baarda.pipeline.camera.convert import BROWN, project_block
+from baarda.pipeline.adjustment import project_block
+from baarda.pipeline.camera.convert import BROWN
+from baarda.pipeline.recording import entity_part, log_block
 
 from .boards import BoardGeometry, aruco_dictionary, object_points
 from .calib import initial_focal_px, opencv_calibration, resect
@@ -395,8 +397,6 @@ class TargetDetection(Stage):
 
     def log(self, result, rec, ctx) -> None:
         import rerun as rr
-
-        from baarda.plugins.colmap.rrlog import entity_part, log_block
 
         for pid, small, uv, ids in result.data["images"]:
             path = f"{ctx.stage_id}/images/{entity_part(pid)}"

@@ -15,13 +15,12 @@ from baarda.pipeline.errors import InputError
 from baarda.pipeline.geometry import rotation_from_opk_many
 from baarda.pipeline.options import option
 from baarda.pipeline.report import markdown_table
+from baarda.pipeline.recording import role_colors
 from baarda.pipeline.stage import Context, Stage, StageResult, TableData
 
 from baarda.pipeline.synthetic.testfield import (CONTROL_CASES, TestFieldConfig, constraint_count, control_configuration,
                        degrees_of_freedom, simulate_testfield)
 
-ROLE_COLORS = {"full": (230, 50, 40), "xy": (240, 150, 20), "z": (40, 110, 230),
-               "check": (40, 170, 60), "tie": (150, 150, 150)}
 """Colours of object points by role in the recordings."""
 
 
@@ -175,7 +174,7 @@ def log_testfield(rec, block, truth, root: str = "world") -> None:
     import rerun as rr
 
     pts = block.points
-    colors = np.array([ROLE_COLORS.get(r, (150, 150, 150)) for r in pts.role], dtype=np.uint8)
+    colors = role_colors(pts.role)
     rec.log(f"{root}/targets", rr.Points3D(truth.XYZ, colors=colors, labels=pts.ids.tolist(),
                                            radii=0.012), static=True)
     rec.log(f"{root}/targets/roles", rr.AnyValues(role=pts.role.tolist(), point=pts.ids.tolist()), static=True)

@@ -11,7 +11,7 @@ from baarda.pipeline.stage import Context
 from baarda.plugins.bal.bal import bal_reprojection, block_from_bal, read_bal
 from baarda.plugins.bal.libmv import block_from_libmv, libmv_reprojection, nearest_rotation, read_libmv
 from baarda.plugins.bal.stage import BalOptions, BalSource, LibmvOptions, LibmvSource
-from baarda.plugins.colmap.stage import reprojection_px, reprojection_summary
+from baarda.pipeline.adjustment import reprojection_px, reprojection_summary
 
 BAL = "problem-49-7776-pre.txt"
 BAL_SMALL = "bal-ladybug-problem-49-7776-pre-shrink-1800.txt"

@@ -9,9 +9,10 @@ from baarda.pipeline.errors import InputError
 from baarda.pipeline.model import Block, Cameras, Observations, Photos, Points
 from baarda.pipeline.stage import Context
 from baarda.pipeline.geometry.image import pixels_from_mm
-from baarda.pipeline.camera.convert import project_block
+from baarda.pipeline.adjustment import project_block
 from baarda.plugins.colmap.reader import block_from_reconstruction, read_colmap, read_reconstruction
-from baarda.plugins.colmap.stage import ColmapExport, ColmapExportOptions, ColmapSource, ColmapSourceOptions, reprojection_px
+from baarda.pipeline.adjustment import reprojection_px
+from baarda.plugins.colmap.stage import ColmapExport, ColmapExportOptions, ColmapSource, ColmapSourceOptions
 from baarda.plugins.colmap.writer import reconstruction_from_block, write_colmap
 
 
@@ -253,7 +254,8 @@ def test_bundle_on_colmap_model_and_export_adjusted(model_dir, tmp_path):
     from baarda.pipeline.adjustment.solver import BundleSettings
     import pycolmap
 
-    from baarda.plugins.colmap.stage import block_to_export, reprojection_summary
+    from baarda.pipeline.adjustment import reprojection_summary
+    from baarda.plugins.colmap.stage import block_to_export
 
     block, _ = read_colmap(model_dir)
     result = adjust_mod.adjust(block, BundleSettings(datum="free", max_iter=50))

@@ -7,7 +7,8 @@ from baarda.pipeline.geometry import rotation_from_opk
 from baarda.pipeline.model import Block, Cameras, Observations, Photos, Points
 from baarda.pipeline.geometry.image import mm_from_pixels, pixels_from_mm
 from baarda.pipeline.geometry.pose import cv_from_pose, pose_from_cv
-from baarda.pipeline.camera.convert import (BROWN, COLMAP_PARAMS, UnsupportedCamera, brown_from_colmap, brown_from_opencv, colmap_from_brown, opencv_brown_exact, opencv_from_brown, project_block)
+from baarda.pipeline.camera.convert import (BROWN, COLMAP_PARAMS, UnsupportedCamera, brown_from_colmap, brown_from_opencv, colmap_from_brown, opencv_brown_exact, opencv_from_brown)
+from baarda.pipeline.adjustment import project_block
 
 
 # ---------------------------------------------------------------------------------------------

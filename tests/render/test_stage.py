@@ -11,7 +11,7 @@ from baarda.pipeline.model import Block, Pairs
 from baarda.pipeline.recording import read_recording
 from baarda.pipeline.testing import check_stage, log_stage, run_stage
 from baarda.pipeline.geometry.image import pixels_from_mm
-from baarda.pipeline.camera.convert import project_block
+from baarda.pipeline.adjustment import project_block
 from baarda.plugins.render.photos import image_size, partial_targets, true_targets, truth_from_meta
 from baarda.plugins.render.stage import RenderedImages, TestFieldRender
 from baarda.pipeline.synthetic.testfield import TestFieldConfig, simulate_testfield

@@ -11,7 +11,7 @@ from baarda.pipeline.model import Block, Cameras, Observations, Photos, Points
 from baarda.pipeline.options import parse_options
 from baarda.pipeline.stage import Context
 from baarda.pipeline.geometry.image import pixels_from_mm
-from baarda.pipeline.camera.convert import project_block
+from baarda.pipeline.adjustment import project_block
 from baarda.plugins.targets.boards import F_BOARD, BoardGeometry, object_points, opencv_board
 from baarda.plugins.targets.calib import opencv_calibration
 from baarda.plugins.targets.detect import (detect_aruco, detect_blobs, detect_circles_grid, match_to_predicted,
