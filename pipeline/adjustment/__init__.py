@@ -1,23 +1,36 @@
-"""The adjustment core: the self-calibrating bundle (problem set-up, normal equations, solve,
-precision, datum diagnosis, initial values, AP selection).
+"""The adjustment core: the self-calibrating bundle block adjustment.
 
-Public API::
+Modules, in the order of the mathematics: :mod:`.settings` (what is asked), :mod:`.collinearity`
+(the observation equations and their Jacobians), :mod:`.problem` (set-up: unknowns, whitening,
+priors, datum), :mod:`.normal` (normal equations, reduced camera system), :mod:`.factor` (its
+solution), :mod:`.lm` (the Levenberg–Marquardt iteration), :mod:`.precision` (cofactors,
+redundancy numbers), :mod:`.diagnose` (a singular system named), :mod:`.initial` (resection,
+intersection, initial values), :mod:`.apselect` (additional-parameter selection), :mod:`.adjust`
+(the entry point and its result), :mod:`.reproject` (a block's reprojection errors).
+
+Everything other code needs is imported from this package::
 
     from baarda.pipeline.adjustment import adjust, BundleSettings, Distance, BundleResult
-    from baarda.pipeline.adjustment import resection, intersection, initial_values
-    from baarda.pipeline.adjustment import register_ap_model, get_ap_model, APModel, LinearAPModel
-    from baarda.pipeline.adjustment import project_observations
+    from baarda.pipeline.adjustment import resection, intersection, initial_values, select_aps
+    from baarda.pipeline.adjustment import project_observations, project_block, reprojection_summary
+
+Pure numerics: arrays and blocks in, results out; no files, no rerun.  Camera models live in
+:mod:`baarda.pipeline.camera`.  See ``docs/bundle.md``.
 """
 
-from .adjust import BundleResult, adjust, check_point_rmse
-from ..camera.models import APModel, LinearAPModel, ap_model_names, get_ap_model, register_ap_model
-from .collinearity import project_observations
-from .initial import initial_values, intersection, resection
+from .adjust import BundleResult, adjust, padded_ap, result_of
+from .apselect import APSelection, select_aps
+from .collinearity import EO_NAMES, IOP_NAMES, project_observations
+from .diagnose import parameter_names
+from .initial import ResectionResult, initial_values, intersection, resection
+from .lm import solve_bundle
+from .problem import BundleProblem
 from .reproject import project_block, reprojection_px, reprojection_summary
-from .solver import BundleSettings, BundleState, Distance
+from .settings import BundleSettings, BundleState, Distance, camera_meta
 
 __all__ = [
-    "adjust", "BundleResult", "BundleSettings", "BundleState", "Distance", "check_point_rmse",
-    "APModel", "LinearAPModel", "register_ap_model", "get_ap_model", "ap_model_names",
-    "project_observations", "project_block", "reprojection_px", "reprojection_summary", "resection", "intersection", "initial_values",
+    "adjust", "BundleResult", "result_of", "BundleSettings", "BundleState", "Distance", "padded_ap", "camera_meta",
+    "select_aps", "APSelection", "project_observations", "EO_NAMES", "IOP_NAMES", "parameter_names",
+    "resection", "ResectionResult", "intersection", "initial_values", "solve_bundle", "BundleProblem",
+    "project_block", "reprojection_px", "reprojection_summary",
 ]

@@ -2,21 +2,25 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from baarda.pipeline.accuracy import check_point_rmse
 from baarda.pipeline.model import Block
 from baarda.pipeline.stats.snapshot import Snapshot
 
 from .collinearity import EO_NAMES
 from .initial import initial_values
 from .precision import precision, predicted_variance, reliability_rows
-from .solver import BundleProblem, BundleSettings, BundleState, final_system, solve_bundle
+from .lm import final_system, solve_bundle
+from .problem import BundleProblem
+from .settings import BundleSettings, BundleState
 
-__all__ = ["adjust", "BundleResult", "check_point_rmse"]
+__all__ = ["adjust", "BundleResult", "padded_ap", "result_of"]
 
 
 def padded_ap(cameras) -> tuple[np.ndarray, np.ndarray]:
@@ -36,20 +40,6 @@ def padded_ap(cameras) -> tuple[np.ndarray, np.ndarray]:
         if m.n_params > w:
             sig[j, w:m.n_params] = np.asarray(m.default_sigma, float)[w:]
     return ap, sig
-
-
-def check_point_rmse(adjusted: np.ndarray, surveyed: np.ndarray) -> dict:
-    """SPEC §2: ``Sx = √(Σ(Xp − XG)²/n)``, likewise Sy, Sz; ``Sxy = √((Sx² + Sy²)/2)``.
-
-    adjusted, surveyed : (n, 3).  Errors are adjusted minus surveyed.
-    """
-    d = np.asarray(adjusted, float) - np.asarray(surveyed, float)
-    n = len(d)
-    if n == 0:
-        return {"n": 0, "Sx": float("nan"), "Sy": float("nan"), "Sxy": float("nan"), "Sz": float("nan")}
-    S = np.sqrt(np.mean(d * d, axis=0))
-    return {"n": n, "Sx": float(S[0]), "Sy": float(S[1]), "Sxy": float(np.sqrt((S[0] ** 2 + S[1] ** 2) / 2)),
-            "Sz": float(S[2]), "errors": d}
 
 
 @dataclass(eq=False)
@@ -148,17 +138,97 @@ class BundleResult:
 
     def refit(self, active: np.ndarray) -> Snapshot:
         """Adjust again with only the scalar rows ``active`` (2 per observation: x, y); the start is
-        this solution.  Satisfies :class:`baarda.pipeline.stats.snapshot.Refittable`."""
+        this solution.  Satisfies :class:`baarda.pipeline.stats.snapshot.Refittable`.
+
+        Returns the new adjustment's snapshot; the new :class:`BundleResult` itself is
+        ``snapshot.meta["result"]`` (see :func:`result_of`).  This result is never changed."""
         res = adjust(self.block_in, self.settings, row_active=np.asarray(active, bool).reshape(-1, 2),
                      start=self.state, compute_initial=False)
-        self._last_refit = res
-        return res.snapshot
+        snap = res.snapshot
+        if snap is None:
+            return snap
+        return dataclasses.replace(snap, meta={**snap.meta, "result": res})
+
+    @property
+    def point_used(self) -> np.ndarray:
+        """(n,) bool: points that took part (observed, or on a scale bar)."""
+        return self.problem.point_used
+
+    @property
+    def photo_used(self) -> np.ndarray:
+        """(m,) bool: photos with at least one active observation."""
+        return self.problem.photo_used
+
+    @property
+    def camera_used(self) -> np.ndarray:
+        """(K,) bool: cameras of the photos used."""
+        return self.problem.cam_used
+
+    @property
+    def camera_sigma(self) -> np.ndarray:
+        """(K, 3 + p) a-priori σ of ``[c, xp, yp, ap…]``: 0 fixed, inf free, else weighted."""
+        return self.problem.cam_sigma
+
+    @property
+    def camera_meta(self) -> list:
+        """AP-model meta per camera (``b`` of ebner12, ``r0`` of aicon …) as the adjustment used it."""
+        return self.problem.meta
+
+    @property
+    def camera_free(self) -> np.ndarray:
+        """(K, 3 + p) bool: camera parameters that were unknowns."""
+        return self.problem.g_cam >= 0
+
+    @property
+    def observation_order(self) -> np.ndarray:
+        """Indices of the active observations in the order the adjustment holds them."""
+        return self.problem.oi
+
+    @property
+    def distances(self) -> tuple:
+        """The scale bars (:class:`Distance`) the adjustment used: the settings' and the block's."""
+        return self.problem.distances
+
+    @property
+    def distance_points(self) -> tuple[np.ndarray, np.ndarray]:
+        """Point indices of the scale bars' ends ``(a, b)``."""
+        return self.problem.dist_a, self.problem.dist_b
+
+    @property
+    def n_unknowns(self) -> int:
+        return self.problem.n_unknowns
+
+    @property
+    def n_observation_rows(self) -> int:
+        """Active image-coordinate rows."""
+        return self.problem.n_obs_rows
+
+    @property
+    def n_weighted_constraints(self) -> int:
+        return len(self.problem.prior_g_idx) + len(self.problem.prior_p_idx)
+
+    @property
+    def n_datum_constraints(self) -> int:
+        """Inner constraints of a free network (0 with a control datum)."""
+        return self.problem.n_c
+
+    @property
+    def ap_models(self) -> list:
+        """The AP model object of each camera."""
+        return self.problem.models
 
     def summary(self) -> dict:
         return {"sigma0_hat": self.sigma0_hat, "vtpv": self.vtpv, "dof": self.dof, "iterations": self.iterations,
                 "observations": int(self.obs_active.sum()), "unknowns": self.problem.n_unknowns,
                 "check_points": {k: v for k, v in self.check.items() if k != "errors"},
                 "timings": self.timings}
+
+
+def result_of(snapshot: Snapshot | None, default: "BundleResult") -> "BundleResult":
+    """The :class:`BundleResult` behind a snapshot returned by :meth:`BundleResult.refit` (else ``default``)."""
+    if snapshot is None:
+        return default
+    return snapshot.meta.get("result", default)
 
 
 def adjust(block: Block, settings: BundleSettings | None = None, *, row_active=None, obs_active=None,

@@ -25,7 +25,7 @@ from scipy import stats
 from baarda.pipeline.model import Block
 
 from .adjust import BundleResult, adjust, padded_ap
-from .solver import BundleSettings
+from .settings import BundleSettings
 
 __all__ = ["APSelection", "select_aps"]
 

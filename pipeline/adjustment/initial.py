@@ -334,7 +334,7 @@ def initial_values(block: Block, *, ap_meta=None, max_rounds: int = 50, warn=Non
     photos, alternately until nothing changes.  Raises :class:`AdjustmentError` naming the photos
     or points that stay undetermined.
     """
-    from .solver import BundleSettings, camera_meta
+    from .settings import BundleSettings, camera_meta
 
     photos, points, obs, cams = block.photos, block.points, block.observations, block.cameras
     metas = camera_meta(block, BundleSettings(ap_meta=ap_meta or {}))

@@ -19,7 +19,8 @@ from __future__ import annotations
 import numpy as np
 
 from .collinearity import bmm
-from .solver import BundleProblem, _solve_reduced, solve_factored
+from .factor import solve_reduced, solve_factored
+from .problem import BundleProblem
 
 
 def reduced_inverse(prob: BundleProblem, red, st) -> np.ndarray:
@@ -28,7 +29,7 @@ def reduced_inverse(prob: BundleProblem, red, st) -> np.ndarray:
     if n_x == 0:
         return np.zeros((0, 0))
     if "factor" not in red:
-        _solve_reduced(prob, red, st)
+        solve_reduced(prob, red, st)
     s = red["scale"]
     Ki = solve_factored(red["factor"], np.eye(n_x))
     Ki = 0.5 * (Ki + Ki.T)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from .collinearity import project_observations
-from .solver import BundleSettings, camera_meta
+from .settings import BundleSettings, camera_meta
 
 __all__ = ["project_block", "reprojection_px", "reprojection_summary"]
 

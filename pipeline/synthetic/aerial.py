@@ -41,7 +41,7 @@ def _look_at(C, T, roll):
 
 def _observe(XYZ, X0, opk, camera, rng, noise_px, margin_px=10):
     """Observations (photo, point, xy mm) of every point inside the format, with noise."""
-    from baarda.pipeline.adjustment.collinearity import project_observations
+    from baarda.pipeline.adjustment import project_observations
 
     m, n = len(X0), len(XYZ)
     ph = np.repeat(np.arange(m), n)

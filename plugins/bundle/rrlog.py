@@ -40,9 +40,8 @@ def log_bundle(rec, res, decision, options, report: str, max_photos: int = 300) 
 
     block = res.block_in
     st = res.state
-    prob = res.problem
     pts, photos, obs = block.points, block.photos, block.observations
-    used = prob.point_used
+    used = res.point_used
     rec.log("world/points", rr.Points3D(st.XYZ[used], labels=pts.ids[used].tolist(),
                                         colors=role_colors(pts.role[used]),
                                         radii=rr.Radius.ui_points(4.0)), static=True)
@@ -58,7 +57,7 @@ def log_bundle(rec, res, decision, options, report: str, max_photos: int = 300) 
         scale = 0.03 * ext / rms if rms > 0 else 1.0
     computed = obs.xy - np.nan_to_num(v)
     bad = np.isin(decision, ("rejected", "flagged"))
-    for i in np.flatnonzero(prob.photo_used)[:max_photos]:
+    for i in np.flatnonzero(res.photo_used)[:max_photos]:
         pid = _safe(photos.ids[i])
         j = photos.camera[i]
         sel = np.flatnonzero(obs.photo == i)
@@ -82,14 +81,14 @@ def log_bundle(rec, res, decision, options, report: str, max_photos: int = 300) 
                     rr.Arrows2D(origins=view_from_photo(computed[ok], fmt), vectors=view_vectors(vec),
                                 colors=[RED if b else GREY for b in bad[ok]]), static=True)
     # rejected / flagged rays
-    rb = np.flatnonzero(bad & prob.photo_used[obs.photo] & used[obs.point])
+    rb = np.flatnonzero(bad & res.photo_used[obs.photo] & used[obs.point])
     if rb.size:
         strips = [np.vstack([st.X0[obs.photo[k]], st.XYZ[obs.point[k]]]) for k in rb]
         rec.log("world/rejected_rays", rr.LineStrips3D(strips, colors=RED,
                                                        labels=[f"{photos.ids[obs.photo[k]]}/{pts.ids[obs.point[k]]}: "
                                                                f"{decision[k]}" for k in rb]), static=True)
     # distortion field of the estimated APs
-    for j in np.flatnonzero(prob.cam_used):
+    for j in np.flatnonzero(res.camera_used):
         mdl = get_ap_model(block.cameras.ap_model[j])
         if mdl.n_params == 0:
             continue
@@ -97,7 +96,7 @@ def log_bundle(rec, res, decision, options, report: str, max_photos: int = 300) 
         gx, gy = np.meshgrid(np.linspace(-fmt[0] / 2, fmt[0] / 2, 15), np.linspace(-fmt[1] / 2, fmt[1] / 2, 11))
         xb, yb = gx.ravel(), gy.ravel()
         prm = np.broadcast_to(st.cam_params[j, 3:3 + mdl.n_params], (xb.size, mdl.n_params))
-        dx, dy = mdl.distortion(xb, yb, prm, np.full(xb.size, st.cam_params[j, 0]), prob.meta[j])
+        dx, dy = mdl.distortion(xb, yb, prm, np.full(xb.size, st.cam_params[j, 0]), res.camera_meta[j])
         mag = np.hypot(dx, dy)
         dscale = 0.05 * fmt.max() / mag.max() if mag.max() > 0 else 1.0
         rec.log(f"cameras/{_safe(block.cameras.ids[j])}/distortion",

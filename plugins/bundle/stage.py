@@ -1,6 +1,6 @@
 """Stage ``bundle``: self-calibrating bundle block adjustment (see docs/bundle.md).
 
-Numerics in :mod:`.adjust` / :mod:`.solver` / :mod:`.precision`; statistics from
+Numerics in :mod:`baarda.pipeline.adjustment`; statistics from
 :mod:`baarda.pipeline.stats`; this module maps options onto the block and the solver, runs AP
 selection and blunder handling, and writes report, tables and the recording.
 """
@@ -21,11 +21,9 @@ from baarda.pipeline.stage import Context, StageResult, TableData
 from baarda.pipeline import stats
 from baarda.pipeline.contracts import AdjustmentArtefact
 
-from baarda.pipeline.adjustment.adjust import BundleResult, adjust, padded_ap
-from baarda.pipeline.camera.models import ap_model_names, get_ap_model
-from baarda.pipeline.adjustment.apselect import select_aps
-from baarda.pipeline.adjustment.collinearity import EO_NAMES
-from baarda.pipeline.adjustment.solver import BundleSettings, Distance
+from baarda.pipeline.adjustment import (EO_NAMES, BundleResult, BundleSettings, Distance, adjust, padded_ap,
+                                        result_of, select_aps)
+from baarda.pipeline.camera import ap_model_names, get_ap_model
 
 
 
@@ -224,7 +222,7 @@ class BundleAdjustment:
                     extras["before_ids"] = {"result": res, "snooping": stats.data_snooping(
                         snap, alpha0=options.alpha0, beta0=options.beta0)}
                     rejected_rows[ids.removed] = True
-                    res = getattr(res, "_last_refit", res)
+                    res = result_of(ids.snapshot, res)
                     snap = res.snapshot
                     extras["global_test"] = stats.global_test(snap, alpha0=options.alpha0, beta0=options.beta0)
             ds = stats.data_snooping(snap, alpha0=options.alpha0, beta0=options.beta0)
@@ -349,13 +347,12 @@ def _sigma0_um(res: BundleResult) -> float:
 
 def _report(res: BundleResult, extras, o, block) -> str:
     L = []
-    prob = res.problem
-    L.append(f"Bundle adjustment of {int(prob.photo_used.sum())} photos, {int(prob.point_used.sum())} points, "
-             f"{int(res.obs_active.sum())} image points ({prob.n_obs_rows} coordinates); "
-             f"{prob.n_unknowns} unknowns, {len(prob.prior_g_idx) + len(prob.prior_p_idx)} weighted constraints, "
-             f"{len(prob.dist_l)} distance(s); datum: {o.datum}"
+    L.append(f"Bundle adjustment of {int(res.photo_used.sum())} photos, {int(res.point_used.sum())} points, "
+             f"{int(res.obs_active.sum())} image points ({res.n_observation_rows} coordinates); "
+             f"{res.n_unknowns} unknowns, {res.n_weighted_constraints} weighted constraints, "
+             f"{len(res.distances)} distance(s); datum: {o.datum}"
              + (f" (inner constraints on {'projection centres' if o.datum_on == 'centres' else 'points'}, "
-                f"{prob.n_c} constraints)" if o.datum == "free" else "") + ".")
+                f"{res.n_datum_constraints} constraints)" if o.datum == "free" else "") + ".")
     L.append("")
     L.append(f"- iterations: {res.iterations}; vᵀPv = {res.vtpv:.6g}; dof = {res.dof}; "
              f"σ̂0 = {_f(res.sigma0_hat)} (≈ {_f(_sigma0_um(res), 3)} µm)")
@@ -405,12 +402,12 @@ def _report(res: BundleResult, extras, o, block) -> str:
     L.append("| camera | parameter | value | σ | status |")
     L.append("|---|---|---|---|---|")
     for j in range(len(block.cameras)):
-        if not prob.cam_used[j]:
+        if not res.camera_used[j]:
             continue
         for r in res.camera_table(j):
             L.append(f"| {r['camera']} | {r['parameter']} | {r['value']:.8g} | {_f(r['sigma'], 3)} | {r['status']} |")
     for j in range(len(block.cameras)):
-        free = [t for t in range(len(res.cam_param_names[j])) if prob.g_cam[j, t] >= 0]
+        free = [t for t in range(len(res.cam_param_names[j])) if res.camera_free[j, t]]
         if len(free) < 2:
             continue
         R = res.correlation_camera(j)[np.ix_(free, free)]

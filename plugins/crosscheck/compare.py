@@ -74,7 +74,7 @@ def start_values(result, start: str = "initial", rng: np.random.Generator | None
     if start == "initial":
         need = (~block.photos.has_orientation).any() or (~np.isfinite(block.points.XYZ).all(axis=1)).any()
         if need:
-            from baarda.pipeline.adjustment.initial import initial_values
+            from baarda.pipeline.adjustment import initial_values
 
             block = initial_values(block, ap_meta=result.settings.ap_meta)
         return block
@@ -95,10 +95,10 @@ def start_values(result, start: str = "initial", rng: np.random.Generator | None
 
 def object_size(result) -> float:
     """Diagonal of the bounding box of the adjusted points in the adjustment (object units)."""
-    XYZ = result.state.XYZ[result.problem.point_used]
+    XYZ = result.state.XYZ[result.point_used]
     XYZ = XYZ[np.isfinite(XYZ).all(axis=1)]
     if len(XYZ) < 2:
-        X0 = result.state.X0[result.problem.photo_used]
+        X0 = result.state.X0[result.photo_used]
         XYZ = np.vstack([XYZ, X0]) if len(X0) else XYZ
     return float(np.linalg.norm(XYZ.max(axis=0) - XYZ.min(axis=0))) if len(XYZ) >= 2 else 1.0
 
@@ -200,7 +200,7 @@ def _compare(result, plan: CrossCheckPlan, sol: PycolmapSolution, summary: dict,
         vals = {"c": pc["c"], "xp": pc["xp"], "yp": pc["yp"], **dict(zip(("K1", "K2", "K3", "P1", "P2", "B1", "B2"),
                                                                           pc["ap"]))}
         for t, name in enumerate(names):
-            if not np.isinf(result.problem.cam_sigma[j, t]):
+            if not np.isinf(result.camera_sigma[j, t]):
                 continue
             b = float(st.cam_params[j, t])
             s = float(np.sqrt(max(result.cov_cameras[j][t, t], 0.0)))

@@ -140,7 +140,7 @@ def _refine_model(status: dict, active: set) -> tuple[str, dict] | None:
     return None
 
 
-def _camera_plan(j, cams, prob, names, ap_start, ap_adj, used) -> CameraPlan:
+def _camera_plan(j, cams, result, names, ap_start, ap_adj, used) -> CameraPlan:
     cid = str(cams.ids[j])
     if not used:
         return CameraPlan(j, cid, "unused", "SIMPLE_PINHOLE", note="no observation in the adjustment")
@@ -149,7 +149,7 @@ def _camera_plan(j, cams, prob, names, ap_start, ap_adj, used) -> CameraPlan:
         return CameraPlan(j, cid, "corrected", "SIMPLE_PINHOLE",
                           note=f"AP model '{model}' has no COLMAP counterpart: observations corrected by baarda's "
                                "adjusted distortion, c, xp, yp held (first-order comparison)")
-    status = {n: _status(prob.cam_sigma[j, t]) for t, n in enumerate(names)}
+    status = {n: _status(result.camera_sigma[j, t]) for t, n in enumerate(names)}
     if model == "none":
         status.update({n: "fixed" for n in BROWN})
     active = {n for t, n in enumerate(BROWN)
@@ -162,7 +162,7 @@ def _camera_plan(j, cams, prob, names, ap_start, ap_adj, used) -> CameraPlan:
            "cannot be reproduced by COLMAP's refine switches")
     try:
         size = (1000, 1000)
-        cmodel, _ = colmap_from_brown(prob.block.cameras.c[j], 0.0, 0.0, ap_adj, size, 1.0, "auto")
+        cmodel, _ = colmap_from_brown(result.block_in.cameras.c[j], 0.0, 0.0, ap_adj, size, 1.0, "auto")
     except (UnsupportedCamera, ValueError) as e:
         return CameraPlan(j, cid, "corrected", "SIMPLE_PINHOLE",
                           note=f"{why}, and the adjusted camera has no exact COLMAP model ({e}): observations "
@@ -188,17 +188,17 @@ def _merge_global(plans: list) -> dict:
     return {g: bool(v) for g, v in glob.items()}
 
 
-def _weights(block, prob) -> tuple[np.ndarray, bool, list]:
+def _weights(block, result) -> tuple[np.ndarray, bool, list]:
     """pycolmap pixel (σ, mm) per camera and whether baarda's weights are reproduced exactly."""
     obs = block.observations
-    oi = prob.oi
+    oi = result.observation_order
     cam = block.photos.camera[obs.photo[oi]]
     cov = obs.cov[oi]
     K = len(block.cameras)
     sig = np.full(K, np.nan)
     notes = []
     exact = True
-    single = ~prob.row_active[oi].all(axis=1)
+    single = ~result.row_active[oi].all(axis=1)
     if single.any():
         exact = False
         notes.append(f"{int(single.sum())} observation(s) with one coordinate switched off enter pycolmap with both")
@@ -221,22 +221,21 @@ def _weights(block, prob) -> tuple[np.ndarray, bool, list]:
 def behind_camera(result) -> np.ndarray:
     """(k,) bool: used observations whose point lies behind the camera in baarda's solution
     (``W >= 0``; baarda's image-space z points back out of the lens)."""
-    from baarda.pipeline.adjustment.collinearity import project_observations
+    from baarda.pipeline.adjustment import project_observations
 
-    prob, st = result.problem, result.state
+    st = result.state
     obs = result.block_in.observations
     out = np.zeros(len(obs), bool)
-    oi = np.flatnonzero(prob.obs_active)
+    oi = np.flatnonzero(result.obs_active)
     if oi.size:
         pr = project_observations(obs.photo[oi], obs.point[oi], st.XYZ, st.X0, st.opk, result.block_in.photos.camera,
-                                  st.cam_params, result.block_in.cameras.ap_model, prob.meta, jacobians=False)
+                                  st.cam_params, result.block_in.cameras.ap_model, result.camera_meta, jacobians=False)
         out[oi] = ~(pr.W < 0)
     return out
 
 
 def plan_crosscheck(result) -> CrossCheckPlan:
     """The plan for a converged bundle (:class:`baarda.pipeline.adjustment.BundleResult`)."""
-    prob = result.problem
     block = result.block_in
     cams, photos, points = block.cameras, block.photos, block.points
     adj_cams = result.block.cameras
@@ -244,24 +243,24 @@ def plan_crosscheck(result) -> CrossCheckPlan:
     plans = []
     for j in range(len(cams)):
         names = result.cam_param_names[j]
-        plans.append(_camera_plan(j, cams, prob, names, brown_vector(cams, j), brown_vector(adj_cams, j),
-                                  bool(prob.cam_used[j])))
+        plans.append(_camera_plan(j, cams, result, names, brown_vector(cams, j), brown_vector(adj_cams, j),
+                                  bool(result.camera_used[j])))
     refine = _merge_global(plans)
-    sigma, w_exact, w_notes = _weights(block, prob)
+    sigma, w_exact, w_notes = _weights(block, result)
     notes += w_notes
 
     # points: fixed control stays constant; free ones are variable; everything else is held
-    used_pt = prob.point_used.copy()
+    used_pt = result.point_used.copy()
     fixed_pt = used_pt & (points.sigma == 0).all(axis=1)
     in_dist = np.zeros(len(points), bool)
-    in_dist[prob.dist_a] = True
-    in_dist[prob.dist_b] = True
+    for ends in result.distance_points:
+        in_dist[ends] = True
     free_pt = used_pt & np.isinf(points.sigma).all(axis=1) & ~in_dist
     held_pt = used_pt & ~fixed_pt & ~free_pt
     if held_pt.any():
         notes.append(f"{int(held_pt.sum())} point(s) with weighted or partly fixed coordinates or in a distance "
                      "held at baarda's adjusted values (pycolmap has no priors, partial fixing or distances)")
-    used_ph = prob.photo_used.copy()
+    used_ph = result.photo_used.copy()
     fixed_ph = used_ph & (photos.sigma_eo == 0).all(axis=1)
     free_ph = used_ph & np.isinf(photos.sigma_eo).all(axis=1)
     held_ph = used_ph & ~fixed_ph & ~free_ph
@@ -297,7 +296,7 @@ def plan_crosscheck(result) -> CrossCheckPlan:
         if p.note and p.mode != "unused":
             notes.append(f"camera {p.id} ({p.colmap_model}, {p.mode}): {p.note}")
     return CrossCheckPlan(cameras=plans, refine=refine, sigma_mm=sigma, weights_equivalent=w_exact,
-                          obs_used=prob.obs_active.copy(), point_variable=free_pt,
+                          obs_used=result.obs_active.copy(), point_variable=free_pt,
                           point_constant=fixed_pt | held_pt, point_held=held_pt, photo_variable=free_ph,
                           photo_constant=fixed_ph | held_ph, photo_held=held_ph, datum=datum, datum_equivalent=datum_ok,
                           behind=behind, notes=notes)

@@ -26,7 +26,7 @@ import numpy as np
 from baarda.pipeline.geometry.image import mm_from_pixels
 from baarda.pipeline.geometry.pose import pose_from_cv
 from baarda.pipeline.camera.convert import brown_from_colmap, colmap_from_brown
-from baarda.plugins.colmap.writer import reconstruction_from_block
+from baarda.plugins.colmap import reconstruction_from_block
 
 from .plan import CrossCheckPlan, brown_vector
 
@@ -106,7 +106,7 @@ def _grid(block, j, sigma) -> tuple[int, int]:
 def corrected_observations(result, plan: CrossCheckPlan) -> np.ndarray:
     """Observations (k, 2) mm; for "corrected" cameras ``l − Δ(x̄̂)`` with baarda's adjusted AP
     model at its adjusted ideal reduced coordinates (so that v = (l − Δ̂) − pinhole exactly)."""
-    from baarda.pipeline.adjustment.collinearity import project_observations
+    from baarda.pipeline.adjustment import project_observations
 
     block = result.block_in
     obs = block.observations
@@ -114,10 +114,10 @@ def corrected_observations(result, plan: CrossCheckPlan) -> np.ndarray:
     bad = [p.index for p in plan.cameras if p.mode == "corrected"]
     if not bad:
         return xy
-    prob, st = result.problem, result.state
+    st = result.state
     rows = np.flatnonzero(np.isin(block.photos.camera[obs.photo], bad) & plan.obs_used)
     full = project_observations(obs.photo[rows], obs.point[rows], st.XYZ, st.X0, st.opk, block.photos.camera,
-                                st.cam_params, block.cameras.ap_model, prob.meta, jacobians=False)
+                                st.cam_params, block.cameras.ap_model, result.camera_meta, jacobians=False)
     cam = block.photos.camera[obs.photo[rows]]
     pinhole = full.xbar + st.cam_params[cam, 1:3]
     xy[rows] -= full.xy - pinhole

@@ -1,7 +1,7 @@
 """Independent-model block triangulation (SPEC §3): relative orientation, model coordinates,
 3-D similarity and the Ackermann block adjustment.  See ``docs/independent-models.md``."""
 
-from .block import ModelBlockAdjustment, ModelCoordinates, adjust_model_block, check_point_rmse
+from .block import ModelBlockAdjustment, ModelCoordinates, adjust_model_block
 from .intersection import Intersection, space_intersection
 from .relor import RelativeOrientation, model_covariance, relative_orientation
 from .similarity import SimilarityTransform, similarity_closed_form, similarity_transform
@@ -11,6 +11,6 @@ __all__ = [
     "relative_orientation", "RelativeOrientation", "model_covariance",
     "space_intersection", "Intersection",
     "similarity_closed_form", "similarity_transform", "SimilarityTransform",
-    "adjust_model_block", "ModelCoordinates", "ModelBlockAdjustment", "check_point_rmse",
+    "adjust_model_block", "ModelCoordinates", "ModelBlockAdjustment",
     "independent_model_block", "IndependentModelResult", "form_pairs", "model_coordinates",
 ]

@@ -33,6 +33,7 @@ import scipy.sparse as sp
 
 from baarda.pipeline.errors import AdjustmentError
 from baarda.pipeline.geometry import opk_from_rotation
+from baarda.pipeline.accuracy import check_point_rmse
 from baarda.pipeline.model import Points
 from baarda.pipeline.stats.linear import LinearModel, factor_normal_equations, solve_normal
 from baarda.pipeline.stats.snapshot import Snapshot
@@ -40,7 +41,7 @@ from baarda.pipeline.stats.snapshot import Snapshot
 from .similarity import (PARAMETER_NAMES, rotation_and_derivatives, similarity_closed_form,
                          similarity_jacobian)
 
-__all__ = ["ModelCoordinates", "ModelBlockAdjustment", "adjust_model_block", "check_point_rmse",
+__all__ = ["ModelCoordinates", "ModelBlockAdjustment", "adjust_model_block",
            "model_observation_jacobian"]
 
 
@@ -90,22 +91,6 @@ def model_observation_jacobian(params, X):
     Jp[:, :, 4:] = -M / s
     JX = np.broadcast_to(M / s, (X.shape[0], 3, 3)).copy()
     return f, Jp, JX
-
-
-def check_point_rmse(adjusted, surveyed) -> dict:
-    """Accuracy at check points, adjusted minus surveyed (paper 001, eqs. 2.19–2.22).
-
-    ``Sx = √(Σ(Xp − XG)²/n_x)`` (likewise Sy, Sz over the points where both values are finite),
-    ``Sxy = √((Sx² + Sy²)/2)``.  Returns ``{"Sx", "Sy", "Sxy", "Sz", "n"}`` (nan when empty).
-    """
-    d = np.asarray(adjusted, float).reshape(-1, 3) - np.asarray(surveyed, float).reshape(-1, 3)
-    out = {}
-    for k, c in enumerate("xyz"):
-        dk = d[:, k][np.isfinite(d[:, k])]
-        out[f"S{c}"] = float(np.sqrt(np.mean(dk ** 2))) if dk.size else float("nan")
-    out["Sxy"] = float(np.sqrt((out["Sx"] ** 2 + out["Sy"] ** 2) / 2))
-    out["n"] = int(np.sum(np.any(np.isfinite(d), axis=1)))
-    return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -480,7 +465,8 @@ def adjust_model_block(models: Sequence[ModelCoordinates], points: Points | None
     chk = np.flatnonzero(role == "check")
     check = {"ids": np.array([all_keys[i] for i in chk]),
              "dXYZ": XYZ[chk] - np.array([ctrl[all_keys[i]][0] for i in chk]).reshape(-1, 3)}
-    check["rmse"] = check_point_rmse(XYZ[chk], XYZ[chk] - check["dXYZ"])
+    check["rmse"] = {k: v for k, v in check_point_rmse(XYZ[chk], XYZ[chk] - check["dXYZ"]).items()
+                     if k != "errors"}                                 # errors are check["dXYZ"]
     Qp = np.array([Qxx[7 * i:7 * i + 7, 7 * i:7 * i + 7] for i in range(n_m)])
     return ModelBlockAdjustment(
         model_ids=np.array(ids), params=params, Qparams=Qp, point_ids=np.array(all_keys),

@@ -152,7 +152,7 @@ def resection_example(path) -> dict:
     OpenCV's ``solvePnP`` (iterative Levenberg–Marquardt, an independent implementation)."""
     import cv2
 
-    from baarda.pipeline.adjustment.initial import resection
+    from baarda.pipeline.adjustment import resection
 
     d = read_resect(path)
     f = d["focal"]

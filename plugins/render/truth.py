@@ -123,7 +123,7 @@ def truth_errors(result, meta: dict | None = None) -> TruthCheck:
     truth = truth_from_meta(meta if meta is not None else block.meta)
     # points
     pts = block.points
-    used = result.problem.point_used
+    used = result.point_used
     t_index = {str(q): k for k, q in enumerate(truth.point_ids)}
     sel = np.array([k for k in range(len(pts)) if used[k] and str(pts.ids[k]) in t_index], int)
     true = truth.XYZ[[t_index[str(q)] for q in pts.ids[sel]]]
@@ -136,7 +136,7 @@ def truth_errors(result, meta: dict | None = None) -> TruthCheck:
     # photos
     ph = block.photos
     p_index = {str(p): k for k, p in enumerate(truth.photo_ids)}
-    psel = np.array([k for k in range(len(ph)) if result.problem.photo_used[k] and str(ph.ids[k]) in p_index], int)
+    psel = np.array([k for k in range(len(ph)) if result.photo_used[k] and str(ph.ids[k]) in p_index], int)
     tk = [p_index[str(p)] for p in ph.ids[psel]]
     dang = (ph.opk[psel] - truth.opk[tk] + np.pi) % (2 * np.pi) - np.pi
     perr = np.column_stack([ph.X0[psel] - truth.X0[tk], dang])

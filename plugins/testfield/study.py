@@ -82,7 +82,7 @@ def _weak_priors(block, names: list[str], effect_mm: float) -> np.ndarray:
     """A-priori sigma per camera parameter that lets it move the image by at most ``effect_mm``
     over the format (weak enough not to bias a determinable parameter; bounds a singular one)."""
     from baarda.pipeline.camera.models import get_ap_model
-    from baarda.pipeline.adjustment.solver import BundleSettings, camera_meta
+    from baarda.pipeline.adjustment import BundleSettings, camera_meta
 
     cam = block.cameras
     model = get_ap_model(cam.ap_model[0])
@@ -111,8 +111,8 @@ def select_additional_parameters(block, settings=None, *, rho_max: float = 0.75,
     (each can move the image by ``weak_effect_mm``) so that a singular combination shows as
     |ρ| → 1 instead of failing; the final adjustment has the kept ones free.
     """
-    from baarda.pipeline.adjustment.adjust import adjust
-    from baarda.pipeline.adjustment.solver import BundleSettings
+    from baarda.pipeline.adjustment import adjust
+    from baarda.pipeline.adjustment import BundleSettings
 
     adjust_fn = adjust_fn or adjust
     settings = settings or BundleSettings()
@@ -174,7 +174,7 @@ def select_additional_parameters(block, settings=None, *, rho_max: float = 0.75,
 
 def _candidate_correlations(res, names, cand):
     """For each candidate: largest |ρ| with another global unknown, that unknown's name, |x/σ|."""
-    from baarda.pipeline.adjustment.diagnose import parameter_names
+    from baarda.pipeline.adjustment import parameter_names
 
     prob = res.problem
     Q = res.Qx[:prob.n_g, :prob.n_g]
@@ -226,14 +226,14 @@ def _check_rmse(res, block) -> np.ndarray:
 
 
 def _run(block, with_aps: bool, cfg: StudyConfig):
-    from baarda.pipeline.adjustment.adjust import adjust
-    from baarda.pipeline.adjustment.solver import BundleSettings
+    from baarda.pipeline.adjustment import adjust
+    from baarda.pipeline.adjustment import BundleSettings
 
     settings = BundleSettings(covariance=with_aps, tol_obs=1e-4, max_iter=50)
     if not with_aps:
         return adjust(block, settings), [], ""
     if cfg.ap_selection == "bundle":
-        from baarda.pipeline.adjustment.apselect import select_aps
+        from baarda.pipeline.adjustment import select_aps
 
         try:
             sel = select_aps(block, settings, rho_max=cfg.rho_max, alpha=cfg.ap_alpha)

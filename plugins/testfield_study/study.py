@@ -113,7 +113,7 @@ class MethodStudyConfig:
 
 
 def _bundle_settings():
-    from baarda.pipeline.adjustment.solver import BundleSettings
+    from baarda.pipeline.adjustment import BundleSettings
 
     return BundleSettings(covariance=True, tol_obs=1e-4, max_iter=50)
 
@@ -149,7 +149,7 @@ def _im_row(res, sigma_control_m: float) -> dict:
 def _with_aps(block, cfg: MethodStudyConfig, settings):
     """The bundle's AP selection; the testfield study's selection where the block is singular with
     every AP free (only the minimal control of case 1)."""
-    from baarda.pipeline.adjustment.apselect import select_aps
+    from baarda.pipeline.adjustment import select_aps
 
     try:
         sel = select_aps(block, settings, rho_max=cfg.rho_max, alpha=cfg.ap_alpha)
@@ -166,7 +166,7 @@ def run_realisation(cfg: MethodStudyConfig, seed: int, repetition: int) -> list[
     repetition])``; the same draws for every method).  One row per variant: ``variant,
     repetition, Sx, Sy, Sz`` (m), ``pred`` (3,) predicted RMS (m), ``dof``, ``sigma0_hat``,
     ``kept`` (AP names), ``selection``, ``ids``, ``errors`` (k, 3), ``error`` (message or "")."""
-    from baarda.pipeline.adjustment.adjust import adjust
+    from baarda.pipeline.adjustment import adjust
     from baarda.plugins.independent_models import independent_model_block
 
     settings = _bundle_settings()

@@ -5,7 +5,8 @@ import pytest
 
 from baarda.pipeline.errors import AdjustmentError, InputError
 from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points
-from baarda.pipeline.adjustment import BundleSettings, Distance, LinearAPModel, adjust, register_ap_model
+from baarda.pipeline.adjustment import BundleSettings, Distance, adjust
+from baarda.pipeline.camera import LinearAPModel, register_ap_model
 
 from .synth import make_block, perturb
 

@@ -185,7 +185,7 @@ def test_distance_jacobian_matches_finite_differences():
     against central differences of the distance and of vᵀPv (distance residual made large)."""
     from baarda.pipeline.model import FREE
     from baarda.pipeline.adjustment import BundleSettings, Distance
-    from baarda.pipeline.adjustment.solver import BundleProblem
+    from baarda.pipeline.adjustment.problem import BundleProblem
 
     blk, truth = make_block(model="none", n_photos=6, n_points=20, noise_mm=0.001, n_control=0)
     pts = blk.points

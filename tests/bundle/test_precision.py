@@ -202,7 +202,7 @@ def test_monte_carlo_spread_matches_reported_covariance(n_sim):
 def test_schur_strategies_agree(monkeypatch, datum):
     """dense / pairs / sparse forms of B Bᵀ and both precision routes give the same numbers."""
     from baarda.pipeline.model import FREE
-    from baarda.pipeline.adjustment.solver import BundleProblem
+    from baarda.pipeline.adjustment.problem import BundleProblem
 
     blk, _ = make_block(model="brown", n_photos=6, n_points=30, noise_mm=0.002, rng=np.random.default_rng(1))
     st = BundleSettings()

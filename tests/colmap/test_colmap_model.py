@@ -251,7 +251,7 @@ def test_bundle_on_colmap_model_and_export_adjusted(model_dir, tmp_path):
     """A COLMAP user gets baarda's adjustment (free network, c and K1 per camera as COLMAP) and
     writes the adjusted model back."""
     adjust_mod = pytest.importorskip("baarda.pipeline.adjustment.adjust")
-    from baarda.pipeline.adjustment.solver import BundleSettings
+    from baarda.pipeline.adjustment.settings import BundleSettings
     import pycolmap
 
     from baarda.pipeline.adjustment import reprojection_summary

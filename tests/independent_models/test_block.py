@@ -8,7 +8,8 @@ import pytest
 from baarda.pipeline.errors import AdjustmentError, InputError
 from baarda.pipeline.model import Points
 from baarda.pipeline.stats import data_snooping, iterated_data_snooping
-from baarda.plugins.independent_models.block import ModelCoordinates, adjust_model_block, check_point_rmse
+from baarda.pipeline.accuracy import check_point_rmse
+from baarda.plugins.independent_models.block import ModelCoordinates, adjust_model_block
 from baarda.plugins.independent_models.workflow import form_pairs, independent_model_block
 
 from .synth import make_block

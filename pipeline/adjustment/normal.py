@@ -1,0 +1,466 @@
+"""Normal equations of the bundle: whitened Jacobians, the reduced camera system (object points
+eliminated by the Schur complement), its constraint rows and the back-substitution.
+
+:class:`NormalEquations` is a part of :class:`~.problem.BundleProblem` (a mix-in: it uses the
+problem's index bookkeeping); :class:`BMatrix` holds ``B = W V^{-1/2}`` per observation.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import scipy.linalg as sla
+import scipy.sparse as sp
+
+from baarda.pipeline.errors import AdjustmentError
+
+from .collinearity import bmm, bmv
+from .settings import BundleState
+
+__all__ = ["NormalEquations", "BMatrix"]
+
+
+class NormalEquations:
+    """Linearisation and reduced system of a :class:`~.problem.BundleProblem`."""
+
+    def linearize(self, st: BundleState, proj=None):
+        """Whitened Jacobians and normal-equation pieces at ``st``.
+
+        ``proj``: the projection of ``st`` already computed (the accepted trial step's), so the
+        residuals are not evaluated twice; its Jacobians are added here."""
+        t0 = time.perf_counter()
+        if proj is None or proj._d is None:
+            proj = self.project(st, False)
+        if proj.J_eo is None:
+            self.projector.jacobians(proj)
+        parts = self.residual_parts(st, proj)
+        v, e, dg, dpv, dd, _ = parts
+        k = len(e)
+        sc, se, spt = self.jac_cols
+        Jc = np.empty((k, 2, self.q))
+        a, b = len(sc), len(sc) + len(se)
+        Jc[:, :, :a] = proj.J_cam
+        Jc[:, :, a:b] = proj.J_eo if len(se) == 6 else proj.J_eo[:, :, se]
+        Jc[:, :, b:] = proj.J_point[:, :, spt]
+        Jc = self.whiten(Jc, out=Jc)
+        if not self.col_mask_all:
+            Jc *= self.col_mask[:, None, :]
+        Jp = self.whiten(proj.J_point)
+        if not self.pt_mask_all:
+            Jp *= self.pt_mask[:, None, :]
+        U, g = self.gram_U(Jc, e)
+        ng1 = self.n_g + 1
+        Vk = Jp[:, 0, :, None] * Jp[:, 0, None, :]
+        Vk += Jp[:, 1, :, None] * Jp[:, 1, None, :]
+        V = (self.obs_to_point @ Vk.reshape(k, 9))[:-1].reshape(-1, 3, 3)
+        Jpe = Jp[:, 0, :] * e[:, 0, None] + Jp[:, 1, :] * e[:, 1, None]
+        bp = (self.obs_to_point @ Jpe)[:-1]
+        # priors
+        np.add.at(U, (self.prior_g_idx, self.prior_g_idx), self.prior_g_w)
+        np.add.at(g, self.prior_g_idx, self.prior_g_w * dg)
+        if len(self.prior_p_idx):
+            np.add.at(V, (self.prior_p_idx, self.prior_p_coord, self.prior_p_coord), self.prior_p_w)
+            np.add.at(bp, (self.prior_p_idx, self.prior_p_coord), self.prior_p_w * dpv)
+        # distances (all their points are global unknowns)
+        if len(self.dist_l):
+            s0 = self.settings.sigma0
+            diff = st.XYZ[self.dist_a] - st.XYZ[self.dist_b]
+            unit = diff / np.linalg.norm(diff, axis=1, keepdims=True)
+            wd = s0 / self.dist_s
+            cols = np.concatenate([self.g_pt[self.dist_a], self.g_pt[self.dist_b]], axis=1)
+            Jd = np.concatenate([unit, -unit], axis=1) * wd[:, None]
+            ok = cols >= 0
+            cols = np.where(ok, cols, self.n_g)
+            Jd = Jd * ok
+            dist_lin = (Jd, cols)
+            Uext = np.zeros((ng1, ng1))
+            np.add.at(Uext, (cols[:, :, None], cols[:, None, :]), Jd[:, :, None] * Jd[:, None, :])
+            U = U + Uext[:-1, :-1]
+            gext = np.zeros(ng1)
+            np.add.at(gext, cols, Jd * (wd * dd)[:, None])
+            g = g + gext[:-1]
+        # free coordinates that no observation touches stay fixed
+        if self.n_e:
+            fixed = ~self.elim_free
+            pi, ci = np.nonzero(fixed)
+            V[pi, ci, ci] = 1.0
+            bp[fixed] = 0.0
+        Jd, dcols = dist_lin if len(self.dist_l) else (None, None)
+        return dict(U=U, g=g, V=V, bp=bp, Jc=Jc, Jp=Jp, e=e, v=v, parts=parts, proj=proj,
+                    Jd=Jd, dcols=dcols, t=time.perf_counter() - t0)
+
+    def whiten(self, J, out=None):
+        """``L J`` for (k, 2, c) Jacobians."""
+        if self.L_diag:
+            return np.multiply(J, self.L_rows, out=out)
+        return bmm(self.L, J)
+
+    def gram_U(self, Jc, e=None):
+        """``Σ_k Jc_kᵀ Jc_k`` scattered into (n_g, n_g) (and ``Σ_k Jc_kᵀ e_k`` when ``e`` is given):
+        per photo with BLAS for the photo-constant columns, by bincount for the few observations
+        of global points."""
+        ng1 = self.n_g + 1
+        Up = np.zeros((ng1, ng1))
+        gp = np.zeros(ng1)
+        q_ph = self.q_ph
+        whole = q_ph == self.q
+        for s0, s1, idx in zip(self.seg_start.tolist(), self.seg_end.tolist(), self.seg_cols):
+            A = Jc[s0:s1].reshape(-1, q_ph) if whole else Jc[s0:s1, :, :q_ph].reshape(-1, q_ph)
+            Up[np.ix_(idx, idx)] += A.T @ A
+            if e is not None:
+                gp[idx] += A.T @ e[s0:s1].reshape(-1)
+        if len(self.gp_obs):
+            J = Jc[self.gp_obs]
+            outer = bmm(np.transpose(J, (0, 2, 1)), J)
+            outer[:, :q_ph, :q_ph] = 0.0          # counted above
+            Up += np.bincount(self.flatU_gp, outer.ravel(), minlength=ng1 * ng1).reshape(ng1, ng1)
+            if e is not None:
+                eg = e[self.gp_obs]
+                gv = J[:, 0, q_ph:] * eg[:, 0, None] + J[:, 1, q_ph:] * eg[:, 1, None]
+                gp += np.bincount(self.cidx[self.gp_obs, q_ph:].ravel(), gv.ravel(), minlength=ng1)
+        if e is None:
+            return Up[:-1, :-1]
+        return Up[:-1, :-1], gp[:-1]
+
+    def gram_mode(self) -> str:
+        """Cheapest way to form ``B Bᵀ`` for this problem (cost model in flops-equivalents)."""
+        if getattr(self, "_gram_mode", None) is None:
+            n_e = self.n_e
+            cnt = np.bincount(self.pidx[self.obs_elim], minlength=n_e).astype(float)
+            q = self.q_ph
+            n_pairs = float(np.sum(cnt * (cnt - 1) / 2))
+            n_seg = len(self.seg_start)
+            photo_pairs = min(n_pairs, n_seg * (n_seg - 1) / 2)
+            # pairs: one small BLAS product per photo pair (≈ 30 µs-equivalents of overhead each),
+            # the gathered blocks and the per-photo diagonal
+            pairs = (2 * 3 * q * q / 4 + 2 * 3 * q * 2) * n_pairs + 3e4 * photo_pairs + len(self.oi) * 3 * q * q / 4
+            nnz_col = np.minimum(cnt * self.q, self.n_g)
+            sparse = 3.0 * float(np.sum(nnz_col ** 2)) * 4.0
+            dense = float(self.n_g + self.n_c) ** 2 * 3 * n_e / 10.0 + 3.0 * len(self.oi) * self.q
+            dense_bytes = 8.0 * (self.n_g + 1) * 3 * n_e
+            pair_bytes = 16.0 * n_pairs + 8.0 * photo_pairs * q * q
+            costs = {"sparse": sparse, "pairs": pairs if pair_bytes < 6e8 else np.inf,
+                     "dense": dense if dense_bytes < 4e8 else np.inf}
+            self._gram_mode = min(costs, key=costs.get)
+        return self._gram_mode
+
+    def precision_route(self) -> str:
+        """How :func:`baarda.pipeline.adjustment.precision.precision` forms the points' cofactors (cost model in
+        flops-equivalents, independent of :meth:`gram_mode`, which chooses the Schur product):
+        ``"pairs"`` — per point only the (t q)² block of K⁻¹ its t observations touch (short
+        tracks, e.g. aerial blocks, BAL) — or ``"chunks"`` — K⁻¹ B for blocks of points, n_x² per
+        point (few points seen by many photos, e.g. close range).  The pairs route gathers the
+        blocks of all points of one track length at once; past 2e8 bytes it is not used."""
+        if getattr(self, "_precision_route", None) is None:
+            cnt = np.bincount(self.pidx[self.obs_elim], minlength=self.n_e).astype(float)
+            tq = cnt * self.q
+            n_x = self.n_g + self.n_c
+            pairs = float(np.sum(4.0 * tq * tq * 3 + 3.0 * tq * self.n_c))
+            chunks = 3.0 * n_x * n_x * self.n_e + 3.0 * len(self.oi) * self.q * 3
+            lengths, inverse = np.unique(cnt, return_inverse=True) if self.n_e else (np.zeros(0), np.zeros(0, int))
+            group_bytes = np.bincount(inverse, 8.0 * tq * tq, minlength=len(lengths)) if self.n_e else np.zeros(1)
+            fits = float(group_bytes.max(initial=0.0)) < 2e8
+            self._precision_route = "pairs" if fits and pairs < chunks else "chunks"
+        return self._precision_route
+
+    def track_groups(self):
+        """Observations of each eliminated point grouped by track length: list of
+        ``(obs_mat (N_t, t), None)`` (built once)."""
+        if getattr(self, "_tracks", None) is None:
+            sel = np.flatnonzero(self.obs_elim)
+            order = sel[np.argsort(self.pidx[sel], kind="stable")]
+            cnt = np.bincount(self.pidx[sel], minlength=self.n_e)
+            start = np.r_[0, np.cumsum(cnt)[:-1]]
+            groups = []
+            for t in np.unique(cnt[cnt > 0]):
+                pts = np.flatnonzero(cnt == t)
+                groups.append((order[start[pts][:, None] + np.arange(t)], None))
+            self._tracks = groups
+        return self._tracks
+
+    def pair_plan(self, chunk_pairs: int = 1 << 15):
+        """The observation pairs of every eliminated point, grouped by photo pair (built once).
+
+        ``B Bᵀ`` (global part) is ``Σ_photos Y_aᵀ Y_a + Σ_{a<b} (S_ab + S_abᵀ)`` with
+        ``S_ab = Σ_{p seen in a and b} B_ap B_bpᵀ``: one BLAS product per photo pair over the
+        stacked blocks of their common points.  Returns a dict: ``oa, ob`` (observations of each
+        pair, photo of ``oa`` < photo of ``ob``, sorted by photo pair), ``gs, ge`` (pair range of
+        each photo pair), ``flat`` / ``flat_diag`` (where the q×q blocks go in the (n_g+1)² matrix),
+        ``chunks`` (photo-pair ranges gathered together, ≤ ``chunk_pairs`` pairs unless one photo
+        pair alone has more)."""
+        if getattr(self, "_pair_plan", None) is None:
+            n_seg = len(self.seg_start)
+            seg_of = np.repeat(np.arange(n_seg), self.seg_len)
+            oa_l, ob_l = [np.zeros(0, np.intp)], [np.zeros(0, np.intp)]
+            for obs_mat, _ in self.track_groups():
+                t = obs_mat.shape[1]
+                if t < 2:
+                    continue
+                ia, ib = np.triu_indices(t, 1)
+                oa_l.append(obs_mat[:, ia].ravel())
+                ob_l.append(obs_mat[:, ib].ravel())
+            oa, ob = np.concatenate(oa_l), np.concatenate(ob_l)
+            sa, sb = seg_of[oa], seg_of[ob]
+            swap = sa > sb
+            oa, ob = np.where(swap, ob, oa), np.where(swap, oa, ob)
+            sa, sb = np.minimum(sa, sb), np.maximum(sa, sb)
+            key = sa.astype(np.int64) * n_seg + sb
+            o = np.lexsort((oa, key))
+            oa, ob, key, sa, sb = oa[o], ob[o], key[o], sa[o], sb[o]
+            gs = np.flatnonzero(np.r_[True, key[1:] != key[:-1]]) if len(key) else np.zeros(0, int)
+            ge = np.r_[gs[1:], len(key)].astype(int)
+            ng1 = self.n_g + 1
+            itype = np.int32 if ng1 * ng1 < 2 ** 31 else np.int64
+            ra = self.seg_cols[sa[gs]].astype(itype)
+            rb = self.seg_cols[sb[gs]].astype(itype)
+            flat = (ra[:, :, None] * itype(ng1) + rb[:, None, :]).ravel()
+            rd = self.seg_cols.astype(itype)
+            flat_diag = (rd[:, :, None] * itype(ng1) + rd[:, None, :]).ravel()
+            chunks = []
+            g0 = 0
+            for g in range(1, len(gs) + 1):
+                if g == len(gs) or ge[g] - gs[g0] > chunk_pairs:
+                    chunks.append((g0, g))
+                    g0 = g
+            self._pair_plan = dict(oa=oa, ob=ob, gs=gs.tolist(), ge=ge.tolist(), flat=flat, flat_diag=flat_diag,
+                                   chunks=chunks)
+        return self._pair_plan
+
+    # ------------------------------------------------------------------------------------------
+    def constraint_rows(self, st: BundleState):
+        """Inner constraints Gᵀ Δ = 0: (Cg (n_g, n_c), Cp (n_e, 3, n_c))."""
+        n_c = self.n_c
+        Cg = np.zeros((self.n_g, n_c))
+        Cp = np.zeros((self.n_e, 3, n_c))
+        if n_c == 0:
+            return Cg, Cp
+        pos, where = [], []
+        if len(self.datum_photos):
+            pos.append(st.X0[self.datum_photos])
+        if len(self.datum_elim):
+            pos.append(st.XYZ[self.elim_points[self.datum_elim]])
+        if len(self.datum_glob_pts):
+            pos.append(st.XYZ[self.datum_glob_pts])
+        allpos = np.concatenate(pos)
+        ctr = allpos.mean(axis=0)
+        scale = np.sqrt(np.mean(np.sum((allpos - ctr) ** 2, axis=1))) or 1.0
+
+        def G(X):
+            Xr = (X - ctr) / scale
+            out = np.zeros((len(X), 3, n_c))
+            out[:, [0, 1, 2], [0, 1, 2]] = 1.0
+            # rotation: ΔX = ε × X → columns of −[X]×
+            out[:, 1, 3], out[:, 2, 3] = -Xr[:, 2], Xr[:, 1]
+            out[:, 0, 4], out[:, 2, 4] = Xr[:, 2], -Xr[:, 0]
+            out[:, 0, 5], out[:, 1, 5] = -Xr[:, 1], Xr[:, 0]
+            if n_c == 7:
+                out[:, :, 6] = Xr
+            return out
+
+        if len(self.datum_photos):
+            Gx = G(st.X0[self.datum_photos])
+            Cg[self.g_eo[self.datum_photos, :3].ravel()] = Gx.reshape(-1, n_c)
+        if len(self.datum_glob_pts):
+            Gx = G(st.XYZ[self.datum_glob_pts])
+            Cg[self.g_pt[self.datum_glob_pts].ravel()] = Gx.reshape(-1, n_c)
+        if len(self.datum_elim):
+            Cp[self.datum_elim] = G(st.XYZ[self.elim_points[self.datum_elim]])
+        return Cg, Cp
+
+    # ------------------------------------------------------------------------------------------
+    def reduced_system(self, lin, st: BundleState, lam: float = 0.0):
+        """Schur complement: K (n_x, n_x), rhs (n_x,), the factors needed to back-substitute."""
+        U, g, V, bp = lin["U"], lin["g"], lin["V"], lin["bp"]
+        Jc, Jp = lin["Jc"], lin["Jp"]
+        n_g, n_e, n_c = self.n_g, self.n_e, self.n_c
+        if lam > 0:
+            U = U + lam * np.diag(np.diag(U))
+            V = V + lam * np.einsum("pii->pi", V)[:, :, None] * np.eye(3)
+        Li = _chol3_inv(V, self)                                   # (n_e, 3, 3) lower, L⁻¹ with V = L Lᵀ
+        Li1 = np.concatenate([Li, np.eye(3)[None]], axis=0)        # dummy point for global-point obs
+        # B_k = W_k L⁻ᵀ = Jcᵀ (Jp L⁻ᵀ), held transposed: BkT (k, 3, q)
+        Jh = bmm(Jp, np.transpose(Li1[self.pidx], (0, 2, 1)))
+        BkT = Jh[:, 0, :, None] * Jc[:, 0, None, :]
+        BkT += Jh[:, 1, :, None] * Jc[:, 1, None, :]
+        Cg, Cp = self.constraint_rows(st)
+        n_x = n_g + n_c
+        Bc = np.einsum("pac,pba->pcb", Cp, Li) if n_c else None   # (n_e, n_c, 3) = Cpᵀ L⁻ᵀ
+        B = BMatrix(self, BkT, Bc)
+        K = np.zeros((n_x, n_x))
+        K[:n_g, :n_g] = U
+        if n_c:
+            K[:n_g, n_g:] = Cg
+            K[n_g:, :n_g] = Cg.T
+        K -= B.gram()
+        z = bmv(Li, bp)                                             # L⁻¹ b_p
+        rhs = np.concatenate([g, np.zeros(n_c)]) - (B.matvec(z) if n_e else 0.0)
+        return dict(K=K, rhs=rhs, Li=Li, z=z, B=B)
+
+    def back_substitute(self, red, dx):
+        """Δp = L⁻ᵀ (z − B_pᵀ Δx) for every eliminated point."""
+        if self.n_e == 0:
+            return np.zeros((0, 3))
+        t = red["z"] - red["B"].rmatvec(dx)
+        return bmv(np.transpose(red["Li"], (0, 2, 1)), t)
+
+
+def _chol3(V, prob):
+    try:
+        return np.linalg.cholesky(V)
+    except np.linalg.LinAlgError:
+        det = np.linalg.det(V)
+        tr = np.einsum("pii->p", V)
+        bad = int(np.argmin(det / np.maximum(tr, 1e-300) ** 3))
+        pid = str(prob.block.points.ids[prob.elim_points[bad]])
+        raise AdjustmentError(f"point {pid!r} cannot be determined: its rays are (nearly) parallel or it is "
+                              "seen from one photo only — remove it or add observations") from None
+
+
+def _chol3_inv(V, prob):
+    """``L⁻¹`` of ``V = L Lᵀ`` for every 3×3 block (closed form; LAPACK's error path when a block
+    is not positive definite)."""
+    a00, a10, a11 = V[:, 0, 0], V[:, 1, 0], V[:, 1, 1]
+    a20, a21, a22 = V[:, 2, 0], V[:, 2, 1], V[:, 2, 2]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        l00 = np.sqrt(a00)
+        l10 = a10 / l00
+        l20 = a20 / l00
+        l11 = np.sqrt(a11 - l10 * l10)
+        l21 = (a21 - l20 * l10) / l11
+        l22 = np.sqrt(a22 - l20 * l20 - l21 * l21)
+        i00, i11, i22 = 1.0 / l00, 1.0 / l11, 1.0 / l22
+        Li = np.zeros_like(V)
+        Li[:, 0, 0], Li[:, 1, 1], Li[:, 2, 2] = i00, i11, i22
+        Li[:, 1, 0] = -l10 * i00 * i11
+        Li[:, 2, 1] = -l21 * i11 * i22
+        Li[:, 2, 0] = (l10 * l21 - l11 * l20) * i00 * i11 * i22
+    if not np.isfinite(Li).all():
+        return np.linalg.inv(_chol3(V, prob))
+    return Li
+
+
+class BMatrix:
+    """``B = [W V^{-1/2}; Cpᵀ V^{-1/2}]`` (n_x × 3 n_e), held as per-observation blocks, transposed:
+    ``BkT`` (k, 3, q) (``Bk`` (k, q, 3) is a view), plus the constraint blocks ``Bc`` (n_e, n_c, 3).
+
+    ``gram() = B Bᵀ`` is computed by the cheapest of three strategies:
+    ``dense`` (BLAS on the dense n_g × 3n_e matrix: few points, many photos per point),
+    ``pairs`` (one BLAS product per photo pair over the blocks of their common points, see
+    :meth:`BundleProblem.pair_plan`: many points with short tracks, e.g. BAL),
+    ``sparse`` (scipy CSR product).
+    """
+
+    def __init__(self, prob: BundleProblem, BkT, Bc):
+        self.prob = prob
+        self.BkT, self.Bc = BkT, Bc
+        self.n_x = prob.n_g + prob.n_c
+        self.mode = prob.gram_mode()
+
+    @property
+    def Bk(self):
+        return np.swapaxes(self.BkT, 1, 2)
+
+    # -- the Schur product ---------------------------------------------------------------------
+    def gram(self):
+        prob = self.prob
+        n_g, n_e, n_c = prob.n_g, prob.n_e, prob.n_c
+        out = np.zeros((self.n_x, self.n_x))
+        if n_e == 0:
+            return out
+        if self.mode == "dense":
+            D = self.dense_cols(0, n_e)
+            out[:] = D @ D.T
+            return out
+        ng1 = n_g + 1
+        q = prob.q_ph
+        X = self.BkT if q == prob.q else np.ascontiguousarray(self.BkT[:, :, :q])
+        if self.mode == "pairs":
+            pl = prob.pair_plan()
+            gs, ge, oa, ob = pl["gs"], pl["ge"], pl["oa"], pl["ob"]
+            S = np.empty((len(gs), q, q))
+            for g0, g1 in pl["chunks"]:
+                p0, p1 = gs[g0], ge[g1 - 1]
+                XA = X[oa[p0:p1]]
+                XB = X[ob[p0:p1]]
+                for g in range(g0, g1):
+                    a, b = gs[g] - p0, ge[g] - p0
+                    np.matmul(XA[a:b].reshape(-1, q).T, XB[a:b].reshape(-1, q), out=S[g])
+            A = np.bincount(pl["flat"], S.ravel(), minlength=ng1 * ng1).reshape(ng1, ng1)
+            Dg = np.empty((len(prob.seg_start), q, q))
+            for j, (s0, s1) in enumerate(zip(prob.seg_start.tolist(), prob.seg_end.tolist())):
+                Y = X[s0:s1].reshape(-1, q)
+                np.matmul(Y.T, Y, out=Dg[j])
+            A = A + A.T
+            A += np.bincount(pl["flat_diag"], Dg.ravel(), minlength=ng1 * ng1).reshape(ng1, ng1)
+            out[:n_g, :n_g] = A[:-1, :-1]
+        else:
+            S = self.sparse()[:n_g]
+            out[:n_g, :n_g] = (S @ S.T).toarray()
+        if n_c:
+            if prob.datum_on_elim:
+                # cross terms with the constraint rows, Σ_k B_k Bc_pᵀ, per photo
+                BcT1 = np.concatenate([np.swapaxes(self.Bc, 1, 2), np.zeros((1, 3, n_c))], axis=0)
+                Z = BcT1[prob.pidx]                                             # (k, 3, n_c)
+                cross = np.zeros((ng1, n_c))
+                for s0, s1, idx in zip(prob.seg_start.tolist(), prob.seg_end.tolist(), prob.seg_cols):
+                    cross[idx] += X[s0:s1].reshape(-1, q).T @ Z[s0:s1].reshape(-1, n_c)
+                out[:n_g, n_g:] = cross[:-1]
+                out[n_g:, :n_g] = cross[:-1].T
+            Bcf = np.transpose(self.Bc, (1, 0, 2)).reshape(n_c, -1)
+            out[n_g:, n_g:] = Bcf @ Bcf.T
+        return out
+
+    # -- products with vectors -----------------------------------------------------------------
+    def matvec(self, z):
+        """``B z`` for z (n_e, 3)."""
+        prob = self.prob
+        q = prob.q_ph
+        z1 = np.vstack([z.reshape(-1, 3), np.zeros((1, 3))])
+        y = np.matmul(z1[prob.pidx][:, None, :], self.BkT[:, :, :q])[:, 0, :]     # (k, q)
+        ys = np.add.reduceat(y, prob.seg_start, axis=0)                           # per photo
+        out = np.zeros(self.n_x)
+        out[:prob.n_g] = np.bincount(prob.seg_cols.ravel(), ys.ravel(), minlength=prob.n_g + 1)[:-1]
+        if prob.n_c and prob.n_e:
+            out[prob.n_g:] = np.einsum("pca,pa->c", self.Bc, z.reshape(-1, 3))
+        return out
+
+    def rmatvec(self, x):
+        """``Bᵀ x`` as (n_e, 3)."""
+        prob = self.prob
+        q = prob.q_ph
+        xg = np.append(x[:prob.n_g], 0.0)[prob.seg_cols]                     # (n_seg, q)
+        xk = np.repeat(xg, prob.seg_len, axis=0)                              # (k, q)
+        y = np.matmul(self.BkT[:, :, :q], xk[:, :, None])[:, :, 0]           # (k, 3)
+        out = (prob.obs_to_point @ y)[:-1]
+        if prob.n_c and prob.n_e:
+            out += np.einsum("pca,c->pa", self.Bc, x[prob.n_g:])
+        return out
+
+    # -- explicit columns ----------------------------------------------------------------------
+    def dense_cols(self, p0, p1):
+        """Dense ``B[:, 3 p0 : 3 p1]`` (n_x × 3 (p1 − p0))."""
+        prob = self.prob
+        n_g, n_c = prob.n_g, prob.n_c
+        nc = p1 - p0
+        sel = (prob.pidx >= p0) & (prob.pidx < p1)
+        rows = prob.cidx[sel]
+        ncol = 3 * nc
+        cols = 3 * (prob.pidx[sel] - p0)
+        flat = (rows[:, :, None] * ncol + cols[:, None, None] + np.arange(3)).ravel()
+        D = np.bincount(flat, self.Bk[sel].ravel(), minlength=(n_g + 1) * ncol).reshape(n_g + 1, ncol)
+        out = np.empty((self.n_x, ncol))
+        out[:n_g] = D[:n_g]
+        if n_c:
+            out[n_g:] = np.transpose(self.Bc[p0:p1], (1, 0, 2)).reshape(n_c, ncol)
+        return out
+
+    cols_points = dense_cols
+
+    def sparse(self):
+        prob = self.prob
+        Bk = self.Bk
+        rows = np.broadcast_to(prob.cidx[:, :, None], Bk.shape)
+        cols = np.broadcast_to(3 * prob.pidx[:, None, None] + np.arange(3), Bk.shape)
+        S = sp.csr_matrix((Bk.ravel(), (rows.ravel(), cols.ravel())), shape=(prob.n_g + 1, 3 * (prob.n_e + 1)))
+        return S[:, :3 * prob.n_e]

@@ -1,0 +1,456 @@
+"""The bundle adjustment problem: which parameters are unknown, observed or fixed, where every
+unknown sits in the global vector, the whitening of each observation, residuals and vᵀPv.
+
+The normal equations are :mod:`.normal`, their solution :mod:`.factor`, the iteration :mod:`.lm`.
+
+Unknowns
+    global (the "reduced camera system"): free camera parameters ``[c, xp, yp, ap…]`` per
+    camera, free exterior orientation ``[X0, Y0, Z0, ω, φ, κ]`` per photo, and the coordinates of
+    the few object points that couple to other points (scale bars);
+    eliminated: every other object point (3×3 blocks).
+Observations
+    image points (2×2 weight ``P = σ0² Σ⁻¹`` each, x/y may be correlated), weighted constraints on
+    any unknown (``0 < σ < inf``), distances between object points (scale bars).
+Datum
+    ``"control"``: by control points / weighted constraints — the reduced system must be regular;
+    ``"free"``: inner constraints (minimum norm) on the chosen points or on the projection
+    centres, appended as Lagrange rows to the reduced system; the scale comes from a distance when
+    one is given.
+
+Everything is vectorised over observations; the reduced system is dense (``cho_factor`` /
+``lu_factor``).  See ``docs/bundle.md``.
+"""
+
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from baarda.pipeline.errors import AdjustmentError, InputError
+from baarda.pipeline.model import Block
+
+from ..camera.models import get_ap_model
+from .collinearity import Projector, bmv
+from .normal import NormalEquations
+from .settings import BundleSettings, BundleState, block_distances, camera_meta, check_unique
+
+__all__ = ["BundleProblem"]
+
+
+class BundleProblem(NormalEquations):
+    """Index bookkeeping of one adjustment: which parameters are unknown, observed or fixed,
+    where every unknown sits in the global vector, the whitening of each observation.
+
+    Built once per (block, active set, settings); the iteration only changes the state.
+    """
+
+    def __init__(self, block: Block, settings: BundleSettings, obs_active: np.ndarray | None = None,
+                 row_active: np.ndarray | None = None):
+        self.block = block
+        self.settings = settings
+        self.warnings: list[str] = []
+        self._check_ids()
+        self._camera_parameters()
+        self._scale_bars()
+        self._participants(obs_active, row_active)
+        self._whitening()
+        self._global_unknowns()
+        self._column_layout()
+        self._setup_priors()
+        self._setup_datum()
+        self._degrees_of_freedom()
+        self._setup_iteration()
+
+    # ---- set-up steps, in order ----------------------------------------------------------------
+    def _check_ids(self):
+        """Camera, photo and point ids are unique."""
+        b = self.block
+        check_unique(b.cameras.ids, "camera")
+        check_unique(b.photos.ids, "photo")
+        check_unique(b.points.ids, "point")
+        self.K, self.m, self.n = len(b.cameras), len(b.photos), len(b.points)
+
+    def _camera_parameters(self):
+        """AP model per camera, its meta, start values ``cam_params0`` and a-priori σ ``cam_sigma``
+        (``0`` = fixed, ``inf`` = free, else a weighted constraint) of ``[c, xp, yp, ap…]``."""
+        cams, K = self.block.cameras, self.K
+        try:
+            self.models = [get_ap_model(name) for name in cams.ap_model.tolist()]
+        except KeyError as e:
+            raise InputError(str(e.args[0]), field="ap_model") from None
+        self.pmax = max([mdl.n_params for mdl in self.models] + [0])
+        self.meta = camera_meta(self.block, self.settings)
+        for j, mdl in enumerate(self.models):
+            if mdl.name == "ebner12" and self.meta[j].get("b") is None:
+                raise InputError(f"camera {str(cams.ids[j])!r}: ebner12 needs the image base b (mm): set option "
+                                 "'ebner_b' or give the camera's format", field="ebner_b")
+        P = 3 + self.pmax
+        cp0 = np.zeros((K, P))
+        cp0[:, 0], cp0[:, 1], cp0[:, 2] = cams.c, cams.xp, cams.yp
+        csig = np.zeros((K, P))
+        csig[:, :3] = cams.sigma_iop
+        for j, mdl in enumerate(self.models):
+            p = mdl.n_params
+            given = min(p, cams.ap.shape[1])
+            cp0[j, 3:3 + given] = cams.ap[j, :given]
+            csig[j, 3:3 + given] = cams.sigma_ap[j, :given]
+            csig[j, 3 + given:3 + p] = np.asarray(mdl.default_sigma, float)[given:p]
+        self.cam_params0 = cp0
+        self.cam_sigma = csig
+
+    def _scale_bars(self):
+        """Distances between object points: the settings' and the block's."""
+        points = self.block.points
+        dist = tuple(self.settings.distances) + tuple(block_distances(self.block))
+        self.distances = dist
+        self.dist_a = points.index_of([d.a for d in dist]) if dist else np.zeros(0, int)
+        self.dist_b = points.index_of([d.b for d in dist]) if dist else np.zeros(0, int)
+        self.dist_l = np.array([d.distance for d in dist], float)
+        self.dist_s = np.array([d.sigma for d in dist], float)
+        if (self.dist_s <= 0).any() or not np.isfinite(self.dist_s).all():
+            raise InputError("a distance (scale bar) needs a positive, finite sigma", field="sigma")
+
+    def _participants(self, obs_active, row_active):
+        """Which observations (and x/y rows), photos, points and cameras take part; weak photos and
+        points are an error or dropped (``on_weak``).  Observations are sorted by photo, so each
+        photo's observations are one contiguous segment."""
+        b = self.block
+        obs, photos = b.observations, b.photos
+        act = np.asarray(obs.active, bool).copy() if obs_active is None else np.asarray(obs_active, bool).copy()
+        if row_active is not None:
+            ra = np.asarray(row_active, bool).reshape(-1, 2)
+            act &= ra.any(axis=1)
+            self.row_active = ra & act[:, None]
+        else:
+            self.row_active = np.repeat(act[:, None], 2, axis=1)
+        act = self._check_weak(act)
+        self.obs_active = act
+        self.row_active &= act[:, None]
+        oi = np.flatnonzero(act)
+        oi = oi[np.argsort(obs.photo[oi], kind="stable")]     # photo segments are contiguous
+        self.oi = oi
+        self.obs_photo = obs.photo[oi]
+        self.obs_point = obs.point[oi]
+        self.obs_cam = photos.camera[self.obs_photo]
+        self.l = obs.xy[oi].copy()
+        self.photo_used = np.zeros(self.m, bool)
+        self.photo_used[self.obs_photo] = True
+        self.point_used = np.zeros(self.n, bool)
+        self.point_used[self.obs_point] = True
+        self.point_used[self.dist_a] = True
+        self.point_used[self.dist_b] = True
+        self.cam_used = np.zeros(self.K, bool)
+        self.cam_used[photos.camera[self.photo_used]] = True
+
+    def _whitening(self):
+        """``e = L (l − f)`` with ``LᵀL = P = σ0² Σ⁻¹`` per image point (rows switched off: weight 0)."""
+        b, oi = self.block, self.oi
+        obs, photos, points = b.observations, b.photos, b.points
+        cov = obs.cov[oi]
+        s0 = self.settings.sigma0
+        ra = self.row_active[oi]
+        L = np.zeros((len(oi), 2, 2))
+        both = ra.all(axis=1)
+        if both.any():
+            Pm = s0 * s0 * np.linalg.inv(cov[both])
+            try:
+                Lc = np.linalg.cholesky(Pm)
+            except np.linalg.LinAlgError:
+                bad = oi[both][np.argmin(np.linalg.det(cov[both]))]
+                raise InputError(f"observation {bad + 1} (photo {str(photos.ids[obs.photo[bad]])!r}, point "
+                                 f"{str(points.ids[obs.point[bad]])!r}) has a covariance that is not positive definite",
+                                 field="cov") from None
+            L[both] = np.transpose(Lc, (0, 2, 1))
+        for r in (0, 1):
+            only = ra[:, r] & ~ra[:, 1 - r]
+            L[only, r, r] = s0 / np.sqrt(cov[only, r, r])
+        if not np.isfinite(L).all():
+            raise InputError("an image observation has a zero or invalid variance", field="cov")
+        self.L = L
+        self.L_diag = bool(np.all(L[:, 0, 1] == 0) and np.all(L[:, 1, 0] == 0))
+
+    def _global_unknowns(self):
+        """Positions in the global vector: free camera parameters, free exterior orientation, free
+        coordinates of points on scale bars; every other used point with a free coordinate is
+        eliminated (3×3 blocks)."""
+        b = self.block
+        photos, points = b.photos, b.points
+        K, m, n, P = self.K, self.m, self.n, 3 + self.pmax
+        nx = 0
+        self.g_cam = np.full((K, P), -1)
+        free_c = (self.cam_sigma != 0) & self.cam_used[:, None]
+        for j, mdl in enumerate(self.models):
+            free_c[j, 3 + mdl.n_params:] = False
+        cnt = int(free_c.sum())
+        self.g_cam[free_c] = np.arange(nx, nx + cnt)
+        nx += cnt
+        self.g_eo = np.full((m, 6), -1)
+        free_e = (photos.sigma_eo != 0) & self.photo_used[:, None]
+        cnt = int(free_e.sum())
+        self.g_eo[free_e] = np.arange(nx, nx + cnt)
+        nx += cnt
+        pt_free = (points.sigma != 0) & self.point_used[:, None]
+        self.pt_free = pt_free
+        glob_pts = np.zeros(n, bool)
+        glob_pts[self.dist_a] = True
+        glob_pts[self.dist_b] = True
+        self.g_pt = np.full((n, 3), -1)
+        gp_free = pt_free & glob_pts[:, None]
+        cnt = int(gp_free.sum())
+        self.g_pt[gp_free] = np.arange(nx, nx + cnt)
+        nx += cnt
+        self.n_g = nx
+        elim = self.point_used & ~glob_pts & pt_free.any(axis=1)
+        self.elim_points = np.flatnonzero(elim)
+        self.n_e = len(self.elim_points)
+        self.elim_of = np.full(n, -1)
+        self.elim_of[self.elim_points] = np.arange(self.n_e)
+        self.elim_free = pt_free[self.elim_points]                    # (n_e, 3)
+        self.n_unknowns = self.n_g + int(self.elim_free.sum())
+
+    def _column_layout(self):
+        """Per observation, the global columns of its Jacobian: ``[cam (P) | eo (6) | global point
+        (3)]``, columns no observation uses dropped, the dummy column ``n_g`` for fixed ones; the
+        photo segments and the observation → eliminated point map."""
+        oi, P = self.oi, 3 + self.pmax
+        groups = []
+        if (self.g_cam[self.obs_cam] >= 0).any():
+            groups.append(("cam", P))
+        groups.append(("eo", 6))
+        if (self.g_pt[self.obs_point] >= 0).any():
+            groups.append(("pt", 3))
+        self.col_groups = groups
+        cols = []
+        for name, _ in groups:
+            cols.append({"cam": self.g_cam[self.obs_cam], "eo": self.g_eo[self.obs_photo],
+                         "pt": self.g_pt[self.obs_point]}[name])
+        cidx = np.concatenate(cols, axis=1) if cols else np.zeros((len(oi), 0), int)
+        # drop columns that no observation uses (parameters fixed everywhere)
+        keep = (cidx >= 0).any(axis=0)
+        n_ph_cols = sum(w for name, w in groups if name != "pt")
+        self.col_keep = np.flatnonzero(keep)
+        cidx = cidx[:, keep]
+        self.col_mask = cidx >= 0
+        cidx = np.where(self.col_mask, cidx, self.n_g)
+        self.cidx = cidx
+        self.q = cidx.shape[1]
+        self.q_ph = int(keep[:n_ph_cols].sum())                          # photo-constant columns
+        # photo segments of the (photo-sorted) observations
+        ph_sorted = self.obs_photo
+        starts = np.flatnonzero(np.r_[True, ph_sorted[1:] != ph_sorted[:-1]]) if len(oi) else np.zeros(0, int)
+        self.seg_start = starts
+        self.seg_end = np.r_[starts[1:], len(oi)].astype(int)
+        self.gp_obs = np.flatnonzero((cidx[:, self.q_ph:] < self.n_g).any(axis=1)) if self.q > self.q_ph \
+            else np.zeros(0, int)
+        pidx = self.elim_of[self.obs_point]
+        self.obs_elim = pidx >= 0
+        self.pidx = np.where(self.obs_elim, pidx, self.n_e)
+        self.pt_mask = np.zeros((len(oi), 3), bool)
+        self.pt_mask[self.obs_elim] = self.elim_free[pidx[self.obs_elim]]
+        ng1 = self.n_g + 1
+        gc = cidx[self.gp_obs]
+        self.flatU_gp = (gc[:, :, None] * ng1 + gc[:, None, :]).ravel()
+
+    def _degrees_of_freedom(self):
+        """Observation rows + weighted constraints + distances + datum constraints − unknowns."""
+        self.n_obs_rows = int(self.row_active[self.oi].sum())
+        self.dof = (self.n_obs_rows + len(self.prior_g_idx) + len(self.prior_p_idx) + len(self.dist_l)
+                    + self.n_c - self.n_unknowns)
+
+    def _setup_iteration(self):
+        """What every iteration reuses: the projector (camera of each observation, AP-model groups),
+        the Jacobian columns that feed ``cidx``, the photo segments' columns, the observation →
+        point summation matrix."""
+        P = 3 + self.pmax
+        sel = {"cam": np.zeros(0, int), "eo": np.zeros(0, int), "pt": np.zeros(0, int)}
+        off = 0
+        for name, w in self.col_groups:
+            sel[name] = self.col_keep[(self.col_keep >= off) & (self.col_keep < off + w)] - off
+            off += w
+        self.jac_cols = (sel["cam"], sel["eo"], sel["pt"])
+        photos = self.block.photos
+        self.projector = Projector(self.obs_photo, self.obs_point, photos.camera, self.block.cameras.ap_model,
+                                   self.meta, cam_cols=sel["cam"])
+        self.col_mask_all = bool(self.col_mask.all())
+        self.pt_mask_all = bool(self.pt_mask.all())
+        self.L_rows = np.stack([self.L[:, 0, 0], self.L[:, 1, 1]], axis=1)[:, :, None]
+        self.seg_len = (self.seg_end - self.seg_start).astype(np.intp)
+        self.seg_cols = self.cidx[self.seg_start, :self.q_ph]                # (n_seg, q_ph)
+        k = len(self.oi)
+        # Σ over the observations of each eliminated point (row n_e: observations of no such point)
+        self.obs_to_point = sp.csr_matrix((np.ones(k), (self.pidx, np.arange(k))), shape=(self.n_e + 1, k))
+        self.datum_on_elim = bool(self.n_c and len(self.datum_elim))
+
+    # ------------------------------------------------------------------------------------------
+    def _check_weak(self, act):
+        """Photos with < 3 observed points and free points in < 2 photos: error or drop."""
+        blk = self.block
+        obs, photos, points = blk.observations, blk.photos, blk.points
+        for _ in range(100):
+            oi = np.flatnonzero(act)
+            # duplicate (photo, point) pairs
+            key = obs.photo[oi].astype(np.int64) * (len(points) + 1) + obs.point[oi]
+            u, cnt = np.unique(key, return_counts=True)
+            if (cnt > 1).any():
+                k = u[np.argmax(cnt > 1)]
+                ph, pt = divmod(int(k), len(points) + 1)
+                raise InputError(f"point {str(points.ids[pt])!r} is measured twice in photo {str(photos.ids[ph])!r}; "
+                                 "keep one measurement (or switch one off)", field="observations")
+            n_pts_photo = np.bincount(obs.photo[oi], minlength=len(photos))
+            eo_free = (photos.sigma_eo != 0).any(axis=1)
+            weak_ph = np.flatnonzero((n_pts_photo > 0) & (n_pts_photo < 3) & eo_free)
+            rays = np.bincount(obs.point[oi], minlength=len(points))
+            indist = np.zeros(len(points), bool)
+            indist[self.dist_a] = True
+            indist[self.dist_b] = True
+            free_all = np.isinf(points.sigma).all(axis=1)
+            weak_pt = np.flatnonzero((rays == 1) & free_all & ~indist)
+            if weak_ph.size == 0 and weak_pt.size == 0:
+                return act
+            if self.settings.on_weak == "error":
+                if weak_ph.size:
+                    i = weak_ph[0]
+                    raise AdjustmentError(
+                        f"photo {str(photos.ids[i])!r} has only {n_pts_photo[i]} observed point(s); its orientation needs "
+                        "at least 3 (better 4 or more) — add points, fix its orientation, or set on_weak = 'drop'")
+                p = weak_pt[0]
+                ph = obs.photo[oi][obs.point[oi] == p][0]
+                raise AdjustmentError(
+                    f"point {str(points.ids[p])!r} is observed in only one photo ({str(photos.ids[ph])!r}) and has no control: "
+                    "it cannot be determined — add a measurement in another photo, remove it, or set on_weak = 'drop'")
+            drop = np.isin(obs.photo, weak_ph) | np.isin(obs.point, weak_pt)
+            for i in weak_ph:
+                self.warnings.append(f"photo {str(photos.ids[i])!r} dropped: only {n_pts_photo[i]} observed point(s)")
+            for p in weak_pt:
+                self.warnings.append(f"point {str(points.ids[p])!r} dropped: observed in only one photo")
+            act = act & ~drop
+        return act  # pragma: no cover
+
+    def _setup_priors(self):
+        blk = self.block
+        gi, w, given, ang = [], [], [], []
+        s0 = self.settings.sigma0
+        # cameras
+        m = (self.g_cam >= 0) & np.isfinite(self.cam_sigma) & (self.cam_sigma > 0)
+        gi.append(self.g_cam[m]); w.append((s0 / self.cam_sigma[m]) ** 2); given.append(self.cam_params0[m])
+        ang.append(np.zeros(int(m.sum()), bool))
+        # exterior orientation
+        se = blk.photos.sigma_eo
+        m = (self.g_eo >= 0) & np.isfinite(se) & (se > 0)
+        val = np.concatenate([blk.photos.X0, blk.photos.opk], axis=1)
+        if np.isnan(val[m]).any():
+            raise InputError("an exterior-orientation element has an a-priori sigma but no value", field="sigma_eo")
+        gi.append(self.g_eo[m]); w.append((s0 / se[m]) ** 2); given.append(val[m])
+        ang.append(np.broadcast_to(np.arange(6) >= 3, se.shape)[m])
+        # global points
+        ps = blk.points.sigma
+        m = (self.g_pt >= 0) & np.isfinite(ps) & (ps > 0)
+        gi.append(self.g_pt[m]); w.append((s0 / ps[m]) ** 2); given.append(blk.points.XYZ[m])
+        ang.append(np.zeros(int(m.sum()), bool))
+        self.prior_g_idx = np.concatenate(gi).astype(int)
+        self.prior_g_w = np.concatenate(w)
+        self.prior_g_val = np.concatenate(given)
+        self.prior_g_ang = np.concatenate(ang)
+        # eliminated points
+        ep = self.elim_points
+        s = ps[ep]
+        m = self.elim_free & np.isfinite(s) & (s > 0)
+        pe, pc = np.nonzero(m)
+        self.prior_p_idx = pe
+        self.prior_p_coord = pc
+        self.prior_p_w = (s0 / s[m]) ** 2
+        self.prior_p_val = blk.points.XYZ[ep][m]
+        if np.isnan(self.prior_p_val).any() or np.isnan(self.prior_g_val).any():
+            raise InputError("a control point has an a-priori sigma but no coordinate", field="XYZ")
+
+    def _setup_datum(self):
+        st = self.settings
+        self.n_c = 0
+        self.datum_elim = np.zeros(0, int)
+        self.datum_glob_pts = np.zeros(0, int)
+        self.datum_photos = np.zeros(0, int)
+        if st.datum != "free":
+            return
+        self.scale_free = len(self.dist_l) == 0
+        self.n_c = 7 if self.scale_free else 6
+        pts = self.block.points
+        if st.datum_centres:
+            self.datum_photos = np.flatnonzero(self.photo_used & (self.g_eo[:, :3] >= 0).all(axis=1))
+            if len(self.datum_photos) < 3:
+                raise AdjustmentError("free network on projection centres needs at least 3 photos with free positions")
+            return
+        if st.datum_points is None:
+            sel = self.point_used & np.isin(pts.role, ("tie", "check"))
+        else:
+            sel = np.zeros(self.n, bool)
+            sel[pts.index_of(list(st.datum_points))] = True
+            unused = sel & ~self.point_used
+            if unused.any():
+                raise InputError(f"datum point {str(pts.ids[np.argmax(unused)])!r} is not observed", field="datum_points")
+        sel &= self.pt_free.all(axis=1)
+        if sel.sum() < 3:
+            raise AdjustmentError("free network: the inner constraints need at least 3 observed points with free "
+                                  "coordinates (option datum_points)")
+        self.datum_elim = self.elim_of[sel & (self.elim_of >= 0)]
+        self.datum_glob_pts = np.flatnonzero(sel & (self.g_pt >= 0).all(axis=1))
+
+    # ------------------------------------------------------------------------------------------
+    def initial_state(self, block: Block | None = None) -> BundleState:
+        b = block or self.block
+        return BundleState(self.cam_params0.copy(), np.array(b.photos.X0, float),
+                           np.array(b.photos.opk, float), np.array(b.points.XYZ, float))
+
+    def global_vector(self, st: BundleState) -> np.ndarray:
+        x = np.zeros(self.n_g)
+        m = self.g_cam >= 0
+        x[self.g_cam[m]] = st.cam_params[m]
+        eo = np.concatenate([st.X0, st.opk], axis=1)
+        m = self.g_eo >= 0
+        x[self.g_eo[m]] = eo[m]
+        m = self.g_pt >= 0
+        x[self.g_pt[m]] = st.XYZ[m]
+        return x
+
+    def apply(self, st: BundleState, dx_g: np.ndarray, dp: np.ndarray) -> BundleState:
+        out = st.copy()
+        m = self.g_cam >= 0
+        out.cam_params[m] += dx_g[self.g_cam[m]]
+        m = self.g_eo >= 0
+        eo = np.concatenate([out.X0, out.opk], axis=1)
+        eo[m] += dx_g[self.g_eo[m]]
+        out.X0, out.opk = eo[:, :3].copy(), eo[:, 3:].copy()
+        m = self.g_pt >= 0
+        out.XYZ[m] += dx_g[self.g_pt[m]]
+        if self.n_e:
+            out.XYZ[self.elim_points] += np.where(self.elim_free, dp, 0.0)
+        return out
+
+    # ------------------------------------------------------------------------------------------
+    def project(self, st: BundleState, jacobians: bool):
+        pr = self.projector.project(st.XYZ, st.X0, st.opk, st.cam_params)
+        return self.projector.jacobians(pr) if jacobians else pr
+
+    def residual_parts(self, st: BundleState, proj=None):
+        """Whitened image residuals e (k, 2), prior residuals (global, points), distances."""
+        proj = proj or self.project(st, False)
+        v = self.l - proj.xy
+        e = bmv(self.L, v)
+        xg = self.global_vector(st)
+        dg = self.prior_g_val - xg[self.prior_g_idx]
+        dg = np.where(self.prior_g_ang, _wrap(dg), dg)
+        dpv = self.prior_p_val - st.XYZ[self.elim_points[self.prior_p_idx], self.prior_p_coord]
+        dd = self.dist_l - np.linalg.norm(st.XYZ[self.dist_a] - st.XYZ[self.dist_b], axis=1)
+        return v, e, dg, dpv, dd, proj
+
+    def cost(self, st: BundleState, parts=None) -> float:
+        v, e, dg, dpv, dd, _ = parts or self.residual_parts(st)
+        s0 = self.settings.sigma0
+        return float(np.sum(e * e) + np.sum(self.prior_g_w * dg * dg) + np.sum(self.prior_p_w * dpv * dpv)
+                     + np.sum((s0 * dd / self.dist_s) ** 2)) if len(e) or len(dg) else 0.0
+
+    # ------------------------------------------------------------------------------------------
+
+
+def _wrap(a):
+    return (a + np.pi) % (2 * np.pi) - np.pi
