@@ -8,6 +8,7 @@ created by the runner (or by a test, with discovery blocked — see :mod:`baarda
 
 from __future__ import annotations
 
+import difflib
 from dataclasses import dataclass
 from importlib.metadata import entry_points
 
@@ -66,12 +67,20 @@ class PluginManager:
         self._stages[name] = StageInfo(name, cls, package, value)
 
     def get(self, name: str) -> StageInfo:
+        """The stage called ``name``; an unknown name is an error that names the stage's new name
+        (a stage class's ``formerly``) or the closest installed names."""
         try:
             return self._stages[name]
         except KeyError:
-            hint = f" ({self.load_errors[name]})" if name in self.load_errors else ""
-            known = ", ".join(sorted(self._stages)) or "(none installed)"
-            raise BaardaError(f"no stage named '{name}'{hint}; installed stages: {known}") from None
+            pass
+        for info in self._stages.values():
+            if name in tuple(getattr(info.cls, "formerly", ()) or ()):
+                raise BaardaError(f"stage '{name}' is now '{info.name}': write use = \"{info.name}\"")
+        hint = f" ({self.load_errors[name]})" if name in self.load_errors else ""
+        close = difflib.get_close_matches(name, list(self._stages), n=3, cutoff=0.6)
+        did = f"; did you mean {' or '.join(repr(c) for c in close)}?" if close else ""
+        known = ", ".join(sorted(self._stages)) or "(none installed)"
+        raise BaardaError(f"no stage named '{name}'{hint}{did} Installed stages: {known}")
 
     def names(self) -> list[str]:
         return sorted(self._stages)

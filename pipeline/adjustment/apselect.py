@@ -13,21 +13,33 @@
 
 A removed AP is fixed at 0 (a-priori σ = 0).  Only APs that were free (σ = inf) at the start are
 candidates; weighted or fixed ones are left as they are.
+
+When the block cannot be adjusted with every candidate free (a singular system: e.g. the test
+field's minimal control), :func:`select_aps` with ``on_singular = "weak-priors"`` runs
+:func:`select_aps_weak_priors` instead: the candidates (``c, xp, yp`` too) carry weak a-priori σ
+while selecting, so that a singular combination shows as |ρ| → 1; correlations with every unknown
+(exterior orientations too) count; the final adjustment has the kept ones free.  That procedure
+works on the first camera of the block (the test field's single camera).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Callable, Literal
 
 import numpy as np
 from scipy import stats
 
+from baarda.pipeline.errors import AdjustmentError
 from baarda.pipeline.model import Block
 
+from ..camera.models import get_ap_model
 from .adjust import BundleResult, adjust, padded_ap
-from .settings import BundleSettings
+from .collinearity import IOP_NAMES
+from .diagnose import parameter_names
+from .settings import BundleSettings, camera_meta
 
-__all__ = ["APSelection", "select_aps"]
+__all__ = ["APSelection", "select_aps", "WeakPriorSelection", "select_aps_weak_priors"]
 
 
 @dataclass
@@ -40,6 +52,8 @@ class APSelection:
     rho_max: float = 0.75
     alpha: float = 0.05
     critical_t: float = float("nan")
+    method: str = "correlation"
+    """``"correlation"`` (the procedure above) or ``"weak-priors"`` (:func:`select_aps_weak_priors`)."""
 
     def summary(self) -> dict:
         return {"rho_max": self.rho_max, "alpha": self.alpha, "critical_t": self.critical_t,
@@ -92,14 +106,32 @@ def _t_values(res: BundleResult, cands):
 
 def select_aps(block: Block, settings: BundleSettings | None = None, *, rho_max: float = 0.75,
                alpha: float = 0.05, significance: str = "remove", result: BundleResult | None = None,
-               max_steps: int = 100) -> APSelection:
+               max_steps: int = 100, method: Literal["correlation", "weak-priors"] = "correlation",
+               on_singular: Literal["error", "weak-priors"] = "error") -> APSelection:
     """Run the paper's AP selection (see module docstring); returns :class:`APSelection`.
 
     ``result`` may be the adjustment of ``block`` with all candidates free (saves one run).
+    ``method = "weak-priors"`` runs :func:`select_aps_weak_priors` directly; ``on_singular =
+    "weak-priors"`` runs it when the block is singular with every candidate free.
     """
     if significance not in ("remove", "report"):
         raise ValueError("significance must be 'remove' or 'report'")
     settings = settings or BundleSettings()
+    if method == "weak-priors":
+        return _from_weak_priors(block, settings, rho_max, alpha)
+    if method != "correlation":
+        raise ValueError("method must be 'correlation' or 'weak-priors'")
+    if on_singular not in ("error", "weak-priors"):
+        raise ValueError("on_singular must be 'error' or 'weak-priors'")
+    try:
+        return _select_correlation(block, settings, rho_max, alpha, significance, result, max_steps)
+    except AdjustmentError:
+        if on_singular == "error":
+            raise
+        return _from_weak_priors(block, settings, rho_max, alpha)
+
+
+def _select_correlation(block, settings, rho_max, alpha, significance, result, max_steps) -> APSelection:
     res = result or adjust(block, settings)
     cur = block
     steps = []
@@ -163,3 +195,157 @@ def _start(res: BundleResult, j: int, t: int):
     st = res.state.copy()
     st.cam_params[j, t] = 0.0
     return st
+
+
+# --------------------------------------------------------------------------------------------
+# the selection with weak priors (a block singular with every candidate free)
+
+
+@dataclass
+class WeakPriorSelection:
+    """Outcome of :func:`select_aps_weak_priors`."""
+
+    result: object                  # the final BundleResult (kept parameters free)
+    kept: list[str]                 # names of the free camera parameters
+    removed: list[tuple[str, float, str]] = field(default_factory=list)  # (name, |ρ|, with what)
+    adjustments: int = 0
+
+
+def _from_weak_priors(block, settings, rho_max, alpha) -> APSelection:
+    sel = select_aps_weak_priors(block, settings, rho_max=rho_max, alpha=alpha)
+    res = sel.result
+    cid = str(block.cameras.ids[0])
+    names = res.cam_param_names[0]
+    crit = float(stats.t.ppf(1 - alpha / 2, res.dof)) if alpha > 0 and res.dof > 0 else float("nan")
+    kept = []
+    for n in sel.kept:
+        t = names.index(n)
+        sd = float(np.sqrt(max(res.cov_cameras[0][t, t], 0.0)))
+        val = float(res.state.cam_params[0, t]) - (float(block.cameras.c[0]) if n == "c" else 0.0)
+        tt = abs(val) / sd if sd > 0 else np.inf
+        kept.append({"camera": cid, "parameter": n, "value": float(res.state.cam_params[0, t]), "sigma": sd, "t": tt,
+                     "significant": bool(tt > crit) if np.isfinite(crit) else True})
+    steps = [{"camera": cid, "parameter": n, "rule": "significance" if np.isnan(rho) else "correlation",
+              "reason": why if np.isnan(rho) else f"|ρ| = {rho:.3f} with {why}", "rho": rho}
+             for n, rho, why in sel.removed]
+    return APSelection(result=res, steps=steps, kept=kept, rho_max=rho_max, alpha=alpha, critical_t=crit,
+                       method="weak-priors")
+
+
+def _with_camera_sigmas(block, sig: np.ndarray):
+    """Block whose camera 0 has the a-priori sigmas ``sig`` = [c, xp, yp, ap...] (ap values 0
+    where fixed)."""
+    cam = block.cameras
+    sigma_iop = cam.sigma_iop.copy()
+    sigma_iop[0] = sig[:3]
+    sigma_ap = cam.sigma_ap.copy()
+    sigma_ap[0] = sig[3:]
+    ap = cam.ap.copy()
+    ap[0, sig[3:] == 0] = 0.0
+    return block.replace(cameras=cam.replace(sigma_iop=sigma_iop, sigma_ap=sigma_ap, ap=ap))
+
+
+def _weak_priors(block, names: list[str], effect_mm: float) -> np.ndarray:
+    """A-priori sigma per camera parameter that lets it move the image by at most ``effect_mm``
+    over the format (weak enough not to bias a determinable parameter; bounds a singular one)."""
+    cam = block.cameras
+    model = get_ap_model(cam.ap_model[0])
+    meta = camera_meta(block, BundleSettings())[0]
+    w, h = cam.format_mm[0] / 2
+    gx, gy = np.meshgrid(np.linspace(-w, w, 9), np.linspace(-h, h, 7))
+    gx, gy = gx.ravel(), gy.ravel()
+    J = model.jacobian_params(gx, gy, np.zeros((gx.size, model.n_params)), np.full(gx.size, cam.c[0]), meta)
+    effect = np.abs(J).max(axis=(0, 1))
+    ap_sig = effect_mm / np.where(effect > 0, effect, 1.0)
+    return np.concatenate([[effect_mm * cam.c[0] / w, effect_mm, effect_mm], ap_sig])
+
+
+def select_aps_weak_priors(block, settings=None, *, rho_max: float = 0.75, alpha: float = 0.05,
+                                 candidates=None, weak_effect_mm: float = 1.0,
+                                 adjust_fn: Callable | None = None) -> WeakPriorSelection:
+    """The AP selection on a block that is singular with every candidate free (e.g. minimal
+    control): adjust with every candidate parameter, find the largest
+    correlation |ρ| of a candidate with any other unknown (camera, exterior orientation), remove
+    (fix at 0 / at the calibrated value) that candidate — of an AP–AP pair the less significant
+    one — and repeat until no |ρ| exceeds ``rho_max``.  Then (``alpha > 0``) the significance
+    test SPEC §2 asks for: remove the parameter with the smallest ``|x̂/σ̂|`` while that is below
+    Student's ``t(1 − alpha/2, dof)``, one at a time.
+
+    ``candidates``: names among ``c, xp, yp`` and the AP model's parameters (default: every camera
+    parameter that is free in ``block``).  While selecting, candidates carry weak a-priori sigmas
+    (each can move the image by ``weak_effect_mm``) so that a singular combination shows as
+    |ρ| → 1 instead of failing; the final adjustment has the kept ones free.
+    """
+    adjust_fn = adjust_fn or adjust
+    settings = settings or BundleSettings()
+    cam = block.cameras
+    names = list(IOP_NAMES) + list(get_ap_model(cam.ap_model[0]).params)
+    sig0 = np.concatenate([cam.sigma_iop[0], cam.sigma_ap[0][:len(names) - 3]])
+    cand = [n for n, s in zip(names, sig0) if s != 0] if candidates is None else list(candidates)
+    weak = _weak_priors(block, names, weak_effect_mm)
+    removed = []
+    count = 0
+    while True:
+        sig = np.array([weak[k] if n in cand else 0.0 for k, n in enumerate(names)])
+        res = adjust_fn(_with_camera_sigmas(block, sig), settings)
+        count += 1
+        if not cand:
+            break
+        rho, partner, t = _candidate_correlations(res, names, cand)
+        k = int(np.argmax(rho))
+        if rho[k] <= rho_max:
+            break
+        drop = cand[k]
+        if partner[k] in cand and t[cand.index(partner[k])] < t[k]:
+            drop = partner[k]
+        removed.append((drop, float(rho[k]), partner[k] if drop == cand[k] else cand[k]))
+        cand.remove(drop)
+    while True:   # the kept set must be determinable without the weak priors
+        final_sig = np.array([np.inf if n in cand else 0.0 for n in names])
+        try:
+            res = adjust_fn(_with_camera_sigmas(block, final_sig), settings)
+            count += 1
+            break
+        except AdjustmentError:
+            count += 1
+            if not cand:
+                raise
+            rho, partner, _ = _candidate_correlations(res, names, cand)
+            k = int(np.argmax(rho))
+            removed.append((cand[k], float(rho[k]), f"{partner[k]} (singular without priors)"))
+            cand.remove(cand[k])
+            sig = np.array([weak[j] if n in cand else 0.0 for j, n in enumerate(names)])
+            res = adjust_fn(_with_camera_sigmas(block, sig), settings)
+    while alpha > 0 and cand and res.dof > 0:
+        _, _, t = _candidate_correlations(res, names, cand)
+        k = int(np.argmin(t))
+        crit = float(stats.t.ppf(1 - alpha / 2, res.dof))
+        if t[k] >= crit:
+            break
+        removed.append((cand[k], float("nan"), f"not significant (|t| = {t[k]:.2f} < {crit:.2f})"))
+        cand.remove(cand[k])
+        res = adjust_fn(_with_camera_sigmas(block, np.array([np.inf if n in cand else 0.0 for n in names])),
+                        settings)
+        count += 1
+    return WeakPriorSelection(result=res, kept=list(cand), removed=removed, adjustments=count)
+
+
+def _candidate_correlations(res, names, cand):
+    """For each candidate: largest |ρ| with another global unknown, that unknown's name, |x/σ|."""
+    prob = res.problem
+    Q = res.Qx[:prob.n_g, :prob.n_g]
+    d = np.sqrt(np.clip(np.diag(Q), 1e-300, None))
+    R = Q / np.outer(d, d)
+    labels = parameter_names(prob)
+    cam_name = {int(g): n for n, g in zip(names, prob.g_cam[0]) if g >= 0}
+    rho, partner, t = [], [], []
+    for n in cand:
+        g = prob.g_cam[0, names.index(n)]
+        row = np.abs(R[g]).copy()
+        row[g] = 0.0
+        j = int(np.argmax(row))
+        rho.append(row[j])
+        partner.append(cam_name.get(j, labels[j]))
+        val = res.state.cam_params[0, names.index(n)] - (res.block_in.cameras.c[0] if n == "c" else 0.0)
+        t.append(abs(val) / (d[g] * np.sqrt(res.variance_factor)))
+    return np.array(rho), partner, np.array(t)

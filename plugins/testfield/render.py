@@ -1,121 +1,339 @@
-"""Render simulated photos of the test field: bright circular (retro-reflective) targets on a dark
-background, seen through the true camera with its systematic image errors.
+"""Stage ``testfield-render``: photos of the simulated test field as PNG files (docs/rendered-pipeline.md).
 
-Each target is a disk of radius ``target_radius`` (object units) lying in the plane Z = const
-through its centre (the object's front, facing the cameras).  Every pixel is supersampled on an
-``s × s`` grid; each sample's image point is turned back into a ray (the image errors removed by
-fixed-point iteration), intersected with the target's plane and tested against the disk, so the
-projected ellipse, its perspective eccentricity and the distortion are exact up to the sampling.
+The test field comes from the simulator (:mod:`baarda.pipeline.synthetic.testfield`) — either an earlier
+``testfield`` stage's block or a simulation run here with the ``testfield`` option table.  Every
+photo is rendered through the true camera with its systematic image errors
+(:func:`baarda.plugins.testfield.drawing.render_targets`) and written as ``<photo id>.png``.  The stage
+writes
 
-Pixels follow OpenCV's convention (``docs/conventions.md``, *Pixels ↔ mm*): ``u`` right, ``v``
-down, origin at the centre of the top-left pixel, ``x_mm = (u − (W−1)/2) p``,
-``y_mm = −(v − (H−1)/2) p``.
+* ``images`` (:class:`RenderedImages`): the files, their photo ids, camera, pixel pitch and size;
+* ``block``: the simulated block **without image observations** (those are what a detection
+  stage measures in the images), its camera carrying the pixel pitch, resolution and format, the
+  photos with the approximate orientations of the paper's Table 1, the targets with their
+  surveyed coordinates and roles, the pairs; ``meta["truth"]`` the simulator's truth and
+  ``meta["render"]`` the true image position of every rendered target (pixels).
 """
 
 from __future__ import annotations
 
+import dataclasses
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
 import numpy as np
 
-from baarda.pipeline.geometry import rotation_from_opk
+from baarda.pipeline.errors import InputError
+from baarda.pipeline.options import option, parse_options
+from baarda.pipeline.report import markdown_table
+from baarda.pipeline.stage import Context, Stage, StageResult, TableData
 
-from baarda.pipeline.synthetic.testfield import Truth, physical_distortion, project_truth
+from .source import DISPLAY_PIXEL_MM, TestFieldOptions, log_testfield, simulate_field
+from .photos import (OBJECT_UNIT_MM, RenderSettings, image_size, layout_block, partial_targets, render_photo,
+                     target_radius_px, true_targets, truth_from_meta, uv_to_mm)
 
+__all__ = ["TestFieldRender", "RenderOptions", "RenderedImages", "SIMULATION_DEFAULTS"]
 
-def mm_to_pixel(xy_mm: np.ndarray, pixel_mm: float, shape: tuple[int, int]) -> np.ndarray:
-    """Image coordinates ``(n, 2)`` mm → pixel coordinates ``(n, 2)`` (u, v), OpenCV convention."""
-    H, W = shape
-    xy = np.asarray(xy_mm, float).reshape(-1, 2)
-    return np.column_stack([xy[:, 0] / pixel_mm + (W - 1) / 2, -xy[:, 1] / pixel_mm + (H - 1) / 2])
+SIMULATION_DEFAULTS = {"ap_model": "brown", "calibrate_iop": True}
+"""Simulation options that differ from the ``testfield`` stage's defaults: the rendered block is
+meant for self-calibration with the model of the simulator's systematic errors."""
 
-
-def pixel_to_mm(uv: np.ndarray, pixel_mm: float, shape: tuple[int, int]) -> np.ndarray:
-    """Pixel coordinates ``(n, 2)`` → image coordinates ``(n, 2)`` mm (inverse of :func:`mm_to_pixel`)."""
-    H, W = shape
-    uv = np.asarray(uv, float).reshape(-1, 2)
-    return np.column_stack([(uv[:, 0] - (W - 1) / 2) * pixel_mm, -(uv[:, 1] - (H - 1) / 2) * pixel_mm])
-
-
-def _photo_index(truth: Truth, photo) -> int:
-    ids = [str(p) for p in truth.photo_ids]
-    if isinstance(photo, (int, np.integer)) and not isinstance(photo, bool):
-        if not 0 <= int(photo) < len(ids):
-            raise ValueError(f"photo index {photo} out of range (0…{len(ids) - 1})")
-        return int(photo)
-    try:
-        return ids.index(str(photo))
-    except ValueError:
-        raise ValueError(f"unknown photo {photo!r}; photos: {', '.join(ids)}") from None
+NOT_FOR_IMAGES = {
+    "sigma_image_um": "image noise is the rendered grey-level noise (noise_sigma) and the detector's own error",
+    "blunders": "gross errors of comparator observations do not exist in rendered images",
+}
 
 
-def projected_targets(truth: Truth, photo, pixel_mm: float, shape: tuple[int, int]) -> dict[str, np.ndarray]:
-    """Pixel position (u, v) of each target centre's true image (systematic errors included) in
-    ``photo``; only targets in front of the camera and inside the image are returned."""
-    i = _photo_index(truth, photo)
-    xy, depth = project_truth(truth.XYZ, truth.X0[i:i + 1], truth.opk[i:i + 1], truth.c, truth.xp, truth.yp,
-                              truth.distortion)
-    uv = mm_to_pixel(xy[0], pixel_mm, shape)
-    H, W = shape
-    ok = (depth[0] > 0) & (uv[:, 0] >= -0.5) & (uv[:, 0] <= W - 0.5) & (uv[:, 1] >= -0.5) & (uv[:, 1] <= H - 0.5)
-    return {str(pid): uv[k] for k, pid in enumerate(truth.point_ids) if ok[k]}
+@dataclass(frozen=True)
+class RenderedImages:
+    """The ``images`` artefact: rendered files and how to read them.
 
-
-def _ideal_reduced(xy: np.ndarray, truth: Truth, iterations: int = 6) -> np.ndarray:
-    """Remove the image errors: reduced ideal coordinates x̄ with ``x̄ + Δ(x̄) = xy − (xp, yp)``."""
-    target = xy - (truth.xp, truth.yp)
-    xbar = target.copy()
-    for _ in range(iterations):
-        dx, dy = physical_distortion(xbar[:, 0], xbar[:, 1], truth.distortion)
-        xbar = target - np.column_stack([dx, dy])
-    return xbar
-
-
-def render_targets(block, truth: Truth, photo, pixel_mm: float, shape: tuple[int, int],
-                   target_radius: float, rng: np.random.Generator | None = None, *,
-                   supersample: int = 8, background: float = 20.0, foreground: float = 235.0,
-                   noise_sigma: float = 2.0) -> np.ndarray:
-    """Render ``photo`` (id or index) as a ``uint8`` image of ``shape = (H, W)`` pixels.
-
-    ``pixel_mm`` is the pixel pitch (mm), ``target_radius`` the disk radius in object units.
-    With ``rng`` Gaussian grey-level noise of ``noise_sigma`` is added; without it the image is
-    noise-free (deterministic).  ``block`` supplies nothing the truth does not already hold and
-    may be ``None``; it is accepted so callers can pass the pair they have.
+    paths, photo_ids, camera_ids : per image (absolute paths; photo id = file stem);
+    pixel_mm : pixel pitch (mm); size : ``(W, H)`` pixels; convention : pixel origin
+    (``"opencv"``: ``(0, 0)`` is the centre of the top-left pixel); targets : per photo id the true
+    image position ``{point id: (u, v)}`` of every rendered target (ground truth of detection).
     """
-    i = _photo_index(truth, photo)
-    H, W = int(shape[0]), int(shape[1])
-    R = rotation_from_opk(*truth.opk[i])
-    X0 = truth.X0[i]
-    centres = projected_targets(truth, i, pixel_mm, (H, W))
-    depth = (truth.XYZ - X0) @ R.T
-    coverage = np.zeros((H, W))
-    s = int(supersample)
-    offsets = (np.arange(s) + 0.5) / s - 0.5
-    for k, pid in enumerate(truth.point_ids):
-        pid = str(pid)
-        if pid not in centres:
-            continue
-        r_px = truth.c * target_radius / (-depth[k, 2]) / pixel_mm
-        half = int(np.ceil(1.3 * r_px + 2))
-        u0, v0 = np.round(centres[pid]).astype(int)
-        us = np.arange(max(u0 - half, 0), min(u0 + half + 1, W))
-        vs = np.arange(max(v0 - half, 0), min(v0 + half + 1, H))
-        if us.size == 0 or vs.size == 0:
-            continue
-        # sample positions (v, u, sv, su) flattened
-        su = (us[None, :, None] + offsets[None, None, :])            # (1, nu, s)
-        sv = (vs[:, None, None] + offsets[None, None, :])            # (nv, 1, s)
-        U = np.broadcast_to(su[:, :, None, :], (vs.size, us.size, s, s))
-        V = np.broadcast_to(sv[:, :, :, None], (vs.size, us.size, s, s))
-        xy = pixel_to_mm(np.column_stack([U.reshape(-1), V.reshape(-1)]), pixel_mm, (H, W))
-        xbar = _ideal_reduced(xy, truth)
-        d_cam = np.column_stack([xbar, np.full(len(xbar), -truth.c)])
-        d_world = d_cam @ R                                          # Rᵀ · d_cam for each row
-        t = (truth.XYZ[k, 2] - X0[2]) / d_world[:, 2]
-        hit = X0[:2] + t[:, None] * d_world[:, :2]
-        inside = (np.sum((hit - truth.XYZ[k, :2]) ** 2, axis=1) <= target_radius ** 2) & (t > 0)
-        cov = inside.reshape(vs.size, us.size, s * s).mean(axis=2)
-        block_view = coverage[vs[0]:vs[-1] + 1, us[0]:us[-1] + 1]
-        np.maximum(block_view, cov, out=block_view)
-    img = background + (foreground - background) * coverage
-    if rng is not None and noise_sigma > 0:
-        img = img + rng.normal(0.0, noise_sigma, size=img.shape)
-    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+
+    paths: tuple[str, ...]
+    photo_ids: tuple[str, ...]
+    camera_ids: tuple[str, ...]
+    pixel_mm: float
+    size: tuple[int, int]
+    convention: str = "opencv"
+    targets: dict = dataclasses.field(default_factory=dict)
+    partial: dict = dataclasses.field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.paths)
+
+
+@dataclass(frozen=True)
+class RenderOptions:
+    testfield: dict = option(
+        {}, "options of the simulated test field, as the testfield stage takes them (case, block, with_ap_errors, "
+            "sigma_control_mm, control_weighted, ap_model, calibrate_iop, seed, margin_mm, systematic_scale); "
+            "here ap_model defaults to 'brown' and calibrate_iop to true. Not used when an earlier stage wrote a "
+            "simulated block")
+    pixel_mm: float = option(0.025, "pixel pitch of the rendered images, mm (0.025: 4680 × 3320 pixels over the "
+                                    "117 × 83 mm format)")
+    target_radius_mm: float = option(5.0, "radius of the circular targets on the object, mm")
+    supersample: int = option(8, "samples per pixel side when rendering (8: 64 per pixel)")
+    noise_sigma: float = option(2.0, "grey-level noise σ (targets 235 on a background of 20); 0: noise-free")
+    folder: str = option("", "folder for the PNG files, relative to the project file; empty: 'images' in the "
+                             "run directory")
+
+    def __post_init__(self):
+        bad = sorted(set(self.testfield) & set(NOT_FOR_IMAGES))
+        if bad:
+            raise ValueError(f"testfield.{bad[0]} does not apply to rendered photos: {NOT_FOR_IMAGES[bad[0]]}")
+        self.simulation()            # validates the table
+        RenderSettings(self.pixel_mm, self.target_radius_mm, self.supersample, self.noise_sigma)
+
+    def simulation(self, seed: int | None = None):
+        """The ``testfield`` stage's options for the simulation (``seed`` used when none is given)."""
+        raw = {**SIMULATION_DEFAULTS, **self.testfield}
+        if raw.get("seed") is None and seed is not None:
+            raw["seed"] = int(seed)
+        try:
+            return parse_options(TestFieldOptions, raw, prefix="testfield.")
+        except InputError as e:
+            raise ValueError(f"{e.field}: {e.message}" if e.field and e.field not in e.message else e.message) from None
+
+
+class TestFieldRender(Stage):
+    """Render the simulated test field's photos to PNG files; the block without observations."""
+
+    __test__ = False
+
+    summary = "Render the simulated test field's photos (targets through the distorted camera) to PNG files"
+    reads = ("block?",)
+    writes = ("images", "block")
+    Options = RenderOptions
+
+    def run(self, inputs, options: RenderOptions, ctx: Context) -> StageResult:
+        import cv2
+
+        sim_seed, noise_seed = (int(s) for s in ctx.rng.integers(0, 2**62, size=2))
+        block = self._field(inputs.get("block"), options, sim_seed, ctx)
+        truth = truth_from_meta(block.meta)
+        if len(block.cameras) != 1:
+            raise InputError(f"the simulated block has {len(block.cameras)} cameras; one is rendered",
+                             path=ctx.project_file)
+        settings = RenderSettings(options.pixel_mm, options.target_radius_mm / OBJECT_UNIT_MM[block.object_unit],
+                                  options.supersample, options.noise_sigma)
+        size = image_size(block.cameras.format_mm[0], settings.pixel_mm)
+        folder = self._folder(options, ctx)
+        targets = true_targets(truth, settings.pixel_mm, size)
+        partial = partial_targets(truth, targets, settings.target_radius, settings.pixel_mm, size)
+        rng = np.random.default_rng(noise_seed) if settings.noise_sigma > 0 else None
+        cam_id = str(block.cameras.ids[0])
+
+        paths, shown, rows = [], [], []
+        t0 = time.perf_counter()
+        photo_ids = [str(p) for p in truth.photo_ids]
+        for k, pid in enumerate(ctx.progress.track(photo_ids, what="photos")):
+            img = render_photo(truth, k, settings, size, rng)
+            path = folder / f"{pid}.png"
+            if not cv2.imwrite(str(path), img):
+                raise InputError(f"cannot write {path}", path=path, field="folder")
+            paths.append(str(path.resolve()))
+            shown.append(_display_image(img, block))
+            radius = dict(zip(truth.point_ids.tolist(), target_radius_px(truth, k, settings.target_radius,
+                                                                         settings.pixel_mm)))
+            rows += [(pid, q, uv, float(radius[q]), q in partial[pid]) for q, uv in targets[pid].items()]
+        seconds = time.perf_counter() - t0
+        self._stale_files(folder, photo_ids, options, ctx)
+
+        images = RenderedImages(tuple(paths), tuple(photo_ids), (cam_id,) * len(paths), settings.pixel_mm, size,
+                                targets={p: {q: [float(a) for a in uv] for q, uv in t.items()}
+                                         for p, t in targets.items()}, partial=partial)
+        out = layout_block(block, settings.pixel_mm, size)
+        meta = dict(out.meta)
+        meta["render"] = {"pixel_mm": settings.pixel_mm, "size": list(size), "convention": "opencv",
+                          "target_radius": settings.target_radius, "noise_sigma": settings.noise_sigma,
+                          "supersample": settings.supersample, "files": dict(zip(photo_ids, paths)),
+                          "targets": images.targets, "partial": partial}
+        out = out.replace(meta=meta)
+        radii = np.array([r[3] for r in rows])
+        summary = {
+            "headline": f"{len(paths)} photos of {size[0]} × {size[1]} px rendered, {len(rows)} targets "
+                        f"(radius {radii.min():.1f}–{radii.max():.1f} px)",
+            "photos": len(paths), "size_px": list(size), "pixel_mm": settings.pixel_mm,
+            "format_mm": [size[0] * settings.pixel_mm, size[1] * settings.pixel_mm],
+            "targets": len(rows), "targets_per_photo": {p: len(t) for p, t in targets.items()},
+            "partial": sum(len(v) for v in partial.values()),
+            "target_radius_px": [float(radii.min()), float(radii.max())], "noise_sigma": settings.noise_sigma,
+            "folder": str(folder), "render_seconds": round(seconds, 3),
+            "block": out.summary(),
+        }
+        report = _report(summary, folder, ctx, out, truth)
+        tables = {"targets": _targets_table(rows, settings.pixel_mm, size), "camera_truth": _camera_table(truth),
+                  "points": _points_table(out, truth)}
+        figure = _contact_sheet(shown, photo_ids, targets, size, out)
+        return StageResult(artefacts={"images": images, "block": out}, summary=summary, report=report,
+                           tables=tables, figures={"photos": figure} if figure is not None else {},
+                           data={"block": out, "truth": truth, "shown": shown, "targets": targets, "size": size})
+
+    # -- pieces ----------------------------------------------------------------------------------
+    def _field(self, block, options: RenderOptions, seed: int, ctx: Context):
+        if block is not None:
+            if "truth" not in block.meta or "testfield" not in block.meta:
+                raise InputError("the input block is not a simulated test field (no meta['truth']); put the "
+                                 "testfield stage before testfield-render, or none at all", path=ctx.project_file)
+            if len(block.observations):
+                ctx.warn(f"the input block's {len(block.observations)} simulated image observations are dropped: "
+                         "the rendered images are measured instead")
+            return block
+        try:
+            sim = options.simulation(seed)
+        except ValueError as e:
+            raise InputError(str(e), path=ctx.project_file, field="testfield") from None
+        block, _ = simulate_field(sim, np.random.default_rng(sim.seed), project_file=ctx.project_file)
+        if block.meta["testfield"]["geometry"]["min_rays"] < 2:
+            ctx.warn(f"a target is seen in fewer than 2 photos (min {block.meta['testfield']['geometry']['min_rays']})")
+        return block
+
+    def _folder(self, options: RenderOptions, ctx: Context) -> Path:
+        if options.folder:
+            folder = ctx.resolve(options.folder)
+        else:
+            folder = (ctx.run_dir if ctx.run_dir is not None else ctx.project_dir) / "images"
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise InputError(f"cannot create the image folder: {e}", path=folder, field="folder") from None
+        return folder
+
+    def _stale_files(self, folder: Path, photo_ids, options: RenderOptions, ctx: Context) -> None:
+        """PNG files in the folder that this run did not write: removed in the run directory's own
+        folder, a warning elsewhere (a glob over the folder would pick them up)."""
+        mine = {f"{p}.png" for p in photo_ids}
+        stale = sorted(p for p in folder.glob("*.png") if p.name not in mine)
+        if not stale:
+            return
+        if not options.folder:
+            for p in stale:
+                p.unlink()
+        else:
+            ctx.warn(f"{len(stale)} other PNG file(s) in {folder} ({', '.join(p.name for p in stale[:5])}"
+                     f"{' …' if len(stale) > 5 else ''}): a glob over the folder would read them too")
+
+    def log(self, result: StageResult, rec, ctx: Context) -> None:
+        import rerun as rr
+
+        d = result.data
+        log_testfield(rec, d["block"], d["truth"])
+        W, H = d["size"]
+        for pid, img in zip(d["targets"], d["shown"]):
+            s = img.shape[1] / W
+            path = f"world/cameras/{pid}/image"
+            rec.log(path, rr.Image(img), static=True)
+            t = d["targets"][pid]
+            if t:
+                uv = (np.array(list(t.values())) + 0.5) * s - 0.5
+                rec.log(f"{path}/true_targets", rr.Points2D(uv, labels=list(t), colors=[[255, 60, 40]],
+                                                            radii=rr.Radius.ui_points(4.0)), static=True)
+
+
+# ---------------------------------------------------------------------------------------------
+def _display_image(img: np.ndarray, block) -> np.ndarray:
+    """The image at the testfield recording's display pitch (0.1 mm), so it fills the camera's frustum."""
+    import cv2
+
+    w_mm, h_mm = block.cameras.format_mm[0]
+    size = (int(round(w_mm / DISPLAY_PIXEL_MM)), int(round(h_mm / DISPLAY_PIXEL_MM)))
+    return cv2.resize(img, size, interpolation=cv2.INTER_AREA)
+
+
+def _contact_sheet(shown, photo_ids, targets, size, block, cols: int = 5, width: int = 585) -> bytes | None:
+    """All photos side by side (each ``width`` pixels wide), true targets circled and labelled."""
+    import cv2
+
+    if not shown:
+        return None
+    W, _ = size
+    tiles = []
+    for pid, img in zip(photo_ids, shown):
+        s_disp = img.shape[1] / W
+        h = int(round(img.shape[0] * width / img.shape[1]))
+        tile = cv2.cvtColor(cv2.resize(img, (width, h), interpolation=cv2.INTER_AREA), cv2.COLOR_GRAY2BGR)
+        s = s_disp * width / img.shape[1]
+        for q, uv in targets[pid].items():
+            c = tuple(int(round(v)) for v in (np.asarray(uv) + 0.5) * s - 0.5)
+            cv2.circle(tile, c, 9, (40, 60, 255), 1, cv2.LINE_AA)
+            cv2.putText(tile, q, (c[0] + 10, c[1] - 6), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (40, 200, 255), 1, cv2.LINE_AA)
+        cv2.putText(tile, f"photo {pid}", (8, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (255, 255, 255), 1, cv2.LINE_AA)
+        cv2.rectangle(tile, (0, 0), (tile.shape[1] - 1, tile.shape[0] - 1), (90, 90, 90), 1)
+        tiles.append(tile)
+    rows = []
+    for r in range(0, len(tiles), cols):
+        row = tiles[r:r + cols]
+        row += [np.zeros_like(tiles[0])] * (cols - len(row))
+        rows.append(np.hstack(row))
+    ok, png = cv2.imencode(".png", np.vstack(rows))
+    return png.tobytes() if ok else None
+
+
+def _targets_table(rows, pixel_mm, size) -> TableData:
+    uv = np.array([r[2] for r in rows], float).reshape(-1, 2)
+    xy = uv_to_mm(uv, pixel_mm, size)
+    return TableData({"photo": [r[0] for r in rows], "point": [r[1] for r in rows], "u": uv[:, 0], "v": uv[:, 1],
+                      "x_mm": xy[:, 0], "y_mm": xy[:, 1], "radius_px": [r[3] for r in rows],
+                      "partial": [r[4] for r in rows]},
+                     "true image position of every rendered target centre (pixels, OpenCV convention; mm); "
+                     "partial: the disk is cut by the image border")
+
+
+def _camera_table(truth) -> TableData:
+    from baarda.pipeline.camera.models import get_ap_model
+
+    names = ["c", "xp", "yp"] + list(get_ap_model("brown").params)
+    values = [truth.c, truth.xp, truth.yp] + [float(truth.distortion.get(n, 0.0)) for n in names[3:]]
+    return TableData({"parameter": names, "value": values},
+                     "the true camera: c, xp, yp (mm) and its systematic image errors as brown parameters")
+
+
+def _points_table(block, truth) -> TableData:
+    pts = block.points
+    k = [list(truth.point_ids).index(q) for q in pts.ids]
+    XYZ = truth.XYZ[k]
+    return TableData({"point": pts.ids.tolist(), "role": pts.role.tolist(),
+                      "X": pts.XYZ[:, 0], "Y": pts.XYZ[:, 1], "Z": pts.XYZ[:, 2],
+                      "X_true": XYZ[:, 0], "Y_true": XYZ[:, 1], "Z_true": XYZ[:, 2]},
+                     f"targets: surveyed (X, Y, Z, as in the block) and true coordinates ({block.object_unit}), role")
+
+
+def _report(s, folder, ctx, block, truth) -> str:
+    partial = block.meta["render"]["partial"]
+    where = folder
+    if ctx.run_dir is not None:
+        try:
+            where = folder.resolve().relative_to(Path(ctx.run_dir).resolve())
+        except ValueError:
+            pass
+    lines = [
+        f"Rendered **{s['photos']} photos** of {s['size_px'][0]} × {s['size_px'][1]} pixels "
+        f"(pitch {s['pixel_mm'] * 1000:g} µm, format {s['format_mm'][0]:.3f} × {s['format_mm'][1]:.3f} mm) to "
+        f"`{where}/` in {s['render_seconds']:.1f} s: {s['targets']} target images (radius "
+        f"{s['target_radius_px'][0]:.1f}–{s['target_radius_px'][1]:.1f} px"
+        + (f"; {s['partial']} cut by the image border" if s["partial"] else "")
+        + f"), grey-level noise σ = {s['noise_sigma']:g}.",
+        "",
+        f"True camera: c = {truth.c:.4f} mm, xp = {truth.xp:+.4f} mm, yp = {truth.yp:+.4f} mm; systematic errors "
+        + ", ".join(f"{k} = {v:.3g}" for k, v in truth.distortion.items()) + " (brown parameters, mm units).",
+        "The block passed on has no image observations: the photos are to be measured "
+        "(e.g. `opencv-targets` with `target = \"circles\"`).",
+        "",
+        markdown_table(["photo", "targets", "cut by the border"],
+                       [[p, n, " ".join(partial[p]) or "–"] for p, n in s["targets_per_photo"].items()]),
+    ]
+    cfg = block.meta.get("testfield", {}).get("config", {})
+    roles = ", ".join(f"{n} {r}" for r, n in s["block"]["roles"].items() if n)
+    cam = block.cameras
+    lines += ["", f"Simulated field: control case {cfg.get('case', '?')} ({roles}), "
+                  f"control σ = {cfg.get('sigma_control_mm', float('nan')):g} mm "
+                  f"({'weighted' if cfg.get('control_weighted', True) else 'fixed'}); camera "
+                  f"'{cam.ids[0]}' starts at c = {cam.c[0]:g} mm, xp = yp = 0 with AP model '{cam.ap_model[0]}' "
+                  f"(c, xp, yp {'free' if np.isinf(cam.sigma_iop[0]).all() else 'as given'}); approximate "
+                  "orientations from the paper's Table 1 (ω = φ = κ = 0)."]
+    return "\n".join(lines)

@@ -118,7 +118,7 @@ def test_non_convergence_saves_the_last_state(tmp_path):
     import csv
 
     from baarda.pipeline.testing import make_plugin_manager, run_project_text
-    from baarda.plugins.testfield.stage import TestFieldSource
+    from baarda.plugins.testfield.source import TestFieldSource
 
     text = """
 [project]

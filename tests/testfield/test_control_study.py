@@ -10,8 +10,8 @@ pytest.importorskip("baarda.pipeline.adjustment.adjust")
 from baarda.pipeline.errors import InputError  # noqa: E402
 from baarda.pipeline.testing import check_stage, log_stage, run_stage  # noqa: E402
 from baarda.pipeline.synthetic.testfield import TestFieldConfig, simulate_testfield  # noqa: E402
-from baarda.plugins.testfield.study import (ControlStudy, StudyConfig, _claim, control_study,  # noqa: E402
-                                     select_additional_parameters)
+from baarda.pipeline.adjustment.apselect import select_aps_weak_priors  # noqa: E402
+from baarda.plugins.testfield.control_study import ControlStudy, StudyConfig, _claim, control_study  # noqa: E402
 
 
 def test_selection_removes_correlated_parameters():
@@ -19,7 +19,7 @@ def test_selection_removes_correlated_parameters():
     normal-case block and must go; every kept parameter has |ρ| ≤ 0.75 with all other unknowns."""
     block, _ = simulate_testfield(TestFieldConfig(case=5, sigma_image_um=40.0, ap_model="ebner12",
                                                   calibrate_iop=True), np.random.default_rng(0))
-    sel = select_additional_parameters(block, rho_max=0.75, alpha=0.0)
+    sel = select_aps_weak_priors(block, rho_max=0.75, alpha=0.0)
     removed = {n for n, _, _ in sel.removed}
     assert "c" in removed and all(r > 0.75 for _, r, _ in sel.removed)
     assert set(sel.kept) | removed == {"c", "xp", "yp"} | {f"b{i}" for i in range(1, 13)}
@@ -38,7 +38,7 @@ def test_selection_removes_correlated_parameters():
     assert res.dof == 66 - len(sel.kept)
     # with the t-test every kept parameter is significant at 5 %
     from scipy.stats import t as student
-    sig = select_additional_parameters(block, rho_max=0.75, alpha=0.05)
+    sig = select_aps_weak_priors(block, rho_max=0.75, alpha=0.05)
     assert set(sig.kept) <= set(sel.kept)
     r2 = sig.result
     for n in sig.kept:

@@ -18,7 +18,7 @@ from baarda.pipeline.report import markdown_table
 from baarda.pipeline.stage import Context, Stage, StageResult, TableData
 from baarda.pipeline.synthetic.testfield import CASES
 
-from .study import (BUNDLE, BUNDLE_AP, IM, KEYS, PAPER_DISTANCE_CM, PAPER_PERCENT, PAPER_TABLE4, PAPER_TABLE5,
+from .method_study import (BUNDLE, BUNDLE_AP, IM, KEYS, PAPER_DISTANCE_CM, PAPER_PERCENT, PAPER_TABLE4, PAPER_TABLE5,
                     SINGLE, SINGLE_AP, VARIANTS, MethodStudyConfig, method_study, with_options)
 
 
@@ -92,6 +92,7 @@ def study_config(options: MethodStudyOptions, block=None) -> tuple[MethodStudyCo
 
 
 class MethodStudy(Stage):
+    formerly = ("method-study",)
     summary = ("Paper 001's Tables 4 and 5 on the simulated field: bundle with/without APs, independent "
                "models, single model at 4.0 m vs block at 1.4 m, over seeded realisations")
     reads = ("block?",)

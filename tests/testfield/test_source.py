@@ -8,7 +8,7 @@ import pytest
 from baarda.pipeline.errors import InputError
 from baarda.pipeline.recording import read_recording
 from baarda.pipeline.testing import check_stage, log_stage, run_stage
-from baarda.plugins.testfield.stage import TestFieldSource
+from baarda.plugins.testfield.source import TestFieldSource
 
 
 def test_protocol():

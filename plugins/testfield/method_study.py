@@ -38,7 +38,7 @@ import numpy as np
 from baarda.pipeline.errors import AdjustmentError
 from baarda.pipeline.synthetic.testfield import (FOCAL_MM, SINGLE_MODEL_PHOTOS, STRIPS, TestFieldConfig,
                                         simulate_testfield)
-from baarda.plugins.testfield.study import PAPER_TABLE2, PAPER_TABLE3, PAPER_TABLE4
+from baarda.plugins.testfield.control_study import PAPER_TABLE2, PAPER_TABLE3, PAPER_TABLE4
 
 __all__ = ["MethodStudyConfig", "method_study", "run_realisation", "summarise", "compare",
            "field_geometry", "conclusions", "VARIANTS", "PAPER_TABLE4", "PAPER_TABLE5", "PAPER_PERCENT"]
@@ -147,18 +147,13 @@ def _im_row(res, sigma_control_m: float) -> dict:
 
 
 def _with_aps(block, cfg: MethodStudyConfig, settings):
-    """The bundle's AP selection; the testfield study's selection where the block is singular with
-    every AP free (only the minimal control of case 1)."""
+    """The bundle's AP selection; its weak-priors method where the block is singular with every AP
+    free (only the minimal control of case 1)."""
     from baarda.pipeline.adjustment import select_aps
 
-    try:
-        sel = select_aps(block, settings, rho_max=cfg.rho_max, alpha=cfg.ap_alpha)
-        return sel.result, [k["parameter"] for k in sel.kept], "bundle"
-    except AdjustmentError:
-        from baarda.plugins.testfield.study import select_additional_parameters
-
-        sel = select_additional_parameters(block, settings, rho_max=cfg.rho_max, alpha=cfg.ap_alpha)
-        return sel.result, list(sel.kept), "testfield study"
+    sel = select_aps(block, settings, rho_max=cfg.rho_max, alpha=cfg.ap_alpha, on_singular="weak-priors")
+    label = {"correlation": "bundle", "weak-priors": "testfield study"}[sel.method]
+    return sel.result, [k["parameter"] for k in sel.kept], label
 
 
 def run_realisation(cfg: MethodStudyConfig, seed: int, repetition: int) -> list[dict]:

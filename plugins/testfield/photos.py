@@ -10,7 +10,7 @@ from:
 * :func:`true_targets` — where each target centre's true image lies in each photo (pixels,
   OpenCV's convention, systematic image errors included): the ground truth of detection;
   :func:`partial_targets` — those whose disk is cut by the image border;
-* :func:`render_photo` — one photo as a ``uint8`` image (:func:`baarda.plugins.testfield.render.render_targets`);
+* :func:`render_photo` — one photo as a ``uint8`` image (:func:`baarda.plugins.testfield.drawing.render_targets`);
 * :func:`layout_block` — the block without image observations, its camera carrying the pixel
   pitch, resolution and format of the rendered images: the layout and approximate orientations a
   ``circles`` detection needs.
@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from baarda.pipeline.model import Block, Observations
-from baarda.plugins.testfield.render import pixel_to_mm, projected_targets, render_targets
+from baarda.plugins.testfield.drawing import pixel_to_mm, projected_targets, render_targets
 from baarda.pipeline.synthetic.testfield import Truth
 
 __all__ = ["RenderSettings", "image_size", "truth_from_meta", "true_targets", "partial_targets",

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from baarda.pipeline.synthetic.testfield import FOCAL_MM, TABLE1, simulate_testfield
-from baarda.plugins.testfield_study.study import (BUNDLE, BUNDLE_AP, IM, PAPER_PERCENT, SINGLE, SINGLE_AP, VARIANTS,
+from baarda.plugins.testfield.method_study import (BUNDLE, BUNDLE_AP, IM, PAPER_PERCENT, SINGLE, SINGLE_AP, VARIANTS,
                                            MethodStudyConfig, compare, method_study, run_realisation)
 
 

@@ -10,8 +10,8 @@ from baarda.pipeline.errors import InputError
 from baarda.pipeline.recording import read_recording
 from baarda.pipeline.testing import check_stage, log_stage, run_stage
 from baarda.pipeline.synthetic.testfield import TestFieldConfig, simulate_testfield
-from baarda.plugins.testfield_study.stage import MethodStudy, MethodStudyOptions, study_config
-from baarda.plugins.testfield_study.study import BUNDLE, BUNDLE_AP, IM, SINGLE_AP, VARIANTS
+from baarda.plugins.testfield.method_study_stage import MethodStudy, MethodStudyOptions, study_config
+from baarda.plugins.testfield.method_study import BUNDLE, BUNDLE_AP, IM, SINGLE_AP, VARIANTS
 
 
 def test_protocol():

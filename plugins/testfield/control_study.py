@@ -28,6 +28,7 @@ from typing import Callable, Literal
 
 import numpy as np
 
+from baarda.pipeline.adjustment import BundleSettings, adjust, select_aps
 from baarda.pipeline.errors import AdjustmentError
 from baarda.pipeline.options import option
 from baarda.pipeline.report import markdown_table
@@ -48,151 +49,8 @@ PAPER_TABLE3 = {  # case: (Sx, Sy, Sxy, Sz) cm, APs kept
 }
 PAPER_TABLE4 = {"single model": (0.0704, 0.0466, 0.0597, 0.2398), "block": (0.0701, 0.0279, 0.0533, 0.2155)}
 
-IOP_NAMES = ("c", "xp", "yp")
-
-
-# --------------------------------------------------------------------------------------------
-# additional-parameter selection (the paper's rule)
-
-
-@dataclass
-class Selection:
-    """Outcome of :func:`select_additional_parameters`."""
-
-    result: object                  # the final BundleResult (kept parameters free)
-    kept: list[str]                 # names of the free camera parameters
-    removed: list[tuple[str, float, str]] = field(default_factory=list)  # (name, |ρ|, with what)
-    adjustments: int = 0
-
-
-def _with_camera_sigmas(block, sig: np.ndarray):
-    """Block whose camera 0 has the a-priori sigmas ``sig`` = [c, xp, yp, ap...] (ap values 0
-    where fixed)."""
-    cam = block.cameras
-    sigma_iop = cam.sigma_iop.copy()
-    sigma_iop[0] = sig[:3]
-    sigma_ap = cam.sigma_ap.copy()
-    sigma_ap[0] = sig[3:]
-    ap = cam.ap.copy()
-    ap[0, sig[3:] == 0] = 0.0
-    return block.replace(cameras=cam.replace(sigma_iop=sigma_iop, sigma_ap=sigma_ap, ap=ap))
-
-
-def _weak_priors(block, names: list[str], effect_mm: float) -> np.ndarray:
-    """A-priori sigma per camera parameter that lets it move the image by at most ``effect_mm``
-    over the format (weak enough not to bias a determinable parameter; bounds a singular one)."""
-    from baarda.pipeline.camera.models import get_ap_model
-    from baarda.pipeline.adjustment import BundleSettings, camera_meta
-
-    cam = block.cameras
-    model = get_ap_model(cam.ap_model[0])
-    meta = camera_meta(block, BundleSettings())[0]
-    w, h = cam.format_mm[0] / 2
-    gx, gy = np.meshgrid(np.linspace(-w, w, 9), np.linspace(-h, h, 7))
-    gx, gy = gx.ravel(), gy.ravel()
-    J = model.jacobian_params(gx, gy, np.zeros((gx.size, model.n_params)), np.full(gx.size, cam.c[0]), meta)
-    effect = np.abs(J).max(axis=(0, 1))
-    ap_sig = effect_mm / np.where(effect > 0, effect, 1.0)
-    return np.concatenate([[effect_mm * cam.c[0] / w, effect_mm, effect_mm], ap_sig])
-
-
-def select_additional_parameters(block, settings=None, *, rho_max: float = 0.75, alpha: float = 0.05,
-                                 candidates=None, weak_effect_mm: float = 1.0,
-                                 adjust_fn: Callable | None = None) -> Selection:
-    """The paper's AP selection: adjust with every candidate parameter, find the largest
-    correlation |ρ| of a candidate with any other unknown (camera, exterior orientation), remove
-    (fix at 0 / at the calibrated value) that candidate — of an AP–AP pair the less significant
-    one — and repeat until no |ρ| exceeds ``rho_max``.  Then (``alpha > 0``) the significance
-    test SPEC §2 asks for: remove the parameter with the smallest ``|x̂/σ̂|`` while that is below
-    Student's ``t(1 − alpha/2, dof)``, one at a time.
-
-    ``candidates``: names among ``c, xp, yp`` and the AP model's parameters (default: every camera
-    parameter that is free in ``block``).  While selecting, candidates carry weak a-priori sigmas
-    (each can move the image by ``weak_effect_mm``) so that a singular combination shows as
-    |ρ| → 1 instead of failing; the final adjustment has the kept ones free.
-    """
-    from baarda.pipeline.adjustment import adjust
-    from baarda.pipeline.adjustment import BundleSettings
-
-    adjust_fn = adjust_fn or adjust
-    settings = settings or BundleSettings()
-    cam = block.cameras
-    from baarda.pipeline.camera.models import get_ap_model
-
-    names = list(IOP_NAMES) + list(get_ap_model(cam.ap_model[0]).params)
-    sig0 = np.concatenate([cam.sigma_iop[0], cam.sigma_ap[0][:len(names) - 3]])
-    cand = [n for n, s in zip(names, sig0) if s != 0] if candidates is None else list(candidates)
-    weak = _weak_priors(block, names, weak_effect_mm)
-    removed = []
-    count = 0
-    while True:
-        sig = np.array([weak[k] if n in cand else 0.0 for k, n in enumerate(names)])
-        res = adjust_fn(_with_camera_sigmas(block, sig), settings)
-        count += 1
-        if not cand:
-            break
-        rho, partner, t = _candidate_correlations(res, names, cand)
-        k = int(np.argmax(rho))
-        if rho[k] <= rho_max:
-            break
-        drop = cand[k]
-        if partner[k] in cand and t[cand.index(partner[k])] < t[k]:
-            drop = partner[k]
-        removed.append((drop, float(rho[k]), partner[k] if drop == cand[k] else cand[k]))
-        cand.remove(drop)
-    while True:   # the kept set must be determinable without the weak priors
-        final_sig = np.array([np.inf if n in cand else 0.0 for n in names])
-        try:
-            res = adjust_fn(_with_camera_sigmas(block, final_sig), settings)
-            count += 1
-            break
-        except AdjustmentError:
-            count += 1
-            if not cand:
-                raise
-            rho, partner, _ = _candidate_correlations(res, names, cand)
-            k = int(np.argmax(rho))
-            removed.append((cand[k], float(rho[k]), f"{partner[k]} (singular without priors)"))
-            cand.remove(cand[k])
-            sig = np.array([weak[j] if n in cand else 0.0 for j, n in enumerate(names)])
-            res = adjust_fn(_with_camera_sigmas(block, sig), settings)
-    while alpha > 0 and cand and res.dof > 0:
-        from scipy.stats import t as student
-
-        _, _, t = _candidate_correlations(res, names, cand)
-        k = int(np.argmin(t))
-        crit = float(student.ppf(1 - alpha / 2, res.dof))
-        if t[k] >= crit:
-            break
-        removed.append((cand[k], float("nan"), f"not significant (|t| = {t[k]:.2f} < {crit:.2f})"))
-        cand.remove(cand[k])
-        res = adjust_fn(_with_camera_sigmas(block, np.array([np.inf if n in cand else 0.0 for n in names])),
-                        settings)
-        count += 1
-    return Selection(result=res, kept=list(cand), removed=removed, adjustments=count)
-
-
-def _candidate_correlations(res, names, cand):
-    """For each candidate: largest |ρ| with another global unknown, that unknown's name, |x/σ|."""
-    from baarda.pipeline.adjustment import parameter_names
-
-    prob = res.problem
-    Q = res.Qx[:prob.n_g, :prob.n_g]
-    d = np.sqrt(np.clip(np.diag(Q), 1e-300, None))
-    R = Q / np.outer(d, d)
-    labels = parameter_names(prob)
-    cam_name = {int(g): n for n, g in zip(names, prob.g_cam[0]) if g >= 0}
-    rho, partner, t = [], [], []
-    for n in cand:
-        g = prob.g_cam[0, names.index(n)]
-        row = np.abs(R[g]).copy()
-        row[g] = 0.0
-        j = int(np.argmax(row))
-        rho.append(row[j])
-        partner.append(cam_name.get(j, labels[j]))
-        val = res.state.cam_params[0, names.index(n)] - (res.block_in.cameras.c[0] if n == "c" else 0.0)
-        t.append(abs(val) / (d[g] * np.sqrt(res.variance_factor)))
-    return np.array(rho), partner, np.array(t)
+SELECTION_LABEL = {"correlation": "bundle", "weak-priors": "study"}
+"""How the tables name the two methods of :func:`baarda.pipeline.adjustment.select_aps`."""
 
 
 # --------------------------------------------------------------------------------------------
@@ -226,22 +84,12 @@ def _check_rmse(res, block) -> np.ndarray:
 
 
 def _run(block, with_aps: bool, cfg: StudyConfig):
-    from baarda.pipeline.adjustment import adjust
-    from baarda.pipeline.adjustment import BundleSettings
-
     settings = BundleSettings(covariance=with_aps, tol_obs=1e-4, max_iter=50)
     if not with_aps:
         return adjust(block, settings), [], ""
-    if cfg.ap_selection == "bundle":
-        from baarda.pipeline.adjustment import select_aps
-
-        try:
-            sel = select_aps(block, settings, rho_max=cfg.rho_max, alpha=cfg.ap_alpha)
-            return sel.result, [k["parameter"] for k in sel.kept], "bundle"
-        except AdjustmentError:
-            pass   # singular with every candidate free (e.g. case 1): the study's selection copes
-    sel = select_additional_parameters(block, settings, rho_max=cfg.rho_max, alpha=cfg.ap_alpha)
-    return sel.result, sel.kept, "study"
+    sel = select_aps(block, settings, rho_max=cfg.rho_max, alpha=cfg.ap_alpha, on_singular="weak-priors",
+                     method="correlation" if cfg.ap_selection == "bundle" else "weak-priors")
+    return sel.result, [k["parameter"] for k in sel.kept], SELECTION_LABEL[sel.method]
 
 
 def control_study(cfg: StudyConfig, seed: int, progress: Callable | None = None) -> dict:
@@ -437,6 +285,7 @@ class ControlStudyOptions:
 
 
 class ControlStudy(Stage):
+    formerly = ("control-study",)
     summary = "Paper 001's control-configuration study (Tables 2–4) on the simulated test field"
     reads = ()
     writes = ("study",)

@@ -17,7 +17,7 @@ import pytest
 
 from baarda.pipeline.runner import run_project
 from baarda.pipeline.testing import run_project_text
-from baarda.plugins.render.truth import detection_errors, truth_errors
+from baarda.plugins.testfield.truth import detection_errors, truth_errors
 
 ROOT = Path(__file__).resolve().parents[2]
 FIXTURE = ROOT / "fixtures" / "rendered" / "rendered.toml"

@@ -1,6 +1,7 @@
 """Source stage ``testfield``: the simulated test field of paper 001 as a block.
 
-Numerics in :mod:`.simulate`; this stage wires options to :func:`~.simulate.simulate_testfield`,
+Numerics in :mod:`baarda.pipeline.synthetic.testfield`; :func:`simulate_field` maps the options onto
+:func:`~baarda.pipeline.synthetic.testfield.simulate_testfield` (the stage and ``testfield-render`` call it);
 writes the geometry summary and logs cameras and targets to the recording.
 """
 
@@ -21,7 +22,6 @@ from baarda.pipeline.stage import Context, Stage, StageResult, TableData
 from baarda.pipeline.synthetic.testfield import (CONTROL_CASES, TestFieldConfig, constraint_count, control_configuration,
                        degrees_of_freedom, simulate_testfield)
 
-"""Colours of object points by role in the recordings."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -56,6 +56,29 @@ class TestFieldOptions:
             raise ValueError("sigma_image_um and sigma_control_mm must be positive")
 
 
+def simulate_field(options: TestFieldOptions, rng: np.random.Generator, project_file=None):
+    """``(block, truth)`` of the test field the options describe (the ``testfield`` stage's work,
+    also the ``testfield-render`` stage's when it has no input block).  Mistakes in the options
+    are :class:`InputError` naming ``project_file``."""
+    for k, b in enumerate(options.blunders):
+        missing = {"photo", "point"} - set(b)
+        extra = set(b) - {"photo", "point", "dx", "dy"}
+        if missing or extra:
+            raise InputError(f"blunder {k + 1}: needs keys photo, point, dx, dy (mm); "
+                             f"{'missing ' + ', '.join(sorted(missing)) if missing else 'unknown ' + ', '.join(sorted(extra))}",
+                             path=project_file, field="blunders")
+    config = TestFieldConfig(
+        case=options.case, block=options.block, with_ap_errors=options.with_ap_errors,
+        sigma_image_um=options.sigma_image_um, sigma_control_mm=options.sigma_control_mm,
+        control_weighted=options.control_weighted, ap_model=options.ap_model,
+        calibrate_iop=options.calibrate_iop, blunders=tuple(options.blunders),
+        margin_mm=options.margin_mm, systematic_scale=options.systematic_scale)
+    try:
+        return simulate_testfield(config, rng)
+    except ValueError as e:
+        raise InputError(str(e), path=project_file, field="blunders") from None
+
+
 class TestFieldSource(Stage):
     __test__ = False
 
@@ -65,24 +88,8 @@ class TestFieldSource(Stage):
     Options = TestFieldOptions
 
     def run(self, inputs, options: TestFieldOptions, ctx: Context) -> StageResult:
-        for k, b in enumerate(options.blunders):
-            missing = {"photo", "point"} - set(b)
-            extra = set(b) - {"photo", "point", "dx", "dy"}
-            if missing or extra:
-                raise InputError(f"blunder {k + 1}: needs keys photo, point, dx, dy (mm); "
-                                 f"{'missing ' + ', '.join(sorted(missing)) if missing else 'unknown ' + ', '.join(sorted(extra))}",
-                                 path=ctx.project_file, field="blunders")
-        config = TestFieldConfig(
-            case=options.case, block=options.block, with_ap_errors=options.with_ap_errors,
-            sigma_image_um=options.sigma_image_um, sigma_control_mm=options.sigma_control_mm,
-            control_weighted=options.control_weighted, ap_model=options.ap_model,
-            calibrate_iop=options.calibrate_iop, blunders=tuple(options.blunders),
-            margin_mm=options.margin_mm, systematic_scale=options.systematic_scale)
         rng = np.random.default_rng(options.seed) if options.seed is not None else ctx.rng
-        try:
-            block, truth = simulate_testfield(config, rng)
-        except ValueError as e:
-            raise InputError(str(e), path=ctx.project_file, field="blunders") from None
+        block, truth = simulate_field(options, rng, project_file=ctx.project_file)
         geo = block.meta["testfield"]["geometry"]
         dof = degrees_of_freedom(block)
         if geo["min_rays"] < 2:
