@@ -26,7 +26,7 @@ __all__ = ["adjust", "BundleResult", "padded_ap", "result_of"]
 def padded_ap(cameras) -> tuple[np.ndarray, np.ndarray]:
     """``(ap, sigma_ap)`` copies widened to the largest parameter count of the cameras' models;
     added columns get the model's default sigma (0 beyond a camera's own parameter count)."""
-    from ..camera.models import get_ap_model
+    from ..camera import get_ap_model
 
     models = [get_ap_model(m) for m in cameras.ap_model.tolist()]
     p = max([m.n_params for m in models] + [cameras.ap.shape[1]])

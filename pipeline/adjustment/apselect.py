@@ -33,7 +33,7 @@ from scipy import stats
 from baarda.pipeline.errors import AdjustmentError
 from baarda.pipeline.model import Block
 
-from ..camera.models import get_ap_model
+from ..camera import get_ap_model
 from .adjust import BundleResult, adjust, padded_ap
 from .collinearity import IOP_NAMES
 from .diagnose import parameter_names

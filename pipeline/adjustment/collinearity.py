@@ -19,7 +19,7 @@ import numpy as np
 
 from baarda.pipeline.geometry.rotations import rotation_and_derivatives, rotation_from_opk_many
 
-from ..camera.models import get_ap_model
+from ..camera import get_ap_model
 
 __all__ = ["Projection", "Projector", "project_observations", "IOP_NAMES", "EO_NAMES"]
 

@@ -22,7 +22,7 @@ from baarda.pipeline.errors import AdjustmentError
 from baarda.pipeline.geometry import opk_from_rotation, rotation_from_opk_many
 from baarda.pipeline.model import Block
 
-from ..camera.models import get_ap_model
+from ..camera import get_ap_model
 from baarda.pipeline.geometry.rotations import rotation_and_derivatives
 
 from .collinearity import project_observations

@@ -30,7 +30,7 @@ import scipy.sparse as sp
 from baarda.pipeline.errors import AdjustmentError, InputError
 from baarda.pipeline.model import Block
 
-from ..camera.models import get_ap_model
+from ..camera import get_ap_model
 from .collinearity import Projector, bmv
 from .normal import NormalEquations
 from .settings import BundleSettings, BundleState, block_distances, camera_meta, check_unique

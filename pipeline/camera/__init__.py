@@ -1,11 +1,15 @@
 """Camera models (additional parameters) and conversions between baarda's camera and other tools'.
 
-* :mod:`.models` — the AP models (``none``, ``ebner12``, ``brown``, ``aicon``) and their registry;
+* :mod:`.models` — the AP models (``none``, ``ebner12``, ``brown``, ``aicon``);
+* :mod:`.registry` — models by name, built-in and third-party, through the entry-point group
+  ``baarda.camera_models``;
 * :mod:`.convert` — OpenCV / COLMAP camera parameters ↔ baarda's ``brown`` model.
 
 Pure numerics (numpy only).  See ``docs/camera-models.md``.
 """
 
-from .models import APModel, LinearAPModel, ap_model_names, get_ap_model, register_ap_model
+from .models import APModel, LinearAPModel
+from .registry import REGISTRY, CameraModelRegistry, ap_model_names, get_ap_model, register_ap_model
 
-__all__ = ["APModel", "LinearAPModel", "register_ap_model", "get_ap_model", "ap_model_names"]
+__all__ = ["APModel", "LinearAPModel", "register_ap_model", "get_ap_model", "ap_model_names", "REGISTRY",
+           "CameraModelRegistry"]

@@ -24,8 +24,9 @@ A model is any object with
   fallbacks of all three, so a third-party model needs only ``distortion``; a model whose Δ does
   not depend on c sets ``uses_c = False`` (exact zero, no extra evaluations).
 
-Register with :func:`register_ap_model`; look up with :func:`get_ap_model`.  Formulas and units of
-the built-in models: ``docs/camera-models.md``.
+Models are found by name through the registry (:mod:`.registry`): built-in and third-party models
+alike register through the entry-point group ``baarda.camera_models``.  Formulas and units of the
+built-in models: ``docs/camera-models.md``.
 """
 
 from __future__ import annotations
@@ -34,10 +35,7 @@ from typing import Mapping
 
 import numpy as np
 
-__all__ = [
-    "APModel", "LinearAPModel", "NoAP", "Ebner12", "Brown", "Aicon",
-    "register_ap_model", "get_ap_model", "ap_model_names",
-]
+__all__ = ["APModel", "LinearAPModel", "NoAP", "Ebner12", "Brown", "Aicon", "adapt_model"]
 
 
 class APModel:
@@ -438,19 +436,11 @@ class Aicon(_RadialDecentringAffine):
         return np.broadcast_to(np.asarray(r0, float), (n,))
 
 
-_REGISTRY: dict[str, APModel] = {}
-
-
-def register_ap_model(name: str, model: APModel, *, replace: bool = False) -> None:
-    """Make ``model`` available as ``Cameras.ap_model == name``.
-
-    Raises ``ValueError`` if the name is taken (pass ``replace=True`` to override) or the model
-    lacks ``params`` / ``distortion``.
-    """
+def adapt_model(name: str, model) -> APModel:
+    """``model`` as an :class:`APModel`: checked (``params``, ``distortion``), a duck-typed one wrapped
+    so that missing Jacobians fall back to central differences, ``default_sigma`` completed."""
     if not name or not isinstance(name, str):
         raise ValueError("AP model name must be a non-empty string")
-    if name in _REGISTRY and not replace:
-        raise ValueError(f"AP model {name!r} is already registered")
     for attr in ("params", "distortion"):
         if not hasattr(model, attr):
             raise ValueError(f"AP model {name!r} has no '{attr}'")
@@ -459,7 +449,7 @@ def register_ap_model(name: str, model: APModel, *, replace: bool = False) -> No
     sig = tuple(getattr(model, "default_sigma", ()) or ())
     if len(sig) != len(model.params):
         model.default_sigma = (np.inf,) * len(model.params)
-    _REGISTRY[name] = model
+    return model
 
 
 class _Adapter(APModel):
@@ -486,19 +476,3 @@ class _Adapter(APModel):
     def jacobian_c(self, *a):
         f = getattr(self._inner, "jacobian_c", None)
         return f(*a) if f else super().jacobian_c(*a)
-
-
-def get_ap_model(name: str) -> APModel:
-    """The registered model ``name`` (``KeyError`` listing the known names)."""
-    try:
-        return _REGISTRY[str(name)]
-    except KeyError:
-        raise KeyError(f"unknown AP model {name!r}; registered: {', '.join(sorted(_REGISTRY))}") from None
-
-
-def ap_model_names() -> list[str]:
-    return sorted(_REGISTRY)
-
-
-for _m in (NoAP(), Ebner12(), Brown(), Aicon()):
-    register_ap_model(_m.name, _m)

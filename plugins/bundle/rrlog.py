@@ -17,7 +17,7 @@ import numpy as np
 
 from baarda.pipeline.geometry import rotation_from_opk_many
 
-from baarda.pipeline.camera.models import get_ap_model
+from baarda.pipeline.camera import get_ap_model
 from baarda.pipeline.recording import role_colors, view_from_photo, view_vectors
 
 RED, GREY, BLUE = [230, 40, 40], [150, 150, 150], [40, 90, 230]

@@ -285,7 +285,7 @@ def _targets_table(rows, pixel_mm, size) -> TableData:
 
 
 def _camera_table(truth) -> TableData:
-    from baarda.pipeline.camera.models import get_ap_model
+    from baarda.pipeline.camera import get_ap_model
 
     names = ["c", "xp", "yp"] + list(get_ap_model("brown").params)
     values = [truth.c, truth.xp, truth.yp] + [float(truth.distortion.get(n, 0.0)) for n in names[3:]]

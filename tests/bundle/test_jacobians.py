@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from baarda.pipeline.camera.models import APModel, get_ap_model
+from baarda.pipeline.camera import APModel, get_ap_model
 from baarda.pipeline.adjustment.collinearity import project_observations
 from baarda.pipeline.geometry.rotations import rotation_and_derivatives
 from baarda.pipeline.geometry import rotation_from_opk_many
@@ -133,7 +133,7 @@ def test_third_party_model_using_c_gets_its_c_derivative(name, model):
     """∂(x, y)/∂c of the full projection (incl. ∂Δ/∂c at fixed x̄, ȳ, by the base class's central
     differences) against central differences of the projection; the ∂Δ/∂c part is a large share
     of it here (≈ 4 %, against a tolerance of 1e-6), so a zero fallback would fail."""
-    from baarda.pipeline.camera.models import register_ap_model
+    from baarda.pipeline.camera import register_ap_model
 
     register_ap_model(name, model, replace=True)
     ph, pt, truth, _ = _setup("none")
