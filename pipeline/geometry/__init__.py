@@ -9,9 +9,8 @@ Pure numerics (numpy only).  Conventions: ``docs/conventions.md``.
 
 from .image import PIXEL_CONVENTIONS, mm_from_pixels, pixels_from_mm
 from .pose import D_FLIP, cv_from_pose, pose_from_cv
-from .rotations import (opk_from_rotation, project, rotation_and_derivatives, rotation_from_opk,
-                        rotation_from_opk_many)
+from .rotations import opk_from_rotation, rotation_and_derivatives, rotation_from_opk, rotation_from_opk_many
 
 __all__ = ["rotation_from_opk", "rotation_from_opk_many", "opk_from_rotation", "rotation_and_derivatives",
-           "project", "pose_from_cv", "cv_from_pose", "D_FLIP", "mm_from_pixels", "pixels_from_mm",
+           "pose_from_cv", "cv_from_pose", "D_FLIP", "mm_from_pixels", "pixels_from_mm",
            "PIXEL_CONVENTIONS"]

@@ -59,13 +59,6 @@ def opk_from_rotation(R_cam_from_world: np.ndarray) -> np.ndarray:
     return np.array([omega, phi, kappa])
 
 
-def project(X: np.ndarray, X0: np.ndarray, R_cam_from_world: np.ndarray, c: float,
-            xp: float = 0.0, yp: float = 0.0) -> np.ndarray:
-    """Ideal collinearity projection (no additional parameters) of points ``X (n, 3)`` → ``(n, 2)`` mm."""
-    d = (np.asarray(X, float) - np.asarray(X0, float)) @ np.asarray(R_cam_from_world, float).T
-    return np.column_stack([xp - c * d[:, 0] / d[:, 2], yp - c * d[:, 1] / d[:, 2]])
-
-
 def _elem(a, axis):
     """Elementary rotations R1, R2, R3 (conventions doc) and their derivatives, batched."""
     c, s = np.cos(a), np.sin(a)

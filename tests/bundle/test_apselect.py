@@ -5,7 +5,7 @@ import numpy as np
 from baarda.pipeline.adjustment import adjust
 from baarda.pipeline.adjustment.apselect import select_aps
 
-from .synth import make_block
+from baarda.pipeline.synthetic.closerange import make_block
 
 
 def test_selection_removes_correlated_and_insignificant_aps():

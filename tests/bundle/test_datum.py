@@ -8,7 +8,7 @@ from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Pho
 from baarda.pipeline.adjustment import BundleSettings, Distance, adjust
 from baarda.pipeline.camera import LinearAPModel, register_ap_model
 
-from .synth import make_block, perturb
+from baarda.pipeline.synthetic.closerange import make_block, perturb
 
 
 def _free(blk):

@@ -7,7 +7,7 @@ from baarda.pipeline.errors import AdjustmentError
 from baarda.pipeline.adjustment import adjust, initial_values, intersection, resection
 from baarda.pipeline.adjustment.collinearity import project_observations
 
-from .synth import META, TRUE_AP, make_block
+from baarda.pipeline.synthetic.closerange import META, TRUE_AP, make_block
 
 
 def _photo(blk, truth, i, pts=None):

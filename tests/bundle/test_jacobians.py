@@ -8,7 +8,7 @@ from baarda.pipeline.adjustment.collinearity import project_observations
 from baarda.pipeline.geometry.rotations import rotation_and_derivatives
 from baarda.pipeline.geometry import rotation_from_opk_many
 
-from .synth import META, TRUE_AP, make_block
+from baarda.pipeline.synthetic.closerange import META, TRUE_AP, make_block
 
 MODELS = ["none", "brown", "aicon", "ebner12"]
 

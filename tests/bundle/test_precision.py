@@ -8,7 +8,7 @@ from baarda.pipeline.model import FREE
 from baarda.pipeline.adjustment import BundleSettings, adjust
 from baarda.pipeline.adjustment.collinearity import project_observations
 
-from .synth import make_block, with_correlated_noise
+from baarda.pipeline.synthetic.closerange import make_block, with_correlated_noise
 
 
 def _dense_reference(res):

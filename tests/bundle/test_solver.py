@@ -6,7 +6,7 @@ import pytest
 from baarda.pipeline.errors import AdjustmentError, InputError
 from baarda.pipeline.adjustment import BundleSettings, Distance, adjust
 
-from .synth import make_block, perturb
+from baarda.pipeline.synthetic.closerange import make_block, perturb
 
 
 @pytest.mark.parametrize("model", ["none", "brown", "aicon", "ebner12"])

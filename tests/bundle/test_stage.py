@@ -6,7 +6,7 @@ import pytest
 from baarda.pipeline.testing import check_stage, log_stage, run_stage
 from baarda.plugins.bundle.stage import BundleAdjustment
 
-from .synth import make_block, perturb, with_correlated_noise
+from baarda.pipeline.synthetic.closerange import make_block, perturb, with_correlated_noise
 
 
 def test_stage_protocol():

@@ -12,7 +12,7 @@ from baarda.pipeline.accuracy import check_point_rmse
 from baarda.plugins.independent_models.block import ModelCoordinates, adjust_model_block
 from baarda.plugins.independent_models.workflow import form_pairs, independent_model_block
 
-from .synth import make_block
+from baarda.pipeline.synthetic.normalcase import make_block
 
 
 def _truth_errors(result, block, truth):

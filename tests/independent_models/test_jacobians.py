@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from baarda.pipeline.geometry import project, rotation_from_opk
+from baarda.pipeline.geometry import rotation_from_opk
+from baarda.pipeline.synthetic.normalcase import ideal_projection as project
 from baarda.plugins.independent_models.block import model_observation_jacobian
 from baarda.plugins.independent_models.intersection import project_with_jacobian
 from baarda.plugins.independent_models.relor import _collinearity_rows, coplanarity_condition, pair_poses

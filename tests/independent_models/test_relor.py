@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from baarda.pipeline.errors import AdjustmentError
-from baarda.pipeline.geometry import project, rotation_from_opk
+from baarda.pipeline.geometry import rotation_from_opk
+from baarda.pipeline.synthetic.normalcase import ideal_projection as project
 from baarda.pipeline.stats import data_snooping, iterated_data_snooping
 from baarda.plugins.independent_models.relor import model_covariance, relative_orientation
 

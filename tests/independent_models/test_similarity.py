@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from baarda.pipeline.errors import AdjustmentError
-from baarda.pipeline.geometry import project, rotation_from_opk
+from baarda.pipeline.geometry import rotation_from_opk
+from baarda.pipeline.synthetic.normalcase import ideal_projection as project
 from baarda.plugins.independent_models.intersection import space_intersection
 from baarda.plugins.independent_models.similarity import (apply_similarity, similarity_closed_form,
                                          similarity_transform)

@@ -10,7 +10,7 @@ from baarda.pipeline.testing import check_stage, log_stage, run_stage
 from baarda.pipeline.contracts import AdjustmentArtefact
 from baarda.plugins.independent_models.stage import IndependentModels
 
-from .synth import make_block
+from baarda.pipeline.synthetic.normalcase import make_block
 
 
 def _weighted(block, s=0.0003):

@@ -1,19 +1,30 @@
-"""A small synthetic normal-case block for the independent-model tests.
+"""A small normal-case block (the independent-model tests).
 
 Strips of photos with parallel, nearly horizontal axes (ω, φ, κ a few mrad: normal-case
 photography with small deviations) looking down −Z at a relief object, 60 % forward overlap.
-Pure numpy: independent of the bundle, the test-field simulator and the code under test.
+An ideal central projection (no camera model): independent of the bundle and of the
+independent-model code it tests.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from baarda.pipeline.geometry import project, rotation_from_opk
+from baarda.pipeline.geometry import rotation_from_opk
 from baarda.pipeline.model import Block, Cameras, Observations, Pairs, Photos, Points
 
 C_MM = 100.0
 FORMAT = (120.0, 90.0)
+
+
+__all__ = ["make_block", "relief", "ideal_projection", "C_MM", "FORMAT"]
+
+
+def ideal_projection(X, X0, R, c, xp=0.0, yp=0.0):
+    """Ideal collinearity ``x = xp − c U/W, y = yp − c V/W`` of points ``X (n, 3)`` seen from ``X0``
+    with ``R = R_cam_from_world`` (docs/conventions.md; no additional parameters)."""
+    d = (np.asarray(X, float) - np.asarray(X0, float)) @ np.asarray(R, float).T
+    return np.column_stack([xp - c * d[:, 0] / d[:, 2], yp - c * d[:, 1] / d[:, 2]])
 
 
 def relief(X, Y):
@@ -51,7 +62,7 @@ def make_block(n_strips=1, n_photos=4, distance=1.4, noise_mm=0.0, rng=None, see
     n = XYZ.shape[0]
     ph, pt, xy = [], [], []
     for j in range(len(ids)):
-        p = project(XYZ, X0[j], rotation_from_opk(*opk[j]), C_MM)
+        p = ideal_projection(XYZ, X0[j], rotation_from_opk(*opk[j]), C_MM)
         inside = (np.abs(p[:, 0]) < FORMAT[0] / 2) & (np.abs(p[:, 1]) < FORMAT[1] / 2)
         ph += [j] * int(inside.sum())
         pt += np.flatnonzero(inside).tolist()

@@ -1,16 +1,18 @@
-"""A small synthetic close-range block for the bundle tests (independent of the test-field simulator).
+"""A small close-range block with a camera of any built-in AP model (the bundle's tests).
 
 Convergent photos on a cap around a 3-D point cloud, half of them rolled by 90°, so that c, xp,
-yp and the additional parameters are determinable (self-calibration geometry).
+yp and the additional parameters are determinable (self-calibration geometry).  The geometry is
+drawn from ``seed``, the image noise from ``rng``; the projection is the bundle's collinearity.
 """
 
 from __future__ import annotations
+
+__all__ = ["make_block", "with_correlated_noise", "perturb", "look_at", "TRUE_AP", "META"]
 
 import numpy as np
 
 from baarda.pipeline.geometry import opk_from_rotation
 from baarda.pipeline.model import FREE, Block, Cameras, Observations, Photos, Points
-from baarda.pipeline.adjustment.collinearity import project_observations
 
 TRUE_AP = {
     "none": [],
@@ -36,6 +38,8 @@ def look_at(C, T, roll=0.0):
 def make_block(n_photos=8, n_points=40, model="brown", noise_mm=0.0, rng=None, n_control=6,
                c=25.0, xp=0.05, yp=-0.03, free_iop=True, sigma_mm=0.001, seed=1):
     """Returns (block, truth) with truth = dict(X0, opk, XYZ, cam) (cam = [c, xp, yp, ap...])."""
+    from baarda.pipeline.adjustment import project_observations
+
     g = np.random.default_rng(seed)
     rng = rng if rng is not None else np.random.default_rng(seed + 100)
     XYZ = np.column_stack([g.uniform(-1, 1, n_points), g.uniform(-0.8, 0.8, n_points),
