@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from baarda.pipeline.errors import AdjustmentError
-from baarda.pipeline.geometry import rotation_from_opk_many
+from baarda.pipeline.geometry import opk_from_rotation_many, rotation_from_opk_many
 
 from .collinearity import EO_NAMES
 
@@ -41,13 +41,6 @@ def parameter_names(prob) -> list[str]:
             if i >= 0:
                 names[i] = f"{'XYZ'[t]} of point {str(points.ids[p])!r}"
     return names
-
-
-def _opk_many(R):
-    phi = np.arcsin(np.clip(R[:, 2, 0], -1, 1))
-    omega = np.arctan2(-R[:, 2, 1], R[:, 2, 2])
-    kappa = np.arctan2(-R[:, 1, 0], R[:, 0, 0])
-    return np.stack([omega, phi, kappa], axis=1)
 
 
 def _centre_and_radius(prob, st) -> tuple[np.ndarray, float]:
@@ -85,7 +78,7 @@ def datum_motions(prob, st) -> np.ndarray:
         # world rotated by ε: R' = R (I − [ε]×)
         Rp = R @ (np.eye(3) - Wx)
         Rm = R @ (np.eye(3) + Wx)
-        diff = _opk_many(Rp) - _opk_many(Rm)
+        diff = opk_from_rotation_many(Rp) - opk_from_rotation_many(Rm)
         diff = (diff + np.pi) % (2 * np.pi) - np.pi      # wrap the difference, not the derivative
         dang[:, :, 3 + a] = diff / (2 * h)
     eo_motion = np.concatenate([mX, dang], axis=1)        # (m, 6, 7)

@@ -23,7 +23,7 @@ from baarda.pipeline.geometry import opk_from_rotation, rotation_from_opk_many
 from baarda.pipeline.model import Block
 
 from ..camera import get_ap_model
-from baarda.pipeline.geometry.rotations import rotation_and_derivatives
+from baarda.pipeline.geometry.rotations import nearest_rotation, rotation_and_derivatives
 
 from .collinearity import project_observations
 
@@ -56,14 +56,6 @@ def _undistort(xy, c, xp, yp, model="none", ap=None, meta=None, iters=5):
     return ideal
 
 
-def _rot_from_matrix(M):
-    U, S, Vt = np.linalg.svd(M)
-    R = U @ Vt
-    if np.linalg.det(R) < 0:
-        R = U @ np.diag([1, 1, -1]) @ Vt
-    return R, S
-
-
 def _dlt(n_img, XYZ):
     """Calibrated DLT: n_img (n, 2) = (U/W, V/W); returns (R_cam_from_world, X0)."""
     ctr = XYZ.mean(axis=0)
@@ -83,7 +75,7 @@ def _dlt(n_img, XYZ):
     if np.linalg.det(M) < 0:
         P = -P
         M = -M
-    R, S = _rot_from_matrix(M)
+    R, S = nearest_rotation(M, return_singular_values=True)
     t = P[:, 3] / S.mean()
     # d = R Xn + t must have W < 0 (in front); otherwise the solution is mirrored through X0
     W = Xn @ R[2] + t[2]
@@ -116,7 +108,7 @@ def _plane(n_img, XYZ):
         H = sign * Hm
         s = 0.5 * (np.linalg.norm(H[:, 0]) + np.linalg.norm(H[:, 1]))
         r1, r2, t = H[:, 0] / s, H[:, 1] / s, H[:, 2] / s
-        Rp, _ = _rot_from_matrix(np.column_stack([r1, r2, np.cross(r1, r2)]))
+        Rp = nearest_rotation(np.column_stack([r1, r2, np.cross(r1, r2)]))
         W = a * Rp[2, 0] + b * Rp[2, 1] + t[2]
         if np.median(W) >= 0:
             continue

@@ -90,3 +90,38 @@ def rotation_and_derivatives(opk: np.ndarray):
     R = R32 @ R1
     dR = np.stack([R32 @ D1, R3 @ D2 @ R1, D3 @ R2 @ R1], axis=1)
     return R, dR
+
+
+def opk_from_rotation_many(R) -> np.ndarray:
+    """Vectorised :func:`opk_from_rotation`: ``R (m, 3, 3)`` → ``(m, 3)`` ω, φ, κ (radians)."""
+    R = np.asarray(R, float).reshape(-1, 3, 3)
+    phi = np.arcsin(np.clip(R[:, 2, 0], -1, 1))
+    omega = np.arctan2(-R[:, 2, 1], R[:, 2, 2])
+    kappa = np.arctan2(-R[:, 1, 0], R[:, 0, 0])
+    return np.stack([omega, phi, kappa], axis=1)
+
+
+def rotation_from_rotvec(r) -> np.ndarray:
+    """Rotation matrices ``(m, 3, 3)`` of angle-axis (Rodrigues) vectors ``r (m, 3)``: the rotation
+    by ``|r|`` about ``r / |r|`` (``P = R X``), as BAL, OpenCV and COLMAP use them."""
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_rotvec(np.asarray(r, float).reshape(-1, 3)).as_matrix()
+
+
+def nearest_rotation(M, return_singular_values: bool = False):
+    """The rotation closest to ``M (3, 3)`` in the Frobenius norm (``U Vᵀ``, or ``U diag(1, 1, −1) Vᵀ``, of the SVD
+    ``M = U S Vᵀ``); with ``return_singular_values`` also ``S``."""
+    U, S, Vt = np.linalg.svd(np.asarray(M, float))
+    R = U @ Vt
+    if np.linalg.det(R) < 0:
+        R = U @ np.diag([1.0, 1.0, -1.0]) @ Vt
+    return (R, S) if return_singular_values else R
+
+
+def rotation_angle(opk_a, opk_b) -> np.ndarray:
+    """Angle (rad) of the rotation between orientations ``opk_a`` and ``opk_b`` (m, 3), accurate
+    near 0 (atan2 of the skew-symmetric and the trace part of ``R_a R_bᵀ``)."""
+    D = rotation_from_opk_many(opk_a) @ np.transpose(rotation_from_opk_many(opk_b), (0, 2, 1))
+    s = 0.5 * np.stack([D[:, 2, 1] - D[:, 1, 2], D[:, 0, 2] - D[:, 2, 0], D[:, 1, 0] - D[:, 0, 1]], axis=1)
+    return np.arctan2(np.linalg.norm(s, axis=1), (np.einsum("mii->m", D) - 1.0) / 2.0)

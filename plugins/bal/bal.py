@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from baarda.pipeline.geometry.rotations import rotation_from_rotvec
+
 from baarda.pipeline.errors import InputError
 from baarda.pipeline.geometry import opk_from_rotation
 from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points
@@ -123,13 +125,6 @@ def read_bal(path: str | Path) -> BalProblem:
                       points=values[9 * n_cams:].reshape(n_pts, 3), path=str(path))
 
 
-def rotation_from_rodrigues(r) -> np.ndarray:
-    """Rotation matrices ``(m, 3, 3)`` of angle-axis vectors ``r (m, 3)`` (``P = R X`` rotates by ``r``)."""
-    from scipy.spatial.transform import Rotation
-
-    return Rotation.from_rotvec(np.asarray(r, float).reshape(-1, 3)).as_matrix()
-
-
 def block_from_bal(problem: BalProblem, *, pixel_mm: float = 0.001, sigma_px: float = 1.0,
                    intrinsics: str = "free", object_unit: str = "m") -> Block:
     """One baarda camera and one photo per BAL camera; brown ``K1 = k1/c²``, ``K2 = k2/c⁴``.
@@ -154,7 +149,7 @@ def block_from_bal(problem: BalProblem, *, pixel_mm: float = 0.001, sigma_px: fl
     sigma_ap[:, :2] = free
     cameras = Cameras.make([str(i) for i in range(m)], c, 0.0, 0.0, ap_model="brown", ap=ap,
                            sigma_iop=[free, FIXED, FIXED], sigma_ap=sigma_ap, pixel_mm=pixel_mm)
-    R = rotation_from_rodrigues(P[:, :3])
+    R = rotation_from_rotvec(P[:, :3])
     X0 = -np.einsum("mji,mj->mi", R, P[:, 3:6])
     opk = np.array([opk_from_rotation(Rk) for Rk in R]).reshape(-1, 3)
     photos = Photos.make([str(i) for i in range(m)], camera=np.arange(m), X0=X0, opk=opk)
@@ -167,7 +162,7 @@ def block_from_bal(problem: BalProblem, *, pixel_mm: float = 0.001, sigma_px: fl
 def bal_reprojection(problem: BalProblem) -> np.ndarray:
     """Residuals ``observed − predicted`` (pixels, ``(k, 2)``) with BAL's own camera model."""
     P = problem.cameras[problem.cam]
-    R = rotation_from_rodrigues(P[:, :3])
+    R = rotation_from_rotvec(P[:, :3])
     Pc = np.einsum("kij,kj->ki", R, problem.points[problem.pt]) + P[:, 3:6]
     p = -Pc[:, :2] / Pc[:, 2:3]
     r2 = (p**2).sum(axis=1)

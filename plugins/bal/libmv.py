@@ -24,6 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
+from baarda.pipeline.geometry.rotations import nearest_rotation
+
 from baarda.pipeline.errors import InputError
 from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points
 
@@ -103,13 +105,6 @@ def read_libmv(path: str | Path) -> LibmvProblem:
                         track=pts["track"].astype(int), X=pts["X"].astype(float),
                         marker_image=mk["image"].astype(int), marker_track=mk["track"].astype(int),
                         marker_xy=mk["xy"].astype(float), pixel_space=data[1:2] == b"P", path=str(path))
-
-
-def nearest_rotation(M) -> np.ndarray:
-    """The rotation closest to ``M`` (3, 3) in the Frobenius norm (the file's float32 matrices are
-    orthonormal only to ~1e-7)."""
-    U, _, Vt = np.linalg.svd(np.asarray(M, float))
-    return U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
 
 
 def marker_index(problem: LibmvProblem) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -27,6 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from baarda.pipeline.geometry.transforms import affine_design, helmert_design
+
 KINDS = {"affine": 6, "similarity": 4}
 """Transformation name → number of parameters."""
 
@@ -74,21 +76,11 @@ class InteriorFit:
 
 def design_rows(kind: str, XY: np.ndarray) -> np.ndarray:
     """Design matrix (2n, u) of the transformation, rows x1, y1, x2, y2, …"""
-    XY = np.asarray(XY, float).reshape(-1, 2)
-    n = XY.shape[0]
-    one, zero = np.ones(n), np.zeros(n)
-    X, Y = XY[:, 0], XY[:, 1]
     if kind == "affine":
-        rx = np.column_stack([one, X, Y, zero, zero, zero])
-        ry = np.column_stack([zero, zero, zero, one, X, Y])
-    elif kind == "similarity":
-        rx = np.column_stack([X, -Y, one, zero])
-        ry = np.column_stack([Y, X, zero, one])
-    else:
-        raise ValueError(f"unknown interior-orientation transformation {kind!r}; expected one of {sorted(KINDS)}")
-    A = np.empty((2 * n, rx.shape[1]))
-    A[0::2], A[1::2] = rx, ry
-    return A
+        return affine_design(XY)
+    if kind == "similarity":
+        return helmert_design(XY)
+    raise ValueError(f"unknown interior-orientation transformation {kind!r}; expected one of {sorted(KINDS)}")
 
 
 def fit_interior(XY_machine_mm: np.ndarray, xy_calibrated: np.ndarray, kind: str = "affine") -> InteriorFit:

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from baarda.pipeline.errors import BaardaError
-from baarda.pipeline.geometry import rotation_from_opk_many
+from baarda.pipeline.geometry import rotation_angle
 
 from .plan import CrossCheckPlan, plan_crosscheck
 from .pycolmap_ba import (PycolmapSolution, SolverSettings, build_reconstruction, estimate_covariance,
@@ -111,14 +111,6 @@ def _stats(d: np.ndarray) -> tuple[float, float]:
     return float(np.max(np.abs(d))), float(np.sqrt(np.mean(d * d)))
 
 
-def _rotation_angle(opk_a: np.ndarray, opk_b: np.ndarray) -> np.ndarray:
-    """Angle (rad) of the rotation between two orientations, accurate near 0 (atan2 of the
-    skew-symmetric and the trace part of ``R_a R_bᵀ``)."""
-    D = rotation_from_opk_many(opk_a) @ np.transpose(rotation_from_opk_many(opk_b), (0, 2, 1))
-    s = 0.5 * np.stack([D[:, 2, 1] - D[:, 1, 2], D[:, 0, 2] - D[:, 2, 0], D[:, 1, 0] - D[:, 0, 1]], axis=1)
-    return np.arctan2(np.linalg.norm(s, axis=1), (np.einsum("mii->m", D) - 1.0) / 2.0)
-
-
 def crosscheck(result, *, start: str = "initial", rng: np.random.Generator | None = None,
                perturbation: float = 1e-2, solver: SolverSettings | None = None) -> CrossCheck:
     """Solve ``result``'s problem with pycolmap and compare (see ``docs/crosscheck.md``).
@@ -165,7 +157,7 @@ def _compare(result, plan: CrossCheckPlan, sol: PycolmapSolution, summary: dict,
     d = np.linalg.norm(sol.X0[ph] - st.X0[ph], axis=1)
     mx, rms = _stats(d)
     q["centres"] = {"max": mx, "rms": rms, "unit": unit, "n": int(ph.sum()), "relative": mx / size, "exact": exact}
-    ang = _rotation_angle(sol.opk[ph], st.opk[ph]) if ph.any() else np.zeros(0)
+    ang = rotation_angle(sol.opk[ph], st.opk[ph]) if ph.any() else np.zeros(0)
     mx, rms = _stats(ang)
     q["angles"] = {"max": mx, "rms": rms, "unit": "rad", "n": int(ph.sum()), "exact": exact}
 

@@ -23,6 +23,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from baarda.pipeline.geometry.rotations import rotation_from_rotvec
+
 from baarda.pipeline.geometry.image import mm_from_pixels
 from baarda.pipeline.geometry.pose import pose_from_cv
 from baarda.pipeline.camera.convert import brown_from_colmap, colmap_from_brown
@@ -32,7 +34,7 @@ from .plan import CrossCheckPlan, brown_vector
 
 __all__ = ["SolverSettings", "PycolmapSolution", "RecMap", "build_reconstruction", "block_to_reconstruction",
            "solve_pycolmap", "run_adjuster", "read_solution", "block_with_solution", "estimate_covariance",
-           "pose_covariance_baarda", "rotation_from_rotvec"]
+           "pose_covariance_baarda"]
 
 
 @dataclass(frozen=True)
@@ -79,16 +81,6 @@ class PycolmapSolution:
     covariance_seconds: float = float("nan")
     message: str = ""
     extra: dict = field(default_factory=dict)
-
-
-def rotation_from_rotvec(r) -> np.ndarray:
-    """Rotation matrix of an angle-axis vector (3,)."""
-    r = np.asarray(r, float)
-    a = float(np.linalg.norm(r))
-    K = np.array([[0, -r[2], r[1]], [r[2], 0, -r[0]], [-r[1], r[0], 0]])
-    if a < 1e-300:
-        return np.eye(3) + K
-    return np.eye(3) + np.sin(a) / a * K + (1 - np.cos(a)) / a**2 * (K @ K)
 
 
 def _grid(block, j, sigma) -> tuple[int, int]:
@@ -364,7 +356,7 @@ def pose_covariance_baarda(cov_tangent: np.ndarray, R_cv: np.ndarray, t: np.ndar
     t = np.asarray(t, float)
 
     def f(z):
-        R = rotation_from_rotvec(2.0 * z[:3]) @ R_cv
+        R = rotation_from_rotvec(2.0 * z[:3])[0] @ R_cv
         X0, opk = pose_from_cv(R, t + z[3:])
         return np.concatenate([X0, opk])
 

@@ -23,80 +23,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from baarda.pipeline.errors import AdjustmentError
-from baarda.pipeline.geometry import opk_from_rotation
 from baarda.pipeline.stats.linear import LinearModel, factor_normal_equations, solve_normal
 from baarda.pipeline.stats.snapshot import Snapshot
 
-from baarda.pipeline.geometry.rotations import rotation_and_derivatives as _rotations
+from baarda.pipeline.geometry.transforms import (PARAMETER_NAMES, apply_similarity, rotation_and_derivatives_one,
+                                                 similarity_closed_form, similarity_jacobian)
+
+rotation_and_derivatives = rotation_and_derivatives_one
 
 __all__ = ["PARAMETER_NAMES", "similarity_closed_form", "similarity_transform", "SimilarityTransform",
            "similarity_jacobian", "apply_similarity"]
-
-PARAMETER_NAMES = ("scale", "omega", "phi", "kappa", "tx", "ty", "tz")
-
-
-def rotation_and_derivatives(opk) -> tuple[np.ndarray, np.ndarray]:
-    """``R (3, 3)`` and ``dR (3, 3, 3)`` (``dR[k] = ∂R/∂opk[k]``) of one ω, φ, κ triple."""
-    R, dR = _rotations(np.asarray(opk, float).reshape(1, 3))
-    return R[0], dR[0]
-
-
-def similarity_closed_form(x_src, X_dst, weights=None, *, what: str = "similarity transformation"):
-    """Closed-form least-squares similarity (Umeyama 1991; Horn 1987).
-
-    Parameters
-    ----------
-    x_src, X_dst : (n, 3) corresponding points, n ≥ 3 and not collinear.
-    weights : (n,) non-negative point weights (default equal).
-
-    Returns
-    -------
-    params : (7,) ``scale, ω, φ, κ, tx, ty, tz`` with ``X ≈ s Mᵀ x + T``.
-    """
-    x = np.asarray(x_src, float).reshape(-1, 3)
-    X = np.asarray(X_dst, float).reshape(-1, 3)
-    w = np.ones(x.shape[0]) if weights is None else np.asarray(weights, float).reshape(-1)
-    ok = np.all(np.isfinite(x), axis=1) & np.all(np.isfinite(X), axis=1) & (w > 0)
-    x, X, w = x[ok], X[ok], w[ok]
-    if x.shape[0] < 3:
-        raise AdjustmentError(f"{what}: needs at least 3 points with known coordinates in both "
-                              f"systems, got {x.shape[0]}")
-    w = w / w.sum()
-    mx, mX = w @ x, w @ X
-    dx, dX = x - mx, X - mX
-    S = (dX * w[:, None]).T @ dx  # Σ w (X − μX)(x − μx)ᵀ
-    U, D, Vt = np.linalg.svd(S)
-    var_x = float(w @ np.sum(dx ** 2, axis=1))
-    if D[1] <= 1e-10 * max(D[0], 1e-300) or var_x <= 0:
-        raise AdjustmentError(f"{what}: the common points are collinear (or coincide); "
-                              "a 3-D similarity needs three points not on one line")
-    E = np.diag([1.0, 1.0, np.sign(np.linalg.det(U) * np.linalg.det(Vt)) or 1.0])
-    R_dst_from_src = U @ E @ Vt
-    s = float(np.sum(D * np.diag(E)) / var_x)
-    T = mX - s * R_dst_from_src @ mx
-    return np.r_[s, opk_from_rotation(R_dst_from_src.T), T]
-
-
-def apply_similarity(params, x_src) -> np.ndarray:
-    """``X = s Mᵀ x + T`` for (n, 3) or (3,) points."""
-    s = params[0]
-    M = rotation_and_derivatives(np.asarray(params[1:4], float))[0]
-    return s * np.asarray(x_src, float) @ M + np.asarray(params[4:7], float)
-
-
-def similarity_jacobian(params, x_src) -> tuple[np.ndarray, np.ndarray]:
-    """Transformed points (n, 3) and ``∂X/∂params`` (n, 3, 7)."""
-    x = np.asarray(x_src, float).reshape(-1, 3)
-    s = float(params[0])
-    M, dM = rotation_and_derivatives(np.asarray(params[1:4], float))
-    Mx = x @ M  # rows of Mᵀ x
-    J = np.zeros((x.shape[0], 3, 7))
-    J[:, :, 0] = Mx
-    for k in range(3):
-        J[:, :, 1 + k] = s * x @ dM[k]
-    J[:, :, 4:] = np.eye(3)
-    return s * Mx + np.asarray(params[4:7], float), J
-
 
 @dataclass(frozen=True, eq=False)
 class SimilarityTransform:

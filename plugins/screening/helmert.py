@@ -20,19 +20,10 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from baarda.pipeline.geometry.transforms import helmert_design
 from baarda.pipeline.stats import LinearModel, w_test
 
 UNKNOWNS = ("a", "b", "tx", "ty")
-
-
-def helmert_design(xy_left: np.ndarray) -> np.ndarray:
-    """Design matrix (2n, 4) for left coordinates ``xy_left`` (n, 2); rows x1, y1, x2, y2, …"""
-    xy = np.asarray(xy_left, float).reshape(-1, 2)
-    n = xy.shape[0]
-    A = np.zeros((2 * n, 4))
-    A[0::2, 0], A[0::2, 1], A[0::2, 2] = xy[:, 0], -xy[:, 1], 1.0
-    A[1::2, 0], A[1::2, 1], A[1::2, 3] = xy[:, 1], xy[:, 0], 1.0
-    return A
 
 
 def row_labels(point_ids, prefix: str = "") -> list[str]:

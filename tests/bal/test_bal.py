@@ -9,7 +9,8 @@ from baarda.pipeline.errors import InputError
 from baarda.pipeline.geometry import rotation_from_opk
 from baarda.pipeline.stage import Context
 from baarda.plugins.bal.bal import bal_reprojection, block_from_bal, read_bal
-from baarda.plugins.bal.libmv import block_from_libmv, libmv_reprojection, nearest_rotation, read_libmv
+from baarda.pipeline.geometry import nearest_rotation
+from baarda.plugins.bal.libmv import block_from_libmv, libmv_reprojection, read_libmv
 from baarda.plugins.bal.stage import BalOptions, BalSource, LibmvOptions, LibmvSource
 from baarda.pipeline.adjustment import reprojection_px, reprojection_summary
 
