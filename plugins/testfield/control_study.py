@@ -28,6 +28,7 @@ from typing import Callable, Literal
 
 import numpy as np
 
+from baarda.pipeline.accuracy import check_point_rmse
 from baarda.pipeline.adjustment import BundleSettings, adjust, select_aps
 from baarda.pipeline.errors import AdjustmentError
 from baarda.pipeline.options import option
@@ -77,10 +78,9 @@ class StudyConfig:
 
 def _check_rmse(res, block) -> np.ndarray:
     """(Sx, Sy, Sz) in m over the role-'check' points: adjusted minus surveyed."""
-    pts = block.points
-    m = pts.role == "check"
-    d = res.state.XYZ[m] - pts.XYZ[m]
-    return np.sqrt(np.mean(d * d, axis=0))
+    m = block.points.role == "check"
+    c = check_point_rmse(res.state.XYZ[m], block.points.XYZ[m])
+    return np.array([c["Sx"], c["Sy"], c["Sz"]])
 
 
 def _run(block, with_aps: bool, cfg: StudyConfig):

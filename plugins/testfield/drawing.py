@@ -16,23 +16,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from baarda.pipeline.geometry import rotation_from_opk
+from baarda.pipeline.geometry import mm_from_pixels, pixels_from_mm, rotation_from_opk
 
 from baarda.pipeline.synthetic.testfield import Truth, physical_distortion, project_truth
-
-
-def mm_to_pixel(xy_mm: np.ndarray, pixel_mm: float, shape: tuple[int, int]) -> np.ndarray:
-    """Image coordinates ``(n, 2)`` mm → pixel coordinates ``(n, 2)`` (u, v), OpenCV convention."""
-    H, W = shape
-    xy = np.asarray(xy_mm, float).reshape(-1, 2)
-    return np.column_stack([xy[:, 0] / pixel_mm + (W - 1) / 2, -xy[:, 1] / pixel_mm + (H - 1) / 2])
-
-
-def pixel_to_mm(uv: np.ndarray, pixel_mm: float, shape: tuple[int, int]) -> np.ndarray:
-    """Pixel coordinates ``(n, 2)`` → image coordinates ``(n, 2)`` mm (inverse of :func:`mm_to_pixel`)."""
-    H, W = shape
-    uv = np.asarray(uv, float).reshape(-1, 2)
-    return np.column_stack([(uv[:, 0] - (W - 1) / 2) * pixel_mm, -(uv[:, 1] - (H - 1) / 2) * pixel_mm])
 
 
 def _photo_index(truth: Truth, photo) -> int:
@@ -53,8 +39,8 @@ def projected_targets(truth: Truth, photo, pixel_mm: float, shape: tuple[int, in
     i = _photo_index(truth, photo)
     xy, depth = project_truth(truth.XYZ, truth.X0[i:i + 1], truth.opk[i:i + 1], truth.c, truth.xp, truth.yp,
                               truth.distortion)
-    uv = mm_to_pixel(xy[0], pixel_mm, shape)
     H, W = shape
+    uv = pixels_from_mm(xy[0], (W, H), pixel_mm, "opencv")
     ok = (depth[0] > 0) & (uv[:, 0] >= -0.5) & (uv[:, 0] <= W - 0.5) & (uv[:, 1] >= -0.5) & (uv[:, 1] <= H - 0.5)
     return {str(pid): uv[k] for k, pid in enumerate(truth.point_ids) if ok[k]}
 
@@ -105,7 +91,7 @@ def render_targets(block, truth: Truth, photo, pixel_mm: float, shape: tuple[int
         sv = (vs[:, None, None] + offsets[None, None, :])            # (nv, 1, s)
         U = np.broadcast_to(su[:, :, None, :], (vs.size, us.size, s, s))
         V = np.broadcast_to(sv[:, :, :, None], (vs.size, us.size, s, s))
-        xy = pixel_to_mm(np.column_stack([U.reshape(-1), V.reshape(-1)]), pixel_mm, (H, W))
+        xy = mm_from_pixels(np.column_stack([U.reshape(-1), V.reshape(-1)]), (W, H), pixel_mm, "opencv")
         xbar = _ideal_reduced(xy, truth)
         d_cam = np.column_stack([xbar, np.full(len(xbar), -truth.c)])
         d_world = d_cam @ R                                          # Rᵀ · d_cam for each row

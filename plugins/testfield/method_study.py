@@ -35,6 +35,8 @@ from typing import Callable
 
 import numpy as np
 
+from baarda.pipeline.accuracy import check_point_rmse
+
 from baarda.pipeline.errors import AdjustmentError
 from baarda.pipeline.synthetic.testfield import (FOCAL_MM, SINGLE_MODEL_PHOTOS, STRIPS, TestFieldConfig,
                                         simulate_testfield)
@@ -195,7 +197,8 @@ def run_realisation(cfg: MethodStudyConfig, seed: int, repetition: int) -> list[
                          "sigma0_hat": np.nan, "kept": [], "selection": "", "ids": [], "errors": np.zeros((0, 3)),
                          "error": str(e)})
             continue
-        S = np.sqrt(np.mean(r["errors"] ** 2, axis=0)) if len(r["errors"]) else np.full(3, np.nan)
+        c = check_point_rmse(r["errors"], np.zeros_like(r["errors"]))
+        S = np.array([c["Sx"], c["Sy"], c["Sz"]])
         rows.append({**row, "Sx": float(S[0]), "Sy": float(S[1]), "Sz": float(S[2]), "pred": r["pred"],
                      "dof": r["dof"], "sigma0_hat": r["sigma0_hat"], "kept": kept, "selection": how,
                      "ids": r["ids"], "errors": r["errors"], "error": ""})

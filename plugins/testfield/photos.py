@@ -26,11 +26,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from baarda.pipeline.model import Block, Observations
-from baarda.plugins.testfield.drawing import pixel_to_mm, projected_targets, render_targets
+from baarda.plugins.testfield.drawing import projected_targets, render_targets
 from baarda.pipeline.synthetic.testfield import Truth
 
 __all__ = ["RenderSettings", "image_size", "truth_from_meta", "true_targets", "partial_targets",
-           "target_radius_px", "render_photo", "layout_block", "uv_to_mm", "OBJECT_UNIT_MM"]
+           "target_radius_px", "render_photo", "layout_block", "OBJECT_UNIT_MM"]
 
 OBJECT_UNIT_MM = {"m": 1000.0, "cm": 10.0, "mm": 1.0, "ft": 304.8}
 """Millimetres per object unit."""
@@ -132,9 +132,3 @@ def layout_block(block: Block, pixel_mm: float, size: tuple[int, int]) -> Block:
     cams = cams.replace(pixel_mm=np.full(k, float(pixel_mm)), resolution=res, format_mm=res * float(pixel_mm))
     empty = Observations.make(np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2)))
     return block.replace(cameras=cams, observations=empty)
-
-
-def uv_to_mm(uv: np.ndarray, pixel_mm: float, size: tuple[int, int]) -> np.ndarray:
-    """Pixels ``(n, 2)`` → image mm (OpenCV convention); the inverse of the simulator's ``mm_to_pixel``."""
-    W, H = size
-    return pixel_to_mm(uv, pixel_mm, (H, W))

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from baarda.pipeline.geometry import mm_from_pixels
 from baarda.pipeline.errors import InputError
 from baarda.pipeline.options import option, parse_options
 from baarda.pipeline.report import markdown_table
@@ -30,7 +31,7 @@ from baarda.pipeline.stage import Context, Stage, StageResult, TableData
 
 from .source import DISPLAY_PIXEL_MM, TestFieldOptions, log_testfield, simulate_field
 from .photos import (OBJECT_UNIT_MM, RenderSettings, image_size, layout_block, partial_targets, render_photo,
-                     target_radius_px, true_targets, truth_from_meta, uv_to_mm)
+                     target_radius_px, true_targets, truth_from_meta)
 
 __all__ = ["TestFieldRender", "RenderOptions", "RenderedImages", "SIMULATION_DEFAULTS"]
 
@@ -276,7 +277,7 @@ def _contact_sheet(shown, photo_ids, targets, size, block, cols: int = 5, width:
 
 def _targets_table(rows, pixel_mm, size) -> TableData:
     uv = np.array([r[2] for r in rows], float).reshape(-1, 2)
-    xy = uv_to_mm(uv, pixel_mm, size)
+    xy = mm_from_pixels(uv, size, pixel_mm, "opencv")
     return TableData({"photo": [r[0] for r in rows], "point": [r[1] for r in rows], "u": uv[:, 0], "v": uv[:, 1],
                       "x_mm": xy[:, 0], "y_mm": xy[:, 1], "radius_px": [r[3] for r in rows],
                       "partial": [r[4] for r in rows]},

@@ -7,7 +7,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from baarda.plugins.testfield.drawing import mm_to_pixel, pixel_to_mm, projected_targets, render_targets
+from baarda.pipeline.geometry import mm_from_pixels, pixels_from_mm
+from baarda.plugins.testfield.drawing import projected_targets, render_targets
 from baarda.pipeline.synthetic.testfield import TestFieldConfig, simulate_testfield
 
 PIXEL_MM = 0.04
@@ -33,11 +34,11 @@ def _inner(centres, half):
 def test_pixel_convention_round_trip():
     H, W = SHAPE
     # the image centre is (W−1)/2, (H−1)/2; the top-left pixel centre is (0, 0) at x < 0, y > 0
-    np.testing.assert_allclose(mm_to_pixel([[0.0, 0.0]], PIXEL_MM, SHAPE), [[(W - 1) / 2, (H - 1) / 2]])
-    np.testing.assert_allclose(pixel_to_mm([[0.0, 0.0]], PIXEL_MM, SHAPE),
+    np.testing.assert_allclose(pixels_from_mm([[0.0, 0.0]], (W, H), PIXEL_MM), [[(W - 1) / 2, (H - 1) / 2]])
+    np.testing.assert_allclose(mm_from_pixels([[0.0, 0.0]], (W, H), PIXEL_MM),
                                [[-(W - 1) / 2 * PIXEL_MM, (H - 1) / 2 * PIXEL_MM]])
     xy = np.array([[12.3, -4.5], [-50.0, 30.0]])
-    np.testing.assert_allclose(pixel_to_mm(mm_to_pixel(xy, PIXEL_MM, SHAPE), PIXEL_MM, SHAPE), xy)
+    np.testing.assert_allclose(mm_from_pixels(pixels_from_mm(xy, (W, H), PIXEL_MM), (W, H), PIXEL_MM), xy)
 
 
 def test_fronto_parallel_centroid_at_projection():
