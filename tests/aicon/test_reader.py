@@ -106,7 +106,7 @@ def test_block_conventions_reproduce_phc(block):
 
 
 def test_bundle_aicon_model_agrees(block):
-    """The bundle engineer's 'aicon' AP model gives the same distortion as the formula above."""
+    """The bundle's 'aicon' AP model gives the same distortion as the formula above."""
     apmodels = pytest.importorskip("baarda.pipeline.camera")
     model = apmodels.get_ap_model("aicon")
     assert tuple(model.params) == ("A1", "A2", "A3", "B1", "B2", "C1", "C2")
