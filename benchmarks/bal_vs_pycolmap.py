@@ -96,7 +96,7 @@ def run_pycolmap(block, *, max_iter: int = 200, function_tolerance: float = 1e-6
     for i in rec.images:
         config.add_image(i)
     t_build = time.perf_counter() - t0
-    solver = SolverSettings(max_iterations=max_iter, function_tolerance=function_tolerance, gradient_tolerance=1e-10,
+    solver = SolverSettings(max_iter=max_iter, function_tolerance=function_tolerance, gradient_tolerance=1e-10,
                             parameter_tolerance=1e-8, num_threads=num_threads, covariance=False)
     out, _ = run_adjuster(rec, config, {"focal": True, "principal_point": False, "extra": True}, solver)
     sol = read_solution(rec, recmap, block.cameras.pixel_mm, block)

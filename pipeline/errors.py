@@ -59,12 +59,3 @@ class AdjustmentError(BaardaError):
     def __init__(self, message: str, state: object | None = None):
         self.state = state
         super().__init__(message)
-
-
-class StageError(BaardaError):
-    """A stage failed; wraps the cause with the stage's name."""
-
-    def __init__(self, stage: str, cause: BaseException):
-        self.stage = stage
-        self.cause = cause
-        super().__init__(f"stage '{stage}' failed: {cause}")

@@ -4,11 +4,18 @@ A stage declares ``Options`` as a (frozen) dataclass; every field has a default 
 ``metadata={"doc": "..."}``.  :func:`parse_options` turns the TOML table of a stage into an
 instance, rejecting unknown keys and values of the wrong type with an :class:`InputError` that
 names the project file, the line and the key.
+
+Nested tables are typed: ``dict[str, float]`` (keys and values checked), or a dataclass (its
+fields, recursively).  Renamed options and values are rejected with their new spelling: an Options
+class may declare ``RENAMED = {"old_name": "new_name"}`` and ``RENAMED_VALUES = {"option": {"old":
+"new"}}`` (class attributes, ``typing.ClassVar``); any other unknown name gets the closest known
+ones ("did you mean …?").
 """
 
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import types
 import typing
 from pathlib import Path
@@ -62,7 +69,10 @@ def _type_name(tp) -> str:
         args = get_args(tp)
         return f"list[{_type_name(args[0])}]" if args else "list"
     if origin is dict:
-        return "table"
+        args = get_args(tp)
+        return f"table[{_type_name(args[0])} → {_type_name(args[1])}]" if len(args) == 2 else "table"
+    if dataclasses.is_dataclass(tp):
+        return f"table ({', '.join(f.name for f in dataclasses.fields(tp))})"
     return getattr(tp, "__name__", str(tp))
 
 
@@ -79,6 +89,9 @@ def _coerce(value: Any, tp, name: str, where: dict) -> Any:
         args = get_args(tp)
         if value is None and type(None) in args:
             return None
+        real = [a for a in args if a is not type(None)]
+        if len(real) == 1:                      # Optional[X]: X's own message is the useful one
+            return _coerce(value, real[0], name, where)
         errors = []
         for a in args:
             if a is type(None):
@@ -98,7 +111,11 @@ def _coerce(value: Any, tp, name: str, where: dict) -> Any:
     if origin is dict:
         if not isinstance(value, dict):
             raise InputError(f"expected a table, got {value!r}", field=name, **where)
-        return dict(value)
+        args = get_args(tp)
+        if len(args) != 2:
+            return dict(value)
+        return {_coerce(k, args[0], f"{name}.{k}", where): _coerce(v, args[1], f"{name}.{k}", where)
+                for k, v in value.items()}
     if tp is bool:
         if not isinstance(value, bool):
             raise InputError(f"expected true or false, got {value!r}", field=name, **where)
@@ -140,13 +157,25 @@ def parse_options(options_cls: type, raw: dict | None, *, path=None, line=None,
         ln = locate(key) if locate else None
         return {"path": path, "line": ln or line}
 
+    renamed = dict(getattr(options_cls, "RENAMED", {}) or {})
+    for key in sorted(set(raw) & set(renamed)):
+        raise InputError(f"option '{prefix}{key}' is now '{prefix}{renamed[key]}'", field=prefix + key,
+                         **where(key))
     unknown = sorted(set(raw) - set(fields))
     if unknown:
+        key = unknown[0]
         known = ", ".join(sorted(fields)) or "(none)"
-        raise InputError(f"unknown option '{prefix}{unknown[0]}'; this stage accepts: {known}",
-                         field=prefix + unknown[0], **where(unknown[0]))
+        close = difflib.get_close_matches(key, list(fields), n=2, cutoff=0.6)
+        did = f"did you mean {' or '.join(repr(prefix + c) for c in close)}? " if close else ""
+        raise InputError(f"unknown option '{prefix}{key}'; {did}this stage accepts: {known}",
+                         field=prefix + key, **where(key))
+    old_values = dict(getattr(options_cls, "RENAMED_VALUES", {}) or {})
     values = {}
     for key, value in raw.items():
+        moved = old_values.get(key, {})
+        if isinstance(value, str) and value in moved:
+            raise InputError(f"option '{prefix}{key}': the value {value!r} is now {moved[value]!r}",
+                             field=prefix + key, **where(key))
         values[key] = _coerce(value, hints[key], prefix + key, where(key))
     missing = [n for n, f in fields.items() if n not in values
                and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING]

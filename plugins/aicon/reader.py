@@ -301,7 +301,7 @@ def read_aicon(path: str | Path) -> AiconExport:
 # to a block
 
 
-def aicon_block(export: AiconExport, *, image_sigma_um: float | None = None, self_calibration: bool = True,
+def aicon_block(export: AiconExport, *, sigma_image_um: float | None = None, self_calibration: bool = True,
                 keep_unused: bool = False) -> Block:
     """The export as a :class:`~baarda.pipeline.model.Block` (object unit mm).
 
@@ -310,7 +310,7 @@ def aicon_block(export: AiconExport, *, image_sigma_um: float | None = None, sel
       ``meta["ap_meta"][camera]["r0"]``.  With ``self_calibration`` c, xp, yp and every AP that
       is not exactly 0 in the file are free, the zero ones fixed; otherwise all fixed.
     * photos: ω φ κ as exported, all free.  Points: role ``tie``, XYZ from the ``.obc``.
-    * observations: cov ``diag(sx², sy²)`` from the file, or ``image_sigma_um`` for all;
+    * observations: cov ``diag(sx², sy²)`` from the file, or ``sigma_image_um`` for all;
       ``active = False`` for disabled measurements.
     * ``meta["distances"]``: ``[(id_a, id_b, distance_mm, sigma_mm)]`` of the active scale bars.
 
@@ -355,11 +355,11 @@ def aicon_block(export: AiconExport, *, image_sigma_um: float | None = None, sel
     iidx = {p: k for k, p in enumerate(ph["id"])}
     rows = np.array([k for k, p in enumerate(ms["point"]) if p not in drop], int)
     sxy = ms["sxy"][rows]
-    if image_sigma_um is not None:
-        sxy = np.full_like(sxy, image_sigma_um * 1e-3)
+    if sigma_image_um is not None:
+        sxy = np.full_like(sxy, sigma_image_um * 1e-3)
     elif not (np.isfinite(sxy).all() and (sxy > 0).all()):
         bad = rows[np.flatnonzero(~(np.isfinite(sxy) & (sxy > 0)).all(axis=1))[0]]
-        raise InputError("sx, sy must be positive (or set the option image_sigma_um)",
+        raise InputError("sx, sy must be positive (or set the option sigma_image_um)",
                          path=export.files["phc"], line=int(ms["line"][bad]), field="sx")
     obs = Observations.make([iidx[ms["image"][k]] for k in rows], [pidx[ms["point"][k]] for k in rows],
                             ms["xy"][rows], sigma=sxy, active=active[rows])
@@ -391,18 +391,18 @@ def aicon_block(export: AiconExport, *, image_sigma_um: float | None = None, sel
     return Block(cameras=cameras, photos=photos, points=points, observations=obs, object_unit="mm", meta=meta)
 
 
-def perturb_initial_values(block: Block, rng: np.random.Generator, *, position_sigma: float = 0.0,
-                           angle_sigma_deg: float = 0.0, c_sigma: float = 0.0, point_sigma: float = 0.0,
+def perturb_initial_values(block: Block, rng: np.random.Generator, *, sigma_position: float = 0.0,
+                           sigma_angle_deg: float = 0.0, sigma_c: float = 0.0, sigma_point: float = 0.0,
                            zero_distortion: bool = False) -> Block:
     """A copy of ``block`` with its initial values disturbed (normal draws from ``rng``):
-    projection centres by ``position_sigma`` (object unit), ω φ κ by ``angle_sigma_deg``, c by
-    ``c_sigma`` (mm), point coordinates by ``point_sigma``; ``zero_distortion`` sets every
+    projection centres by ``sigma_position`` (object unit), ω φ κ by ``sigma_angle_deg``, c by
+    ``sigma_c`` (mm), point coordinates by ``sigma_point``; ``zero_distortion`` sets every
     additional parameter to 0 (which are free stays as it was).  The input is not modified."""
     ph, cam, pts = block.photos, block.cameras, block.points
-    X0 = ph.X0 + rng.normal(0.0, position_sigma, ph.X0.shape) if position_sigma else ph.X0
-    opk = ph.opk + np.deg2rad(rng.normal(0.0, angle_sigma_deg, ph.opk.shape)) if angle_sigma_deg else ph.opk
-    c = cam.c + rng.normal(0.0, c_sigma, cam.c.shape) if c_sigma else cam.c
-    XYZ = pts.XYZ + rng.normal(0.0, point_sigma, pts.XYZ.shape) if point_sigma else pts.XYZ
+    X0 = ph.X0 + rng.normal(0.0, sigma_position, ph.X0.shape) if sigma_position else ph.X0
+    opk = ph.opk + np.deg2rad(rng.normal(0.0, sigma_angle_deg, ph.opk.shape)) if sigma_angle_deg else ph.opk
+    c = cam.c + rng.normal(0.0, sigma_c, cam.c.shape) if sigma_c else cam.c
+    XYZ = pts.XYZ + rng.normal(0.0, sigma_point, pts.XYZ.shape) if sigma_point else pts.XYZ
     ap = np.zeros_like(cam.ap) if zero_distortion else cam.ap
     return replace(block, photos=ph.replace(X0=X0, opk=opk), cameras=cam.replace(c=c, ap=ap),
                    points=pts.replace(XYZ=XYZ))

@@ -7,6 +7,8 @@ converges from far away), reports what was read and logs cameras and points.
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import dataclasses
 from pathlib import Path
 
@@ -22,36 +24,39 @@ from .reader import AP_NAMES, aicon_block, perturb_initial_values, read_aicon
 
 @dataclasses.dataclass(frozen=True)
 class PerturbOptions:
-    position_sigma: float = option(0.0, "standard deviation added to each projection-centre coordinate "
+    RENAMED: ClassVar[dict[str, str]] = {"position_sigma": "sigma_position", "angle_sigma_deg": "sigma_angle_deg", "c_sigma": "sigma_c",
+                                           "point_sigma": "sigma_point"}
+    sigma_position: float = option(0.0, "standard deviation added to each projection-centre coordinate "
                                         "(object unit, mm for AICON)")
-    angle_sigma_deg: float = option(0.0, "standard deviation added to ω, φ, κ (degrees)")
-    c_sigma: float = option(0.0, "standard deviation added to the principal distance (mm)")
-    point_sigma: float = option(0.0, "standard deviation added to each object-point coordinate (mm)")
+    sigma_angle_deg: float = option(0.0, "standard deviation added to ω, φ, κ (degrees)")
+    sigma_c: float = option(0.0, "standard deviation added to the principal distance (mm)")
+    sigma_point: float = option(0.0, "standard deviation added to each object-point coordinate (mm)")
     zero_distortion: bool = option(False, "start every additional parameter at 0")
 
     def __post_init__(self):
-        for k in ("position_sigma", "angle_sigma_deg", "c_sigma", "point_sigma"):
+        for k in ("sigma_position", "sigma_angle_deg", "sigma_c", "sigma_point"):
             if getattr(self, k) < 0:
                 raise ValueError(f"{k} must not be negative")
 
 
 @dataclasses.dataclass(frozen=True)
 class AiconOptions:
+    RENAMED: ClassVar[dict[str, str]] = {"image_sigma_um": "sigma_image_um"}
     path: Path | None = option(None, "the export (required): its prefix (…/example for example.ior …), one "
                                      "of its files, or a directory holding one export; relative to the "
                                      "project file")
-    perturb: PerturbOptions | None = option(None, "disturb the initial values: a table {position_sigma, "
-                                                  "angle_sigma_deg, c_sigma, point_sigma, zero_distortion}")
+    perturb: PerturbOptions | None = option(None, "disturb the initial values: a table {sigma_position, "
+                                                  "sigma_angle_deg, sigma_c, sigma_point, zero_distortion}")
     seed: int | None = option(None, "seed of the perturbation; default: the project's seed for this stage")
-    image_sigma_um: float | None = option(None, "a-priori sigma of every image coordinate (µm); default: "
+    sigma_image_um: float | None = option(None, "a-priori sigma of every image coordinate (µm); default: "
                                                 "the .phc columns sx, sy")
     self_calibration: bool = option(True, "c, xp, yp and the non-zero AICON parameters free (true) or fixed")
     keep_unused: bool = option(False, "keep points without .obc coordinates (as unknown tie points) and "
                                       "points with fewer than two active measurements")
 
     def __post_init__(self):
-        if self.image_sigma_um is not None and not self.image_sigma_um > 0:
-            raise ValueError("image_sigma_um must be positive")
+        if self.sigma_image_um is not None and not self.sigma_image_um > 0:
+            raise ValueError("sigma_image_um must be positive")
 
 
 class AiconSource(Stage):
@@ -66,15 +71,15 @@ class AiconSource(Stage):
             raise InputError("the aicon stage needs the option 'path' (prefix of the export files)",
                              path=ctx.project_file, field="path")
         export = read_aicon(ctx.resolve(options.path))
-        exported = aicon_block(export, image_sigma_um=options.image_sigma_um,
+        exported = aicon_block(export, sigma_image_um=options.sigma_image_um,
                                self_calibration=options.self_calibration, keep_unused=options.keep_unused)
         block = exported
         if options.perturb is not None:
             rng = np.random.default_rng(options.seed) if options.seed is not None else ctx.rng
             p = options.perturb
-            block = perturb_initial_values(block, rng, position_sigma=p.position_sigma,
-                                           angle_sigma_deg=p.angle_sigma_deg, c_sigma=p.c_sigma,
-                                           point_sigma=p.point_sigma, zero_distortion=p.zero_distortion)
+            block = perturb_initial_values(block, rng, sigma_position=p.sigma_position,
+                                           sigma_angle_deg=p.sigma_angle_deg, sigma_c=p.sigma_c,
+                                           sigma_point=p.sigma_point, zero_distortion=p.zero_distortion)
             meta = dict(block.meta)
             meta["aicon"] = {**meta["aicon"], "perturbation": dataclasses.asdict(p),
                              "exported": {"X0": exported.photos.X0, "opk": exported.photos.opk,
@@ -145,8 +150,8 @@ def _report(block, exported, options) -> str:
         p = options.perturb
         dX = np.linalg.norm(block.photos.X0 - exported.photos.X0, axis=1)
         dA = np.rad2deg(np.abs(block.photos.opk - exported.photos.opk)).max(axis=1)
-        lines += ["", f"Initial values perturbed (σ: position {p.position_sigma:g} mm, angles "
-                      f"{p.angle_sigma_deg:g}°, c {p.c_sigma:g} mm, points {p.point_sigma:g} mm"
+        lines += ["", f"Initial values perturbed (σ: position {p.sigma_position:g} mm, angles "
+                      f"{p.sigma_angle_deg:g}°, c {p.sigma_c:g} mm, points {p.sigma_point:g} mm"
                       f"{', distortion set to 0' if p.zero_distortion else ''}): projection centres moved by "
                       f"up to {dX.max():.1f} mm (RMS {np.sqrt(np.mean(dX ** 2)):.1f}), angles by up to "
                       f"{dA.max():.2f}°, c by {float(block.cameras.c[0] - exported.cameras.c[0]):+.3f} mm."]

@@ -31,7 +31,7 @@ class BlunderSettings:
     rho: int = 0
     n_sim: int = 20_000
     rrr_critical: float | None = None
-    max_iter: int = 50
+    max_rejections: int = 50
     ids_stop: str = "global-test"
 
 
@@ -78,7 +78,7 @@ def run_data_snooping(art: AdjustmentArtefact, s: BlunderSettings) -> MethodResu
 
 
 def run_ids(art: AdjustmentArtefact, s: BlunderSettings) -> MethodResult:
-    res = iterated_data_snooping(art.model, art.snapshot, s.alpha0, s.beta0, s.critical_w, s.max_iter,
+    res = iterated_data_snooping(art.model, art.snapshot, s.alpha0, s.beta0, s.critical_w, s.max_rejections,
                                  stop=s.ids_stop)
     dec = [Decision("ids", h.row, h.label, "w", h.w_max, res.critical, h.iteration)
            for h in res.history if h.removed]
@@ -89,7 +89,7 @@ def run_ids(art: AdjustmentArtefact, s: BlunderSettings) -> MethodResult:
 
 
 def run_pope(art: AdjustmentArtefact, s: BlunderSettings) -> MethodResult:
-    res = pope_iterated(art.model, art.snapshot, s.alpha_pope, s.max_iter)
+    res = pope_iterated(art.model, art.snapshot, s.alpha_pope, s.max_rejections)
     dec = [Decision("pope", h.row, h.label, "tau", _signed_tau(art, res, h), h.critical, h.iteration)
            for h in res.history if h.removed]
     hist = [{"iteration": h.iteration, "dof": h.dof, "sigma0_hat": h.sigma0_hat, "tau_critical": h.critical,

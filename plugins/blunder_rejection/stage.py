@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Literal
+from typing import ClassVar, Literal
 
 import numpy as np
 
@@ -25,6 +25,7 @@ from .decide import METHODS, BlunderSettings, MethodResult, row_statistics, run_
 
 @dataclasses.dataclass(frozen=True)
 class BlunderOptions:
+    RENAMED: ClassVar[dict[str, str]] = {"max_iter": "max_rejections"}
     method: Literal["data-snooping", "ids", "pope", "rrr", "all"] = option(
         "all", "method: data-snooping (one pass, σ0 a priori), ids (Kok's iterated data snooping), "
                "pope (iterated τ test, σ̂0), rrr (recursive residual rejection), or all of them side by side")
@@ -44,7 +45,7 @@ class BlunderOptions:
                          "the non-suspects masks the others (paper 000's Data 1 needs ρ = 4)")
     n_sim: int = option(20000, "RRR: Monte Carlo repetitions of the whole procedure for the critical value H")
     rrr_critical: float = option(0.0, "RRR: use this critical value H instead of the Monte Carlo one (0 = simulate)")
-    max_iter: int = option(50, "IDS / Pope: most rows removed")
+    max_rejections: int = option(50, "IDS / Pope: most rows removed")
     ids_stop: Literal["global-test", "w-test"] = option(
         "global-test", "IDS: stop when the global test accepts (Kok), or go on while any |w| exceeds K "
                        "(for a-priori σ scaled from these residuals, where the global test accepts by construction)")
@@ -53,14 +54,14 @@ class BlunderOptions:
         for name in ("alpha0", "beta0", "alpha_pope", "alpha_rrr"):
             if not 0 < getattr(self, name) < 1:
                 raise ValueError(f"{name} must lie strictly between 0 and 1, got {getattr(self, name)}")
-        if self.rho < 0 or self.n_sim < 0 or self.max_iter < 0:
-            raise ValueError("rho, n_sim and max_iter must not be negative")
+        if self.rho < 0 or self.n_sim < 0 or self.max_rejections < 0:
+            raise ValueError("rho, n_sim and max_rejections must not be negative")
         if self.n_sim == 0 and not self.rrr_critical > 0 and self.method in ("rrr", "all"):
             raise ValueError("n_sim = 0 needs an explicit rrr_critical")
 
     def settings(self) -> BlunderSettings:
         return BlunderSettings(self.alpha0, self.beta0, self.critical_w or None, self.alpha_pope,
-                               self.alpha_rrr, self.rho, self.n_sim, self.rrr_critical or None, self.max_iter,
+                               self.alpha_rrr, self.rho, self.n_sim, self.rrr_critical or None, self.max_rejections,
                                self.ids_stop)
 
 

@@ -8,7 +8,8 @@ selection and blunder handling, and writes report, tables and the recording.
 from __future__ import annotations
 
 import dataclasses
-from typing import Literal
+import difflib
+from typing import ClassVar, Literal
 
 import numpy as np
 from scipy import stats as sps
@@ -29,6 +30,7 @@ from baarda.pipeline.camera import ap_model_names, get_ap_model
 
 @dataclasses.dataclass(frozen=True)
 class BundleOptions:
+    RENAMED: ClassVar[dict[str, str]] = {"image_sigma_scale": "sigma_image_scale"}
     datum: Literal["control", "free"] = option(
         "control", "datum: by control points / weighted constraints, or a free network with inner constraints")
     datum_points: list[str] = option(
@@ -37,14 +39,14 @@ class BundleOptions:
         "points", "free network: inner constraints on object points or on the projection centres")
     ap_model: str = option("", "AP model of every camera (none, ebner12, brown, aicon, or a registered "
                                "third-party model); empty: as in the block")
-    ap_models: dict = option({}, "AP model per camera id (overrides ap_model)")
+    ap_models: dict[str, str] = option({}, "AP model per camera id (overrides ap_model)")
     iop: Literal["block", "free", "fixed"] = option(
         "block", "c, xp, yp: a-priori sigmas from the block, all free, or all fixed")
     aps: Literal["block", "free", "fixed"] = option(
         "block", "additional parameters: sigmas from the block, all free, or all fixed")
     fix: list[str] = option([], "parameter names held fixed in every camera (e.g. ['K3', 'P1', 'P2'])")
     free: list[str] = option([], "parameter names made free in every camera (applied after 'fix')")
-    sigma: dict = option({}, "parameter name -> a-priori sigma (weighted constraint), every camera")
+    sigma: dict[str, float] = option({}, "parameter name -> a-priori sigma (weighted constraint), every camera")
     ebner_b: float = option(0.0, "image base b (mm) of ebner12; 0: 0.4 × format width (60 % overlap)")
     sigma_eo: list[float] = option(
         [], "weighted constraints on the given exterior orientations: a-priori σ [X0, Y0, Z0 (object units), "
@@ -53,7 +55,7 @@ class BundleOptions:
     distances: list[dict] = option(
         [], "extra scale bars: tables {from, to, distance, sigma} (object units); block scale bars are used too")
     sigma0: float = option(1.0, "a-priori standard deviation of unit weight")
-    image_sigma_scale: float = option(
+    sigma_image_scale: float = option(
         1.0, "multiply the a-priori σ of every image coordinate by this factor (a variance component, e.g. "
              "σ̂0 of an earlier run on the same weights)")
     max_iter: int = option(30, "maximum number of iterations")
@@ -93,15 +95,22 @@ class BundleOptions:
             raise ValueError("sigma0 must be positive")
         if self.max_iter < 1:
             raise ValueError("max_iter must be at least 1")
+        known = {"c", "xp", "yp"}
+        for m in [self.ap_model] * bool(self.ap_model) + list(self.ap_models.values()):
+            known |= set(get_ap_model(m).params)
         for name, s in self.sigma.items():
+            if self.ap_model and name not in known:
+                close = difflib.get_close_matches(name, sorted(known), n=1, cutoff=0.5)
+                raise ValueError(f"sigma.{name}: not a parameter of the camera model(s) "
+                                 f"({', '.join(sorted(known))})" + (f"; did you mean {close[0]!r}?" if close else ""))
             if not isinstance(s, (int, float)) or s < 0:
                 raise ValueError(f"sigma.{name}: expected a non-negative number, got {s!r}")
         if self.sigma_eo and (len(self.sigma_eo) != 6 or not all(
                 isinstance(v, (int, float)) and v >= 0 for v in self.sigma_eo)):
             raise ValueError(f"sigma_eo: expected 6 non-negative numbers [X0, Y0, Z0, ω, φ, κ (deg)], "
                              f"got {self.sigma_eo!r}")
-        if not self.image_sigma_scale > 0:
-            raise ValueError("image_sigma_scale must be positive")
+        if not self.sigma_image_scale > 0:
+            raise ValueError("sigma_image_scale must be positive")
         for d in self.distances:
             missing = {"from", "to", "distance", "sigma"} - set(d)
             if missing:
@@ -161,9 +170,9 @@ def configure_block(block: Block, o: BundleOptions) -> Block:
         se = np.array(ph.sigma_eo, float)
         se[ph.has_orientation] = np.r_[o.sigma_eo[:3], np.radians(o.sigma_eo[3:])]
         block = block.replace(photos=ph.replace(sigma_eo=se))
-    if o.image_sigma_scale != 1.0:
+    if o.sigma_image_scale != 1.0:
         obs = block.observations
-        block = block.replace(observations=obs.replace(cov=obs.cov * o.image_sigma_scale ** 2))
+        block = block.replace(observations=obs.replace(cov=obs.cov * o.sigma_image_scale ** 2))
     return block
 
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from pathlib import Path
-from typing import Literal
+from typing import ClassVar, Literal
 
 import numpy as np
 
@@ -24,21 +24,23 @@ from .parser import parse_comparator
 
 @dataclasses.dataclass(frozen=True)
 class ComparatorOptions:
+    RENAMED: ClassVar[dict[str, str]] = {"io_tolerance_um": "tol_io_um"}
+    RENAMED_VALUES: ClassVar[dict[str, dict[str, str]]] = {"on_tolerance": {"fail": "error"}}
     path: Path = option(REQUIRED, "comparator file (docs/comparator-format.md), relative to the "
                                   "project file (required)")
     transform: Literal["file", "affine", "similarity"] = option(
         "file", "interior orientation machine → fiducial system: 'file' uses the file's "
                 "'transform' line (default affine)")
-    io_tolerance_um: float = option(
+    tol_io_um: float = option(
         20.0, "largest admissible fiducial residual (length of the residual vector, µm) after the "
               "interior orientation")
-    on_tolerance: Literal["fail", "warn"] = option(
-        "fail", "what a fiducial beyond the tolerance does: stop with an error naming the photo and "
+    on_tolerance: Literal["error", "warn"] = option(
+        "error", "what a fiducial beyond the tolerance does: stop with an error naming the photo and "
                 "fiducial, or warn and continue")
 
     def __post_init__(self):
-        if not self.io_tolerance_um > 0:
-            raise ValueError(f"io_tolerance_um must be positive, got {self.io_tolerance_um}")
+        if not self.tol_io_um > 0:
+            raise ValueError(f"tol_io_um must be positive, got {self.tol_io_um}")
 
 
 class ComparatorSource(Stage):
@@ -63,13 +65,13 @@ class ComparatorSource(Stage):
             raise ctx.option_error(f"expected a comparator file, got a directory: {path}", "path")
         parsed = parse_comparator(path)
         interior = interior_orientation(parsed, None if options.transform == "file" else options.transform)
-        tol_mm = options.io_tolerance_um / 1000.0
+        tol_mm = options.tol_io_um / 1000.0
         violations = tolerance_violations(interior, tol_mm)
         warnings = []
         for v in violations:
             fit = interior[v.photo].fit
             msg = v.message(tol_mm, fit.kind, fit.sigma0_hat)
-            if options.on_tolerance == "fail":
+            if options.on_tolerance == "error":
                 raise InputError(msg, path, v.line, f"fid {v.fiducial}")
             warnings.append(f"{path}:{v.line}: {msg}")
         for res in interior.values():
@@ -82,13 +84,13 @@ class ComparatorSource(Stage):
 
     def run(self, inputs, options: ComparatorOptions, ctx: Context) -> StageResult:
         path, parsed, interior, violations, warnings = self._read(options, ctx)
-        tol_mm = options.io_tolerance_um / 1000.0
+        tol_mm = options.tol_io_um / 1000.0
         block = build_block(parsed, interior)
         return StageResult(
             artefacts={"block": block},
             summary={**block.summary(), "file": str(path), "mode": parsed.mode, "unit": parsed.unit,
                      "interior_orientation": {k: r.report() for k, r in interior.items()},
-                     "io_tolerance_um": options.io_tolerance_um,
+                     "tol_io_um": options.tol_io_um,
                      "io_violations": [dataclasses.asdict(v) for v in violations],
                      "warnings": warnings},
             report=_report(parsed, block, interior, violations, options, warnings),
@@ -131,7 +133,7 @@ def _report(parsed, block, interior, violations, options, warnings) -> str:
              f"{s['observations']} observation(s), {s['pairs']} pair(s).", ""]
     if interior:
         lines += [f"Interior orientation ({next(iter(interior.values())).fit.kind}), tolerance "
-                  f"{options.io_tolerance_um:g} µm:", "",
+                  f"{options.tol_io_um:g} µm:", "",
                   "| photo | fiducials | dof | σ̂0 µm | largest residual µm (fiducial) |",
                   "|---|---|---|---|---|"]
         for r in interior.values():

@@ -41,7 +41,7 @@ __all__ = ["SolverSettings", "PycolmapSolution", "RecMap", "build_reconstruction
 class SolverSettings:
     """Ceres settings of pycolmap's bundle adjustment (tight by default: we compare optima)."""
 
-    max_iterations: int = 200
+    max_iter: int = 200
     function_tolerance: float = 1e-15
     gradient_tolerance: float = 1e-15
     parameter_tolerance: float = 1e-15
@@ -215,7 +215,7 @@ def ba_options(refine: dict, solver: SolverSettings):
     opts.refine_extra_params = bool(refine["extra"])
     opts.print_summary = False
     so = opts.ceres.solver_options
-    so.max_num_iterations = solver.max_iterations
+    so.max_num_iterations = solver.max_iter
     so.function_tolerance = solver.function_tolerance
     so.gradient_tolerance = solver.gradient_tolerance
     so.parameter_tolerance = solver.parameter_tolerance

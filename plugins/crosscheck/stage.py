@@ -11,7 +11,7 @@ an *equivalent* quantity exceeds its tolerance.  Formulas, conventions and limit
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import ClassVar, Literal
 
 import numpy as np
 
@@ -28,6 +28,7 @@ __all__ = ["PycolmapCrossCheck", "CrossCheckOptions"]
 
 @dataclass(frozen=True)
 class CrossCheckOptions:
+    RENAMED: ClassVar[dict[str, str]] = {"max_iterations": "max_iter"}
     start: Literal["initial", "perturbed"] = option(
         "initial", "pycolmap's start: 'initial' — the block's initial values (baarda's start); 'perturbed' — "
                    "baarda's solution with poses and free points disturbed by 'perturbation'")
@@ -48,7 +49,7 @@ class CrossCheckOptions:
     require_equivalent: bool = option(False, "fail when baarda's problem cannot be reproduced exactly in pycolmap "
                                              "(AP model, weights, datum)")
     covariance: bool = option(True, "estimate pycolmap's covariance of poses and camera parameters and compare")
-    max_iterations: int = option(200, "pycolmap (Ceres) iteration limit")
+    max_iter: int = option(200, "pycolmap (Ceres) iteration limit")
     num_threads: int = option(-1, "pycolmap (Ceres) threads; -1 = all cores")
     arrow_scale: float = option(0.0, "scale of the difference arrows in the recording; 0 = automatic (the largest "
                                      "arrow is 5 % of the object size)")
@@ -58,8 +59,8 @@ class CrossCheckOptions:
                   "perturbation", "arrow_scale"):
             if not getattr(self, k) >= 0:
                 raise ValueError(f"{k} must be >= 0")
-        if self.max_iterations < 1:
-            raise ValueError("max_iterations must be >= 1")
+        if self.max_iter < 1:
+            raise ValueError("max_iter must be >= 1")
 
     def tolerances(self) -> Tolerances:
         return Tolerances(points=self.tol_points, angles=self.tol_angles, residuals_px=self.tol_residuals_px,
@@ -104,7 +105,7 @@ class PycolmapCrossCheck(Stage):
             if not hasattr(result, attr):
                 raise InputError(f"the 'bundle' artefact is a {type(result).__name__}, not a bundle result "
                                  f"(no '{attr}')", path=ctx.project_file, field="bundle")
-        solver = SolverSettings(max_iterations=options.max_iterations, num_threads=options.num_threads,
+        solver = SolverSettings(max_iter=options.max_iter, num_threads=options.num_threads,
                                 covariance=options.covariance)
         ctx.progress.message("solving with pycolmap …")
         cc = crosscheck(result, start=options.start, rng=ctx.rng, perturbation=options.perturbation, solver=solver)

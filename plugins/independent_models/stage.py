@@ -8,7 +8,7 @@ adds options, tables, the report and the recording.
 from __future__ import annotations
 
 import dataclasses
-from typing import Literal
+from typing import ClassVar, Literal
 
 import numpy as np
 
@@ -26,6 +26,7 @@ from .workflow import IndependentModelResult, independent_model_block
 
 @dataclasses.dataclass(frozen=True)
 class IndependentModelsOptions:
+    RENAMED: ClassVar[dict[str, str]] = {"critical": "critical_w", "pc_sigma_factor": "sigma_pc_scale"}
     method: Literal["coplanarity", "collinearity"] = option(
         "coplanarity", "relative orientation: coplanarity condition (Gauss–Helmert) or collinearity "
                        "with the model points as unknowns (same optimum)")
@@ -48,12 +49,12 @@ class IndependentModelsOptions:
                       "(RMS of those, 'equal')")
     projection_centres: bool = option(True, "include the projection centres as model points (tie "
                                             "neighbouring models of a strip)")
-    pc_sigma_factor: float = option(1.0, "projection centres get the median model-point covariance "
+    sigma_pc_scale: float = option(1.0, "projection centres get the median model-point covariance "
                                          "times this factor squared")
     sigma0: float = option(1.0, "a-priori σ0 of the image covariances")
     alpha0: float = option(0.001, "significance level of the w-test (two-sided, per observation)")
     beta0: float = option(0.80, "power for the MDBs and the B-method")
-    critical: float | None = option(None, "critical value of the w-test (default Φ⁻¹(1 − α0/2) = 3.29 "
+    critical_w: float | None = option(None, "critical value of the w-test (default Φ⁻¹(1 − α0/2) = 3.29 "
                                           "for 0.1 %; 4.13 for Baarda's B-method)")
     ro_snooping: Literal["report", "iterated"] = option(
         "report", "y-parallax snooping per model: only report, or remove rejected points by iterated "
@@ -68,8 +69,8 @@ class IndependentModelsOptions:
     def __post_init__(self):
         if not (0.0 < self.alpha0 < 1.0 and 0.0 < self.beta0 < 1.0):
             raise ValueError("alpha0 and beta0 must lie between 0 and 1")
-        if not (self.sigma0 > 0 and self.pc_sigma_factor > 0):
-            raise ValueError("sigma0 and pc_sigma_factor must be positive")
+        if not (self.sigma0 > 0 and self.sigma_pc_scale > 0):
+            raise ValueError("sigma0 and sigma_pc_scale must be positive")
 
 
 class IndependentModels(Stage):
@@ -85,7 +86,7 @@ class IndependentModels(Stage):
         ids_removed: dict[str, list[str]] = {}
 
         def screen(ro):
-            res = iterated_data_snooping(ro, ro.snapshot, o.alpha0, o.beta0, o.critical)
+            res = iterated_data_snooping(ro, ro.snapshot, o.alpha0, o.beta0, o.critical_w)
             ids_removed[ro.name] = res.removed_labels
             return ro.rerun(res.active) if res.removed else ro
 
@@ -93,7 +94,7 @@ class IndependentModels(Stage):
             result = independent_model_block(
                 block, method=o.method, parameters=o.parameters, pairing=o.pairing,
                 strips=[list(s) for s in o.strips], model_weights=o.model_weights,
-                projection_centres=o.projection_centres, pc_sigma_factor=o.pc_sigma_factor,
+                projection_centres=o.projection_centres, sigma_pc_scale=o.sigma_pc_scale,
                 initial=o.initial, sigma0=o.sigma0, min_rcond=o.min_rcond,
                 screen_model=screen if o.ro_snooping == "iterated" else None,
                 skip_failed_models=o.skip_failed_models, progress=ctx.progress.track)
@@ -133,11 +134,11 @@ class IndependentModels(Stage):
 def _statistics(result: IndependentModelResult, o) -> dict:
     per_model = []
     for ro in result.relative:
-        ds = data_snooping(ro.snapshot, o.alpha0, o.beta0, o.critical)
+        ds = data_snooping(ro.snapshot, o.alpha0, o.beta0, o.critical_w)
         gt = global_test(ro.snapshot, alpha0=o.alpha0, beta0=o.beta0)
         per_model.append({"snooping": ds, "global": gt})
     blk = result.block
-    ds = data_snooping(blk.snapshot, o.alpha0, o.beta0, o.critical)
+    ds = data_snooping(blk.snapshot, o.alpha0, o.beta0, o.critical_w)
     gt = global_test(blk.snapshot, alpha0=o.alpha0, beta0=o.beta0)
     return {"models": per_model, "block": {"snooping": ds, "global": gt}}
 

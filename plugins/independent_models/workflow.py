@@ -96,7 +96,7 @@ def _auto_bx(block: Block, left: int, right: int, parameters: str) -> float | No
 
 def model_coordinates(ro: RelativeOrientation, model_id: str, photos: tuple[str, str], *,
                       weights: Literal["propagated", "intersection", "equal"] = "propagated",
-                      projection_centres: bool = True, pc_sigma_factor: float = 1.0,
+                      projection_centres: bool = True, sigma_pc_scale: float = 1.0,
                       pc_prefix: str = "pc:") -> ModelCoordinates:
     """A model for the block adjustment from a relative orientation.
 
@@ -111,7 +111,7 @@ def model_coordinates(ro: RelativeOrientation, model_id: str, photos: tuple[str,
       held fixed; a projection centre gets the median point covariance;
     * ``equal`` — one diagonal covariance per model, the RMS of the ``intersection`` sigmas per axis.
 
-    ``pc_sigma_factor`` scales the projection centres' sigmas.
+    ``sigma_pc_scale`` scales the projection centres' sigmas.
     """
     ok = ro.active & np.all(np.isfinite(ro.XYZ), axis=1) & ro.in_front
     sel = np.flatnonzero(ok)
@@ -130,7 +130,7 @@ def model_coordinates(ro: RelativeOrientation, model_id: str, photos: tuple[str,
     if projection_centres:
         ids += [pc_prefix + photos[0], pc_prefix + photos[1]]
         xyz = np.vstack([xyz, ro.X0_left, ro.X0_right])
-        cov = np.concatenate([cov, pc_cov * pc_sigma_factor ** 2])
+        cov = np.concatenate([cov, pc_cov * sigma_pc_scale ** 2])
         is_pc += [True, True]
     return ModelCoordinates(id=model_id, point_ids=np.array(ids), xyz=xyz, cov=cov,
                             is_pc=np.array(is_pc), photos=tuple(photos))
@@ -173,7 +173,7 @@ def independent_model_block(block: Block, *,
                             pairing: Literal["auto", "pairs", "consecutive"] = "auto",
                             strips: Sequence[Sequence[str]] = (),
                             model_weights: Literal["propagated", "intersection", "equal"] = "propagated",
-                            projection_centres: bool = True, pc_sigma_factor: float = 1.0,
+                            projection_centres: bool = True, sigma_pc_scale: float = 1.0,
                             initial: str = "auto", sigma0: float = 1.0, min_rcond: float = 1e-10,
                             screen_model: Callable[[RelativeOrientation], RelativeOrientation] | None = None,
                             skip_failed_models: bool = False, max_iter: int = 50,
@@ -187,7 +187,7 @@ def independent_model_block(block: Block, *,
         the photos' approximate exterior orientation when known (model ≈ object scale), else the
         mean x-parallax.
     pairing, strips : how models are formed (:func:`form_pairs`).
-    model_weights, projection_centres, pc_sigma_factor : see :func:`model_coordinates`.
+    model_weights, projection_centres, sigma_pc_scale : see :func:`model_coordinates`.
     sigma0 : a-priori σ0 of the image coordinates' covariance (``Observations.cov``).
     screen_model : optional ``f(ro) -> ro`` applied after each relative orientation (e.g. iterated
         data snooping of the y-parallaxes); points it deactivates are left out of the model.
@@ -234,9 +234,9 @@ def independent_model_block(block: Block, *,
         rel.append(ro)
         models.append(model_coordinates(ro, mid, (str(ph_ids[left]), str(ph_ids[right])),
                                         weights=model_weights, projection_centres=projection_centres,
-                                        pc_sigma_factor=pc_sigma_factor, pc_prefix=pc_prefix))
+                                        sigma_pc_scale=sigma_pc_scale, pc_prefix=pc_prefix))
     adj = adjust_model_block(models, block.points, sigma0=sigma0, max_iter=max_iter, pc_prefix=pc_prefix)
     opts = dict(method=method, parameters=parameters, pairing=pairing, model_weights=model_weights,
-                projection_centres=projection_centres, pc_sigma_factor=pc_sigma_factor, sigma0=sigma0)
+                projection_centres=projection_centres, sigma_pc_scale=sigma_pc_scale, sigma0=sigma0)
     return IndependentModelResult(pairs=out_pairs, relative=rel, models=models, block=adj,
                                   notes=notes, warnings=warnings, options=opts)

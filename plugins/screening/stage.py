@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Literal
+from typing import ClassVar, Literal
 
 import numpy as np
 
@@ -24,6 +24,8 @@ from .screen import FLAG_METHODS, PairScreening, ScreeningSettings, screen_pair
 
 @dataclasses.dataclass(frozen=True)
 class ScreeningOptions:
+    RENAMED: ClassVar[dict[str, str]] = {"deactivate": "action"}
+    RENAMED_VALUES: ClassVar[dict[str, dict[str, str]]] = {"on_too_few": {"fail": "error"}}
     sigma0_mm: float = option(
         0.2, "a-priori σ (mm) of one right-image coordinate about the Helmert transformation, "
              "including relief displacement the 2-D transformation cannot model (used by the "
@@ -40,10 +42,11 @@ class ScreeningOptions:
         ["pope", "threshold", "format", "swap"],
         "checks whose findings flag an observation: any of data-snooping, pope, threshold, format, "
         "swap (data snooping only makes sense when sigma0_mm is known)")
-    deactivate: bool = option(False, "mark flagged observations inactive in the output block "
-                                     "(default: flag only)")
-    on_too_few: Literal["fail", "skip"] = option(
-        "fail", "a pair with fewer than 3 common points: stop with an error, or skip the pair")
+    action: Literal["flag", "remove"] = option(
+        "flag", "what happens to flagged observations: 'flag' reports them, 'remove' also marks them "
+                "inactive in the output block")
+    on_too_few: Literal["error", "skip"] = option(
+        "error", "a pair with fewer than 3 common points: stop with an error, or skip the pair")
     arrow_scale: float = option(10.0, "scale of the residual arrows in the recording")
 
     def __post_init__(self):
@@ -130,7 +133,7 @@ class HelmertScreening:
                        f"only {len(ids)} common point(s): the 4-parameter transformation needs 2 to be "
                        "determined and 3 to be checked")
                 msg = f"pair {lid} {rid}: {why}; at least 3 common points are needed"
-                if options.on_too_few == "fail":
+                if options.on_too_few == "error":
                     path, line = pair_lines[k] if k < len(pair_lines) else (src, None)
                     raise InputError(msg, path, line, "pair")
                 skipped.append((lid, rid, msg))
@@ -147,7 +150,7 @@ class HelmertScreening:
 
         flagged_obs = artefact.flagged_observations()
         out_block = block
-        if options.deactivate and flagged_obs.size:
+        if options.action == "remove" and flagged_obs.size:
             active = obs.active.copy()
             active[flagged_obs] = False
             out_block = block.replace(observations=obs.replace(active=active))
@@ -277,7 +280,7 @@ def _summary(art: ScreeningArtefact, flagged_obs, block, options) -> dict:
                    (f" — most suspicious {', '.join(worst[:3])}" if worst else "")))
     return {"headline": headline, "pairs": pairs, "skipped": [list(x) for x in art.skipped],
             "flagged_observations": flagged_ids,
-            "deactivated": bool(options.deactivate and len(flagged_obs)), "flag_by": list(options.flag_by)}
+            "deactivated": bool(options.action == "remove" and len(flagged_obs)), "flag_by": list(options.flag_by)}
 
 
 def _report(art: ScreeningArtefact, block, options, flagged_obs) -> str:
@@ -323,7 +326,7 @@ def _report(art: ScreeningArtefact, block, options, flagged_obs) -> str:
     for lid, rid, why in art.skipped:
         out.append(f"- Skipped: {why}.")
     ids = block.observation_ids()
-    act = "marked inactive" if options.deactivate else "flagged only (option deactivate = false)"
+    act = "marked inactive" if options.action == "remove" else "flagged only (option action = \"flag\")"
     out.append(f"Flagged observations ({', '.join(options.flag_by)}): "
                f"{', '.join(f'{ph}/{pt}' for ph, pt in (ids[i] for i in flagged_obs)) or 'none'} — {act}.")
     return "\n".join(out)

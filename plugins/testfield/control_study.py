@@ -35,7 +35,9 @@ from baarda.pipeline.options import option
 from baarda.pipeline.report import markdown_table
 from baarda.pipeline.stage import Context, Stage, StageResult, TableData
 
-from baarda.pipeline.synthetic.testfield import CASES, TestFieldConfig, simulate_testfield
+from baarda.pipeline.synthetic.testfield import CASES, simulate_testfield
+
+from .study_config import ControlStudyConfig
 
 PAPER_TABLE2 = {  # case: (dof, sigma0 µm, Sx, Sy, Sxy, Sz) cm
     1: (34, 51.90, 0.3253, 0.0984, 0.2403, 4.6310), 2: (46, 47.78, 0.0768, 0.0334, 0.0592, 0.3110),
@@ -58,24 +60,6 @@ SELECTION_LABEL = {"correlation": "bundle", "weak-priors": "study"}
 # the study
 
 
-@dataclass(frozen=True)
-class StudyConfig:
-    """What the study simulates and adjusts (see :class:`ControlStudy` options)."""
-
-    repetitions: int = 20
-    sigma_image_um: float = 40.0
-    sigma_control_mm: float = 0.05
-    with_ap_errors: bool = True
-    systematic_scale: float = 1.0
-    ap_model: str = "ebner12"
-    calibrate_iop: bool = False
-    rho_max: float = 0.75
-    ap_alpha: float = 0.05
-    ap_selection: str = "bundle"
-    cases: tuple = CASES
-    single_model_case: int | None = 5
-
-
 def _check_rmse(res, block) -> np.ndarray:
     """(Sx, Sy, Sz) in m over the role-'check' points: adjusted minus surveyed."""
     m = block.points.role == "check"
@@ -83,7 +67,7 @@ def _check_rmse(res, block) -> np.ndarray:
     return np.array([c["Sx"], c["Sy"], c["Sz"]])
 
 
-def _run(block, with_aps: bool, cfg: StudyConfig):
+def _run(block, with_aps: bool, cfg: ControlStudyConfig):
     settings = BundleSettings(covariance=with_aps, tol_obs=1e-4, max_iter=50)
     if not with_aps:
         return adjust(block, settings), [], ""
@@ -92,7 +76,7 @@ def _run(block, with_aps: bool, cfg: StudyConfig):
     return sel.result, [k["parameter"] for k in sel.kept], SELECTION_LABEL[sel.method]
 
 
-def control_study(cfg: StudyConfig, seed: int, progress: Callable | None = None) -> dict:
+def control_study(cfg: ControlStudyConfig, seed: int, progress: Callable | None = None) -> dict:
     """Run the study; returns ``{"rows": [...], "tables": {...}, "conclusions": [...]}``.
 
     Each row: repetition, block ("block"/"single-model"), case, aps (bool), dof, sigma0_um,
@@ -105,11 +89,8 @@ def control_study(cfg: StudyConfig, seed: int, progress: Callable | None = None)
     for rep in range(cfg.repetitions):
         for kind, case in jobs:
             for with_aps in ((False, True) if kind == "block" else (True,)):
-                tf = TestFieldConfig(case=case, block=kind, with_ap_errors=cfg.with_ap_errors,
-                                     sigma_image_um=cfg.sigma_image_um, sigma_control_mm=cfg.sigma_control_mm,
-                                     ap_model=cfg.ap_model if with_aps else "none",
-                                     calibrate_iop=with_aps and cfg.calibrate_iop,
-                                     systematic_scale=cfg.systematic_scale)
+                tf = cfg.field(case, kind, ap_model=cfg.ap_model if with_aps else "none",
+                               calibrate_iop=with_aps and cfg.calibrate_iop)
                 block, _ = simulate_testfield(tf, np.random.default_rng([seed, rep]))
                 row = {"repetition": rep, "block": kind, "case": case, "aps": with_aps}
                 try:
@@ -214,7 +195,7 @@ def _verdict(keys) -> str:
     return "mixed" + (" (significant)" if any(s for s, b in zip(sig, better)) else "")
 
 
-def conclusions(rows, cfg: StudyConfig) -> list[dict]:
+def conclusions(rows, cfg: ControlStudyConfig) -> list[dict]:
     """The paper's statements (SPEC §2), each tested on the paired realisations."""
     blk = lambda c, aps=False: {"block": "block", "case": c, "aps": aps}
     out = []
@@ -292,7 +273,7 @@ class ControlStudy(Stage):
     Options = ControlStudyOptions
 
     def run(self, inputs, options: ControlStudyOptions, ctx: Context) -> StageResult:
-        cfg = StudyConfig(repetitions=options.repetitions, sigma_image_um=options.sigma_image_um,
+        cfg = ControlStudyConfig(repetitions=options.repetitions, sigma_image_um=options.sigma_image_um,
                           sigma_control_mm=options.sigma_control_mm, with_ap_errors=options.with_ap_errors,
                           systematic_scale=options.systematic_scale, ap_model=options.ap_model,
                           calibrate_iop=options.calibrate_iop, rho_max=options.rho_max, ap_alpha=options.ap_alpha,

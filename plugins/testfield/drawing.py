@@ -58,11 +58,11 @@ def _ideal_reduced(xy: np.ndarray, truth: Truth, iterations: int = 6) -> np.ndar
 def render_targets(block, truth: Truth, photo, pixel_mm: float, shape: tuple[int, int],
                    target_radius: float, rng: np.random.Generator | None = None, *,
                    supersample: int = 8, background: float = 20.0, foreground: float = 235.0,
-                   noise_sigma: float = 2.0) -> np.ndarray:
+                   sigma_noise: float = 2.0) -> np.ndarray:
     """Render ``photo`` (id or index) as a ``uint8`` image of ``shape = (H, W)`` pixels.
 
     ``pixel_mm`` is the pixel pitch (mm), ``target_radius`` the disk radius in object units.
-    With ``rng`` Gaussian grey-level noise of ``noise_sigma`` is added; without it the image is
+    With ``rng`` Gaussian grey-level noise of ``sigma_noise`` is added; without it the image is
     noise-free (deterministic).  ``block`` supplies nothing the truth does not already hold and
     may be ``None``; it is accepted so callers can pass the pair they have.
     """
@@ -102,6 +102,6 @@ def render_targets(block, truth: Truth, photo, pixel_mm: float, shape: tuple[int
         block_view = coverage[vs[0]:vs[-1] + 1, us[0]:us[-1] + 1]
         np.maximum(block_view, cov, out=block_view)
     img = background + (foreground - background) * coverage
-    if rng is not None and noise_sigma > 0:
-        img = img + rng.normal(0.0, noise_sigma, size=img.shape)
+    if rng is not None and sigma_noise > 0:
+        img = img + rng.normal(0.0, sigma_noise, size=img.shape)
     return np.clip(np.rint(img), 0, 255).astype(np.uint8)

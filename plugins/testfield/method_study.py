@@ -41,6 +41,7 @@ from baarda.pipeline.errors import AdjustmentError
 from baarda.pipeline.synthetic.testfield import (FOCAL_MM, SINGLE_MODEL_PHOTOS, STRIPS, TestFieldConfig,
                                         simulate_testfield)
 from baarda.plugins.testfield.control_study import PAPER_TABLE2, PAPER_TABLE3, PAPER_TABLE4
+from baarda.plugins.testfield.study_config import StudyConfig
 
 __all__ = ["MethodStudyConfig", "method_study", "run_realisation", "summarise", "compare",
            "field_geometry", "conclusions", "VARIANTS", "PAPER_TABLE4", "PAPER_TABLE5", "PAPER_PERCENT"]
@@ -81,17 +82,11 @@ PAPER_PERCENT = {
 
 
 @dataclass(frozen=True)
-class MethodStudyConfig:
-    """What the study simulates (see the ``method-study`` stage's options)."""
+class MethodStudyConfig(StudyConfig):
+    """The method study's part of the configuration (see the ``testfield-method-study`` stage's
+    options): one control case and the methods compared."""
 
-    repetitions: int = 20
     case: int = 5
-    sigma_image_um: float = 40.0
-    sigma_control_mm: float = 0.05
-    with_ap_errors: bool = True
-    systematic_scale: float = 1.0
-    rho_max: float = 0.75
-    ap_alpha: float = 0.05
     im_model_weights: str = "propagated"
     single_model: bool = True
     methods: tuple = VARIANTS
@@ -105,9 +100,7 @@ class MethodStudyConfig:
         return method in self.methods and (self.single_model or method not in (SINGLE_AP, SINGLE))
 
     def testfield(self, block: str = "block", ap_model: str = "none") -> TestFieldConfig:
-        return TestFieldConfig(case=self.case, block=block, with_ap_errors=self.with_ap_errors,
-                               sigma_image_um=self.sigma_image_um, sigma_control_mm=self.sigma_control_mm,
-                               ap_model=ap_model, systematic_scale=self.systematic_scale)
+        return self.field(self.case, block, ap_model)
 
 
 # --------------------------------------------------------------------------------------------

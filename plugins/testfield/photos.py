@@ -44,7 +44,7 @@ class RenderSettings:
     pixel_mm: float = 0.025
     target_radius: float = 0.005
     supersample: int = 8
-    noise_sigma: float = 2.0
+    sigma_noise: float = 2.0
     background: float = 20.0
     foreground: float = 235.0
 
@@ -55,8 +55,8 @@ class RenderSettings:
             raise ValueError(f"target_radius must be positive, got {self.target_radius}")
         if self.supersample < 1:
             raise ValueError(f"supersample must be at least 1, got {self.supersample}")
-        if self.noise_sigma < 0:
-            raise ValueError(f"noise_sigma must not be negative, got {self.noise_sigma}")
+        if self.sigma_noise < 0:
+            raise ValueError(f"sigma_noise must not be negative, got {self.sigma_noise}")
 
 
 def image_size(format_mm, pixel_mm: float) -> tuple[int, int]:
@@ -119,7 +119,7 @@ def render_photo(truth: Truth, photo, settings: RenderSettings, size: tuple[int,
     W, H = size
     return render_targets(None, truth, photo, settings.pixel_mm, (H, W), settings.target_radius, rng,
                           supersample=settings.supersample, background=settings.background,
-                          foreground=settings.foreground, noise_sigma=settings.noise_sigma)
+                          foreground=settings.foreground, sigma_noise=settings.sigma_noise)
 
 
 def layout_block(block: Block, pixel_mm: float, size: tuple[int, int]) -> Block:

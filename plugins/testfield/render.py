@@ -16,6 +16,8 @@ writes
 
 from __future__ import annotations
 
+from typing import Any, ClassVar
+
 import dataclasses
 import time
 from dataclasses import dataclass
@@ -40,7 +42,7 @@ SIMULATION_DEFAULTS = {"ap_model": "brown", "calibrate_iop": True}
 meant for self-calibration with the model of the simulator's systematic errors."""
 
 NOT_FOR_IMAGES = {
-    "sigma_image_um": "image noise is the rendered grey-level noise (noise_sigma) and the detector's own error",
+    "sigma_image_um": "image noise is the rendered grey-level noise (sigma_noise) and the detector's own error",
     "blunders": "gross errors of comparator observations do not exist in rendered images",
 }
 
@@ -70,7 +72,8 @@ class RenderedImages:
 
 @dataclass(frozen=True)
 class RenderOptions:
-    testfield: dict = option(
+    RENAMED: ClassVar[dict[str, str]] = {"noise_sigma": "sigma_noise"}
+    testfield: dict[str, Any] = option(
         {}, "options of the simulated test field, as the testfield stage takes them (case, block, with_ap_errors, "
             "sigma_control_mm, control_weighted, ap_model, calibrate_iop, seed, margin_mm, systematic_scale); "
             "here ap_model defaults to 'brown' and calibrate_iop to true. Not used when an earlier stage wrote a "
@@ -79,7 +82,7 @@ class RenderOptions:
                                     "117 × 83 mm format)")
     target_radius_mm: float = option(5.0, "radius of the circular targets on the object, mm")
     supersample: int = option(8, "samples per pixel side when rendering (8: 64 per pixel)")
-    noise_sigma: float = option(2.0, "grey-level noise σ (targets 235 on a background of 20); 0: noise-free")
+    sigma_noise: float = option(2.0, "grey-level noise σ (targets 235 on a background of 20); 0: noise-free")
     folder: str = option("", "folder for the PNG files, relative to the project file; empty: 'images' in the "
                              "run directory")
 
@@ -88,7 +91,7 @@ class RenderOptions:
         if bad:
             raise ValueError(f"testfield.{bad[0]} does not apply to rendered photos: {NOT_FOR_IMAGES[bad[0]]}")
         self.simulation()            # validates the table
-        RenderSettings(self.pixel_mm, self.target_radius_mm, self.supersample, self.noise_sigma)
+        RenderSettings(self.pixel_mm, self.target_radius_mm, self.supersample, self.sigma_noise)
 
     def simulation(self, seed: int | None = None):
         """The ``testfield`` stage's options for the simulation (``seed`` used when none is given)."""
@@ -121,12 +124,12 @@ class TestFieldRender(Stage):
             raise InputError(f"the simulated block has {len(block.cameras)} cameras; one is rendered",
                              path=ctx.project_file)
         settings = RenderSettings(options.pixel_mm, options.target_radius_mm / OBJECT_UNIT_MM[block.object_unit],
-                                  options.supersample, options.noise_sigma)
+                                  options.supersample, options.sigma_noise)
         size = image_size(block.cameras.format_mm[0], settings.pixel_mm)
         folder = self._folder(options, ctx)
         targets = true_targets(truth, settings.pixel_mm, size)
         partial = partial_targets(truth, targets, settings.target_radius, settings.pixel_mm, size)
-        rng = np.random.default_rng(noise_seed) if settings.noise_sigma > 0 else None
+        rng = np.random.default_rng(noise_seed) if settings.sigma_noise > 0 else None
         cam_id = str(block.cameras.ids[0])
 
         paths, shown, rows = [], [], []
@@ -151,7 +154,7 @@ class TestFieldRender(Stage):
         out = layout_block(block, settings.pixel_mm, size)
         meta = dict(out.meta)
         meta["render"] = {"pixel_mm": settings.pixel_mm, "size": list(size), "convention": "opencv",
-                          "target_radius": settings.target_radius, "noise_sigma": settings.noise_sigma,
+                          "target_radius": settings.target_radius, "sigma_noise": settings.sigma_noise,
                           "supersample": settings.supersample, "files": dict(zip(photo_ids, paths)),
                           "targets": images.targets, "partial": partial}
         out = out.replace(meta=meta)
@@ -163,7 +166,7 @@ class TestFieldRender(Stage):
             "format_mm": [size[0] * settings.pixel_mm, size[1] * settings.pixel_mm],
             "targets": len(rows), "targets_per_photo": {p: len(t) for p, t in targets.items()},
             "partial": sum(len(v) for v in partial.values()),
-            "target_radius_px": [float(radii.min()), float(radii.max())], "noise_sigma": settings.noise_sigma,
+            "target_radius_px": [float(radii.min()), float(radii.max())], "sigma_noise": settings.sigma_noise,
             "folder": str(folder), "render_seconds": round(seconds, 3),
             "block": out.summary(),
         }
@@ -318,7 +321,7 @@ def _report(s, folder, ctx, block, truth) -> str:
         f"`{where}/` in {s['render_seconds']:.1f} s: {s['targets']} target images (radius "
         f"{s['target_radius_px'][0]:.1f}–{s['target_radius_px'][1]:.1f} px"
         + (f"; {s['partial']} cut by the image border" if s["partial"] else "")
-        + f"), grey-level noise σ = {s['noise_sigma']:g}.",
+        + f"), grey-level noise σ = {s['sigma_noise']:g}.",
         "",
         f"True camera: c = {truth.c:.4f} mm, xp = {truth.xp:+.4f} mm, yp = {truth.yp:+.4f} mm; systematic errors "
         + ", ".join(f"{k} = {v:.3g}" for k, v in truth.distortion.items()) + " (brown parameters, mm units).",

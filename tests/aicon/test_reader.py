@@ -147,10 +147,10 @@ def test_prefix_forms(export_dir):
 
 
 def test_perturbation_is_seeded_and_leaves_input(block):
-    a = perturb_initial_values(block, np.random.default_rng(5), position_sigma=50.0, angle_sigma_deg=1.0,
-                               c_sigma=0.2, zero_distortion=True)
-    b = perturb_initial_values(block, np.random.default_rng(5), position_sigma=50.0, angle_sigma_deg=1.0,
-                               c_sigma=0.2, zero_distortion=True)
+    a = perturb_initial_values(block, np.random.default_rng(5), sigma_position=50.0, sigma_angle_deg=1.0,
+                               sigma_c=0.2, zero_distortion=True)
+    b = perturb_initial_values(block, np.random.default_rng(5), sigma_position=50.0, sigma_angle_deg=1.0,
+                               sigma_c=0.2, zero_distortion=True)
     np.testing.assert_array_equal(a.photos.X0, b.photos.X0)
     assert np.all(a.cameras.ap == 0) and np.any(block.cameras.ap != 0)
     d = a.photos.X0 - block.photos.X0

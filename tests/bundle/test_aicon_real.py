@@ -11,15 +11,15 @@ from baarda.pipeline.adjustment import BundleSettings, adjust
 def aicon(shared_data):
     from baarda.plugins.aicon.reader import aicon_block, read_aicon
 
-    return aicon_block(read_aicon(shared_data / "aicon-closerange" / "example"), image_sigma_um=0.5)
+    return aicon_block(read_aicon(shared_data / "aicon-closerange" / "example"), sigma_image_um=0.5)
 
 
 def test_aicon_converges_from_perturbed_start(aicon):
     from baarda.plugins.aicon.reader import perturb_initial_values
 
     ref = adjust(aicon, BundleSettings(datum="free"))
-    start = perturb_initial_values(aicon, np.random.default_rng(1), position_sigma=50.0, angle_sigma_deg=1.0,
-                                   c_sigma=0.2, zero_distortion=True)
+    start = perturb_initial_values(aicon, np.random.default_rng(1), sigma_position=50.0, sigma_angle_deg=1.0,
+                                   sigma_c=0.2, zero_distortion=True)
     res = adjust(start, BundleSettings(datum="free"))
     assert res.iterations <= 10
     # same minimum as from the exported values (the datum differs only by the inner constraints'
@@ -50,7 +50,7 @@ def test_aicon_weights_explain_the_data_snooping_count(shared_data):
 
     ex = read_aicon(shared_data / "aicon-closerange" / "example")
     out = {}
-    for name, blk in (("uniform", aicon_block(ex, image_sigma_um=0.41)), ("file", aicon_block(ex))):
+    for name, blk in (("uniform", aicon_block(ex, sigma_image_um=0.41)), ("file", aicon_block(ex))):
         res = adjust(blk, BundleSettings(datum="free"))
         if name == "file":      # the variance component of the file's σ, then adjust again
             s0 = res.sigma0_hat

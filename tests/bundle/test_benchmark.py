@@ -28,8 +28,8 @@ def test_benchmark_aicon(shared_data):
     from baarda.plugins.aicon.reader import aicon_block, perturb_initial_values, read_aicon
 
     blk = aicon_block(read_aicon(shared_data / "aicon-closerange" / "example"))
-    start = perturb_initial_values(blk, np.random.default_rng(1), position_sigma=50.0, angle_sigma_deg=1.0,
-                                   c_sigma=0.2, zero_distortion=True)
+    start = perturb_initial_values(blk, np.random.default_rng(1), sigma_position=50.0, sigma_angle_deg=1.0,
+                                   sigma_c=0.2, zero_distortion=True)
     t0 = time.perf_counter()
     res = adjust(start, BundleSettings(datum="free"))
     _print("AICON (free network, self-calibration, perturbed start)", res, time.perf_counter() - t0)

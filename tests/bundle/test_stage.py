@@ -167,15 +167,15 @@ def test_sigma_eo_and_image_sigma_scale_options():
     blk, _ = make_block(model="none", n_photos=4, n_points=20)
     ph = blk.photos
     blk = blk.replace(photos=ph.replace(X0=np.where(np.arange(4)[:, None] == 2, np.nan, ph.X0)))
-    o = parse_options(BundleOptions, {"sigma_eo": [0.01, 0.01, 0.02, 0.5, 0.5, 1.0], "image_sigma_scale": 2.0},
+    o = parse_options(BundleOptions, {"sigma_eo": [0.01, 0.01, 0.02, 0.5, 0.5, 1.0], "sigma_image_scale": 2.0},
                       path="<test>")
     out = configure_block(blk, o)
     se = out.photos.sigma_eo
     assert np.allclose(se[[0, 1, 3]], [0.01, 0.01, 0.02, np.pi / 360, np.pi / 360, np.pi / 180])
     assert np.isinf(se[2]).all()                       # no orientation given: stays free
     assert np.allclose(out.observations.cov, 4 * blk.observations.cov)
-    for bad in ({"sigma_eo": [0.01, 0.01]}, {"sigma_eo": [0.01] * 5 + [-1]}, {"image_sigma_scale": 0.0}):
-        with pytest.raises(Exception, match="sigma_eo|image_sigma_scale"):
+    for bad in ({"sigma_eo": [0.01, 0.01]}, {"sigma_eo": [0.01] * 5 + [-1]}, {"sigma_image_scale": 0.0}):
+        with pytest.raises(Exception, match="sigma_eo|sigma_image_scale"):
             parse_options(BundleOptions, bad, path="<test>")
 
 

@@ -115,7 +115,7 @@ def test_tolerance_warns_when_asked(tmp_path):
     assert res.summary["io_violations"][0]["photo"] == "2"
     assert any("fiducial C" in w for w in res.warnings)
     # a looser tolerance accepts it
-    res = run_text(tmp_path, bad, io_tolerance_um=100.0)
+    res = run_text(tmp_path, bad, tol_io_um=100.0)
     assert res.summary["io_violations"] == []
 
 

@@ -91,13 +91,13 @@ def test_io_tolerance_warning_is_shown_by_validate(tmp_path, capsys):
     fid = (ROOT / "fixtures" / "paper000" / "fiducial.cmp").read_text(encoding="utf-8")
     (tmp_path / "data1.cmp").write_text(fid, encoding="utf-8")
     (tmp_path / "p.toml").write_text(PROJECT.replace('path = "data1.cmp"',
-                                                     'path = "data1.cmp"\nio_tolerance_um = 0.1\n'
+                                                     'path = "data1.cmp"\ntol_io_um = 0.1\n'
                                                      'on_tolerance = "warn"'), encoding="utf-8")
     assert main(["validate", str(tmp_path / "p.toml")]) == 0
     err = capsys.readouterr().err
     assert err.startswith("warning [source] ") and "more than the tolerance of 0.1 µm" in err
     (tmp_path / "p.toml").write_text(PROJECT.replace('path = "data1.cmp"',
-                                                     'path = "data1.cmp"\nio_tolerance_um = 0.1'))
+                                                     'path = "data1.cmp"\ntol_io_um = 0.1'))
     assert main(["validate", str(tmp_path / "p.toml")]) == 2
     assert "misses the affine interior orientation" in capsys.readouterr().err
 

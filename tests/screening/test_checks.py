@@ -164,11 +164,11 @@ def test_skip_a_weak_pair(tmp_path):
     assert any("pair R Q" in w for w in res.warnings)
 
 
-def test_deactivate_and_adjustment_artefact(tmp_path):
+def test_action_remove_and_adjustment_artefact(tmp_path):
     fix = Path(__file__).resolve().parents[2] / "fixtures" / "paper000" / "printed.cmp"
     flag = screen_text(tmp_path, fix.read_text())
     assert flag.artefacts["block"].observations.active.all()
-    res = screen_text(tmp_path, fix.read_text(), deactivate=True)
+    res = screen_text(tmp_path, fix.read_text(), action="remove")
     block = res.artefacts["block"]
     ids = block.observation_ids()
     assert [ids[i] for i in np.flatnonzero(~block.observations.active)] == [("R", "9")]

@@ -67,7 +67,7 @@ def test_centroid_with_distortion_tilt_and_noise():
     """The true photo (small tilts, systematic errors) with grey-level noise: still within 0.05 px
     (perspective eccentricity and the distortion across a 7-px disk are far below that)."""
     block, truth = simulate_testfield(TestFieldConfig(), np.random.default_rng(0))
-    img = render_targets(block, truth, "22", PIXEL_MM, SHAPE, 0.004, np.random.default_rng(1), noise_sigma=1.0)
+    img = render_targets(block, truth, "22", PIXEL_MM, SHAPE, 0.004, np.random.default_rng(1), sigma_noise=1.0)
     centres = _inner(projected_targets(truth, "22", PIXEL_MM, SHAPE), 16)
     errs = np.array([_centroid(img, uv, 16) - uv for uv in centres.values()])
     assert len(errs) >= 8 and np.abs(errs).max() < 0.05, errs

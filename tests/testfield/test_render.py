@@ -138,7 +138,7 @@ def test_stale_files(tmp_path):
     ({"testfield": {"case": 9}}, "case must be one of"),
     ({"pixel_mm": 0.0}, "pixel_mm must be positive"),
     ({"supersample": 0}, "supersample must be at least 1"),
-    ({"noise_sigma": -1.0}, "noise_sigma must not be negative"),
+    ({"sigma_noise": -1.0}, "sigma_noise must not be negative"),
 ])
 def test_bad_options(opts, match, tmp_path):
     with pytest.raises(InputError, match=match):
