@@ -1,25 +1,8 @@
-"""Pixels ↔ mm, poses and camera models between computer-vision conventions and baarda's.
+"""Camera models between computer-vision conventions (OpenCV, COLMAP) and baarda's.
 
 Pure numerics (arrays in, arrays out); ``docs/colmap.md`` derives every formula here.
 
-Frames
-------
-COLMAP, OpenCV and libmv use a camera frame with x right, **y down, z forward** (a point in front
-of the camera has ``z > 0``) and ``p_cam = R · X + t``.  baarda's image-space frame has x right,
-**y up, z back** (``docs/conventions.md``).  The two differ by ``D = diag(1, −1, −1)``::
-
-    R_cam_from_world (baarda) = D · R_cam_from_world (COLMAP),   X0 = −R_colmapᵀ · t
-
-Pixels
-------
-``"opencv"``: pixel (0, 0) is the *centre* of the top-left pixel (OpenCV).  ``"colmap"``: (0, 0) is
-the top-left *corner* of the image, the centre of the top-left pixel is (0.5, 0.5) (COLMAP's
-documented convention; also Blender/libmv).  With pitch ``p`` (mm) and ``W × H`` pixels::
-
-    opencv:  x_mm = (u − (W − 1)/2) · p     y_mm = −(v − (H − 1)/2) · p
-    colmap:  x_mm = (u − W/2) · p           y_mm = −(v − H/2) · p
-
-Both put the origin at the centre of the format (``docs/conventions.md``, *Pixels ↔ mm*).
+Pixels ↔ mm: :mod:`baarda.pipeline.geometry.image`; poses: :mod:`baarda.pipeline.geometry.pose`.
 
 Distortion
 ----------
