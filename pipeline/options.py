@@ -33,17 +33,19 @@ REQUIRED = dataclasses.MISSING
 """Use as ``option(REQUIRED, "doc")`` for an option the project must give."""
 
 
-def option(default: Any, doc: str, **kw) -> Any:
+def option(default: Any, doc: str, *, key: str | None = None, **kw) -> Any:
     """A documented option field: ``x: float = option(1.0, "what x does")``.
 
     ``option(REQUIRED, doc)`` declares a required option (it must come before optional ones in
-    the dataclass, or the dataclass needs ``kw_only=True``).
+    the dataclass, or the dataclass needs ``kw_only=True``).  ``key`` is the name in the project
+    file when it cannot be the field's (a Python keyword: ``from_ = option(..., key="from")``).
     """
+    meta = {"doc": doc} if key is None else {"doc": doc, "key": key}
     if default is dataclasses.MISSING:
-        return dataclasses.field(metadata={"doc": doc}, **kw)
+        return dataclasses.field(metadata=meta, **kw)
     if isinstance(default, (list, dict, set)):
-        return dataclasses.field(default_factory=lambda: type(default)(default), metadata={"doc": doc}, **kw)
-    return dataclasses.field(default=default, metadata={"doc": doc}, **kw)
+        return dataclasses.field(default_factory=lambda: type(default)(default), metadata=meta, **kw)
+    return dataclasses.field(default=default, metadata=meta, **kw)
 
 
 def describe(options_cls: type) -> list[dict]:
@@ -54,7 +56,7 @@ def describe(options_cls: type) -> list[dict]:
         required = f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
         default = f.default if f.default is not dataclasses.MISSING else (
             f.default_factory() if f.default_factory is not dataclasses.MISSING else None)
-        out.append({"name": f.name, "type": _type_name(hints[f.name]), "default": default,
+        out.append({"name": f.metadata.get("key", f.name), "type": _type_name(hints[f.name]), "default": default,
                     "required": required, "doc": f.metadata.get("doc", "")})
     return out
 
@@ -72,7 +74,7 @@ def _type_name(tp) -> str:
         args = get_args(tp)
         return f"table[{_type_name(args[0])} → {_type_name(args[1])}]" if len(args) == 2 else "table"
     if dataclasses.is_dataclass(tp):
-        return f"table ({', '.join(f.name for f in dataclasses.fields(tp))})"
+        return f"table ({', '.join(f.metadata.get('key', f.name) for f in dataclasses.fields(tp))})"
     return getattr(tp, "__name__", str(tp))
 
 
@@ -151,7 +153,7 @@ def parse_options(options_cls: type, raw: dict | None, *, path=None, line=None,
     """
     raw = dict(raw or {})
     hints = typing.get_type_hints(options_cls)
-    fields = {f.name: f for f in dataclasses.fields(options_cls)}
+    fields = {f.metadata.get("key", f.name): f for f in dataclasses.fields(options_cls)}
 
     def where(key):
         ln = locate(key) if locate else None
@@ -176,8 +178,8 @@ def parse_options(options_cls: type, raw: dict | None, *, path=None, line=None,
         if isinstance(value, str) and value in moved:
             raise InputError(f"option '{prefix}{key}': the value {value!r} is now {moved[value]!r}",
                              field=prefix + key, **where(key))
-        values[key] = _coerce(value, hints[key], prefix + key, where(key))
-    missing = [n for n, f in fields.items() if n not in values
+        values[fields[key].name] = _coerce(value, hints[fields[key].name], prefix + key, where(key))
+    missing = [n for n, f in fields.items() if f.name not in values
                and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING]
     if missing:
         raise InputError(f"required option '{prefix}{missing[0]}' is missing", field=prefix + missing[0],
@@ -191,7 +193,7 @@ def parse_options(options_cls: type, raw: dict | None, *, path=None, line=None,
 def to_plain(obj: Any) -> Any:
     """Options (or anything) as JSON/TOML-friendly plain values."""
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
-        return {f.name: to_plain(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+        return {f.metadata.get("key", f.name): to_plain(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
     if isinstance(obj, Path):
         return str(obj)
     if isinstance(obj, (list, tuple)):

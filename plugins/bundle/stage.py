@@ -16,7 +16,7 @@ from scipy import stats as sps
 
 from baarda.pipeline.errors import AdjustmentError, InputError
 from baarda.pipeline.model import Block
-from baarda.pipeline.options import option
+from baarda.pipeline.options import REQUIRED, option
 from baarda.pipeline.report import write_table
 from baarda.pipeline.stage import Context, StageResult, TableData
 from baarda.pipeline import stats
@@ -26,6 +26,20 @@ from baarda.pipeline.adjustment import (EO_NAMES, BundleResult, BundleSettings, 
                                         result_of, select_aps)
 from baarda.pipeline.camera import ap_model_names, get_ap_model
 
+
+
+@dataclasses.dataclass(frozen=True)
+class ScaleBarOptions:
+    """One scale bar: a measured distance between two object points."""
+
+    from_: str | int = option(REQUIRED, "id of the point at one end", key="from")
+    to: str | int = option(REQUIRED, "id of the point at the other end")
+    distance: float = option(REQUIRED, "measured distance (object units)")
+    sigma: float = option(REQUIRED, "its standard deviation (object units)")
+
+    def __post_init__(self):
+        if not (self.sigma > 0 and self.distance > 0):
+            raise ValueError(f"a scale bar needs a positive distance and sigma, got {self.distance}, {self.sigma}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,7 +66,7 @@ class BundleOptions:
         [], "weighted constraints on the given exterior orientations: a-priori σ [X0, Y0, Z0 (object units), "
             "ω, φ, κ (degrees)] for every photo whose orientation the block gives (0 fixes, inf frees); "
             "empty: as in the block")
-    distances: list[dict] = option(
+    distances: list[ScaleBarOptions] = option(
         [], "extra scale bars: tables {from, to, distance, sigma} (object units); block scale bars are used too")
     sigma0: float = option(1.0, "a-priori standard deviation of unit weight")
     sigma_image_scale: float = option(
@@ -111,10 +125,6 @@ class BundleOptions:
                              f"got {self.sigma_eo!r}")
         if not self.sigma_image_scale > 0:
             raise ValueError("sigma_image_scale must be positive")
-        for d in self.distances:
-            missing = {"from", "to", "distance", "sigma"} - set(d)
-            if missing:
-                raise ValueError(f"distances: each entry needs from, to, distance, sigma (missing {sorted(missing)})")
 
 
 def configure_block(block: Block, o: BundleOptions) -> Block:
@@ -183,8 +193,7 @@ def settings_from(o: BundleOptions, block: Block) -> BundleSettings:
     return BundleSettings(
         datum=o.datum, datum_points=tuple(o.datum_points) or None, datum_centres=o.datum_on == "centres",
         sigma0=o.sigma0, max_iter=o.max_iter, tol_obs=o.tol_obs, tol_rel=o.tol_rel, damping=o.damping,
-        distances=tuple(Distance(str(d["from"]), str(d["to"]), float(d["distance"]), float(d["sigma"]))
-                        for d in o.distances),
+        distances=tuple(Distance(str(d.from_), str(d.to), d.distance, d.sigma) for d in o.distances),
         on_weak=o.on_weak, ap_meta=ap_meta, covariance=o.covariance)
 
 

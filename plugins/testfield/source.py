@@ -14,7 +14,7 @@ import numpy as np
 
 from baarda.pipeline.errors import InputError
 from baarda.pipeline.geometry import rotation_from_opk_many
-from baarda.pipeline.options import option
+from baarda.pipeline.options import REQUIRED, option
 from baarda.pipeline.report import markdown_table
 from baarda.pipeline.recording import role_colors
 from baarda.pipeline.stage import Context, Stage, StageResult, TableData
@@ -22,6 +22,16 @@ from baarda.pipeline.stage import Context, Stage, StageResult, TableData
 from baarda.pipeline.synthetic.testfield import (CONTROL_CASES, TestFieldConfig, constraint_count, control_configuration,
                        degrees_of_freedom, simulate_testfield)
 
+
+
+@dataclasses.dataclass(frozen=True)
+class BlunderOptions:
+    """A gross error added to one simulated image observation."""
+
+    photo: str | int = option(REQUIRED, "photo id")
+    point: str | int = option(REQUIRED, "point id")
+    dx: float = option(0.0, "error added to x (mm)")
+    dy: float = option(0.0, "error added to y (mm)")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -44,8 +54,8 @@ class TestFieldOptions:
     calibrate_iop: bool = option(False, "c, xp, yp free in the adjustment (true) or fixed at the "
                                         "calibrated values")
     seed: int | None = option(None, "seed of the noise; default: the project's seed for this stage")
-    blunders: list[dict] = option([], "gross errors added to image observations: a list of tables "
-                                      "{photo, point, dx, dy} (mm)")
+    blunders: list[BlunderOptions] = option([], "gross errors added to image observations: a list of tables "
+                                                "{photo, point, dx, dy} (mm)")
     margin_mm: float = option(2.0, "a target is measured when its image lies this far inside the format")
     systematic_scale: float = option(1.0, "multiply the systematic image errors by this factor")
 
@@ -60,18 +70,11 @@ def simulate_field(options: TestFieldOptions, rng: np.random.Generator, project_
     """``(block, truth)`` of the test field the options describe (the ``testfield`` stage's work,
     also the ``testfield-render`` stage's when it has no input block).  Mistakes in the options
     are :class:`InputError` naming ``project_file``."""
-    for k, b in enumerate(options.blunders):
-        missing = {"photo", "point"} - set(b)
-        extra = set(b) - {"photo", "point", "dx", "dy"}
-        if missing or extra:
-            raise InputError(f"blunder {k + 1}: needs keys photo, point, dx, dy (mm); "
-                             f"{'missing ' + ', '.join(sorted(missing)) if missing else 'unknown ' + ', '.join(sorted(extra))}",
-                             path=project_file, field="blunders")
     config = TestFieldConfig(
         case=options.case, block=options.block, with_ap_errors=options.with_ap_errors,
         sigma_image_um=options.sigma_image_um, sigma_control_mm=options.sigma_control_mm,
         control_weighted=options.control_weighted, ap_model=options.ap_model,
-        calibrate_iop=options.calibrate_iop, blunders=tuple(options.blunders),
+        calibrate_iop=options.calibrate_iop, blunders=tuple(dataclasses.asdict(b) for b in options.blunders),
         margin_mm=options.margin_mm, systematic_scale=options.systematic_scale)
     try:
         return simulate_testfield(config, rng)

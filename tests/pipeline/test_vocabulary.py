@@ -89,6 +89,23 @@ def test_typed_nested_tables(tmp_path, installed):
     assert "sigma.K9: not a parameter" in msg and "did you mean 'K" in msg
     msg = _load(tmp_path, installed, "bundle", "ap_models = { cam = 3 }")
     assert "ap_models.cam" in msg and "expected a string" in msg
+    msg = _load(tmp_path, installed, "bundle", 'distances = [{ from = "A", to = "B", distance = 1.0 }]')
+    assert "distances.sigma" in msg and "missing" in msg
+    msg = _load(tmp_path, installed, "bundle", 'distances = [{ from = "A", to = "B", distance = -1.0, sigma = 0.1 }]')
+    assert "positive distance" in msg
+
+
+def test_a_typed_table_with_a_keyword_key(tmp_path, installed):
+    """The scale bar's ``from`` (a Python keyword) is the field ``from_``; the project says ``from``."""
+    p = tmp_path / "p.toml"
+    p.write_text('[project]\nname = "t"\n\n[[stage]]\nuse = "testfield"\n\n[[stage]]\nuse = "bundle"\n'
+                 '[stage.options]\ndistances = [{ from = "1", to = "2", distance = 1.5, sigma = 0.001 }]\n',
+                 encoding="utf-8")
+    project = load_project(p, installed)
+    bar = project.stages[1].options.distances[0]
+    assert (bar.from_, bar.to, bar.distance, bar.sigma) == ("1", "2", 1.5, 0.001)
+    types = {d["name"]: d["type"] for d in describe(type(project.stages[1].options))}
+    assert types["distances"] == "list[table (from, to, distance, sigma)]"
 
 
 def test_the_mechanism_on_a_class_of_ones_own():

@@ -47,6 +47,6 @@ def test_bad_options(tmp_path):
     assert e.value.field == "blunders" and "does not observe" in e.value.message
     with pytest.raises(InputError) as e:
         run_stage(TestFieldSource, {}, {"blunders": [{"photo": "11", "dx": 0.1}]}, tmp_path=tmp_path)
-    assert e.value.field == "blunders" and "point" in e.value.message
+    assert e.value.field == "blunders.point" and "missing" in e.value.message
     with pytest.raises(InputError):
         run_stage(TestFieldSource, {}, {"sigma_image_um": -1.0}, tmp_path=tmp_path)
