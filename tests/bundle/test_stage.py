@@ -58,7 +58,7 @@ def test_joint_2d_test_per_image_point_against_closed_form(tmp_path):
     matrix of finite-difference Jacobians; with P block-diagonal per point this is Förstner's
     (Pv)ᵀ(PQvvP)⁻¹(Pv)); the critical value is χ²(1 − α; 2) = −2 ln α; a point displaced in x and y
     is flagged and the report counts it."""
-    from .test_precision import _dense_reference
+    from adjustment.test_precision import _dense_reference
 
     blk, _ = make_block(model="none", n_photos=5, n_points=14, noise_mm=0.0, n_control=5)
     blk = with_correlated_noise(blk, np.random.default_rng(11), sigma=(0.8e-3, 1.5e-3), rho=0.6)

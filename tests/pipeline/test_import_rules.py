@@ -166,3 +166,14 @@ def test_the_allow_list_is_small_and_used():
             if len(parts) >= 2 and mp[:2] == ["baarda", "plugins"] and len(mp) >= 3 and mp[2] != parts[0]:
                 used.add((parts[0], mp[2]))
     assert set(ALLOWED_PLUGIN_EDGES) <= used, f"unused allow-list entries: {set(ALLOWED_PLUGIN_EDGES) - used}"
+
+
+def test_plugins_do_not_reach_into_the_adjustment_problem():
+    """A bundle result's ``problem`` (the core's index bookkeeping) is the core's own: plugins use
+    the result's public fields and properties instead."""
+    bad = []
+    for p in _files("plugins"):
+        for node in ast.walk(ast.parse(p.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Attribute) and node.attr == "problem":
+                bad.append(f"{_where(p, node.lineno)}: .problem")
+    assert not bad, "\n".join(bad)
