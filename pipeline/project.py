@@ -114,7 +114,16 @@ def load_project(path: str | Path, plugins: PluginManager) -> Project:
     path = Path(path)
     if not path.is_file():
         raise InputError("project file not found" if not path.exists() else "not a file", path=path)
-    text = path.read_text(encoding="utf-8")
+    try:
+        raw_bytes = path.read_bytes()
+    except OSError as e:
+        raise InputError(f"cannot read the project file: {e.strerror or e}", path=path) from None
+    try:
+        text = raw_bytes.decode("utf-8")
+    except UnicodeDecodeError as e:
+        line = raw_bytes[:e.start].count(b"\n") + 1
+        raise InputError(f"not a UTF-8 text file (byte offset {e.start}); a project file is TOML text",
+                         path=path, line=line) from None
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
@@ -155,7 +164,11 @@ def load_project(path: str | Path, plugins: PluginManager) -> Project:
         if bad:
             raise InputError(f"unknown key '{bad[0]}' in [[stage]] (known: {', '.join(sorted(STAGE_KEYS))})",
                              path=path, line=loc.key(k, bad[0]), field=bad[0])
-        if st.get("enabled", True) is False:
+        enabled = st.get("enabled", True)
+        if not isinstance(enabled, bool):
+            raise InputError(f"enabled must be true or false, got a {type(enabled).__name__}", path=path,
+                             line=loc.key(k, "enabled"), field="enabled")
+        if not enabled:
             continue
         use = st.get("use")
         if not isinstance(use, str) or not use:
@@ -179,6 +192,10 @@ def load_project(path: str | Path, plugins: PluginManager) -> Project:
             raise InputError("options must be a table ([stage.options])", path=path, line=line, field="options")
         options = parse_options(info.cls.Options, raw, path=path, line=line,
                                 locate=lambda key, k=k: loc.key(k, key))
+        for name, role in path_roles(info.cls).items():
+            problem = output_problem(getattr(options, name)) if role == "output" else None
+            if problem:
+                raise InputError(problem, path=path, line=loc.key(k, name), field=name)
         for name in info.cls.reads:
             if name.endswith("?"):
                 continue
@@ -220,6 +237,24 @@ def path_roles(cls: type) -> dict[str, str]:
                              f"{', '.join(PATH_ROLES)}, got {role!r}")
         roles[name] = role
     return roles
+
+
+def output_problem(value: Any) -> str | None:
+    """Why an output path may not be used (None when it is fine): outputs are written inside the
+    run directory, so the path must be relative and must not climb out of it."""
+    text = str(value or "")
+    if not text:
+        return None
+    p = Path(text)
+    if p.is_absolute() or text.startswith("~"):
+        return (f"an output path must be relative to the run directory (everything a run writes stays "
+                f"inside it); got an absolute path")
+    depth = 0
+    for part in p.parts:
+        depth += -1 if part == ".." else (0 if part == "." else 1)
+        if depth < 0:
+            return "an output path must stay inside the run directory; this one climbs out of it with '..'"
+    return None
 
 
 def _missing(value: Any, role: str, base: Path) -> str | None:

@@ -4,12 +4,16 @@ The run directory holds
 
 * ``project.resolved.toml`` — the project with every option's default filled in;
 * ``report.md`` — one section per stage (rewritten after each stage);
-* ``results.json`` — a machine-readable summary per stage (rewritten after each stage);
 * ``<stage>_<table>.csv`` — the stage's tables; ``<stage>_<figure>.png`` — its figures;
-* ``<stage>.rrd`` — the stage's rerun recording; all share the run's recording id.
+* ``<stage>.rrd`` — the stage's rerun recording; all share the run's recording id;
+* ``results.json`` — a machine-readable summary per stage and the list of every file of the run,
+  written last.
 
-A stage that fails leaves the files of the stages before it intact; the run stops and
-:func:`run_project` returns a :class:`RunOutcome` with ``ok = False`` and the message.
+The run is written into a staging directory and moved into place when it ends
+(:mod:`baarda.pipeline.rundir`): a failed re-run never touches the previous complete run.  A stage
+that fails leaves the files of the stages before it intact; the run stops and :func:`run_project`
+returns a :class:`RunOutcome` with ``ok = False``, the message and the kind of failure
+(``"input"``, ``"adjustment"``, ``"internal"`` or ``"interrupted"``).
 """
 
 from __future__ import annotations
@@ -24,14 +28,13 @@ from pathlib import Path
 from typing import Any
 
 from . import __version__
-from .errors import BaardaError, InputError
+from .errors import AdjustmentError, BaardaError, InputError
 from .plugins import PluginManager
 from .project import Project, load_project, stage_context
 from .recording import log_text, log_values, new_recording_id, open_recording
 from .report import jsonable, write_json, write_table, write_toml
+from .rundir import RUN_MARKER, close_run, list_files, open_run
 from .stage import EarlierStage, Progress, StageResult
-
-RUN_MARKER = "results.json"
 
 
 @dataclass
@@ -56,6 +59,12 @@ class RunOutcome:
     stages: list[StageRecord]
     message: str = ""
     artefacts: dict[str, Any] = field(default_factory=dict)
+    failure: str = ""
+    """Why the run failed: ``"input"`` (a mistake in an input file or option), ``"adjustment"`` (an
+    adjustment that cannot be solved), ``"internal"`` (a bug; traceback in ``<stage>.error.txt``),
+    ``"interrupted"``; empty when ok."""
+    kept: Path | None = None
+    """A complete earlier run left untouched at the requested directory when this run failed."""
 
 
 def default_run_dir(project_path: Path) -> Path:
@@ -63,104 +72,134 @@ def default_run_dir(project_path: Path) -> Path:
     return Path("runs") / f"{project_path.stem}-{stamp}"
 
 
-def prepare_run_dir(run_dir: Path) -> None:
-    """Create ``run_dir``; an earlier baarda run there is replaced, anything else is refused."""
-    if run_dir.exists():
-        if not run_dir.is_dir():
-            raise InputError("run directory exists and is not a directory", path=run_dir)
-        entries = list(run_dir.iterdir())
-        if entries and not (run_dir / RUN_MARKER).exists():
-            raise InputError("refusing to write into a non-empty directory that is not a baarda run "
-                             "directory; choose another --out", path=run_dir)
-        for p in entries:
-            if p.is_file() and p.suffix in {".csv", ".rrd", ".png", ".json", ".md", ".toml", ".txt"}:
-                p.unlink()
-    run_dir.mkdir(parents=True, exist_ok=True)
-
-
 def run_project(project_path: str | Path, out: str | Path | None = None, *,
                 plugins: PluginManager | None = None, verbose: bool = True,
                 stream=None) -> RunOutcome:
-    """Load, validate and run a project; write the run directory. Raises InputError for a bad project."""
+    """Load, validate and run a project; write the run directory. Raises InputError for a bad
+    project (nothing is written then) and re-raises KeyboardInterrupt after keeping what was done."""
     stream = stream or sys.stderr
     plugins = plugins or PluginManager()
     project = load_project(project_path, plugins)
-    run_dir = Path(out) if out is not None else default_run_dir(Path(project_path))
-    prepare_run_dir(run_dir)
+    run = open_run(Path(out) if out is not None else default_run_dir(Path(project_path)))
+    run_dir = run.staging
     recording_id = new_recording_id()
     started = _dt.datetime.now().isoformat(timespec="seconds")
-    write_toml(run_dir / "project.resolved.toml", jsonable(project.resolved()))
-
     records = [StageRecord(s.id, s.use, s.package) for s in project.stages]
     store: dict[str, Any] = {}
-    produced_by: dict[str, str] = {}
     previous: list[EarlierStage] = []
-    ok, message = True, ""
-
-    def flush():
-        _write_results(run_dir, project, records, recording_id, started)
-        _write_report(run_dir, project, records, recording_id, started)
-
-    n = len(project.stages)
-    for k, (spec, rec) in enumerate(zip(project.stages, records)):
-        if verbose:
-            print(f"[{k + 1}/{n}] {spec.id} ({spec.use}) …", file=stream, flush=True)
-        ctx = stage_context(project, spec, run_dir=run_dir, previous=list(previous),
-                            progress=Progress(spec.id, stream=stream, enabled=verbose))
-        inputs = {}
-        for name in spec.cls.reads:
-            key = name.rstrip("?")
-            if key in store:
-                inputs[key] = store[key]
-        t0 = time.perf_counter()
-        try:
-            stage = spec.cls()
-            result = stage.run(inputs, spec.options, ctx)
-            if not isinstance(result, StageResult):
-                raise TypeError(f"run() returned {type(result).__name__}, not StageResult")
-            missing = [w for w in spec.cls.writes if w.rstrip("?") not in result.artefacts and not w.endswith("?")]
-            if missing:
-                raise TypeError(f"stage did not produce the artefact(s) it declares: {', '.join(missing)}")
-        except BaardaError as e:
-            rec.status, rec.error = "failed", str(e)
-        except Exception as e:  # a bug in a stage: keep the traceback in the run directory
-            tb = traceback.format_exc()
-            (run_dir / f"{spec.id}.error.txt").write_text(tb, encoding="utf-8")
-            rec.status = "failed"
-            rec.error = f"{type(e).__name__}: {e} (traceback in {spec.id}.error.txt)"
-        rec.seconds = time.perf_counter() - t0
-        rec.warnings = list(ctx.warnings)
-        if rec.status == "failed":
-            ok, message = False, f"stage '{spec.id}' ({spec.use}) failed: {rec.error}"
-            rec.report = f"**Failed:** {rec.error}"
-            _record_failure(run_dir, spec.id, rec, recording_id)
-            flush()
+    ok, message, failure = True, "", ""
+    interrupted = False
+    try:
+        write_toml(run_dir / "project.resolved.toml", jsonable(project.resolved()))
+        n = len(project.stages)
+        for k, (spec, rec) in enumerate(zip(project.stages, records)):
             if verbose:
-                print(f"      failed after {rec.seconds:.2f} s", file=stream, flush=True)
-            break
-        for name, value in result.artefacts.items():
-            store[name] = value
-            produced_by[name] = spec.id
-        rec.status, rec.summary, rec.report = "ok", jsonable(result.summary), result.report
-        previous.append(EarlierStage(spec.id, spec.use, result))
-        for name, table in result.tables.items():
-            fname = f"{spec.id}_{name}.csv"
-            write_table(run_dir / fname, table)
-            rec.files.append(fname)
-        for name, png in result.figures.items():
-            fname = f"{spec.id}_{name}.png"
-            (run_dir / fname).write_bytes(png)
-            rec.files.append(fname)
-        try:
-            _write_recording(run_dir, spec, stage, result, ctx, rec, recording_id)
-        except Exception as e:  # a broken log() must not lose the numbers
-            tb = traceback.format_exc()
-            (run_dir / f"{spec.id}.error.txt").write_text(tb, encoding="utf-8")
-            rec.warnings.append(f"recording incomplete: {type(e).__name__}: {e}")
-        flush()
-        if verbose:
-            print(f"      done in {rec.seconds:.2f} s", file=stream, flush=True)
-    return RunOutcome(ok=ok, run_dir=run_dir, project=project, stages=records, message=message, artefacts=store)
+                print(f"[{k + 1}/{n}] {spec.id} ({spec.use}) …", file=stream, flush=True)
+            ctx = stage_context(project, spec, run_dir=run_dir, previous=list(previous),
+                                progress=Progress(spec.id, stream=stream, enabled=verbose))
+            inputs = {name.rstrip("?"): store[name.rstrip("?")] for name in spec.cls.reads
+                      if name.rstrip("?") in store}
+            t0 = time.perf_counter()
+            result, stage = None, None
+            try:
+                stage = spec.cls()
+                result = stage.run(inputs, spec.options, ctx)
+                if not isinstance(result, StageResult):
+                    raise TypeError(f"run() returned {type(result).__name__}, not StageResult")
+                missing = [w for w in spec.cls.writes
+                           if w.rstrip("?") not in result.artefacts and not w.endswith("?")]
+                if missing:
+                    raise TypeError(f"stage did not produce the artefact(s) it declares: {', '.join(missing)}")
+            except KeyboardInterrupt:
+                rec.status, rec.error, failure = "interrupted", "interrupted by the user", "interrupted"
+                interrupted = True
+            except BaardaError as e:
+                rec.status, rec.error = "failed", str(e)
+                failure = "adjustment" if isinstance(e, AdjustmentError) else "input"
+            except MemoryError:
+                rec.status, failure = "failed", "input"
+                rec.error = "out of memory (the input is larger than this machine can hold, or claims to be)"
+            except Exception as e:  # a bug in a stage: keep the traceback in the run directory
+                (run_dir / f"{spec.id}.error.txt").write_text(traceback.format_exc(), encoding="utf-8")
+                rec.status, failure = "failed", "internal"
+                rec.error = (f"internal error {type(e).__name__}: {_first_line(e)} (a bug in stage "
+                             f"'{spec.id}'; traceback in {spec.id}.error.txt)")
+            rec.seconds = time.perf_counter() - t0
+            rec.warnings = list(ctx.warnings)
+            if rec.status != "pending":
+                ok = False
+                message = f"stage '{spec.id}' ({spec.use}) {rec.status}: {rec.error}"
+                rec.report = f"**{rec.status.capitalize()}:** {rec.error}"
+                _record_failure(run_dir, spec.id, rec, recording_id)
+                _write_report(run_dir, project, records, recording_id, started, shown=run.target)
+                if verbose:
+                    print(f"      {rec.status} after {rec.seconds:.2f} s", file=stream, flush=True)
+                break
+            store.update(result.artefacts)
+            rec.status, rec.summary, rec.report = "ok", jsonable(result.summary), result.report
+            previous.append(EarlierStage(spec.id, spec.use, result))
+            _write_outputs(run_dir, spec, stage, result, ctx, rec, recording_id)
+            _write_report(run_dir, project, records, recording_id, started, shown=run.target)
+            if verbose:
+                print(f"      done in {rec.seconds:.2f} s", file=stream, flush=True)
+    except KeyboardInterrupt:       # between stages, while writing
+        ok, failure, interrupted = False, "interrupted", True
+        message = message or "interrupted by the user"
+    final = _finish(run, project, records, recording_id, started, ok)
+    if final != run.target and ok:
+        message = f"the run is complete but could not be moved into place; it is in {final}"
+    outcome = RunOutcome(ok=ok, run_dir=final, project=project, stages=records, message=_moved(message, run, final),
+                         artefacts=store, failure=failure,
+                         kept=run.target if (not ok and final != run.target and run.previous == "complete") else None)
+    if interrupted:
+        raise RunInterrupted(outcome)
+    return outcome
+
+
+class RunInterrupted(KeyboardInterrupt):
+    """Ctrl-C during a run: what was done is kept (``outcome``) before the interrupt goes on."""
+
+    def __init__(self, outcome: RunOutcome):
+        super().__init__("interrupted")
+        self.outcome = outcome
+
+
+def _first_line(e: BaseException) -> str:
+    text = str(e).strip().splitlines()
+    return text[0][:200] if text else ""
+
+
+def _write_outputs(run_dir, spec, stage, result, ctx, rec, recording_id) -> None:
+    for name, table in result.tables.items():
+        fname = f"{spec.id}_{name}.csv"
+        write_table(run_dir / fname, table)
+        rec.files.append(fname)
+    for name, png in result.figures.items():
+        fname = f"{spec.id}_{name}.png"
+        (run_dir / fname).write_bytes(png)
+        rec.files.append(fname)
+    try:
+        _write_recording(run_dir, spec, stage, result, ctx, rec, recording_id)
+    except Exception as e:  # a broken log() must not lose the numbers
+        (run_dir / f"{spec.id}.error.txt").write_text(traceback.format_exc(), encoding="utf-8")
+        rec.warnings.append(f"recording incomplete: {type(e).__name__}: {_first_line(e)}")
+
+
+def _moved(text: str, run, final: Path) -> str:
+    """Messages written while the run was in its staging directory name the final place."""
+    return text.replace(str(run.staging), str(final)) if text else text
+
+
+def _finish(run, project, records, recording_id, started, ok) -> Path:
+    """Write ``results.json`` last and move the run into place."""
+    dest = run.target if (ok or run.previous != "complete") else run.target.with_name(run.target.name + ".failed")
+    for r in records:
+        r.error = _moved(r.error, run, dest) if r.error else r.error
+        r.report = _moved(r.report, run, dest)
+        r.warnings = [_moved(w, run, dest) for w in r.warnings]
+    _write_report(run.staging, project, records, recording_id, started, shown=dest)
+    _write_results(run.staging, project, records, recording_id, started)
+    return close_run(run, ok)
 
 
 def viewer_command() -> str:
@@ -197,7 +236,7 @@ def _record_failure(run_dir, stage_id, rec, recording_id):
 
 
 def _write_results(run_dir, project, records, recording_id, started):
-    write_json(run_dir / "results.json", {
+    write_json(run_dir / RUN_MARKER, {
         "baarda_version": __version__,
         "project": {"name": project.name, "file": str(project.path), "seed": project.seed},
         "started": started,
@@ -206,15 +245,16 @@ def _write_results(run_dir, project, records, recording_id, started):
         "stages": [{"id": r.id, "use": r.use, "package": r.package, "status": r.status,
                     "seconds": round(r.seconds, 4), "error": r.error, "warnings": r.warnings,
                     "files": r.files, "summary": r.summary} for r in records],
+        "files": list_files(run_dir),
     })
 
 
-def _write_report(run_dir, project, records, recording_id, started):
+def _write_report(run_dir, project, records, recording_id, started, shown=None):
     lines = [f"# {project.name}", ""]
     if project.description:
         lines += [project.description, ""]
     lines += [f"- project file: `{project.path}`", f"- started: {started}, baarda {__version__}",
-              f"- recording id: `{recording_id}` (open all recordings: `{viewer_command()} {run_dir}/*.rrd`)", "",
+              f"- recording id: `{recording_id}` (open all recordings: `{viewer_command()} {shown or run_dir}/*.rrd`)", "",
               "| stage | uses | status | time (s) |", "|---|---|---|---|"]
     lines += [f"| {r.id} | {r.use} | {r.status} | {r.seconds:.2f} |" for r in records]
     lines.append("")

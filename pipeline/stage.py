@@ -152,6 +152,19 @@ class Context:
         p = Path(path).expanduser()
         return p if p.is_absolute() else (self.project_dir / p)
 
+    def output_path(self, value: str | Path, key: str) -> Path:
+        """Where a stage writes what option ``key`` names: ``value`` inside the run directory.
+
+        Every output stays inside the run directory: an absolute path or one that climbs out of
+        it (``..``) is an :class:`InputError` on the option (``load_project`` checks this too).
+        """
+        from .project import output_problem
+
+        problem = output_problem(value)
+        if problem:
+            raise self.option_error(problem, key)
+        return (self.run_dir if self.run_dir is not None else self.project_dir) / Path(str(value))
+
     def option_error(self, message: str, key: str) -> InputError:
         """An :class:`InputError` naming the project file, the line of option ``key`` and ``key``.
 

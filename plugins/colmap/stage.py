@@ -114,9 +114,7 @@ class ColmapExport(Stage):
     def run(self, inputs, options: ColmapExportOptions, ctx: Context) -> StageResult:
         if not str(options.path) or str(options.path) == ".":
             raise InputError("option 'path' (the output folder) is required", field="path", path=ctx.project_file)
-        out = Path(options.path).expanduser()
-        if not out.is_absolute():
-            out = (ctx.run_dir or ctx.project_dir) / out
+        out = ctx.output_path(options.path, "path")
         block, which = block_to_export(inputs)
         info = write_colmap(block, out, fmt=options.format, camera_model=options.camera_model)
         info["block"] = which

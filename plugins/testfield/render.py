@@ -83,8 +83,8 @@ class RenderOptions:
     target_radius_mm: float = option(5.0, "radius of the circular targets on the object, mm")
     supersample: int = option(8, "samples per pixel side when rendering (8: 64 per pixel)")
     sigma_noise: float = option(2.0, "grey-level noise σ (targets 235 on a background of 20); 0: noise-free")
-    folder: str = option("", "folder for the PNG files, relative to the project file; empty: 'images' in the "
-                             "run directory")
+    folder: str = option("images", "folder for the PNG files, inside the run directory (a relative path that "
+                                   "does not climb out of it)")
 
     def __post_init__(self):
         bad = sorted(set(self.testfield) & set(NOT_FOR_IMAGES))
@@ -113,6 +113,7 @@ class TestFieldRender(Stage):
     reads = ("block?",)
     writes = ("images", "block")
     Options = RenderOptions
+    paths = {"folder": "output"}           # written inside the run directory
 
     def run(self, inputs, options: RenderOptions, ctx: Context) -> StageResult:
         import cv2
@@ -198,10 +199,7 @@ class TestFieldRender(Stage):
         return block
 
     def _folder(self, options: RenderOptions, ctx: Context) -> Path:
-        if options.folder:
-            folder = ctx.resolve(options.folder)
-        else:
-            folder = (ctx.run_dir if ctx.run_dir is not None else ctx.project_dir) / "images"
+        folder = ctx.output_path(options.folder or "images", "folder")
         try:
             folder.mkdir(parents=True, exist_ok=True)
         except OSError as e:
@@ -209,16 +207,11 @@ class TestFieldRender(Stage):
         return folder
 
     def _stale_files(self, folder: Path, photo_ids, options: RenderOptions, ctx: Context) -> None:
-        """PNG files in the folder that this run did not write: removed in the run directory's own
-        folder, a warning elsewhere (a glob over the folder would pick them up)."""
+        """PNG files in the folder that this stage did not write (an earlier stage's): a warning, as a
+        glob over the folder would pick them up; never removed."""
         mine = {f"{p}.png" for p in photo_ids}
         stale = sorted(p for p in folder.glob("*.png") if p.name not in mine)
-        if not stale:
-            return
-        if not options.folder:
-            for p in stale:
-                p.unlink()
-        else:
+        if stale:
             ctx.warn(f"{len(stale)} other PNG file(s) in {folder} ({', '.join(p.name for p in stale[:5])}"
                      f"{' …' if len(stale) > 5 else ''}): a glob over the folder would read them too")
 

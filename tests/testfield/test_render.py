@@ -119,11 +119,11 @@ def test_same_seed_same_images_other_seed_other_noise(tmp_path):
     np.testing.assert_array_equal(a.artefacts["block"].points.XYZ, b.artefacts["block"].points.XYZ)
 
 
-def test_stale_files(tmp_path):
+def test_other_files_in_the_folder_are_kept_and_named(tmp_path):
     (tmp_path / "images").mkdir()
     (tmp_path / "images" / "99.png").write_bytes(b"x")
-    run_stage(TestFieldRender, options=COARSE, tmp_path=tmp_path)
-    assert not (tmp_path / "images" / "99.png").exists()          # the run directory's own folder
+    res = run_stage(TestFieldRender, options=COARSE, tmp_path=tmp_path)
+    assert (tmp_path / "images" / "99.png").read_bytes() == b"x" and any("99.png" in w for w in res.warnings)
     (tmp_path / "mine").mkdir()
     (tmp_path / "mine" / "99.png").write_bytes(b"x")
     res = run_stage(TestFieldRender, options={**COARSE, "folder": "mine"}, tmp_path=tmp_path)
@@ -138,6 +138,8 @@ def test_stale_files(tmp_path):
     ({"testfield": {"case": 9}}, "case must be one of"),
     ({"pixel_mm": 0.0}, "pixel_mm must be positive"),
     ({"supersample": 0}, "supersample must be at least 1"),
+    ({"folder": "../../x"}, "climbs out of it"),
+    ({"folder": "/tmp/x"}, "must be relative to the run directory"),
     ({"sigma_noise": -1.0}, "sigma_noise must not be negative"),
 ])
 def test_bad_options(opts, match, tmp_path):
