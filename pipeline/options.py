@@ -10,6 +10,11 @@ fields, recursively).  Renamed options and values are rejected with their new sp
 class may declare ``RENAMED = {"old_name": "new_name"}`` and ``RENAMED_VALUES = {"option": {"old":
 "new"}}`` (class attributes, ``typing.ClassVar``); any other unknown name gets the closest known
 ones ("did you mean …?").
+
+Numbers are checked for range as well as type (:func:`option_range`): no option takes NaN or
+infinity, and the vocabulary's names carry their ranges (a ``sigma_…`` is positive, an ``alpha…``
+lies in (0, 1), ``max_iter`` is at least 1 …); ``option(..., ge=, gt=, le=, lt=)`` states or
+overrides a range.
 """
 
 from __future__ import annotations
@@ -33,14 +38,20 @@ REQUIRED = dataclasses.MISSING
 """Use as ``option(REQUIRED, "doc")`` for an option the project must give."""
 
 
-def option(default: Any, doc: str, *, key: str | None = None, **kw) -> Any:
+def option(default: Any, doc: str, *, key: str | None = None, ge: float | None = None,
+           gt: float | None = None, le: float | None = None, lt: float | None = None, **kw) -> Any:
     """A documented option field: ``x: float = option(1.0, "what x does")``.
 
     ``option(REQUIRED, doc)`` declares a required option (it must come before optional ones in
     the dataclass, or the dataclass needs ``kw_only=True``).  ``key`` is the name in the project
     file when it cannot be the field's (a Python keyword: ``from_ = option(..., key="from")``).
+    ``ge``/``gt``/``le``/``lt`` bound a number (or every number of a list or table) and replace the
+    range the option's name implies (:func:`option_range`).
     """
-    meta = {"doc": doc} if key is None else {"doc": doc, "key": key}
+    meta: dict[str, Any] = {"doc": doc} if key is None else {"doc": doc, "key": key}
+    bounds = {k: v for k, v in (("ge", ge), ("gt", gt), ("le", le), ("lt", lt)) if v is not None}
+    if bounds:
+        meta["range"] = bounds
     if default is dataclasses.MISSING:
         return dataclasses.field(metadata=meta, **kw)
     if isinstance(default, (list, dict, set)):
@@ -76,6 +87,69 @@ def _type_name(tp) -> str:
     if dataclasses.is_dataclass(tp):
         return f"table ({', '.join(f.metadata.get('key', f.name) for f in dataclasses.fields(tp))})"
     return getattr(tp, "__name__", str(tp))
+
+
+# Ranges the option vocabulary implies (docs/conventions.md, "Option names"); the first match wins.
+# "pos0": positive, or 0 where 0 is the option's default (a documented "auto" / "off").
+_NAME_RANGES: list[tuple[str, Any]] = [
+    ("arrow_scale", {"ge": 0}),
+    ("format_margin_mm", None),
+    ("sigma_noise", {"ge": 0}),
+    ("alpha", {"gt": 0, "lt": 1}), ("beta", {"gt": 0, "lt": 1}),
+    ("rho_max", {"gt": 0, "le": 1}),
+    ("sigma", "pos0"), ("tol_", "pos0"),
+    ("max_iter", {"ge": 1}), ("max_rejections", {"ge": 0}), ("repetitions", {"ge": 1}), ("n_sim", {"ge": 0}),
+    ("critical", {"ge": 0}),
+    ("_scale", "pos0"), ("scale", {"gt": 0}),
+    ("pixel_mm", {"gt": 0}), ("_mm", "pos0"), ("_px", "pos0"), ("_um", "pos0"), ("_size", "pos0"),
+    ("distance", "pos0"),
+]
+
+
+def option_range(name: str, default: Any = None, declared: dict | None = None) -> dict | None:
+    """The range of option ``name`` (``{"gt": 0}`` …): the one declared with :func:`option`, else
+    the one its name implies (``sigma…`` and ``tol_…`` positive, ``alpha…``/``beta…`` in (0, 1),
+    ``max_iter`` ≥ 1, ``…_mm``/``…_px``/``…_scale`` positive …; 0 allowed where it is the default)."""
+    if declared:
+        return declared
+    base = name.rsplit(".", 1)[-1]
+    for pattern, rng in _NAME_RANGES:
+        hit = base.endswith(pattern) if pattern.startswith("_") else (
+            base.startswith(pattern) or base == pattern)
+        if not hit:
+            continue
+        if rng == "pos0":
+            zero_default = isinstance(default, (int, float)) and not isinstance(default, bool) and default == 0
+            return {"ge": 0} if zero_default else {"gt": 0}
+        return rng
+    return None
+
+
+def _check_range(value: Any, name: str, rng: dict | None, where: dict) -> None:
+    """Every number in ``value`` finite and inside ``rng``."""
+    if isinstance(value, bool) or value is None:
+        return
+    if isinstance(value, (list, tuple)):
+        for v in value:
+            _check_range(v, name, rng, where)
+        return
+    if isinstance(value, dict):
+        for k, v in value.items():
+            _check_range(v, f"{name}.{k}", rng, where)
+        return
+    if not isinstance(value, (int, float)):
+        return
+    if value != value or value in (float("inf"), float("-inf")):
+        raise InputError(f"must be a finite number, got {value}", field=name, **where)
+    if not rng:
+        return
+    text = {"gt": "greater than", "ge": "at least", "lt": "less than", "le": "at most"}
+    ok = {"gt": value > rng.get("gt", 0), "ge": value >= rng.get("ge", 0), "lt": value < rng.get("lt", 0),
+          "le": value <= rng.get("le", 0)}
+    for k in ("gt", "ge", "lt", "le"):
+        if k in rng and not ok[k]:
+            limits = " and ".join(f"{text[j]} {rng[j]:g}" for j in ("gt", "ge", "lt", "le") if j in rng)
+            raise InputError(f"must be {limits}, got {value:g}", field=name, **where)
 
 
 def _coerce(value: Any, tp, name: str, where: dict) -> Any:
@@ -178,7 +252,10 @@ def parse_options(options_cls: type, raw: dict | None, *, path=None, line=None,
         if isinstance(value, str) and value in moved:
             raise InputError(f"option '{prefix}{key}': the value {value!r} is now {moved[value]!r}",
                              field=prefix + key, **where(key))
-        values[fields[key].name] = _coerce(value, hints[fields[key].name], prefix + key, where(key))
+        f = fields[key]
+        values[f.name] = _coerce(value, hints[f.name], prefix + key, where(key))
+        default = f.default if f.default is not dataclasses.MISSING else None
+        _check_range(values[f.name], prefix + key, option_range(key, default, f.metadata.get("range")), where(key))
     missing = [n for n, f in fields.items() if f.name not in values
                and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING]
     if missing:

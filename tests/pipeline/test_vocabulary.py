@@ -92,7 +92,7 @@ def test_typed_nested_tables(tmp_path, installed):
     msg = _load(tmp_path, installed, "bundle", 'distances = [{ from = "A", to = "B", distance = 1.0 }]')
     assert "distances.sigma" in msg and "missing" in msg
     msg = _load(tmp_path, installed, "bundle", 'distances = [{ from = "A", to = "B", distance = -1.0, sigma = 0.1 }]')
-    assert "positive distance" in msg
+    assert "distances.distance" in msg and "must be greater than 0" in msg
 
 
 def test_a_typed_table_with_a_keyword_key(tmp_path, installed):

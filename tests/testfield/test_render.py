@@ -136,11 +136,11 @@ def test_other_files_in_the_folder_are_kept_and_named(tmp_path):
     ({"testfield": {"cases": 5}}, "unknown option 'testfield.cases'"),
     ({"testfield": {"case": "five"}}, "testfield.case"),
     ({"testfield": {"case": 9}}, "case must be one of"),
-    ({"pixel_mm": 0.0}, "pixel_mm must be positive"),
+    ({"pixel_mm": 0.0}, "pixel_mm.: must be greater than 0"),
     ({"supersample": 0}, "supersample must be at least 1"),
     ({"folder": "../../x"}, "climbs out of it"),
     ({"folder": "/tmp/x"}, "must be relative to the run directory"),
-    ({"sigma_noise": -1.0}, "sigma_noise must not be negative"),
+    ({"sigma_noise": -1.0}, "sigma_noise.: must be at least 0"),
 ])
 def test_bad_options(opts, match, tmp_path):
     with pytest.raises(InputError, match=match):
