@@ -295,7 +295,8 @@ def validate_inputs(project: Project) -> list[str]:
 
     For every stage in order: each option naming files (:func:`path_roles`) is resolved against
     the project file and must exist; then the stage's ``validate(options, ctx)`` hook, if any,
-    runs (a source stage parses its files there).  The first mistake raises :class:`InputError`
+    runs (a source stage parses its files there; when it returns the block it read, the checks
+    every source's block gets in a run, :func:`~baarda.pipeline.plausibility.check_block`, run too).  The first mistake raises :class:`InputError`
     (the project file, the option's line and name for a missing path; the input file's own line
     and field for a mistake inside it).  Returns the warnings of the hooks as ``"[id] text"``.
     """
@@ -311,6 +312,11 @@ def validate_inputs(project: Project) -> list[str]:
         if hook is None:
             continue
         ctx = stage_context(project, spec)
-        spec.cls().validate(spec.options, ctx)
+        block = spec.cls().validate(spec.options, ctx)
+        if block is not None and hasattr(block, "observations"):      # a source's block: the runner's checks
+            from .plausibility import check_block
+
+            for w in check_block(block):
+                ctx.warn(w)
         warnings += [f"[{spec.id}] {w}" for w in ctx.warnings]
     return warnings

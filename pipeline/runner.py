@@ -30,6 +30,7 @@ from typing import Any
 from . import __version__
 from .errors import AdjustmentError, BaardaError, InputError
 from .plugins import PluginManager
+from .plausibility import check_block
 from .project import Project, load_project, stage_context
 from .recording import log_text, log_values, new_recording_id, open_recording
 from .report import jsonable, write_json, write_table, write_toml
@@ -110,6 +111,9 @@ def run_project(project_path: str | Path, out: str | Path | None = None, *,
                            if w.rstrip("?") not in result.artefacts and not w.endswith("?")]
                 if missing:
                     raise TypeError(f"stage did not produce the artefact(s) it declares: {', '.join(missing)}")
+                if "block" in result.artefacts and "block" not in inputs:     # a source: check what it read
+                    for w in check_block(result.artefacts["block"]):
+                        ctx.warn(w)
             except KeyboardInterrupt:
                 rec.status, rec.error, failure = "interrupted", "interrupted by the user", "interrupted"
                 interrupted = True

@@ -11,8 +11,9 @@ A stage is a class with
 * ``log(result, rec, ctx)`` (optional) — writes the stage's rerun recording.  Logging lives here,
   never in ``run`` and never in numerical code;
 * ``validate(options, ctx)`` (optional) — what ``baarda validate`` checks beyond the options:
-  a source stage reads and checks its input files here (raising :class:`InputError`) without
-  adjusting anything.  ``ctx.run_dir`` is None and there are no artefacts;
+  a source stage reads and checks its input files here (raising :class:`InputError`) with the
+  code and messages of ``run``, without adjusting anything, and returns the block it read.
+  ``ctx.run_dir`` is None and there are no artefacts;
 * ``paths`` (optional) — ``{option name: role}`` for options naming files.  An option typed
   ``Path`` (or ``Path | None``, ``list[Path]``) is an ``"input"`` relative to the project file
   that must exist; other roles: ``"glob"`` (list of files or glob patterns), ``"prefix"`` (a
@@ -192,11 +193,27 @@ class Stage:
     def log(self, result: StageResult, rec: Any, ctx: Context) -> None:
         """Write the stage's recording (default: nothing beyond the runner's summary)."""
 
-    def validate(self, options: Any, ctx: Context) -> None:
+    def validate(self, options: Any, ctx: Context) -> Any:
         """Check the stage's inputs without running it (``baarda validate``); default: nothing.
 
         Raise :class:`~baarda.pipeline.errors.InputError` for the first mistake; ``ctx.warn`` for doubts.
+        A source returns the block it read (the block checks of a run then apply), or None.
         """
+
+
+class SourceStage(Stage):
+    """A stage that reads input files into a ``block`` (and reads no artefact).
+
+    ``baarda validate`` runs its ``run`` — reading and checking only, with the very code and
+    messages of a run — and returns the block, which then gets the checks of every source's block
+    (:func:`~baarda.pipeline.plausibility.check_block`).  A source whose ``run`` does expensive work
+    beyond reading overrides :meth:`validate`.
+    """
+
+    writes: ClassVar[tuple[str, ...]] = ("block",)
+
+    def validate(self, options: Any, ctx: Context) -> Any:
+        return self.run({}, options, ctx).artefacts.get("block")
 
 
 REQUIRED_ATTRS = ("summary", "reads", "writes", "Options", "run")

@@ -17,7 +17,7 @@ import numpy as np
 from baarda.pipeline.errors import InputError
 from baarda.pipeline.options import option
 from baarda.pipeline.report import markdown_table
-from baarda.pipeline.stage import Context, Stage, StageResult, TableData
+from baarda.pipeline.stage import Context, SourceStage, Stage, StageResult, TableData
 
 from .reader import AP_NAMES, aicon_block, perturb_initial_values, read_aicon
 
@@ -59,7 +59,7 @@ class AiconOptions:
             raise ValueError("sigma_image_um must be positive")
 
 
-class AiconSource(Stage):
+class AiconSource(SourceStage):
     summary = "Read an AICON 3D Studio export (.ior .eor .obc .phc .scale) into a block"
     reads = ()
     writes = ("block",)

@@ -8,7 +8,7 @@ from typing import Literal
 
 from baarda.pipeline.errors import InputError
 from baarda.pipeline.options import option
-from baarda.pipeline.stage import Context, Stage, StageResult
+from baarda.pipeline.stage import Context, SourceStage, Stage, StageResult
 
 from baarda.pipeline.adjustment import reprojection_summary
 from baarda.pipeline.recording import log_block
@@ -53,7 +53,7 @@ class BalOptions:
     __post_init__ = _check
 
 
-class BalSource(Stage):
+class BalSource(SourceStage):
     """Read a BAL problem: one camera (f, k1, k2 as c, K1, K2 of brown) and one photo per BAL camera."""
 
     summary = "BAL problem (text) → block (one brown camera per BAL camera)"
@@ -87,7 +87,7 @@ class LibmvOptions:
             raise ValueError("resolution must be [width, height] in pixels")
 
 
-class LibmvSource(Stage):
+class LibmvSource(SourceStage):
     """Read a libmv camera-tracking problem: one shared brown camera, one photo per libmv camera."""
 
     summary = "libmv/Blender tracking problem (binary) → block (one shared brown camera)"

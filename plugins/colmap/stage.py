@@ -10,7 +10,7 @@ import numpy as np
 
 from baarda.pipeline.errors import InputError
 from baarda.pipeline.options import option
-from baarda.pipeline.stage import Context, Stage, StageResult
+from baarda.pipeline.stage import Context, SourceStage, Stage, StageResult
 
 from baarda.pipeline.adjustment import reprojection_summary
 from baarda.pipeline.camera.convert import COLMAP_PARAMS
@@ -38,7 +38,7 @@ class ColmapSourceOptions:
             raise ValueError("pixel_mm and sigma_px must be > 0, sensor_width_mm >= 0")
 
 
-class ColmapSource(Stage):
+class ColmapSource(SourceStage):
     """Read a COLMAP model (binary or text) as a block: cameras in mm with the brown AP model."""
 
     summary = "COLMAP model (binary or text) → block (cameras in mm, brown distortion, tie points)"

@@ -52,7 +52,7 @@ class ComparatorSource(Stage):
     def validate(self, options: ComparatorOptions, ctx: Context) -> None:
         """``baarda validate``: read and check the file, interior orientation and tolerance included."""
         _, parsed, interior, _, _ = self._read(options, ctx)
-        build_block(parsed, interior)
+        return build_block(parsed, interior)
 
     def _read(self, options: ComparatorOptions, ctx: Context):
         """Parse the file, fit the interior orientation and apply the tolerance (warnings to ctx)."""

@@ -158,6 +158,10 @@ def _downscale(gray: np.ndarray, max_size: int) -> tuple[np.ndarray, float]:
                       interpolation=cv2.INTER_AREA), s
 
 
+MIN_IMAGE_PX = 16
+"""Images smaller than this (either side, pixels) hold no target a detector can find: skipped."""
+
+
 class TargetDetection(Stage):
     """Detect ArUco markers, ChArUco boards, chessboards or circular targets in images → block."""
 
@@ -166,6 +170,32 @@ class TargetDetection(Stage):
     writes = ("block",)
     paths = {"images": "glob", "detector_params": "input"}
     Options = TargetOptions
+
+    def validate(self, options: TargetOptions, ctx: Context) -> None:
+        """``baarda validate``: the images exist and have a readable image header, the detector
+        parameters parse; no detection (that is the run's work)."""
+        import cv2
+
+        if options.target in ("charuco", "aruco"):
+            self._params(options, ctx)
+        if not options.images:
+            return None
+        files = find_images(options.images, ctx.project_dir)
+        if not files:
+            raise InputError(f"no image matches {options.images}", field="images", path=ctx.project_file)
+        unreadable = [f for f in files if not (f.is_file() and cv2.haveImageReader(str(f)))]
+        for f in unreadable:
+            ctx.warn(f"{f}: not a readable image; a run skips it")
+        if len(unreadable) == len(files):
+            raise InputError(f"none of the {len(files)} image(s) is a readable image", field="images",
+                             path=ctx.project_file)
+        return None
+
+    def _params(self, options: TargetOptions, ctx: Context):
+        try:
+            return detector_parameters(ctx.resolve(options.detector_params) if options.detector_params else None)
+        except ValueError as e:
+            raise InputError(str(e), field="detector_params", path=ctx.project_file) from None
 
     def run(self, inputs, options: TargetOptions, ctx: Context) -> StageResult:
         import cv2
@@ -192,12 +222,7 @@ class TargetDetection(Stage):
             raise InputError("target 'circles' takes its ids from an input block (layout points and approximate "
                              "orientations); add a source stage before this one, or use 'circles-grid'",
                              field="target", path=ctx.project_file)
-        params = None
-        if options.target in ("charuco", "aruco"):
-            try:
-                params = detector_parameters(ctx.resolve(options.detector_params) if options.detector_params else None)
-            except ValueError as e:
-                raise InputError(str(e), field="detector_params", path=ctx.project_file) from None
+        params = self._params(options, ctx) if options.target in ("charuco", "aruco") else None
         sigma_px = options.sigma_px or DEFAULT_SIGMA_PX[options.target]
         photo_ids = art_ids or _photo_ids(files)
 
@@ -217,7 +242,16 @@ class TargetDetection(Stage):
                 row["message"] = "file not found" if not file.exists() else "not a readable image"
                 ctx.warn(f"{file}: {row['message']}; skipped")
                 continue
-            det = self._detect(gray, geom, options, params, layout, pid)
+            if min(gray.shape) < MIN_IMAGE_PX:
+                row["status"], row["message"] = "skipped", f"{gray.shape[1]} × {gray.shape[0]} pixels: too small"
+                ctx.warn(f"{file}: {row['message']}; skipped")
+                continue
+            try:
+                det = self._detect(gray, geom, options, params, layout, pid)
+            except cv2.error as e:          # OpenCV refuses this image: skip it as an unreadable one
+                row["status"], row["message"] = "skipped", f"OpenCV: {str(e).strip().splitlines()[-1][:120]}"
+                ctx.warn(f"{file}: {row['message']}; skipped")
+                continue
             det.extra["file"] = str(file)
             row["points"], row["message"] = len(det), det.message
             small, s = _downscale(gray, options.log_max_size)

@@ -17,7 +17,7 @@ from baarda.pipeline.geometry import rotation_from_opk_many
 from baarda.pipeline.options import REQUIRED, option
 from baarda.pipeline.report import markdown_table
 from baarda.pipeline.recording import role_colors
-from baarda.pipeline.stage import Context, Stage, StageResult, TableData
+from baarda.pipeline.stage import Context, SourceStage, Stage, StageResult, TableData
 
 from baarda.pipeline.synthetic.testfield import (CONTROL_CASES, TestFieldConfig, constraint_count, control_configuration,
                        degrees_of_freedom, simulate_testfield)
@@ -82,7 +82,7 @@ def simulate_field(options: TestFieldOptions, rng: np.random.Generator, project_
         raise InputError(str(e), path=project_file, field="blunders") from None
 
 
-class TestFieldSource(Stage):
+class TestFieldSource(SourceStage):
     __test__ = False
 
     summary = "Simulate the test field of paper 001 (P31, 2 strips × 5 photos or the 4 m pair) as a block"
