@@ -59,3 +59,16 @@ class AdjustmentError(BaardaError):
     def __init__(self, message: str, state: object | None = None):
         self.state = state
         super().__init__(message)
+
+
+QUOTE_LIMIT = 16
+"""Longest piece of an input file a message quotes; longer pieces are described, never printed."""
+
+
+def quote(token: str) -> str:
+    """A token of an input file for a message: quoted when short and printable, else described —
+    a message never prints a file's contents (``path = "/etc/shadow"`` must not leak a line)."""
+    text = str(token)
+    if len(text) <= QUOTE_LIMIT and text.isprintable():
+        return repr(text)
+    return f"a {len(text)}-character value"

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from baarda.pipeline.errors import InputError
+from baarda.pipeline.errors import InputError, quote
 from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points
 
 SUFFIXES = ("ior", "eor", "obc", "phc", "scale")
@@ -113,16 +113,16 @@ def _num(tok: str, path: Path, line: int, name: str) -> float:
     try:
         v = float(tok)
     except ValueError:
-        raise InputError(f"expected a number, got {tok!r}", path=path, line=line, field=name) from None
+        raise InputError(f"expected a number, got {quote(tok)}", path=path, line=line, field=name) from None
     if not math.isfinite(v):
-        raise InputError(f"expected a finite number, got {tok!r}", path=path, line=line, field=name)
+        raise InputError(f"expected a finite number, got {quote(tok)}", path=path, line=line, field=name)
     return v
 
 
 def _int(tok: str, path: Path, line: int, name: str) -> int:
     v = _num(tok, path, line, name)
     if v != int(v):
-        raise InputError(f"expected an integer, got {tok!r}", path=path, line=line, field=name)
+        raise InputError(f"expected an integer, got {quote(tok)}", path=path, line=line, field=name)
     return int(v)
 
 

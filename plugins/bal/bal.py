@@ -17,6 +17,8 @@ so ``R_cam_from_world = R(r)`` and ``X0 = −R(r)ᵀ t``; with pitch ``s`` (mm p
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,7 +26,7 @@ import numpy as np
 
 from baarda.pipeline.geometry.rotations import rotation_from_rotvec
 
-from baarda.pipeline.errors import InputError
+from baarda.pipeline.errors import InputError, quote
 from baarda.pipeline.geometry import opk_from_rotation
 from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points
 
@@ -45,16 +47,19 @@ class BalProblem:
 
 def _number(tok: str, path, line: int, what: str) -> float:
     try:
-        return float(tok)
+        v = float(tok)
     except ValueError:
-        raise InputError(f"expected a number for {what}, got {tok!r}", path=path, line=line, field=what) from None
+        raise InputError(f"expected a number for {what}, got {quote(tok)}", path=path, line=line, field=what) from None
+    if not math.isfinite(v):
+        raise InputError(f"{what} must be a finite number, got {quote(tok)}", path=path, line=line, field=what)
+    return v
 
 
 def _int(tok: str, path, line: int, what: str) -> int:
     try:
         return int(tok)
     except ValueError:
-        raise InputError(f"expected an integer for {what}, got {tok!r}", path=path, line=line, field=what) from None
+        raise InputError(f"expected an integer for {what}, got {quote(tok)}", path=path, line=line, field=what) from None
 
 
 def read_bal(path: str | Path) -> BalProblem:
@@ -75,23 +80,28 @@ def read_bal(path: str | Path) -> BalProblem:
         raise InputError("empty file; expected the header 'n_cams n_pts n_obs'", path=path, line=1)
     head = lines[ln].split()
     if len(head) != 3:
-        raise InputError(f"header must be 'n_cams n_pts n_obs', got {lines[ln].strip()!r}", path=path,
+        raise InputError(f"header must be 'n_cams n_pts n_obs', got {len(head)} value(s)", path=path,
                          line=ln + 1, field="header")
     n_cams, n_pts, n_obs = (_int(t, path, ln + 1, f) for t, f in zip(head, ("n_cams", "n_pts", "n_obs")))
     if min(n_cams, n_pts, n_obs) < 0:
         raise InputError("negative count in the header", path=path, line=ln + 1, field="header")
+    # counts that exceed the file must not allocate: arrays are sized by what the file can hold
+    # (a line per observation; two characters at least per value) and the loops below report
+    # where the file ends
+    n_obs_fit = min(n_obs, max(len(lines) - ln - 1, 0))
     ln += 1
 
-    cam = np.empty(n_obs, int)
-    pt = np.empty(n_obs, int)
-    xy = np.empty((n_obs, 2))
+    obs_line0 = ln + 1                       # 1-based line of observation 0
+    cam = np.empty(n_obs_fit, int)
+    pt = np.empty(n_obs_fit, int)
+    xy = np.empty((n_obs_fit, 2))
     for i in range(n_obs):
         if ln >= len(lines):
             raise InputError(f"file ends after {i} of {n_obs} observation lines (truncated?)", path=path,
                              line=ln + 1, field="observation")
         tok = lines[ln].split()
         if len(tok) != 4:
-            raise InputError(f"observation line must be 'cam pt x y', got {lines[ln].strip()!r}", path=path,
+            raise InputError(f"observation line must be 'cam pt x y', got {len(tok)} value(s)", path=path,
                              line=ln + 1, field="observation")
         cam[i] = _int(tok[0], path, ln + 1, "cam")
         pt[i] = _int(tok[1], path, ln + 1, "pt")
@@ -103,8 +113,17 @@ def read_bal(path: str | Path) -> BalProblem:
             raise InputError(f"point index {pt[i]} out of range 0…{n_pts - 1}", path=path, line=ln + 1, field="pt")
         ln += 1
 
+    key = cam * max(n_pts, 1) + pt
+    order = np.argsort(key, kind="stable")
+    twice = np.flatnonzero(np.diff(key[order]) == 0)
+    if twice.size:
+        i = int(order[twice[0] + 1])
+        raise InputError(f"camera {cam[i]} observes point {pt[i]} twice (first on line {obs_line0 + order[twice[0]]})",
+                         path=path, line=obs_line0 + i, field="observation")
     need = 9 * n_cams + 3 * n_pts
-    values = np.empty(need)
+    fit = min(need, len(text) // 2 + 1)
+    values = np.empty(fit)
+    value_line = np.empty(fit, np.int64)
     k = 0
     while k < need:
         if ln >= len(lines):
@@ -116,11 +135,17 @@ def read_bal(path: str | Path) -> BalProblem:
             if k >= need:
                 raise InputError("more values than the header announces", path=path, line=ln + 1)
             values[k] = _number(tok, path, ln + 1, "camera parameter" if k < 9 * n_cams else "point coordinate")
+            value_line[k] = ln + 1
             k += 1
         ln += 1
     if any(s.strip() for s in lines[ln:]):
         extra = ln + next(i for i, s in enumerate(lines[ln:]) if s.strip()) + 1
         raise InputError("more values than the header announces", path=path, line=extra)
+    f = values[6:9 * n_cams:9]
+    if (f <= 0).any():
+        j = int(np.argmax(f <= 0))
+        raise InputError(f"camera {j}: focal length f = {f[j]:g} must be positive", path=path,
+                         line=int(value_line[9 * j + 6]), field="f")
     return BalProblem(cam=cam, pt=pt, xy=xy, cameras=values[:9 * n_cams].reshape(n_cams, 9),
                       points=values[9 * n_cams:].reshape(n_pts, 3), path=str(path))
 

@@ -80,6 +80,26 @@ class _Cursor:
         return {name: np.array(rec[name]) for name, _, _ in layout}
 
 
+def _finite(values: np.ndarray, path, what: str, offset: int, size: int) -> None:
+    """Every value of every record finite; else name the record and its byte offset."""
+    bad = ~np.isfinite(values).all(axis=1)
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise InputError(f"{what} record {k} (byte offset {offset + k * size}) holds a value that is not a finite "
+                         "number", path=path, field=what)
+
+
+def _unique(keys: np.ndarray, path, what: str, key: str, offset: int, size: int) -> None:
+    """No two records with the same key (a camera, track or marker listed twice)."""
+    keys = np.asarray(keys).reshape(-1)
+    order = np.argsort(keys, kind="stable")
+    twice = np.flatnonzero(np.diff(keys[order]) == 0)
+    if twice.size:
+        k = int(order[twice[0] + 1])
+        raise InputError(f"{what} record {k} (byte offset {offset + k * size}) repeats the {key} of record "
+                         f"{int(order[twice[0]])}", path=path, field=what)
+
+
 def read_libmv(path: str | Path) -> LibmvProblem:
     """Parse a libmv problem file (InputError naming the section on any format error)."""
     path = Path(path)
@@ -95,9 +115,23 @@ def read_libmv(path: str | Path) -> LibmvProblem:
         raise InputError("byte 1 must be 'P' (pixels) or 'N' (normalized)", path=path, field="marker space")
     cur = _Cursor(data, "<" if data[0:1] == b"v" else ">", path)
     intr = cur.take("f4", 8, "intrinsics")
+    _finite(intr[None], path, "intrinsics", 2, 32)
+    if not intr[0] > 0:
+        raise InputError(f"focal length f = {intr[0]:g} must be positive (byte offset 2)", path=path,
+                         field="intrinsics")
+    at = cur.pos + 4
     cams = cur.records([("image", "i4", 1), ("R", "f4", 9), ("t", "f4", 3)], "cameras")
+    _finite(np.hstack([cams["R"].reshape(-1, 9), cams["t"].reshape(-1, 3)]), path, "cameras", at, 52)
+    _unique(cams["image"], path, "cameras", "image", at, 52)
+    at = cur.pos + 4
     pts = cur.records([("track", "i4", 1), ("X", "f4", 3)], "points")
+    _finite(pts["X"].reshape(-1, 3), path, "points", at, 16)
+    _unique(pts["track"], path, "points", "track", at, 16)
+    at = cur.pos + 4
     mk = cur.records([("image", "i4", 1), ("track", "i4", 1), ("xy", "f4", 2)], "markers")
+    _finite(mk["xy"].reshape(-1, 2), path, "markers", at, 16)
+    _unique(mk["image"].astype(np.int64) * 2**32 + mk["track"].astype(np.int64) % 2**32, path, "markers",
+            "image and track", at, 16)
     if cur.pos != len(data):
         raise InputError(f"{len(data) - cur.pos} unexpected bytes after the markers", path=path, field="markers")
     R = cams["R"].astype(float).reshape(-1, 3, 3).transpose(0, 2, 1)   # column-major in the file
@@ -138,6 +172,9 @@ def block_from_libmv(problem: LibmvProblem, *, pixel_mm: float = 0.001, sigma_px
         raise InputError("markers in normalized space ('N') are not supported; baarda needs pixel markers",
                          path=problem.path, field="marker space")
     size = tuple(resolution) if resolution else default_resolution(problem)
+    if min(size) <= 0:
+        raise InputError(f"the image size taken from the principal point is {size[0]} × {size[1]} pixels; give the "
+                         "option resolution = [width, height]", path=problem.path, field="intrinsics")
     f, cx, cy, k1, k2, k3, p1, p2 = problem.intrinsics
     c, ap = brown_from_opencv(f, f, pixel_mm, k1=k1, k2=k2, p1=p1, p2=p2, k3=k3)
     xp, yp = mm_from_pixels([cx, cy], size, pixel_mm, "colmap")

@@ -13,12 +13,14 @@ from pathlib import Path
 
 import numpy as np
 
-from baarda.pipeline.errors import InputError
+from baarda.pipeline.errors import InputError, quote
 from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points
 
 from baarda.pipeline.geometry.image import mm_from_pixels
 from baarda.pipeline.geometry.pose import pose_from_cv
 from baarda.pipeline.camera.convert import BROWN, FREE_BROWN, UnsupportedCamera, brown_from_colmap
+
+from .precheck import check_binary, check_values
 
 MODEL_FILES = ("cameras", "images", "points3D")
 
@@ -41,13 +43,26 @@ def read_reconstruction(path: str | Path):
     import pycolmap
 
     fmt = model_format(path)
+    if fmt == "binary":
+        check_binary(Path(path))              # names file, record and offset where pycolmap would not
     rec = pycolmap.Reconstruction()
     try:
         (rec.read_binary if fmt == "binary" else rec.read_text)(str(path))
+    except MemoryError:
+        raise InputError(f"the {fmt} model claims more than memory holds (a damaged count?)", path=path) from None
     except Exception as e:  # pycolmap raises RuntimeError/ValueError with its own message
-        raise InputError(f"pycolmap cannot read the {fmt} model (a file truncated or corrupt?): {e}".strip(),
-                         path=path) from None
+        raise InputError(f"pycolmap cannot read the {fmt} model (a file truncated or corrupt?): "
+                         f"{_pycolmap_message(e)}", path=path) from None
+    check_values(rec, Path(path), fmt)
     return rec
+
+
+def _pycolmap_message(e: Exception) -> str:
+    """pycolmap's message in one line, without C++ library internals or file contents."""
+    text = " ".join(str(e).split())
+    if not text or "std::" in text or "::_M_" in text or "bad_alloc" in text:
+        return "its reader failed inside the C++ library"
+    return text[:160]
 
 
 def block_from_reconstruction(rec, *, pixel_mm: float = 0.001, sensor_width_mm: float = 0.0,
@@ -65,7 +80,7 @@ def block_from_reconstruction(rec, *, pixel_mm: float = 0.001, sensor_width_mm: 
     number of duplicate observations (a point seen twice in one image: the second is inactive).
     """
     if intrinsics not in ("colmap", "fixed", "free"):
-        raise ValueError(f"intrinsics must be 'colmap', 'fixed' or 'free', got {intrinsics!r}")
+        raise ValueError(f"intrinsics must be 'colmap', 'fixed' or 'free', got {quote(intrinsics)}")
     cam_ids = sorted(rec.cameras)
     cams, inexact = [], []
     for cid in cam_ids:

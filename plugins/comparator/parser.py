@@ -12,7 +12,7 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from baarda.pipeline.errors import InputError
+from baarda.pipeline.errors import InputError, quote
 from baarda.pipeline.model import ROLES
 
 from .interior import KINDS
@@ -118,14 +118,14 @@ class _Reader:
         try:
             val = float(tok)
         except ValueError:
-            raise self.error(f"expected a number for {fld}, got {tok!r}", line, fld) from None
+            raise self.error(f"expected a number for {fld}, got {quote(tok)}", line, fld) from None
         if not math.isfinite(val):
-            raise self.error(f"{fld} must be a finite number, got {tok!r}", line, fld)
+            raise self.error(f"{fld} must be a finite number, got {quote(tok)}", line, fld)
         return val
 
     def count(self, toks: list[str], line: int, allowed: tuple[int, ...], usage: str):
         if len(toks) not in allowed:
-            raise self.error(f"expected '{usage}', got {len(toks) - 1} value(s): {' '.join(toks)!r}",
+            raise self.error(f"expected '{usage}', got {len(toks) - 1} value(s)",
                              line, toks[0])
 
     # -- keywords --------------------------------------------------------------------------
@@ -144,7 +144,7 @@ class _Reader:
             choices = {"unit": tuple(UNITS), "mode": MODES, "transform": tuple(KINDS),
                        "object_unit": OBJECT_UNITS}[key]
             if toks[1] not in choices:
-                raise self.error(f"{key} must be one of {', '.join(choices)}, got {toks[1]!r}", line, key)
+                raise self.error(f"{key} must be one of {', '.join(choices)}, got {quote(toks[1])}", line, key)
             setattr(self.out, key, toks[1])
         self.out.header_lines[key] = line
 
@@ -154,7 +154,7 @@ class _Reader:
                              line, "camera")
         cid = toks[1]
         if cid in self.out.cameras:
-            raise self.error(f"camera {cid!r} declared twice (first at line {self.out.cameras[cid].line})",
+            raise self.error(f"camera {quote(cid)} declared twice (first at line {self.out.cameras[cid].line})",
                              line, "camera")
         values: dict[str, tuple] = {}
         i = 2
@@ -162,16 +162,16 @@ class _Reader:
         while i < len(toks):
             key = toks[i]
             if key not in sizes:
-                raise self.error(f"unknown camera field {key!r}; expected c, xp, yp, format", line, key)
+                raise self.error(f"unknown camera field {quote(key)}; expected c, xp, yp, format", line, key)
             if key in values:
-                raise self.error(f"camera field {key!r} given twice", line, key)
+                raise self.error(f"camera field {quote(key)} given twice", line, key)
             k = sizes[key]
             if len(toks[i + 1:i + 1 + k]) < k:
-                raise self.error(f"camera field {key!r} needs {k} number(s)", line, key)
+                raise self.error(f"camera field {quote(key)} needs {k} number(s)", line, key)
             values[key] = tuple(self.number(t, line, key) for t in toks[i + 1:i + 1 + k])
             i += 1 + k
         if "c" not in values:
-            raise self.error(f"camera {cid!r} has no principal distance (add 'c <mm>')", line, "c")
+            raise self.error(f"camera {quote(cid)} has no principal distance (add 'c <mm>')", line, "c")
         if values["c"][0] <= 0:
             raise self.error(f"principal distance c must be positive, got {values['c'][0]}", line, "c")
         fmt = values.get("format", (math.nan, math.nan))
@@ -189,7 +189,7 @@ class _Reader:
         self.count(toks, line, (4,), "fiducial <id> <x_mm> <y_mm>")
         fid = toks[1]
         if fid in self.camera.fiducials:
-            raise self.error(f"fiducial {fid!r} of camera {self.camera.id!r} given twice "
+            raise self.error(f"fiducial {quote(fid)} of camera {quote(self.camera.id)} given twice "
                              f"(first at line {self.camera.fiducials[fid].line})", line, "fiducial")
         self.camera.fiducials[fid] = Mark(fid, self.number(toks[2], line, "x"),
                                           self.number(toks[3], line, "y"), line)
@@ -199,7 +199,7 @@ class _Reader:
             raise self.error("expected 'photo <id> [camera <camera id>]'", line, "photo")
         pid = toks[1]
         if pid in self.out.photos:
-            raise self.error(f"photo {pid!r} declared twice (first at line {self.out.photos[pid].line})",
+            raise self.error(f"photo {quote(pid)} declared twice (first at line {self.out.photos[pid].line})",
                              line, "photo")
         rec = PhotoRecord(id=pid, line=line, camera=toks[3] if len(toks) == 4 else None)
         self.out.photos[pid] = rec
@@ -217,7 +217,7 @@ class _Reader:
             table, what = self.photo.pts, "point"
         mid = toks[1]
         if mid in table:
-            raise self.error(f"{what} {mid!r} measured twice in photo {self.photo.id!r} "
+            raise self.error(f"{what} {quote(mid)} measured twice in photo {quote(self.photo.id)} "
                              f"(first at line {table[mid].line})", line, key)
         x = self.number(toks[2], line, "x")
         y = self.number(toks[3], line, "y")
@@ -231,7 +231,7 @@ class _Reader:
     def pair_line(self, toks, line):
         self.count(toks, line, (3,), "pair <left photo> <right photo>")
         if toks[1] == toks[2]:
-            raise self.error(f"pair names photo {toks[1]!r} twice", line, "pair")
+            raise self.error(f"pair names photo {quote(toks[1])} twice", line, "pair")
         for p in self.out.pairs:
             if (p.left, p.right) == (toks[1], toks[2]):
                 raise self.error(f"pair {toks[1]} {toks[2]} declared twice (first at line {p.line})", line, "pair")
@@ -243,13 +243,13 @@ class _Reader:
             raise self.error("expected 'point <id> <role> [<X> <Y> <Z> [<sX> <sY> <sZ>]]'", line, "point")
         pid, role = toks[1], toks[2]
         if pid in self.out.points:
-            raise self.error(f"object point {pid!r} declared twice (first at line {self.out.points[pid].line})",
+            raise self.error(f"object point {quote(pid)} declared twice (first at line {self.out.points[pid].line})",
                              line, "point")
         if role not in ROLES:
-            raise self.error(f"role must be one of {', '.join(ROLES)}, got {role!r}", line, "role")
+            raise self.error(f"role must be one of {', '.join(ROLES)}, got {quote(role)}", line, "role")
         if len(toks) == 3:
             if role != "tie":
-                raise self.error(f"a {role!r} point needs coordinates X Y Z", line, "XYZ")
+                raise self.error(f"a {quote(role)} point needs coordinates X Y Z", line, "XYZ")
             xyz = (math.nan,) * 3
         else:
             xyz = tuple(self.number(t, line, f) for t, f in zip(toks[3:6], "XYZ"))
@@ -274,7 +274,7 @@ class _Reader:
                 continue
             handler = handlers.get(toks[0])
             if handler is None:
-                raise self.error(f"unknown keyword {toks[0]!r}; expected one of {', '.join(KEYWORDS)}",
+                raise self.error(f"unknown keyword {quote(toks[0])}; expected one of {', '.join(KEYWORDS)}",
                                  i, toks[0])
             handler(toks, i)
         self.check()
@@ -291,11 +291,11 @@ class _Reader:
         for ph in out.photos.values():
             if ph.camera is None:
                 if len(out.cameras) > 1:
-                    raise self.error(f"photo {ph.id!r} does not name its camera and the file declares "
+                    raise self.error(f"photo {quote(ph.id)} does not name its camera and the file declares "
                                      f"{len(out.cameras)} cameras ({', '.join(out.cameras)})", ph.line, "camera")
             elif ph.camera not in out.cameras:
                 known = ", ".join(out.cameras) or "(none)"
-                raise self.error(f"photo {ph.id!r} names camera {ph.camera!r}, which is not declared "
+                raise self.error(f"photo {quote(ph.id)} names camera {quote(ph.camera)}, which is not declared "
                                  f"(cameras: {known})", ph.line, "camera")
             if out.mode == "photo" and ph.fids:
                 first = min(m.line for m in ph.fids.values())
@@ -306,12 +306,12 @@ class _Reader:
                 for m in ph.fids.values():
                     if m.id not in cam.fiducials:
                         known = ", ".join(cam.fiducials) or "(none)"
-                        raise self.error(f"fiducial {m.id!r} of photo {ph.id!r} is not calibrated for "
-                                         f"camera {cam.id!r} (calibrated: {known})", m.line, "fid")
+                        raise self.error(f"fiducial {quote(m.id)} of photo {quote(ph.id)} is not calibrated for "
+                                         f"camera {quote(cam.id)} (calibrated: {known})", m.line, "fid")
         for p in out.pairs:
             for side, pid in (("left", p.left), ("right", p.right)):
                 if pid not in out.photos:
-                    raise self.error(f"pair {p.left} {p.right}: {side} photo {pid!r} is not in this file "
+                    raise self.error(f"pair {p.left} {p.right}: {side} photo {quote(pid)} is not in this file "
                                      f"(photos: {', '.join(out.photos)})", p.line, "pair")
 
 
