@@ -45,7 +45,9 @@ class InputError(BaardaError):
             where = self.path
             if self.line is not None:
                 where += f":{self.line}"
-        parts = [p for p in (where, f"field '{self.field}'" if self.field else "") if p]
+        fld = self.field if self.field is None or len(self.field) <= 40 and self.field.isprintable() else (
+            f"of {len(self.field)} characters")                  # never a file's contents
+        parts = [p for p in (where, f"field '{fld}'" if fld else "") if p]
         prefix = ", ".join(parts)
         return f"{prefix}: {self.message}" if prefix else self.message
 

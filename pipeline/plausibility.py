@@ -53,8 +53,13 @@ def check_block(block: Block, path=None) -> list[str]:
         path = src.get("path") if isinstance(src, dict) else src
     cams, ph, pts, obs = block.cameras, block.photos, block.points, block.observations
 
-    def fail(message, field=None):
-        raise InputError(message, path=path, field=field)
+    lines = block.meta.get("source_lines") or {}     # (photo, point) → (file, line), where a reader knows
+
+    def fail(message, field=None, obs_index=None):
+        where, line = path, None
+        if obs_index is not None:
+            where, line = lines.get((int(obs.photo[obs_index]), int(obs.point[obs_index])), (path, None))
+        raise InputError(message, path=where, line=line, field=field)
 
     for what, ids in (("camera", cams.ids), ("photo", ph.ids), ("point", pts.ids)):
         dup = _first_duplicate(ids.tolist())
@@ -89,18 +94,18 @@ def check_block(block: Block, path=None) -> list[str]:
         label = lambda k: f"point '{pts.ids[obs.point[k]]}' in photo '{ph.ids[obs.photo[k]]}'"   # noqa: E731
         bad = ~np.isfinite(xy).all(axis=1)
         if bad.any():
-            fail(f"{label(int(np.argmax(bad)))}: image coordinates are not finite", "xy")
+            fail(f"{label(int(np.argmax(bad)))}: image coordinates are not finite", "xy", int(np.argmax(bad)))
         a, b, d = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
         bad = ~(np.isfinite(cov).all(axis=(1, 2)) & (a > 0) & (d > 0) & (a * d - b * b > 0))
         if bad.any():
             fail(f"{label(int(np.argmax(bad)))}: the a-priori covariance is not positive definite "
-                 "(a sigma that is zero, negative or not finite)", "sigma")
+                 "(a sigma that is zero, negative or not finite)", "sigma", int(np.argmax(bad)))
         act = np.flatnonzero(np.asarray(obs.active, bool))               # a switched-off copy is harmless
         key = obs.photo[act].astype(np.int64) * (len(pts) + 1) + obs.point[act]
         _, first, counts = np.unique(key, return_index=True, return_counts=True)
         if (counts > 1).any():
             k = int(act[first[np.argmax(counts > 1)]])
-            fail(f"{label(k)} is measured twice (an observation listed twice would count twice)", "observation")
+            fail(f"{label(k)} is measured twice (an observation listed twice would count twice)", "observation", k)
         cam = ph.camera[obs.photo]
         fmt = np.nan_to_num(np.asarray(cams.format_mm, float)[cam], nan=0.0)
         size = np.where(fmt.max(axis=1) > 0, fmt.max(axis=1), np.asarray(cams.c, float)[cam])
@@ -115,7 +120,7 @@ def check_block(block: Block, path=None) -> list[str]:
         if far.any():
             k = int(np.argmax(far))
             fail(f"{label(k)}: image coordinates ({xy[k, 0]:.6g}, {xy[k, 1]:.6g}) mm lie {FAR:g} format sizes "
-                 f"or more from the principal point (a unit or decimal-point mistake?)", "xy")
+                 f"or more from the principal point (a unit or decimal-point mistake?)", "xy", k)
         has_fmt = (fmt > 0).all(axis=1)
         outside = has_fmt & (np.abs(xy) > 0.55 * fmt).any(axis=1)
         if outside.any():

@@ -80,7 +80,7 @@ class PluginManager:
         close = difflib.get_close_matches(name, list(self._stages), n=3, cutoff=0.6)
         did = f"; did you mean {' or '.join(repr(c) for c in close)}?" if close else ""
         known = ", ".join(sorted(self._stages)) or "(none installed)"
-        raise BaardaError(f"no stage named '{name}'{hint}{did} Installed stages: {known}")
+        raise BaardaError(f"no stage named '{name}'{hint}{did}; installed stages: {known}")
 
     def names(self) -> list[str]:
         return sorted(self._stages)

@@ -258,8 +258,9 @@ def read_scale(path: Path) -> list[tuple]:
         flag = _num(t[6], path, ln, "flag") if len(t) > 6 else 1.0
         if d <= 0:
             raise InputError(f"distance must be positive, got {d:g}", path=path, line=ln, field="distance")
-        if s < 0:
-            raise InputError(f"sigma must not be negative, got {s:g}", path=path, line=ln, field="sigma")
+        if s <= 0:
+            raise InputError(f"sigma must be positive, got {s:g} (a scale bar enters the adjustment weighted "
+                             "by its σ)", path=path, line=ln, field="sigma")
         out.append((t[1], a, b, d, s, flag, ln))
     return out
 
@@ -388,6 +389,7 @@ def aicon_block(export: AiconExport, *, sigma_image_um: float | None = None, sel
         "source_lines": {(int(o), int(q)): (phc_file, int(ms["line"][k]))
                          for o, q, k in zip(obs.photo, obs.point, rows)},
     }
+    meta.setdefault("source", str(phc_file))
     return Block(cameras=cameras, photos=photos, points=points, observations=obs, object_unit="mm", meta=meta)
 
 

@@ -86,6 +86,48 @@ def check_binary(folder: Path) -> None:
     r.end("point")
 
 
+MODEL_NAMES = {"SIMPLE_PINHOLE": 3, "PINHOLE": 4, "SIMPLE_RADIAL": 4, "RADIAL": 5, "OPENCV": 8,
+               "OPENCV_FISHEYE": 8, "FULL_OPENCV": 12, "FOV": 5, "SIMPLE_RADIAL_FISHEYE": 4,
+               "RADIAL_FISHEYE": 5, "THIN_PRISM_FISHEYE": 12, "RAD_TAN_THIN_PRISM_FISHEYE": 16}
+
+
+def check_cameras_text(folder: Path) -> None:
+    """``cameras.txt``: ``CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]`` per line, numbers finite, sizes
+    and focal length positive; InputError naming the line and the column."""
+    from baarda.pipeline.errors import quote
+
+    path = folder / "cameras.txt"
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise InputError("not a UTF-8 text file", path=path) from None
+    for ln, line in enumerate(text.splitlines(), start=1):
+        toks = line.split()
+        if not toks or toks[0].startswith("#"):
+            continue
+        if len(toks) < 4:
+            raise InputError(f"expected 'CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]', got {len(toks)} value(s)", path=path,
+                             line=ln, field="camera")
+        n = MODEL_NAMES.get(toks[1])
+        if n is None:
+            raise InputError(f"unknown camera model {quote(toks[1])}", path=path, line=ln, field="MODEL")
+        if len(toks) != 4 + n:
+            raise InputError(f"a {toks[1]} camera has {n} parameters, got {len(toks) - 4}", path=path, line=ln,
+                             field="PARAMS")
+        for k, name in ((0, "CAMERA_ID"), (2, "WIDTH"), (3, "HEIGHT")):
+            if not toks[k].isdigit() or int(toks[k]) <= 0:
+                raise InputError(f"{name} must be a positive integer, got {quote(toks[k])}", path=path, line=ln,
+                                 field=name)
+        for k, tok in enumerate(toks[4:]):
+            try:
+                v = float(tok)
+            except ValueError:
+                v = float("nan")
+            if not np.isfinite(v):
+                raise InputError(f"parameter {k + 1} must be a finite number, got {quote(tok)}", path=path, line=ln,
+                                 field="PARAMS")
+
+
 def check_values(rec, folder: Path, fmt: str) -> None:
     """What pycolmap read: finite parameters, positive sizes and focal lengths, finite poses and points."""
     ext = ".bin" if fmt == "binary" else ".txt"

@@ -275,7 +275,7 @@ class _Reader:
             handler = handlers.get(toks[0])
             if handler is None:
                 raise self.error(f"unknown keyword {quote(toks[0])}; expected one of {', '.join(KEYWORDS)}",
-                                 i, toks[0])
+                                 i, "keyword")
             handler(toks, i)
         self.check()
         return self.out

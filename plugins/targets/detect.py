@@ -40,11 +40,15 @@ def detector_parameters(path=None):
 
     params = cv2.aruco.DetectorParameters()
     if path:
-        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-        ok = fs.isOpened() and params.readDetectorParameters(fs.root())
-        fs.release()
+        try:
+            fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+            ok = fs.isOpened() and params.readDetectorParameters(fs.root())
+            fs.release()
+        except (cv2.error, SystemError) as e:      # OpenCV's YAML/XML parser on a malformed file
+            detail = str(e).strip().splitlines()[-1][:120] if str(e).strip() else type(e).__name__
+            raise ValueError(f"{path}: not an OpenCV YAML/XML file of ArUco detector parameters ({detail})") from None
         if not ok:
-            raise ValueError(f"cannot read ArUco detector parameters from {path}")
+            raise ValueError(f"{path}: cannot read ArUco detector parameters")
     else:
         params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
     return params

@@ -162,6 +162,17 @@ MIN_IMAGE_PX = 16
 """Images smaller than this (either side, pixels) hold no target a detector can find: skipped."""
 
 
+def _quiet_opencv() -> None:
+    """OpenCV's own log lines (``[ERROR:0@3.7] … readHeader …``) off: the stage reports unreadable
+    images itself, as one warning naming the file."""
+    import cv2
+
+    try:
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+    except AttributeError:        # a build without the logging utilities
+        pass
+
+
 class TargetDetection(Stage):
     """Detect ArUco markers, ChArUco boards, chessboards or circular targets in images → block."""
 
@@ -183,12 +194,17 @@ class TargetDetection(Stage):
         files = find_images(options.images, ctx.project_dir)
         if not files:
             raise InputError(f"no image matches {options.images}", field="images", path=ctx.project_file)
-        unreadable = [f for f in files if not (f.is_file() and cv2.haveImageReader(str(f)))]
-        for f in unreadable:
-            ctx.warn(f"{f}: not a readable image; a run skips it")
-        if len(unreadable) == len(files):
-            raise InputError(f"none of the {len(files)} image(s) is a readable image", field="images",
-                             path=ctx.project_file)
+        _quiet_opencv()
+        usable = 0
+        for f in files:
+            gray = cv2.imread(str(f), cv2.IMREAD_GRAYSCALE) if f.is_file() else None
+            if gray is None or min(gray.shape) < MIN_IMAGE_PX:
+                ctx.warn(f"{f}: {'not a readable image' if gray is None else 'too small'}; a run skips it")
+            else:
+                usable += 1
+        if not usable:
+            raise InputError(f"none of the {len(files)} image(s) is a readable image of at least {MIN_IMAGE_PX} "
+                             "pixels", field="images", path=ctx.project_file)
         return None
 
     def _params(self, options: TargetOptions, ctx: Context):
@@ -200,6 +216,7 @@ class TargetDetection(Stage):
     def run(self, inputs, options: TargetOptions, ctx: Context) -> StageResult:
         import cv2
 
+        _quiet_opencv()
         geom = options.geometry()
         art_ids = None
         if options.images:

@@ -142,7 +142,7 @@ def test_missing_file(tmp_path):
     ("pt 11 170000 120000", "pt 11 nan 120000", 15, "x", "x must be a finite number, got 'nan'"),
     ("pt 11 170000 120000", "pt 11 170000 inf", 15, "y", "y must be a finite number, got 'inf'"),
     ("point 10 full 1.0 2.0 3.0", "point 10 full 1.0 NaN 3.0", 24, "Y", "must be a finite number"),
-    ("pair 1 2", "stereo 1 2", 23, "stereo", "unknown keyword 'stereo'"),
+    ("pair 1 2", "stereo 1 2", 23, "keyword", "unknown keyword 'stereo'"),
     ("fid A  41000  40000", "fid E  41000  40000", 17, "fid", "fiducial 'E' of photo '2' is not calibrated"),
     ("photo 2", "photo 1", 16, "photo", "photo '1' declared twice (first at line 9)"),
     ("camera C c 152.0", "camera C c -152.0", 4, "c", "principal distance c must be positive"),

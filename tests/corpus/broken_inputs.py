@@ -1,0 +1,587 @@
+"""A generated corpus of broken inputs: every reader, every kind of option, the project file, the
+run directory and ``baarda review``.
+
+Each :class:`Case` is a small project written into a fresh folder from real data (``fixtures/``
+and ``../shared/data``) with one thing broken.  :func:`run_case` runs it through the command line
+in-process and returns what a user would see; ``test_broken_inputs.py`` asserts for every case:
+the exit code, one ``baarda:`` line naming the file, no traceback, nothing outside ``--out``
+changed, and the earlier stages' files intact.
+
+Run it by hand to see every message::
+
+    .venv/bin/python tests/corpus/broken_inputs.py [substring]
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import shutil
+import struct
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+SHARED = ROOT.parent / "shared" / "data"
+DATA1 = (ROOT / "fixtures" / "paper000" / "data1.cmp").read_text(encoding="utf-8")
+BAL_FILE = SHARED / "bal" / "bal-ladybug-problem-49-7776-pre-shrink-1800.txt"
+LIBMV_FILE = SHARED / "libmv-ba" / "problem_03.bin"
+AICON = SHARED / "aicon-closerange"
+COLMAP = SHARED / "colmap-model"
+CHESS = SHARED / "opencv-chessboard"
+
+
+@dataclass
+class Case:
+    name: str
+    files: dict[str, bytes | str | Callable[[Path], None]]
+    project: str = ""
+    command: str = "run"            # run | validate | review | run+validate
+    code: int = 2
+    names: str = ""                 # the file the message must name (a substring of the error line)
+    earlier: list[str] = field(default_factory=list)   # files of earlier stages that must be in the run
+    out: str = "out"
+    extra_args: list[str] = field(default_factory=list)
+
+
+# -- projects -------------------------------------------------------------------------------------
+
+def comparator_project(extra_stage: str = "", options: str = "") -> str:
+    return (f'[[stage]]\nuse = "comparator"\nid = "source"\n[stage.options]\npath = "data.cmp"\n{options}\n'
+            + extra_stage)
+
+
+SCREENING = '[[stage]]\nuse = "helmert-screening"\nid = "screening"\n[stage.options]\n'
+
+
+def source_project(use: str, path: str, options: str = "") -> str:
+    return f'[[stage]]\nuse = "{use}"\nid = "source"\n[stage.options]\npath = "{path}"\n{options}\n'
+
+
+def replace_line(text: str, start: str, new: str) -> str:
+    lines = text.splitlines()
+    k = next(i for i, ln in enumerate(lines) if ln.strip().startswith(start))
+    lines[k] = new
+    return "\n".join(lines) + "\n"
+
+
+# -- comparator -----------------------------------------------------------------------------------
+
+def comparator_cases() -> list[Case]:
+    c = []
+    broken = {
+        "nan": replace_line(DATA1, "pt  3", "pt  3   nan   180.618"),
+        "inf": replace_line(DATA1, "pt  3", "pt  3   158.014   inf"),
+        "huge": replace_line(DATA1, "pt  3", "pt  3   1e300   180.618"),
+        "letter": replace_line(DATA1, "pt  3", "pt  3   l58.014   180.618"),
+        "comma": replace_line(DATA1, "pt  3", "pt  3   158,014   180.618"),
+        "missing-y": replace_line(DATA1, "pt  3", "pt  3   158.014"),
+        "extra-value": replace_line(DATA1, "pt  3", "pt  3   158.014   180.618  1 2 3 4 5"),
+        "duplicate-point": replace_line(DATA1, "pt  3", "pt  2   158.014   180.618"),
+        "duplicate-photo": DATA1 + "\nphoto L\npt 1 1 1\n",
+        "unknown-keyword": replace_line(DATA1, "pt  3", "point3 158.014 180.618"),
+        "bad-unit": replace_line(DATA1, "unit", "unit inches"),
+        "bad-mode": replace_line(DATA1, "mode", "mode laser"),
+        "unit-twice": "unit mm\n" + DATA1,
+        "negative-sigma": "sigma -0.01\n" + DATA1,
+        "zero-sigma": "sigma 0\n" + DATA1,
+        "nan-sigma": "sigma nan\n" + DATA1,
+        "pt-before-photo": "unit mm\nmode photo\npt 1 1 1\n" + DATA1,
+        "no-photo": "unit mm\nmode photo\n",
+        "empty": "",
+        "camera-zero-c": "camera cam c 0\n" + DATA1,
+        "camera-negative-c": "camera cam c -152\n" + DATA1,
+        "camera-nan-c": "camera cam c nan\n" + DATA1,
+        "camera-bad-format": "camera cam c 152 format -230 230\n" + DATA1,
+        "camera-twice": "camera cam c 152\ncamera cam c 153\n" + DATA1,
+        "photo-unknown-camera": DATA1.replace("photo L", "photo L camera nocam"),
+        "pair-twice": DATA1 + "\npair L R\npair R L\n",
+        "pair-same": DATA1 + "\npair L L\n",
+        "pair-unknown": DATA1 + "\npair L X\n",
+        "point-bad-role": DATA1 + "\npoint 1 hero 1 2 3\n",
+        "point-no-xyz": DATA1 + "\npoint 1 full\n",
+        "point-twice": DATA1 + "\npoint 1 full 1 2 3\npoint 1 full 1 2 3\n",
+        "point-negative-sigma": DATA1 + "\npoint 1 full 1 2 3 -1 1 1\n",
+        "fid-in-photo-mode": DATA1.replace("pt  1    97.673", "fid 1 1 1\npt  1    97.673", 1),
+        "fiducial-mode-no-camera": DATA1.replace("mode photo", "mode fiducial"),
+        "sx-negative": replace_line(DATA1, "pt  3", "pt  3   158.014   180.618  -0.01 0.01"),
+    }
+    for name, text in broken.items():
+        c.append(Case(f"comparator/{name}", {"data.cmp": text}, comparator_project(), names="data.cmp"))
+    c.append(Case("comparator/not-utf8", {"data.cmp": DATA1.encode() + b"\xff\xfe\x00bad"},
+                  comparator_project(), names="data.cmp"))
+    c.append(Case("comparator/binary", {"data.cmp": bytes(range(256)) * 4}, comparator_project(), names="data.cmp"))
+    c.append(Case("comparator/system-file", {}, comparator_project().replace('"data.cmp"', '"/etc/passwd"'),
+                  names="/etc/passwd"))
+    c.append(Case("comparator/missing", {}, comparator_project(), names="project.toml"))
+    c.append(Case("comparator/directory", {"data.cmp": lambda d: (d / "data.cmp").mkdir()}, comparator_project(),
+                  names="project.toml"))
+    for name, text in list(broken.items())[:6]:
+        c.append(Case(f"comparator/validate-{name}", {"data.cmp": text}, comparator_project(), command="validate",
+                      names="data.cmp"))
+    return c
+
+
+# -- BAL and libmv --------------------------------------------------------------------------------
+
+def bal_cases() -> list[Case]:
+    lines = BAL_FILE.read_text().splitlines()
+    n_obs = int(lines[0].split()[2])
+    cam0 = 1 + n_obs                     # first camera value line (one value per line)
+
+    def with_lines(**edits):
+        out = list(lines)
+        for k, v in edits.items():
+            out[int(k[1:])] = v
+        return "\n".join(out) + "\n"
+
+    cases = {
+        "nan-observation": with_lines(l5="3 0 nan 2.02e+02"),
+        "inf-observation": with_lines(l5="3 0 -2.5e+02 inf"),
+        "letter": with_lines(l5="3 0 -2.5e+02 2,02e+02"),
+        "nan-camera": with_lines(**{f"l{cam0 + 2}": "nan"}),
+        "zero-focal": with_lines(**{f"l{cam0 + 6}": "0.0"}),
+        "negative-focal": with_lines(**{f"l{cam0 + 6}": "-400.0"}),
+        "nan-point": with_lines(**{f"l{len(lines) - 1}": "nan"}),
+        "duplicate-observation": with_lines(l2=lines[1]),
+        "camera-out-of-range": with_lines(l3="55 0 1.0 2.0"),
+        "point-out-of-range": with_lines(l3="0 99999 1.0 2.0"),
+        "header-two-counts": with_lines(l0="49 1800"),
+        "header-negative": with_lines(l0=f"49 -1800 {n_obs}"),
+        "header-huge-observations": with_lines(l0="49 7776 10000000000"),
+        "header-huge-points": with_lines(l0=f"49 9999999999 {n_obs}"),
+        "truncated-observations": "\n".join(lines[:101]) + "\n",
+        "truncated-cameras": "\n".join(lines[:cam0 + 30]) + "\n",
+        "truncated-points": "\n".join(lines[:-2]) + "\n",
+        "extra-values": "\n".join(lines) + "\n1.0\n",
+        "empty": "",
+        "observation-three-values": with_lines(l7="3 0 1.0"),
+    }
+    c = [Case(f"bal/{n}", {"problem.txt": t}, source_project("bal", "problem.txt"), names="problem.txt")
+         for n, t in cases.items()]
+    c.append(Case("bal/binary", {"problem.txt": bytes(range(256))}, source_project("bal", "problem.txt"),
+                  names="problem.txt"))
+    c += [Case(f"bal/validate-{n}", {"problem.txt": cases[n]}, source_project("bal", "problem.txt"),
+               command="validate", names="problem.txt")
+          for n in ("nan-observation", "zero-focal", "duplicate-observation", "header-huge-observations")]
+    c += libmv_cases()
+    return c
+
+
+def libmv_cases() -> list[Case]:
+    data = LIBMV_FILE.read_bytes()
+    end = "<" if data[:1] == b"v" else ">"
+    n_cams = struct.unpack_from(end + "i", data, 34)[0]
+    cams_at = 38
+    pts_count_at = cams_at + 52 * n_cams
+    n_pts = struct.unpack_from(end + "i", data, pts_count_at)[0]
+    mk_count_at = pts_count_at + 4 + 16 * n_pts
+
+    def patch(offset, fmt, value):
+        b = bytearray(data)
+        struct.pack_into(end + fmt, b, offset, value)
+        return bytes(b)
+
+    dup = bytearray(data)
+    dup[mk_count_at + 4 + 16: mk_count_at + 4 + 32] = dup[mk_count_at + 4: mk_count_at + 4 + 16]
+    cases = {
+        "nan-focal": patch(2, "f", float("nan")),
+        "zero-focal": patch(2, "f", 0.0),
+        "negative-focal": patch(2, "f", -1.0),
+        "inf-rotation": patch(cams_at + 4 + 4, "f", float("inf")),
+        "nan-point": patch(pts_count_at + 4 + 4, "f", float("nan")),
+        "nan-marker": patch(mk_count_at + 4 + 8, "f", float("nan")),
+        "huge-camera-count": patch(34, "i", 2**31 - 1),
+        "negative-point-count": patch(pts_count_at, "i", -5),
+        "huge-marker-count": patch(mk_count_at, "i", 2**30),
+        "duplicate-camera": patch(cams_at + 52, "i", struct.unpack_from(end + "i", data, cams_at)[0]),
+        "duplicate-marker": bytes(dup),
+        "truncated": data[: len(data) // 2],
+        "extra-bytes": data + b"\0\0\0\0",
+        "bad-magic": b"x" + data[1:],
+        "normalized": data[:1] + b"N" + data[2:],
+        "empty": b"",
+    }
+    return [Case(f"libmv/{n}", {"problem.bin": b}, source_project("libmv", "problem.bin"), names="problem.bin")
+            for n, b in cases.items()]
+
+
+# -- AICON ----------------------------------------------------------------------------------------
+
+def aicon_cases() -> list[Case]:
+    files = {p.suffix: p.read_text(encoding="latin-1") for p in AICON.iterdir()}
+
+    def export(**changes):
+        out = {f"ex{suffix}": text for suffix, text in files.items()}
+        for suffix, text in changes.items():
+            out[f"ex.{suffix}"] = text
+        return out
+
+    def first_line(suffix, new):
+        lines = files[f".{suffix}"].splitlines()
+        return "\n".join([new] + lines[1:]) + "\n"
+
+    phc0 = files[".phc"].splitlines()[0].split()
+    eor0 = files[".eor"].splitlines()[0].split()
+    obc0 = files[".obc"].splitlines()[0].split()
+    cases = {
+        "phc-nan": ("phc", first_line("phc", " ".join(phc0[:2] + ["nan"] + phc0[3:]))),
+        "phc-letter": ("phc", first_line("phc", " ".join(phc0[:2] + ["7.1l"] + phc0[3:]))),
+        "phc-huge": ("phc", first_line("phc", " ".join(phc0[:2] + ["1e300"] + phc0[3:]))),
+        "phc-short": ("phc", first_line("phc", " ".join(phc0[:3]))),
+        "phc-negative-sigma": ("phc", first_line("phc", " ".join(phc0[:4] + ["-0.0001"] + phc0[5:]))),
+        "phc-duplicate": ("phc", files[".phc"].splitlines()[0] + "\n" + files[".phc"]),
+        "eor-nan": ("eor", first_line("eor", " ".join(eor0[:2] + ["nan"] + eor0[3:]))),
+        "eor-short": ("eor", first_line("eor", " ".join(eor0[:4]))),
+        "eor-duplicate": ("eor", files[".eor"].splitlines()[0] + "\n" + files[".eor"]),
+        "obc-inf": ("obc", first_line("obc", " ".join(obc0[:1] + ["inf"] + obc0[2:]))),
+        "obc-duplicate": ("obc", files[".obc"].splitlines()[0] + "\n" + files[".obc"]),
+        "obc-letter": ("obc", first_line("obc", " ".join(["p6"] + obc0[1:]))),
+        "ior-zero-c": ("ior", files[".ior"].replace("-28.78507", "0.0", 1)),
+        "ior-nan-c": ("ior", files[".ior"].replace("-28.78507", "nan", 1)),
+        "ior-empty": ("ior", ""),
+        "scale-negative": ("scale", files[".scale"].replace("1389.6880", "-1389.6880")),
+        "scale-zero-sigma": ("scale", files[".scale"].replace("0.0100", "0.0000")),
+        "scale-unknown-point": ("scale", files[".scale"].replace("506", "999999", 1)),
+        "binary-phc": ("phc", "\x00\x01\x02" * 50),
+    }
+    c = [Case(f"aicon/{n}", export(**{s: t}), source_project("aicon", "ex"), names=f"ex.{s}")
+         for n, (s, t) in cases.items()]
+    missing = export()
+    del missing["ex.eor"]
+    c.append(Case("aicon/missing-eor", missing, source_project("aicon", "ex"), names="ex.eor"))
+    c += [Case(f"aicon/validate-{n}", export(**{cases[n][0]: cases[n][1]}), source_project("aicon", "ex"),
+               command="validate", names=f"ex.{cases[n][0]}") for n in ("phc-nan", "eor-duplicate", "ior-zero-c")]
+    return c
+
+
+# -- COLMAP ---------------------------------------------------------------------------------------
+
+def colmap_cases() -> list[Case]:
+    bins = {f"model/{p.name}": p.read_bytes() for p in COLMAP.glob("*.bin")}
+
+    def with_file(name, data):
+        return {**bins, f"model/{name}": data}
+
+    cams = bins["model/cameras.bin"]
+    images = bins["model/images.bin"]
+    points = bins["model/points3D.bin"]
+    model_id = struct.unpack_from("<i", cams, 12)[0]
+
+    def cam_patch(offset, fmt, value):
+        b = bytearray(cams)
+        struct.pack_into("<" + fmt, b, offset, value)
+        return bytes(b)
+
+    def text_model(d: Path, edit):
+        import pycolmap
+
+        rec = pycolmap.Reconstruction()
+        rec.read_binary(str(COLMAP))
+        (d / "model").mkdir()
+        rec.write_text(str(d / "model"))
+        edit(d / "model")
+
+    def edit_cameras_txt(folder: Path, field_index: int, value: str):
+        lines = (folder / "cameras.txt").read_text().splitlines()
+        k = next(i for i, ln in enumerate(lines) if ln and not ln.startswith("#"))
+        toks = lines[k].split()
+        toks[field_index] = value
+        lines[k] = " ".join(toks)
+        (folder / "cameras.txt").write_text("\n".join(lines) + "\n")
+
+    cases = {
+        "truncated-images": with_file("images.bin", images[:5000]),
+        "truncated-points": with_file("points3D.bin", points[: len(points) // 3]),
+        "truncated-cameras": with_file("cameras.bin", cams[:20]),
+        "huge-image-count": with_file("images.bin", struct.pack("<Q", 10**12) + images[8:]),
+        "huge-point-count": with_file("points3D.bin", struct.pack("<Q", 10**12) + points[8:]),
+        "huge-camera-count": with_file("cameras.bin", struct.pack("<Q", 10**9) + cams[8:]),
+        "unknown-model": with_file("cameras.bin", cam_patch(12, "i", 99)),
+        "zero-width": with_file("cameras.bin", cam_patch(16, "Q", 0)),
+        "nan-focal": with_file("cameras.bin", cam_patch(32, "d", float("nan"))),
+        "zero-focal": with_file("cameras.bin", cam_patch(32, "d", 0.0)),
+        "negative-focal": with_file("cameras.bin", cam_patch(32, "d", -3000.0)),
+        "extra-bytes": with_file("points3D.bin", points + b"\0" * 7),
+        "garbage-images": with_file("images.bin", b"\xff" * 4000),
+    }
+    c = [Case(f"colmap/{n}", f, source_project("colmap", "model"), names="model") for n, f in cases.items()]
+    missing = dict(bins)
+    del missing["model/images.bin"]
+    c.append(Case("colmap/missing-images", missing, source_project("colmap", "model"), names="model"))
+    c.append(Case("colmap/text-nan-focal", {"m": lambda d: text_model(d, lambda f: edit_cameras_txt(f, 4, "nan"))},
+                  source_project("colmap", "model"), names="cameras"))
+    c.append(Case("colmap/text-zero-width",
+                  {"m": lambda d: text_model(d, lambda f: edit_cameras_txt(f, 2, "0"))},
+                  source_project("colmap", "model"), names="model"))
+    c.append(Case("colmap/text-letters",
+                  {"m": lambda d: text_model(d, lambda f: edit_cameras_txt(f, 5, "abc"))},
+                  source_project("colmap", "model"), names="model"))
+    c.append(Case("colmap/validate-truncated-images", cases["truncated-images"], source_project("colmap", "model"),
+                  command="validate", names="images.bin"))
+    assert model_id in range(12)
+    return c
+
+
+# -- images (opencv-targets) ----------------------------------------------------------------------
+
+def targets_cases() -> list[Case]:
+    import cv2
+
+    def tiny(d: Path):
+        (d / "img").mkdir()
+        cv2.imwrite(str(d / "img" / "a.png"), np.zeros((1, 1), np.uint8))
+
+    def not_images(d: Path):
+        (d / "img").mkdir()
+        (d / "img" / "a.png").write_text("not an image")
+        (d / "img" / "b.png").write_bytes(b"\x89PNG\r\n\x1a\n" + b"\0" * 20)
+
+    def one_tiny_rest_real(d: Path):
+        (d / "img").mkdir()
+        cv2.imwrite(str(d / "img" / "00.png"), np.zeros((1, 1), np.uint8))
+        (d / "img" / "01.png").write_text("broken")
+
+    proj = ('[[stage]]\nuse = "opencv-targets"\nid = "source"\n[stage.options]\ntarget = "chessboard"\n'
+            'images = ["img/*.png"]\nsquares = [9, 6]\nsquare_size = 25.0\n')
+    return [
+        Case("targets/tiny-image", {"img": tiny}, proj, names="project.toml"),
+        Case("targets/not-images", {"img": not_images}, proj, names="project.toml"),
+        Case("targets/validate-not-images", {"img": not_images}, proj, command="validate", names="project.toml"),
+        Case("targets/tiny-and-broken", {"img": one_tiny_rest_real}, proj, names="project.toml"),
+        Case("targets/no-match", {}, proj, names="project.toml"),
+        Case("targets/bad-detector-params", {"p.yml": "%YAML:1.0\n---\nadaptiveThreshWinSizeMin: [1, 2\n",
+                                             "img": lambda d: (d / "img").mkdir() or cv2.imwrite(
+                                                 str(d / "img" / "a.png"), np.zeros((64, 64), np.uint8))},
+             proj.replace('"chessboard"', '"charuco"') + 'markers = [5, 3]\nmarker_size = 18.0\n'
+             'detector_params = "p.yml"\n', names="p.yml"),
+    ]
+
+
+# -- options (types and ranges) -------------------------------------------------------------------
+
+def option_cases() -> list[Case]:
+    c = []
+    bad = {
+        "sigma0-nan": "sigma0_mm = nan", "sigma0-inf": "sigma0_mm = inf", "sigma0-zero": "sigma0_mm = 0.0",
+        "sigma0-negative": "sigma0_mm = -0.2", "sigma0-string": 'sigma0_mm = "0.2"', "alpha-one": "alpha0 = 1.0",
+        "alpha-negative": "alpha0 = -0.001", "beta-big": "beta0 = 80.0", "threshold-zero": "threshold_mm = 0.0",
+        "flag-by-unknown": 'flag_by = ["pope", "astrology"]', "action-bad": 'action = "delete"',
+        "bool-as-string": 'detect_swaps = "no"', "bool-as-int": "detect_swaps = 1",
+        "unknown-option": "sigma0 = 0.2", "old-name": "deactivate = true", "arrow-negative": "arrow_scale = -1.0",
+        "list-for-number": "alpha_pope = [0.001]", "table-for-number": "alpha_pope = { a = 1 }",
+    }
+    for name, line in bad.items():
+        c.append(Case(f"options/screening-{name}", {"data.cmp": DATA1},
+                      comparator_project(SCREENING + line + "\n"), names="project.toml"))
+    bundle_bad = {
+        "max-iter-zero": "max_iter = 0", "max-iter-float": "max_iter = 2.5", "tol-negative": "tol_obs = -1e-5",
+        "sigma-table-negative": 'ap_model = "brown"\nsigma = { K1 = -0.1 }', "sigma-table-nan": 'sigma = { c = nan }',
+        "sigma-eo-inf": "sigma_eo = [inf, 1, 1, 1, 1, 1]", "distance-negative":
+            'distances = [{ from = "1", to = "2", distance = -1.0, sigma = 0.1 }]',
+        "distance-sigma-zero": 'distances = [{ from = "1", to = "2", distance = 1.0, sigma = 0.0 }]',
+        "datum-bad": 'datum = "somewhere"', "rho-max-big": "rho_max = 2.0", "scale-zero": "sigma_image_scale = 0.0",
+        "covariance-string": 'covariance = "yes"',
+    }
+    for name, line in bundle_bad.items():
+        c.append(Case(f"options/bundle-{name}", {"data.cmp": DATA1},
+                      comparator_project('[[stage]]\nuse = "bundle"\n[stage.options]\n' + line + "\n"),
+                      names="project.toml"))
+    source_bad = {
+        "bal-pixel-zero": source_project("bal", "p.txt", "pixel_mm = 0.0"),
+        "bal-sigma-negative": source_project("bal", "p.txt", "sigma_px = -1.0"),
+        "bal-sigma-nan": source_project("bal", "p.txt", "sigma_px = nan"),
+        "libmv-resolution-zero": source_project("libmv", "p.bin", "resolution = [0, 480]"),
+        "colmap-sensor-negative": source_project("colmap", "m", "sensor_width_mm = -1.0"),
+        "aicon-sigma-zero": source_project("aicon", "ex", "sigma_image_um = 0.0"),
+        "aicon-perturb-negative": source_project("aicon", "ex", "perturb = { sigma_position = -5.0 }"),
+        "comparator-tol-zero": comparator_project(options="tol_io_um = 0.0"),
+        "comparator-transform-bad": comparator_project(options='transform = "projective"'),
+        "testfield-case-bad": '[[stage]]\nuse = "testfield"\n[stage.options]\ncase = 9\n',
+        "testfield-sigma-inf": '[[stage]]\nuse = "testfield"\n[stage.options]\nsigma_image_um = inf\n',
+        "testfield-blunder-bad": '[[stage]]\nuse = "testfield"\n[stage.options]\nblunders = [{ photo = "1" }]\n',
+        "render-folder-absolute": '[[stage]]\nuse = "testfield-render"\n[stage.options]\nfolder = "/tmp/x"\n',
+        "render-folder-climbs": '[[stage]]\nuse = "testfield-render"\n[stage.options]\nfolder = "../../x"\n',
+        "render-supersample-zero": '[[stage]]\nuse = "testfield-render"\n[stage.options]\nsupersample = 0\n',
+        "export-absolute": comparator_project('[[stage]]\nuse = "colmap-export"\n[stage.options]\npath = "/tmp/m"\n'),
+        "export-climbs": comparator_project('[[stage]]\nuse = "colmap-export"\n[stage.options]\npath = "../m"\n'),
+        "targets-min-points-string": '[[stage]]\nuse = "opencv-targets"\n[stage.options]\nmin_points = "4"\n',
+        "blunders-n-sim-negative": comparator_project('[[stage]]\nuse = "blunder-rejection"\n[stage.options]\n'
+                                                      'n_sim = -1\n'),
+        "blunders-method-bad": comparator_project('[[stage]]\nuse = "blunder-rejection"\n[stage.options]\n'
+                                                  'method = "magic"\n'),
+    }
+    for name, proj in source_bad.items():
+        c.append(Case(f"options/{name}", {"data.cmp": DATA1}, proj, names="project.toml"))
+        if name in ("bal-sigma-nan", "render-folder-climbs", "export-absolute"):
+            c.append(Case(f"options/validate-{name}", {"data.cmp": DATA1}, proj, command="validate",
+                          names="project.toml"))
+    return c
+
+
+# -- the project file -----------------------------------------------------------------------------
+
+def project_cases() -> list[Case]:
+    good = comparator_project()
+    bad = {
+        "not-toml": "[[stage]\nuse = 1\n",
+        "no-stage": "[project]\nname = 'x'\n",
+        "unknown-stage": '[[stage]]\nuse = "helmert"\n',
+        "use-missing": "[[stage]]\nid = 'x'\n",
+        "use-number": "[[stage]]\nuse = 3\n",
+        "enabled-string": good.replace('id = "source"', 'id = "source"\nenabled = "no"'),
+        "enabled-int": good.replace('id = "source"', 'id = "source"\nenabled = 0'),
+        "id-twice": good + good,
+        "id-bad": good.replace('id = "source"', 'id = "a b"'),
+        "reads-nothing": '[[stage]]\nuse = "bundle"\n',
+        "unknown-table": "[projekt]\nname = 'x'\n" + good,
+        "unknown-project-key": "[project]\nnam = 'x'\n" + good,
+        "seed-float": "[project]\nseed = 1.5\n" + good,
+        "unit-bad": "[project]\nobject_unit = 'furlong'\n" + good,
+        "options-not-table": '[[stage]]\nuse = "comparator"\noptions = 3\n',
+        "stage-unknown-key": good.replace('id = "source"', 'id = "source"\ncolour = "red"'),
+        "path-missing": good.replace("data.cmp", "nothere.cmp"),
+    }
+    c = [Case(f"project/{n}", {"data.cmp": DATA1}, p, names="project.toml") for n, p in bad.items()]
+    c += [Case(f"project/validate-{n}", {"data.cmp": DATA1}, bad[n], command="validate", names="project.toml")
+          for n in ("not-toml", "enabled-string", "reads-nothing", "path-missing")]
+    c.append(Case("project/not-utf8", {"data.cmp": DATA1, "project.toml": b"[project]\nname = '\xff\xfe'\n"},
+                  "", names="project.toml"))
+    c.append(Case("project/binary", {"data.cmp": DATA1, "project.toml": bytes(range(256))}, "", names="project.toml"))
+    c.append(Case("project/missing", {"project.toml": lambda d: None}, "", names="project.toml"))
+    c.append(Case("project/directory", {"project.toml": lambda d: (d / "project.toml").mkdir()}, "",
+                  names="project.toml"))
+    return c
+
+
+# -- run directories, later stages, review --------------------------------------------------------
+
+def run_cases() -> list[Case]:
+    good = comparator_project(SCREENING)
+
+    def foreign(d: Path):
+        (d / "out").mkdir()
+        (d / "out" / "thesis.docx").write_text("precious")
+
+    def blocker(d: Path):
+        (d / "out").write_text("a file")
+
+    def old_run_with_notes(d: Path):
+        (d / "out").mkdir()
+        (d / "out" / "results.json").write_text(json.dumps({"baarda_version": "0", "stages": [], "ok": True,
+                                                            "files": ["results.json"]}))
+        (d / "out" / "notes.txt").write_text("mine")
+
+    c = [
+        Case("run/out-is-foreign", {"data.cmp": DATA1, "o": foreign}, good, names="out"),
+        Case("run/out-is-a-file", {"data.cmp": DATA1, "o": blocker}, good, names="out"),
+        Case("run/out-has-user-file", {"data.cmp": DATA1, "o": old_run_with_notes}, good, names="notes.txt"),
+        Case("run/out-under-a-file", {"data.cmp": DATA1, "o": blocker}, good, out="out/run", names="out"),
+        # a later stage fails: the earlier stages' files are kept
+        Case("run/later-stage-unsolvable", {"data.cmp": DATA1},
+             comparator_project('[[stage]]\nuse = "bundle"\n'), code=1, names="",
+             earlier=["source_observations.csv"]),
+        Case("run/screening-too-few", {"data.cmp": DATA1.replace("photo R", "photo R\n").split("pt  4")[0]},
+             comparator_project(SCREENING), names="", earlier=["source_observations.csv"]),
+    ]
+
+    def corrupt_results(d: Path):
+        (d / "r").mkdir()
+        (d / "r" / "results.json").write_text("{not json")
+        (d / "r" / "a.rrd").write_bytes(b"RRF2" + b"\0" * 30)
+
+    def corrupt_rrd(d: Path):
+        (d / "r").mkdir()
+        (d / "r" / "a.rrd").write_bytes(b"\xff" * 100)
+
+    def binary_results(d: Path):
+        (d / "r").mkdir()
+        (d / "r" / "results.json").write_bytes(b"\xff\xfe\x00")
+        (d / "r" / "a.rrd").write_bytes(b"\xff" * 100)
+
+    c += [
+        Case("review/corrupt-results", {"r": corrupt_results}, command="review", names="results.json"),
+        Case("review/corrupt-rrd", {"r": corrupt_rrd}, command="review", names="a.rrd"),
+        Case("review/binary-results", {"r": binary_results}, command="review", names="results.json"),
+        Case("review/missing", {}, command="review", names="r"),
+        Case("review/empty", {"r": lambda d: (d / "r").mkdir()}, command="review", names="r"),
+    ]
+    return c
+
+
+def all_cases() -> list[Case]:
+    return (comparator_cases() + bal_cases() + aicon_cases() + colmap_cases() + targets_cases()
+            + option_cases() + project_cases() + run_cases())
+
+
+# -- running a case -------------------------------------------------------------------------------
+
+@dataclass
+class Outcome:
+    code: int
+    out: str
+    err: str
+    folder: Path
+    before: dict
+    after: dict
+
+
+def _snapshot(folder: Path) -> dict:
+    """Every file below the case folder, with its bytes."""
+    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def setup_case(case: Case, folder: Path) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    for name, content in case.files.items():
+        target = folder / name
+        if callable(content):
+            content(folder)
+            continue
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_bytes(content if isinstance(content, bytes) else content.encode("utf-8"))
+    if case.project and "project.toml" not in case.files:
+        (folder / "project.toml").write_text(case.project, encoding="utf-8")
+
+
+def run_case(case: Case, folder: Path) -> Outcome:
+    from baarda.pipeline.cli import main
+
+    setup_case(case, folder)
+    out = folder / case.out
+    before = _snapshot(folder)
+    if case.command == "review":
+        argv = ["review", str(folder / "r")]
+    elif case.command == "validate":
+        argv = ["validate", str(folder / "project.toml")]
+    else:
+        argv = ["run", str(folder / "project.toml"), "--out", str(out), "--quiet", *case.extra_args]
+    o, e = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(o), contextlib.redirect_stderr(e):
+        code = main(argv)
+    after = _snapshot(folder)
+    return Outcome(code, o.getvalue(), e.getvalue(), folder, before, after)
+
+
+def main_cli(argv: list[str]) -> int:
+    import tempfile
+
+    pattern = argv[0] if argv else ""
+    cases = [c for c in all_cases() if pattern in c.name]
+    with tempfile.TemporaryDirectory() as tmp:
+        for k, case in enumerate(cases):
+            res = run_case(case, Path(tmp) / f"case{k}")
+            line = [ln for ln in res.err.splitlines() if ln.startswith("baarda:")]
+            print(f"{case.name:45s} exit {res.code} (want {case.code}): {line[-1] if line else res.err.strip()[:200]}")
+            shutil.rmtree(Path(tmp) / f"case{k}", ignore_errors=True)
+    print(f"{len(cases)} cases")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main_cli(sys.argv[1:]))
