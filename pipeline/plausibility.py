@@ -13,7 +13,8 @@ built, so that no reader — built in or a plug-in — can pass on a silent wron
   the format (more than :data:`FAR` format sizes from the principal point: a misplaced decimal
   point or a unit mistake, never a real measurement; :data:`FAR_SPREAD` median spreads where neither
   format nor principal distance is known);
-* warnings: image coordinates outside the format (by more than 10 %).
+* warnings: image coordinates outside the format (by more than 10 %); photos without an active
+  measurement (an AICON image whose measurements are all disabled), which no adjustment can use.
 
 The runner applies it to the ``block`` of every stage that reads none (a source) and ``baarda
 validate`` to the block a source's ``validate`` hook returns.
@@ -126,6 +127,13 @@ def check_block(block: Block, path=None) -> list[str]:
         if outside.any():
             k = int(np.argmax(outside))
             warnings.append(f"{int(outside.sum())} image coordinate(s) outside the format (first: {label(k)})")
+    if len(obs) and len(ph):
+        seen = np.zeros(len(ph), bool)
+        seen[obs.photo[np.asarray(obs.active, bool)]] = True
+        if not seen.all():
+            idle = [str(i) for i in ph.ids[~seen]]
+            warnings.append(f"{len(idle)} photo(s) without an active measurement take no part in an adjustment: "
+                            + ", ".join(idle[:10]) + (" …" if len(idle) > 10 else ""))
     pairs = Counter(frozenset((int(a), int(b))) for a, b in zip(block.pairs.left, block.pairs.right))
     twice = [p for p, n in pairs.items() if n > 1]
     if twice:

@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import os
 import shutil
 import struct
 import sys
@@ -27,7 +28,9 @@ from typing import Callable
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
-SHARED = ROOT.parent / "shared" / "data"
+SHARED = next((p for p in (Path(os.environ.get("BAARDA_SHARED_DATA") or ROOT.parent / "shared" / "data"),
+                            ROOT.parent / "shared" / "data", Path("/work/shared/data")) if p.is_dir()),
+              ROOT.parent / "shared" / "data")
 DATA1 = (ROOT / "fixtures" / "paper000" / "data1.cmp").read_text(encoding="utf-8")
 BAL_FILE = SHARED / "bal" / "bal-ladybug-problem-49-7776-pre-shrink-1800.txt"
 LIBMV_FILE = SHARED / "libmv-ba" / "problem_03.bin"
