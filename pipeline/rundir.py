@@ -1,6 +1,6 @@
 """Run directories that never lose data.
 
-A run is written into a fresh *staging* directory beside its target (``.<name>.partial-XXXX``,
+A run is written into a fresh *staging* directory beside its target (``.<name>.partial-<random>``,
 on the same file system) and moved into place only when it ends:
 
 * **complete** (every stage ok) — the staging directory replaces the target.  A target that
