@@ -7,7 +7,13 @@ can be reported in pixels) and white image noise drawn from the ``rng`` argument
   its centre, every other photo rolled by 90° (self-calibration geometry: c, xp, yp and the
   distortion are determinable);
 * :func:`simulate_aerial` — a regular block of strips over gently rolling terrain (60 % forward,
-  30 % side overlap), control points spread over the block, hundreds of photos.
+  30 % side overlap), control points spread over the block, from a few to 10 000 photos and more.
+
+Memory is O(observations): no photos × points array is built.  A photo looking down on the
+terrain takes as candidates only the points of a k-d tree inside its ground footprint; any other
+photo (convergent, oblique) takes every point, a chunk of photos at a time.  The observations are
+exactly those (and in the order) of projecting every point into every photo
+(``tests/synthetic/test_aerial_scale.py``).
 
 Coordinates follow ``docs/conventions.md`` (object unit m, image mm, ω φ κ, y up).  The projection
 is the bundle's own collinearity (:func:`baarda.pipeline.adjustment.collinearity.project_observations`), so
@@ -16,16 +22,18 @@ the simulated observations are exact for baarda's model up to the added noise.
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 
-from baarda.pipeline.geometry import opk_from_rotation
+from baarda.pipeline.geometry import opk_from_rotation, rotation_from_opk_many
 from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points
 
 __all__ = ["simulate_convergent", "simulate_aerial", "perturb_start", "DEFAULT_BROWN"]
 
 DEFAULT_BROWN = (-1.5e-4, 2.0e-7, 0.0, 1.5e-5, -1.0e-5, 0.0, 0.0)
-"""A plausible brown distortion for c = 24 mm (K1 mm⁻², K2 mm⁻⁴, K3, P1 mm⁻¹, P2, B1, B2): ≈ 30 µm
-radial and ≈ 5 µm decentring in the corners of a 24 × 16 mm format."""
+"""A plausible brown distortion for c = 24 mm (K1 mm⁻², K2 mm⁻⁴, K3, P1 mm⁻¹, P2, B1, B2): ≈ 0.3 mm
+(80 px) radial and ≈ 6 µm decentring in the corners of a 24 × 16 mm format."""
 
 
 def _look_at(C, T, roll):
@@ -39,24 +47,109 @@ def _look_at(C, T, roll):
     return np.array([[cr, sr, 0], [-sr, cr, 0], [0, 0, 1]]) @ np.vstack([x, y, z])
 
 
-def _observe(XYZ, X0, opk, camera, rng, noise_px, margin_px=10):
-    """Observations (photo, point, xy mm) of every point inside the format, with noise."""
-    from baarda.pipeline.adjustment import project_observations
+_PAIRS_PER_CHUNK = 1 << 17
+"""Photo–point pairs projected at once (the temporaries of one chunk stay near 50 MB)."""
+
+_FAST_PHOTOS_PER_CHUNK = 128
+"""Photos whose candidates come from the terrain index, gathered per chunk."""
+
+_CONE_SLACK = 1.5
+"""Candidate rays reach 1.5 × the half format (plus the principal point's offset): a point whose
+ideal image position lies beyond cannot be moved into the format by any plausible distortion."""
+
+
+def _footprints(X0, opk, camera, zmin, zmax):
+    """Per photo, a circle (centre (m, 2), radius (m,)) in XY holding every object point with
+    ``zmin ≤ Z ≤ zmax`` whose ideal image position lies within the slack-enlarged format, and a
+    mask ``ok`` (m,) of the photos for which this holds: the projection centre above ``zmax`` and
+    every enlarged corner ray pointing down.  The rays between the two planes Z = zmin and
+    Z = zmax form a convex frustum whose vertices are the 8 corner-ray intersections; the circle
+    encloses their XY positions (``docs/benchmarks.md``, "Scale")."""
+    half = 0.5 * np.asarray(camera["resolution"], float) * camera["pixel_mm"]
+    hx = _CONE_SLACK * half[0] + abs(camera["xp"])
+    hy = _CONE_SLACK * half[1] + abs(camera["yp"])
+    corners = np.array([[sx * hx, sy * hy, -camera["c"]] for sx in (-1, 1) for sy in (-1, 1)])
+    R = rotation_from_opk_many(opk)                       # R_cam_from_world, (m, 3, 3)
+    d = np.einsum("mji,cj->mci", R, corners)              # world directions X − X0 = Rᵀ p_cam, (m, 4, 3)
+    dz = d[:, :, 2]
+    ok = np.isfinite(X0).all(axis=1) & np.isfinite(opk).all(axis=1) & (X0[:, 2] > zmax) & (dz < 0).all(axis=1)
+    dz = np.where(ok[:, None], dz, -1.0)
+    verts = []
+    for z in (zmin, zmax):
+        t = (z - X0[:, 2])[:, None] / dz                  # (m, 4), positive where ok
+        verts.append(X0[:, None, :2] + t[:, :, None] * d[:, :, :2])
+    verts = np.concatenate(verts, axis=1)                 # (m, 8, 2)
+    centre = verts.mean(axis=1)
+    radius = np.linalg.norm(verts - centre[:, None, :], axis=2).max(axis=1)
+    radius = radius * (1 + 1e-9) + 1e-9 * (np.abs(centre).max(axis=1) + 1.0)
+    ok &= np.isfinite(centre).all(axis=1) & np.isfinite(radius)
+    return np.where(ok[:, None], centre, 0.0), np.where(ok, radius, 0.0), ok
+
+
+def _candidate_pairs(XYZ, X0, opk, camera):
+    """Chunks ``(photo, point)`` of candidate pairs, photo by photo in order and the points of each
+    photo ascending (the order of a photos × points enumeration), never more than a chunk at once.
+
+    Photos looking down on the terrain take the points of a k-d tree of the object points' XY
+    inside their footprint circle (:func:`_footprints`); any other photo (convergent, oblique,
+    below the points) takes every point, in chunks of at most ``_PAIRS_PER_CHUNK`` pairs."""
+    from scipy.spatial import cKDTree
 
     m, n = len(X0), len(XYZ)
-    ph = np.repeat(np.arange(m), n)
-    pt = np.tile(np.arange(n), m)
+    if m == 0 or n == 0:
+        return
+    centre, radius, fast = _footprints(X0, opk, camera, XYZ[:, 2].min(), XYZ[:, 2].max())
+    tree = cKDTree(XYZ[:, :2]) if fast.any() else None
+    per_chunk = max(1, _PAIRS_PER_CHUNK // n)
+    i = 0
+    while i < m:
+        j = i + 1
+        if fast[i]:
+            while j < m and fast[j] and j - i < _FAST_PHOTOS_PER_CHUNK:
+                j += 1
+            lists = tree.query_ball_point(centre[i:j], radius[i:j], return_sorted=True)
+            counts = np.fromiter(map(len, lists), np.intp, j - i)
+            pt = np.fromiter(itertools.chain.from_iterable(lists), np.intp, int(counts.sum()))
+            ph = np.repeat(np.arange(i, j), counts)
+        else:
+            while j < m and not fast[j] and j - i < per_chunk:
+                j += 1
+            ph = np.repeat(np.arange(i, j), n)
+            pt = np.tile(np.arange(n), j - i)
+        yield i, j, ph, pt
+        i = j
+
+
+def _project_inside(XYZ, X0, opk, camera, margin_px=10):
+    """Error-free observations ``(photo, point, xy mm)`` of every point in front of a photo and
+    inside its format (less ``margin_px``), photo by photo, points ascending — the same rows a
+    projection of every point into every photo would keep, in memory O(observations)."""
+    from baarda.pipeline.adjustment import project_observations
+
     cam = np.column_stack([camera["c"], camera["xp"], camera["yp"], np.atleast_2d(camera["ap"])])
-    pr = project_observations(ph, pt, XYZ, X0, opk, np.zeros(m, int), cam, [camera["model"]], [{}],
-                              jacobians=False)
     half = 0.5 * np.asarray(camera["resolution"], float) * camera["pixel_mm"] - margin_px * camera["pixel_mm"]
-    inside = (pr.W < 0) & (np.abs(pr.xy[:, 0]) < half[0]) & (np.abs(pr.xy[:, 1]) < half[1])
-    xy = pr.xy[inside] + noise_px * camera["pixel_mm"] * rng.standard_normal((int(inside.sum()), 2))
-    return ph[inside], pt[inside], xy
+    phs, pts, xys = [np.zeros(0, np.intp)], [np.zeros(0, np.intp)], [np.zeros((0, 2))]
+    for i, j, ph, pt in _candidate_pairs(XYZ, X0, opk, camera):
+        if ph.size == 0:
+            continue
+        pr = project_observations(ph - i, pt, XYZ, X0[i:j], opk[i:j], np.zeros(j - i, int), cam,
+                                  [camera["model"]], [{}], jacobians=False)
+        inside = (pr.W < 0) & (np.abs(pr.xy[:, 0]) < half[0]) & (np.abs(pr.xy[:, 1]) < half[1])
+        phs.append(ph[inside])
+        pts.append(pt[inside])
+        xys.append(pr.xy[inside])
+    return np.concatenate(phs), np.concatenate(pts), np.concatenate(xys)
 
 
-def _block(XYZ, X0, opk, camera, rng, noise_px, sigma_px, control, free_intrinsics, name):
-    ph, pt, xy = _observe(XYZ, X0, opk, camera, rng, noise_px)
+def _observe(XYZ, X0, opk, camera, rng, noise_px, margin_px=10):
+    """Observations (photo, point, xy mm) of every point inside the format, with noise."""
+    ph, pt, xy = _project_inside(XYZ, X0, opk, camera, margin_px)
+    xy = xy + noise_px * camera["pixel_mm"] * rng.standard_normal((len(ph), 2))
+    return ph, pt, xy
+
+
+def _block(XYZ, X0, opk, camera, ph, pt, xy, sigma_px, control, free_intrinsics, name):
+    """The block of observations ``(ph, pt, xy)``; points seen by fewer than two photos left out."""
     rays = np.bincount(pt, minlength=len(XYZ))
     keep_pt = rays >= 2
     new_index = np.cumsum(keep_pt) - 1
@@ -87,9 +180,35 @@ def _block(XYZ, X0, opk, camera, rng, noise_px, sigma_px, control, free_intrinsi
 def _noisy_and_exact(XYZ, X0, opk, cam, rng, noise_px, sigma_px, control, free_intrinsics):
     """The noisy block and the same block without noise (a-priori σ = ``sigma_px`` or the noise)."""
     s = noise_px if sigma_px is None else sigma_px
-    noisy = _block(XYZ, X0, opk, cam, rng, noise_px, s, control, free_intrinsics, "cam")
-    exact = _block(XYZ, X0, opk, cam, np.random.default_rng(0), 0.0, s, control, free_intrinsics, "cam")
+    ph, pt, xy = _project_inside(XYZ, X0, opk, cam)
+    noisy_xy = xy + noise_px * cam["pixel_mm"] * rng.standard_normal((len(ph), 2))
+    noisy = _block(XYZ, X0, opk, cam, ph, pt, noisy_xy, s, control, free_intrinsics, "cam")
+    exact = _block(XYZ, X0, opk, cam, ph, pt, xy, s, control, free_intrinsics, "cam")
     return noisy, exact
+
+
+def _nearest_free(XY, targets):
+    """For each target in turn, the index of the nearest point of ``XY`` not taken by an earlier
+    target (a k-d tree instead of a targets × points distance table)."""
+    from scipy.spatial import cKDTree
+
+    n = len(XY)
+    tree = cKDTree(XY)
+    taken = np.zeros(n, bool)
+    out = []
+    for T in targets:
+        k = 4
+        while True:
+            _, idx = tree.query(T, k=min(k, n))
+            idx = np.atleast_1d(idx)
+            idx = idx[(idx < n) & ~taken[np.minimum(idx, n - 1)]]
+            if idx.size or k >= n:
+                break
+            k *= 4
+        if idx.size:
+            taken[idx[0]] = True
+            out.append(int(idx[0]))
+    return np.array(out, dtype=np.intp)
 
 
 def _camera(model, c, pixel_mm, resolution, xp, yp, ap):
@@ -171,10 +290,7 @@ def simulate_aerial(rng: np.random.Generator, *, n_strips: int = 20, photos_per_
                for k in range(0, photos_per_strip, control_spacing)]
     targets += [lo + [across / 2, along / 2], [hi[0] - across / 2, lo[1] + along / 2],
                 [lo[0] + across / 2, hi[1] - along / 2], hi - [across / 2, along / 2]]
-    for T in targets:
-        d = np.linalg.norm(XY - T, axis=1)
-        d[control] = np.inf
-        control[np.argmin(d)] = True
+    control[_nearest_free(XY, np.array(targets, float))] = True
     cam = _camera(model, c, pixel_mm, resolution, 0.0, 0.0, ap)
     return _noisy_and_exact(XYZ, X0, opk, cam, rng, noise_px, sigma_px, control, free_intrinsics)
 
