@@ -280,14 +280,50 @@ def _path_full(A, Sigma, P, E, rho, fixed, H_crit=None):
 
 
 # ---------------------------------------------------------------------------- public
-def _as_rng(rng):
-    if isinstance(rng, np.random.Generator):
+def _seed_sequence(rng) -> np.random.SeedSequence:
+    """The SeedSequence the realisations are spawned from: an int / SeedSequence as given, a
+    Generator's own seed sequence (``default_rng(7)`` and ``7`` agree), None → DEFAULT_SEED."""
+    if isinstance(rng, np.random.SeedSequence):
         return rng
-    return np.random.default_rng(DEFAULT_SEED if rng is None else rng)
+    if isinstance(rng, np.random.Generator):
+        ss = rng.bit_generator.seed_seq
+        if isinstance(ss, np.random.SeedSequence):
+            return ss
+        return np.random.SeedSequence(rng.integers(0, 2 ** 63, size=4).tolist())
+    return np.random.SeedSequence(DEFAULT_SEED if rng is None else rng)
+
+
+class _NullSimulation:
+    """One task of RRR's Monte Carlo under H0: realisations ``start … stop − 1`` of the whole
+    procedure, realisation i from ``default_rng(SeedSequence child i)``.  Returns (the largest H
+    of each realisation, degenerate flags) in realisation order.  Picklable (module level), so a
+    mapper may run it in another process."""
+
+    def __init__(self, full, A, sqrtp, Sigma, P, L, rho, fixed):
+        self.full, self.A, self.sqrtp, self.Sigma, self.P, self.L = full, A, sqrtp, Sigma, P, L
+        self.rho, self.fixed = rho, fixed
+
+    def __call__(self, task):
+        root, start, stop = task
+        n = self.A.shape[0]
+        E = np.empty((stop - start, n))
+        for k, i in enumerate(range(start, stop)):
+            child = np.random.SeedSequence(root.entropy, spawn_key=tuple(root.spawn_key) + (i,),
+                                           pool_size=root.pool_size)
+            E[k] = np.random.default_rng(child).standard_normal(n)
+        if self.full:
+            _, H, _, _, deg = _path_full(self.A, self.Sigma, self.P, E @ self.L.T, self.rho, self.fixed)
+        else:
+            _, H, _, _, deg = _path_diag(self.A, E, self.sqrtp, self.rho, self.fixed)
+        mx = np.full(stop - start, np.nan)
+        if (~deg).any():
+            mx[~deg] = np.max(H[~deg], axis=1)
+        return mx, deg
 
 
 def rrr(model, rho: int, alpha: float = 0.001, n_sim: int = 100_000, rng=None, suspects=None,
-        active=None, chunk: int | None = None, critical: float | None = None) -> RRRResult:
+        active=None, chunk: int | None = None, critical: float | None = None,
+        mapper=None) -> RRRResult:
     """Recursive Residual Rejection on a :class:`~baarda.pipeline.stats.linear.LinearModel`.
 
     Parameters
@@ -296,11 +332,17 @@ def rrr(model, rho: int, alpha: float = 0.001, n_sim: int = 100_000, rng=None, s
     rho : number of suspects (largest |∇̂l| of the full adjustment); needs ``n − ρ > u``.
     alpha : family-wise level: probability that the procedure rejects anything in clean data.
     n_sim : Monte Carlo repetitions for the critical value H.
-    rng : numpy Generator or seed; None uses :data:`DEFAULT_SEED` (reproducible).
+    rng : seed (int), SeedSequence or numpy Generator (its seed sequence); None uses
+        :data:`DEFAULT_SEED` (reproducible).  Realisation i draws from the i-th child of that
+        SeedSequence, so the result does not depend on how the realisations are distributed.
     suspects : optional rows (indices or labels) to test in this order instead of selecting them;
         the Monte Carlo then keeps the same fixed suspects (no selection effect).
     active : optional (n,) bool; RRR then works on the active rows only.
-    chunk : simulations per batch (memory); default ≈ 2e6 / n.
+    chunk : simulations per task (memory, parallelism); default: ``n_sim`` in about 32 tasks, at most
+        ≈ 2e6 / n per task.  Results depend on it only through rounding (the batched algebra).
+    mapper : runs the Monte Carlo's tasks: any callable with the signature of the built-in ``map``
+        (``mapper(fn, tasks)`` → results in order), e.g. the engine of
+        :mod:`baarda.pipeline.montecarlo` (Dask); default: the built-in ``map``, in this process.
     critical : optional critical value H to use instead of the Monte Carlo one (e.g. the paper's
         0.993, to show what it implies); the Monte Carlo still runs for the p-values unless
         ``n_sim = 0``.
@@ -352,9 +394,6 @@ def rrr(model, rho: int, alpha: float = 0.001, n_sim: int = 100_000, rng=None, s
         def path(E, H_crit=None):
             return _path_full(A, Sigma, P, E, rho, fixed, H_crit)
 
-        def noise(g, m):
-            return g.standard_normal((m, n)) @ L.T
-
         data = l[None, :]
     else:
         p = model.P[rows]
@@ -364,24 +403,20 @@ def rrr(model, rho: int, alpha: float = 0.001, n_sim: int = 100_000, rng=None, s
         def path(E, H_crit=None):
             return _path_diag(At, E, sqrtp, rho, fixed, H_crit)
 
-        def noise(g, m):
-            return g.standard_normal((m, n))
-
         data = (l * sqrtp)[None, :]
 
-    # -------- Monte Carlo of the whole procedure under H0 (all-pass path)
-    g = _as_rng(rng)
+    # -------- Monte Carlo of the whole procedure under H0 (all-pass path): tasks of `chunk`
+    # realisations, realisation i drawing from its own SeedSequence child i (results do not depend
+    # on who computes a task); `mapper` runs the tasks (built-in map: here, in order)
     n_sim = int(n_sim)
-    chunk = int(chunk or max(1000, 2_000_000 // max(n, 1)))
-    stats_max = []
-    n_deg = 0
-    done = 0
-    while done < n_sim:
-        m = min(chunk, n_sim - done)
-        _, Hs, _, _, deg = path(noise(g, m))
-        n_deg += int(deg.sum())
-        stats_max.append(np.max(Hs[~deg], axis=1))
-        done += m
+    root = _seed_sequence(rng)
+    chunk = int(chunk or min(max(1000, 2_000_000 // max(n, 1)), max(250, -(-n_sim // 32))))
+    sim = _NullSimulation(full, At if not full else A, sqrtp if not full else None,
+                          Sigma if full else None, P if full else None, L if full else None, rho, fixed)
+    tasks = [(root, a, min(a + chunk, n_sim)) for a in range(0, n_sim, chunk)]
+    parts = list((mapper or map)(sim, tasks))
+    n_deg = int(sum(int(np.sum(deg)) for _, deg in parts))
+    stats_max = [mx[~deg] for mx, deg in parts]
     M = np.sort(np.concatenate(stats_max)) if stats_max else np.zeros(0)
     mm = M.size
     if n_sim > 0 and mm == 0:

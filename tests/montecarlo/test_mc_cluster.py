@@ -1,0 +1,75 @@
+"""Monte Carlo on a real Dask cluster (LocalCluster, worker processes on 127.0.0.1): identical
+results with 1 and 2 workers and in this process."""
+
+import numpy as np
+import pytest
+
+from baarda.pipeline import montecarlo as mc
+from baarda.pipeline.stats import LinearModel, rrr
+
+
+def _draw(rng, i):
+    return rng.standard_normal(4).tolist()
+
+
+def test_map_realisations_identical_with_1_and_2_workers(clients):
+    here = mc.map_realisations(_draw, 200, 2024, chunk=9)
+    for n, client in clients.items():
+        assert mc.map_realisations(_draw, 200, 2024, client=client, chunk=9) == here, f"{n} worker(s)"
+    ref = [np.random.default_rng(s).standard_normal(4).tolist() for s in np.random.SeedSequence(2024).spawn(200)]
+    assert here == ref
+
+
+def test_tasks_really_run_on_both_workers(clients):
+    import os
+
+    with mc.Engine(client=clients[2]) as eng:
+        pids = eng.map(lambda i: (__import__("time").sleep(0.2), os.getpid())[1], range(6))
+    assert len(set(pids)) == 2 and os.getpid() not in pids
+
+
+def test_rrr_critical_value_identical_with_1_and_2_workers(clients):
+    g = np.random.default_rng(3)
+    A = np.c_[np.ones(12), np.linspace(-5, 5, 12), np.linspace(-5, 5, 12) ** 2]
+    l = A @ [1.0, -0.5, 0.1] + 0.1 * g.standard_normal(12)
+    l[4] += 2.0                                   # 20 σ at the fifth row
+    full = LinearModel(A, l, np.diag(g.uniform(0.5, 2, 12)), sigma0=0.1)   # the correlated-P path too
+    for m in (LinearModel(A, l, sigma0=0.1), full):
+        here = rrr(m, 3, alpha=0.01, n_sim=3000, rng=7)
+        for n, client in clients.items():
+            with mc.Engine(client=client) as eng:
+                r = rrr(m, 3, alpha=0.01, n_sim=3000, rng=7, mapper=eng)
+                assert eng.tasks_sent == 12          # 250 realisations a task
+            assert (r.H, r.H_ci, r.n_degenerate) == (here.H, here.H_ci, here.n_degenerate), f"{n} worker(s)"
+            np.testing.assert_array_equal(r.p_value, here.p_value)
+        assert here.rejected_labels == ["5"]
+
+
+def test_method_study_identical_on_the_cluster(clients):
+    from baarda.plugins.testfield.method_study import MethodStudyConfig, method_study
+
+    cfg = MethodStudyConfig(repetitions=3, methods=("bundle, no APs", "independent models"), single_model=False)
+    here = method_study(cfg, 5)
+    for n, client in clients.items():
+        with mc.Engine(client=client) as eng:
+            seen = []
+            there = method_study(cfg, 5, mapper=lambda fn, items: eng.map(fn, items, progress=lambda d, t: seen.append(d)))
+        assert sorted(seen) == [1, 2, 3]
+        assert len(there["rows"]) == len(here["rows"]) == 6
+        for a, b in zip(here["rows"], there["rows"]):
+            assert (a["variant"], a["repetition"], a["Sx"], a["Sy"], a["Sz"]) == \
+                   (b["variant"], b["repetition"], b["Sx"], b["Sy"], b["Sz"]), f"{n} worker(s)"
+        assert there["variants"]["independent models"]["Sxy"] == here["variants"]["independent models"]["Sxy"]
+
+
+def test_control_study_identical_on_the_cluster(clients):
+    from baarda.plugins.testfield.control_study import control_study
+    from baarda.plugins.testfield.study_config import ControlStudyConfig
+
+    cfg = ControlStudyConfig(repetitions=2, cases=(4,), single_model_case=None)
+    here = control_study(cfg, 8)
+    with mc.Engine(client=clients[2]) as eng:
+        there = control_study(cfg, 8, mapper=eng)
+    key = lambda r: (r["repetition"], r["case"], r["aps"], r["Sx"], r["Sy"], r["Sz"], tuple(r["kept"]))  # noqa: E731
+    assert [key(r) for r in there["rows"]] == [key(r) for r in here["rows"]]
+    assert len(here["rows"]) == 4
