@@ -9,7 +9,9 @@
   that sees enough known points, intersect every point seen by ≥ 2 oriented photos, repeat.
 
 Image coordinates in mm with ``c > 0`` (``docs/conventions.md``); distortion from the camera's AP
-model is removed before the linear solutions and modelled exactly in the refinement.
+model is removed before the linear solutions (exactly for a model that corrects the measured
+coordinates, ``brown-backward``; by fixed-point iteration otherwise) and modelled exactly in the
+refinement.
 """
 
 from __future__ import annotations
@@ -49,9 +51,19 @@ def _undistort(xy, c, xp, yp, model="none", ap=None, meta=None, iters=5):
         return xb
     prm = np.broadcast_to(np.asarray(ap, float)[:mdl.n_params], (len(xy), mdl.n_params))
     cc = np.full(len(xy), c)
+    return _ideal(mdl, xb, prm, cc, meta or {}, iters)
+
+
+def _ideal(mdl, xb, prm, c, meta, iters=5):
+    """Ideal reduced coordinates of observed reduced ones ``xb``: exact for a model that gives the
+    correction of measured coordinates (``correct``, e.g. ``brown-backward``), else fixed-point
+    iteration ``x̄ = xb − Δ(x̄)``."""
+    if callable(getattr(mdl, "correct", None)):
+        gx, gy = mdl.correct(xb[:, 0], xb[:, 1], prm, c, meta)
+        return np.column_stack([gx, gy])
     ideal = xb.copy()
     for _ in range(iters):
-        dx, dy = mdl.distortion(ideal[:, 0], ideal[:, 1], prm, cc, meta or {})
+        dx, dy = mdl.distortion(ideal[:, 0], ideal[:, 1], prm, c, meta)
         ideal = xb - np.column_stack([dx, dy])
     return ideal
 
@@ -269,12 +281,7 @@ def intersection(xy, photo, X0, opk, c, xp=None, yp=None, *, point=None, ap_mode
             continue
         sel = models[photo] == nm
         prm = params[photo[sel], 3:3 + mdl.n_params]
-        base = ideal[sel].copy()
-        cur = base.copy()
-        for _ in range(5):
-            dx, dy = mdl.distortion(cur[:, 0], cur[:, 1], prm, params[photo[sel], 0], metas[int(photo[sel][0])])
-            cur = base - np.column_stack([dx, dy])
-        ideal[sel] = cur
+        ideal[sel] = _ideal(mdl, ideal[sel].copy(), prm, params[photo[sel], 0], metas[int(photo[sel][0])])
     d_cam = np.column_stack([ideal, -params[photo, 0]])
     u = np.einsum("kji,kj->ki", R[photo], d_cam)           # Rᵀ d
     u /= np.linalg.norm(u, axis=1, keepdims=True)

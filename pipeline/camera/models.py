@@ -35,7 +35,7 @@ from typing import Mapping
 
 import numpy as np
 
-__all__ = ["APModel", "LinearAPModel", "NoAP", "Ebner12", "Brown", "Aicon", "adapt_model"]
+__all__ = ["APModel", "LinearAPModel", "NoAP", "Ebner12", "Brown", "Aicon", "BrownBackward", "adapt_model"]
 
 
 class APModel:
@@ -476,3 +476,146 @@ class _Adapter(APModel):
     def jacobian_c(self, *a):
         f = getattr(self._inner, "jacobian_c", None)
         return f(*a) if f else super().jacobian_c(*a)
+
+
+class BrownBackward(APModel):
+    """PhotoModeler / DBAT "backward" Brown model (DBAT lens model 3): the distortion *correction*
+    is a function of the **measured** reduced coordinates, with aspect and skew.
+
+    With ``m = (mx, my)`` the measured coordinates relative to the principal point (mm, y up)::
+
+        a  = (ax, ay) = ((1 + aspect) mx + skew my,  my)
+        r² = ax² + ay²,   R = K1 r² + K2 r⁴ + K3 r⁶
+        g(m) = a (1 + R) + (P1 (r² + 2ax²) + 2 P2 ax ay,  P2 (r² + 2ay²) + 2 P1 ax ay)
+
+    and the observation equation of DBAT/PhotoModeler is ``g(m) = (x̄, ȳ)`` (the corrected
+    measurement equals the ideal projection).  baarda keeps the measured coordinates as the
+    observations: the model's distortion is the exact inverse, ``Δ(x̄) = g⁻¹(x̄) − x̄`` (Newton
+    iterations to 1e-13 mm), so ``x = xp + g⁻¹(x̄)`` predicts the measurement.  Beyond the radius
+    where ``g`` folds back (``det ∂g/∂m ≤ 0``, far outside the format for a real lens) there is no
+    inverse; such a point keeps the first-order value ``2x̄ − g(x̄)``.  Jacobians by the
+    implicit-function theorem: ``∂Δ/∂x̄ = G⁻¹ − I``, ``∂Δ/∂θ = −G⁻¹ ∂g/∂θ`` with ``G = ∂g/∂m``.
+    :meth:`correct` evaluates ``g`` itself (used for initial values).
+
+    Parameters in baarda's image frame (y up).  DBAT's image frame has y down: its P2 and skew
+    are the negatives of these, K1–K3, P1 and aspect are the same (``docs/camera-models.md``).
+    Units: K1 mm⁻², K2 mm⁻⁴, K3 mm⁻⁶, P1 P2 mm⁻¹, aspect and skew dimensionless.
+    """
+
+    name = "brown-backward"
+    params = ("K1", "K2", "K3", "P1", "P2", "aspect", "skew")
+    default_sigma = (np.inf,) * 7
+    uses_c = False
+    backward = True
+    """Marks a model whose parameters describe the correction of the measured coordinates."""
+
+    newton_tol = 1e-13
+    newton_max_iter = 30
+
+    # -- the correction g(m) and its derivatives ------------------------------------------------
+    @staticmethod
+    def _correction(mx, my, P, want_jac: bool):
+        K1, K2, K3, P1, P2, asp, sk = (P[:, j] for j in range(7))
+        ax = (1.0 + asp) * mx + sk * my
+        ay = my
+        r2 = ax * ax + ay * ay
+        R = r2 * (K1 + r2 * (K2 + r2 * K3))
+        gx = ax * (1.0 + R) + P1 * (r2 + 2 * ax * ax) + 2 * P2 * ax * ay
+        gy = ay * (1.0 + R) + P2 * (r2 + 2 * ay * ay) + 2 * P1 * ax * ay
+        if not want_jac:
+            return gx, gy, None, None
+        dR = K1 + r2 * (2.0 * K2 + 3.0 * K3 * r2)           # dR / d(r²)
+        # H = ∂g/∂a
+        H = np.empty((mx.shape[0], 2, 2))
+        H[:, 0, 0] = 1.0 + R + 2 * dR * ax * ax + 6 * P1 * ax + 2 * P2 * ay
+        H[:, 0, 1] = 2 * dR * ax * ay + 2 * P1 * ay + 2 * P2 * ax
+        H[:, 1, 0] = 2 * dR * ax * ay + 2 * P2 * ax + 2 * P1 * ay
+        H[:, 1, 1] = 1.0 + R + 2 * dR * ay * ay + 2 * P1 * ax + 6 * P2 * ay
+        # G = ∂g/∂m = H A,  A = [[1 + aspect, skew], [0, 1]]
+        G = np.empty_like(H)
+        G[:, :, 0] = H[:, :, 0] * (1.0 + asp)[:, None]
+        G[:, :, 1] = H[:, :, 0] * sk[:, None] + H[:, :, 1]
+        Gp = np.empty((mx.shape[0], 2, 7))
+        Gp[:, 0, 0], Gp[:, 1, 0] = ax * r2, ay * r2
+        Gp[:, 0, 1], Gp[:, 1, 1] = ax * r2 ** 2, ay * r2 ** 2
+        Gp[:, 0, 2], Gp[:, 1, 2] = ax * r2 ** 3, ay * r2 ** 3
+        Gp[:, 0, 3], Gp[:, 1, 3] = r2 + 2 * ax * ax, 2 * ax * ay
+        Gp[:, 0, 4], Gp[:, 1, 4] = 2 * ax * ay, r2 + 2 * ay * ay
+        Gp[:, :, 5] = H[:, :, 0] * mx[:, None]
+        Gp[:, :, 6] = H[:, :, 0] * my[:, None]
+        return gx, gy, G, Gp
+
+    @staticmethod
+    def _params(params, n):
+        P = _rows(params, n, 7)
+        if P.shape[1] < 7:
+            P = np.concatenate([P, np.zeros((n, 7 - P.shape[1]))], axis=1)
+        return P
+
+    def correct(self, mx, my, params, c=None, meta=None):
+        """``g(m)``: the corrected (ideal) reduced coordinates of measured reduced coordinates."""
+        mx = np.asarray(mx, float)
+        my = np.asarray(my, float)
+        gx, gy, _, _ = self._correction(mx, my, self._params(params, mx.shape[0]), False)
+        return gx, gy
+
+    def _invert(self, xbar, ybar, P):
+        """``m = g⁻¹(x̄)`` by Newton's method; returns m (n, 2), G and ∂g/∂θ at m."""
+        xb = np.asarray(xbar, float)
+        yb = np.asarray(ybar, float)
+        n = xb.shape[0]
+        # first-order start: m ≈ x̄ − (g(x̄) − x̄)
+        gx, gy, _, _ = self._correction(xb, yb, P, False)
+        mx0, my0 = 2 * xb - gx, 2 * yb - gy
+        bad = ~(np.isfinite(mx0) & np.isfinite(my0))
+        mx0[bad], my0[bad] = xb[bad], yb[bad]
+        mx, my = mx0.copy(), my0.copy()
+        scale = np.maximum(1.0, np.abs(xb) + np.abs(yb))
+        done = np.zeros(n, bool)
+        for _ in range(self.newton_max_iter):
+            gx, gy, G, _ = self._correction(mx, my, P, True)
+            rx, ry = gx - xb, gy - yb
+            done = np.abs(rx) + np.abs(ry) <= self.newton_tol * scale
+            if done.all():
+                break
+            det = G[:, 0, 0] * G[:, 1, 1] - G[:, 0, 1] * G[:, 1, 0]
+            ok = det > 1e-12                      # beyond the fold of g (det ≤ 0) there is no inverse
+            det = np.where(ok, det, 1.0)
+            sx = np.where(ok, (G[:, 1, 1] * rx - G[:, 0, 1] * ry) / det, 0.0)
+            sy = np.where(ok, (-G[:, 1, 0] * rx + G[:, 0, 0] * ry) / det, 0.0)
+            mx, my = mx - sx, my - sy
+        # a point without an inverse (far outside the format, beyond the radius where the correction
+        # folds back) keeps the first-order value: finite, so that initial iterations can go on
+        fail = ~done | ~np.isfinite(mx) | ~np.isfinite(my)
+        if fail.any():
+            mx[fail], my[fail] = mx0[fail], my0[fail]
+        _, _, G, Gp = self._correction(mx, my, P, True)
+        return np.column_stack([mx, my]), G, Gp
+
+    def distortion(self, xbar, ybar, params, c, meta):
+        xb = np.asarray(xbar, float)
+        m, _, _ = self._invert(xb, ybar, self._params(params, xb.shape[0]))
+        return m[:, 0] - xb, m[:, 1] - np.asarray(ybar, float)
+
+    def jacobians(self, xbar, ybar, params, c, meta, cols):
+        xb = np.asarray(xbar, float)
+        n = xb.shape[0]
+        _, G, Gp = self._invert(xb, ybar, self._params(params, n))
+        det = G[:, 0, 0] * G[:, 1, 1] - G[:, 0, 1] * G[:, 1, 0]
+        Gi = np.empty_like(G)
+        Gi[:, 0, 0] = G[:, 1, 1] / det
+        Gi[:, 0, 1] = -G[:, 0, 1] / det
+        Gi[:, 1, 0] = -G[:, 1, 0] / det
+        Gi[:, 1, 1] = G[:, 0, 0] / det
+        D = Gi.copy()
+        D[:, 0, 0] -= 1.0
+        D[:, 1, 1] -= 1.0
+        cols = np.asarray(cols, int)
+        Jp = -np.einsum("nij,njk->nik", Gi, Gp[:, :, cols]) if len(cols) else np.zeros((n, 2, 0))
+        return Jp, D, None
+
+    def jacobian_params(self, xbar, ybar, params, c, meta):
+        return self.jacobians(xbar, ybar, params, c, meta, np.arange(7))[0]
+
+    def jacobian_xy(self, xbar, ybar, params, c, meta):
+        return self.jacobians(xbar, ybar, params, c, meta, ())[1]
