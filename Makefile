@@ -33,5 +33,12 @@ test-slow: $(STAMP)
 bench: $(STAMP)
 	$(TESTENV) $(PY) -m pytest -q -s -m benchmark
 
+# The adjustment at scale (docs/benchmarks.md, "Scale"): aerial blocks of 500 … 10 000 photos and
+# BAL problem-49, baarda beside pycolmap, each solver in its own process; up to an hour or more.
+SCALE_ARGS ?= --sizes 500 1000 2000 5000 10000 --bal
+.PHONY: bench-scale
+bench-scale: $(STAMP)
+	$(TESTENV) $(PY) benchmarks/scale.py $(SCALE_ARGS)
+
 clean:
 	rm -rf $(VENV) runs .pytest_cache
