@@ -1,0 +1,773 @@
+"""Reader of DBAT script projects (XML) and the files they name — pure parsing and numerics.
+
+A DBAT (Damped Bundle Adjustment Toolbox, Börlin & Grussenmeyer) script project is an XML file
+naming the control points, check points, image list, image measurements ("marks") and the
+camera, and listing the operations (initial values, which parameters are estimated, resection,
+intersection, bundle).  Format and mapping to baarda: ``docs/dbat.md``.  In short:
+
+* ``<input base_dir="$HERE">`` — relative paths are relative to ``base_dir``; ``$HERE`` is the
+  XML file's folder, ``$HOME`` the home folder, ``$DBAT`` DBAT's installation (option ``dbat_dir``).
+* ``<ctrl_pts>`` / ``<check_pts>`` — ``<file format="id,label,x,y,z[,sx,sy,sz | ,sxyz]">`` and
+  ``<filter id="351,410">keep|remove</filter>``.  Control without σ is fixed.
+* ``<images>`` — ``<file format="id,path">``; a listed path that does not exist is looked up by
+  its name beside the list (the photos are not needed for the adjustment).
+* ``<image_pts>`` — one or more ``<file format="im,id,x,y[,sxy]" sxy="0.5">`` in pixels (x right,
+  y down, origin at the image corner: DBAT's ``u · pixel``), σ from the column or the attribute.
+* ``<cameras><camera>`` — ``sensor`` (``w,h`` or ``auto,h`` mm), ``image`` (``W,H`` px),
+  ``focal``/``cc``, ``pp`` (mm from the image corner, y down), ``K``, ``P``, ``aspect``, ``skew``,
+  ``model`` (DBAT lens model 3: the backward Brown model, baarda's ``brown-backward``), ``nK``, ``nP``.
+* ``<operations>`` — ``check_ray_count min_rays``, ``set_initial_values`` (``io`` ``default`` |
+  ``loaded``), ``set_bundle_estimate_params`` (``io``: ``true``/``false`` or per-parameter
+  ``<all>``, ``<cc>``, ``<pp>``, ``<aspect>``, ``<skew>``, ``<K>``, ``<P>``; ``eo``), and the
+  computations ``spatial_resection``, ``forward_intersection``, ``bundle_adjustment``.
+
+Every malformed line raises :class:`~baarda.pipeline.errors.InputError` naming the file, the line
+and the field.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import re
+import xml.parsers.expat
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from baarda.pipeline.errors import InputError, quote
+from baarda.pipeline.geometry import mm_from_pixels
+from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points
+
+AP_NAMES = ("K1", "K2", "K3", "P1", "P2", "aspect", "skew")
+"""Order of the parameters in ``Cameras.ap`` (the ``brown-backward`` model)."""
+
+DBAT_SIGN = np.ones(7)
+"""baarda value = DBAT value × sign: DBAT's image y axis points down, so its P2 and skew flip."""
+
+SUPPORTED_LENS_MODELS = {3: "brown-backward"}
+KNOWN_OPERATIONS = {"check_ray_count", "set_initial_values", "set_bundle_estimate_params",
+                    "spatial_resection", "forward_intersection", "bundle_adjustment"}
+COLUMNS = {"id", "label", "x", "y", "z", "sx", "sy", "sz", "sxyz", "im", "path", "sxy"}
+
+
+# --------------------------------------------------------------------------------------------
+# XML with line numbers (ElementTree drops them)
+
+
+@dataclass
+class Node:
+    tag: str
+    attrib: dict
+    line: int
+    children: list = field(default_factory=list)
+    text: str = ""
+
+    def find(self, tag: str) -> "Node | None":
+        for c in self.children:
+            if c.tag == tag:
+                return c
+        return None
+
+    def findall(self, tag: str) -> list["Node"]:
+        return [c for c in self.children if c.tag == tag]
+
+    @property
+    def value(self) -> str:
+        return self.text.strip()
+
+
+def parse_xml(path: Path) -> Node:
+    """The XML file as a tree of :class:`Node` (each with its 1-based line)."""
+    try:
+        data = Path(path).read_bytes()
+    except FileNotFoundError:
+        raise InputError("file not found", path=path) from None
+    except OSError as e:
+        raise InputError(f"cannot read: {e.strerror}", path=path) from None
+    parser = xml.parsers.expat.ParserCreate()
+    stack: list[Node] = []
+    root: list[Node] = []
+
+    def start(tag, attrib):
+        n = Node(tag, dict(attrib), parser.CurrentLineNumber)
+        if stack:
+            stack[-1].children.append(n)
+        else:
+            root.append(n)
+        stack.append(n)
+
+    def end(tag):
+        stack.pop()
+
+    def chars(text):
+        if stack:
+            stack[-1].text += text
+
+    parser.StartElementHandler = start
+    parser.EndElementHandler = end
+    parser.CharacterDataHandler = chars
+    try:
+        parser.Parse(data, True)
+    except xml.parsers.expat.ExpatError as e:
+        raise InputError(f"not well-formed XML: {xml.parsers.expat.ErrorString(e.code)}", path=path,
+                         line=e.lineno) from None
+    if not root:
+        raise InputError("empty XML document", path=path)
+    return root[0]
+
+
+# --------------------------------------------------------------------------------------------
+# parsed records
+
+
+@dataclass(frozen=True)
+class DbatCamera:
+    """The script's camera as written (mm, DBAT's image frame: origin at the corner, y down)."""
+
+    name: str
+    unit: str
+    sensor: tuple[float | None, float]      # width (None: "auto"), height
+    image: tuple[int, int]                  # W, H pixels
+    focal: float
+    cc: float | None
+    pp: tuple[float, float] | None
+    K: tuple[float, ...]
+    P: tuple[float, ...]
+    aspect: float
+    skew: float
+    model: int
+    nK: int
+    nP: int
+    line: int
+
+    @property
+    def pixel_mm(self) -> float:
+        """DBAT's pixel size: sensor width / W (the height decides when the width is ``auto``)."""
+        w, h = self.sensor
+        return (w / self.image[0]) if w is not None else h / self.image[1]
+
+
+@dataclass(frozen=True)
+class PointSet:
+    """Control or check points read from one file (after the filters)."""
+
+    ids: list[str]
+    labels: list[str]
+    XYZ: np.ndarray            # (n, 3)
+    sigma: np.ndarray          # (n, 3), 0 = fixed (no σ in the file)
+    file: Path
+    filters: list[tuple[str, list[str]]]
+    lines: list[int]
+
+
+@dataclass(frozen=True)
+class MarkFile:
+    file: Path
+    image: list[str]
+    point: list[str]
+    uv: np.ndarray             # (k, 2) pixels
+    sigma_px: np.ndarray       # (k,)
+    lines: list[int]
+    sigma_source: str          # "column" | "attribute"
+
+
+@dataclass(frozen=True)
+class DbatScript:
+    """Everything read from one script project, in DBAT's own conventions."""
+
+    path: Path
+    name: str
+    object_unit: str
+    control: list[PointSet]
+    check: list[PointSet]
+    images: dict[str, str]            # image id -> path as listed
+    image_files: dict[str, Path | None]
+    images_list: Path | None
+    marks: list[MarkFile]
+    camera: DbatCamera
+    min_rays: int
+    io_initial: str                    # "default" | "loaded"
+    estimate_io: dict[str, bool]       # cc, px, py, K1..K3, P1, P2, aspect, skew
+    estimate_eo: bool
+    operations: list[str]
+    unknown_operations: list[str]
+
+
+# --------------------------------------------------------------------------------------------
+# helpers
+
+
+def _num(tok: str, path, line, name) -> float:
+    try:
+        v = float(tok)
+    except ValueError:
+        raise InputError(f"expected a number, got {quote(tok)}", path=path, line=line, field=name) from None
+    if not math.isfinite(v):
+        raise InputError(f"expected a finite number, got {quote(tok)}", path=path, line=line, field=name)
+    return v
+
+
+def _nums(node: Node, path, n: int | tuple[int, ...], name: str | None = None) -> list[float]:
+    toks = [t.strip() for t in node.value.split(",")] if node.value else []
+    allowed = (n,) if isinstance(n, int) else n
+    if len(toks) not in allowed:
+        want = " or ".join(str(a) for a in allowed)
+        raise InputError(f"expected {want} comma-separated number(s), got {len(toks)}", path=path,
+                         line=node.line, field=name or node.tag)
+    return [_num(t, path, node.line, name or node.tag) for t in toks]
+
+
+def _bool(node: Node, path, name: str) -> bool:
+    v = node.value.lower()
+    if v in ("true", "1", "yes", "on"):
+        return True
+    if v in ("false", "0", "no", "off"):
+        return False
+    raise InputError(f"expected true or false, got {quote(node.value)}", path=path, line=node.line, field=name)
+
+
+def _expand(value: str, here: Path, dbat_dir: Path | None, path, line, name) -> Path:
+    """A DBAT path with ``$HERE``, ``$HOME``, ``$DBAT`` expanded."""
+    text = value.strip()
+    if "$DBAT" in text:
+        if dbat_dir is None:
+            raise InputError("the path uses $DBAT (DBAT's installation folder): give the stage option "
+                             "'dbat_dir'", path=path, line=line, field=name)
+        text = text.replace("$DBAT", str(dbat_dir))
+    text = text.replace("$HERE", str(here)).replace("$HOME", os.path.expanduser("~"))
+    return Path(text)
+
+
+def _is_absolute(text: str) -> bool:
+    return bool(re.match(r"^([/\\]|[A-Za-z]:)", text))
+
+
+def _resolve(base: Path, value: str, here, dbat_dir, path, line, name) -> Path:
+    p = _expand(value, here, dbat_dir, path, line, name)
+    return p if _is_absolute(str(p)) else base / p
+
+
+def _format(node: Node, path, required: set[str], allowed: set[str]) -> list[str]:
+    fmt = node.attrib.get("format")
+    if fmt is None:
+        raise InputError("a <file> needs the attribute format (e.g. \"id,label,x,y,z\")", path=path,
+                         line=node.line, field="format")
+    cols = [c.strip().lower() for c in fmt.split(",")]
+    for c in cols:
+        if c not in allowed:
+            raise InputError(f"unknown column {quote(c)} in the format (known here: {', '.join(sorted(allowed))})",
+                             path=path, line=node.line, field="format")
+    if len(set(cols)) != len(cols):
+        raise InputError("a column appears twice in the format", path=path, line=node.line, field="format")
+    missing = sorted(required - set(cols))
+    if missing:
+        raise InputError(f"the format lacks the column(s) {', '.join(missing)}", path=path, line=node.line,
+                         field="format")
+    return cols
+
+
+def _rows(file: Path, cols: list[str], xml_path, xml_line):
+    """``(line, {column: token})`` of a comma-separated text file; ``#`` starts a comment."""
+    try:
+        text = file.read_bytes().decode("utf-8")
+    except FileNotFoundError:
+        raise InputError(f"file not found: {file}", path=xml_path, line=xml_line, field="file") from None
+    except IsADirectoryError:
+        raise InputError(f"is a folder, not a file: {file}", path=xml_path, line=xml_line, field="file") from None
+    except UnicodeDecodeError:
+        raise InputError("not a UTF-8 text file", path=file) from None
+    except OSError as e:
+        raise InputError(f"cannot read: {e.strerror}", path=file) from None
+    out = []
+    for i, raw in enumerate(text.splitlines(), start=1):
+        s = raw.split("#", 1)[0].strip()
+        if not s:
+            continue
+        toks = [t.strip() for t in s.split(",")]
+        if len(toks) != len(cols):
+            raise InputError(f"expected {len(cols)} comma-separated fields ({','.join(cols)}), got {len(toks)}",
+                             path=file, line=i, field=cols[len(toks)] if len(toks) < len(cols) else cols[-1])
+        for c, t in zip(cols, toks):
+            if not t:
+                raise InputError("empty field", path=file, line=i, field=c)
+        out.append((i, dict(zip(cols, toks))))
+    return out
+
+
+def _id(tok: str) -> str:
+    """DBAT ids are numbers: ``1`` and ``001`` are the same point."""
+    try:
+        return str(int(tok))
+    except ValueError:
+        return tok
+
+
+# --------------------------------------------------------------------------------------------
+# the sections
+
+
+def _points(section: Node, path, base, here, dbat_dir, role: str) -> list[PointSet]:
+    files = section.findall("file")
+    if not files:
+        raise InputError(f"<{section.tag}> names no <file>", path=path, line=section.line, field="file")
+    filters = []
+    for f in section.findall("filter"):
+        ids = f.attrib.get("id")
+        action = f.value.lower()
+        if ids is None:
+            raise InputError("a <filter> needs the attribute id (a comma-separated list)", path=path, line=f.line,
+                             field="id")
+        if action not in ("keep", "remove"):
+            raise InputError(f"a filter is 'keep' or 'remove', got {quote(f.value)}", path=path, line=f.line,
+                             field="filter")
+        filters.append((action, [_id(t.strip()) for t in ids.split(",") if t.strip()], f.line))
+    sets = []
+    for fn in files:
+        cols = _format(fn, path, {"id", "x", "y", "z"}, {"id", "label", "x", "y", "z", "sx", "sy", "sz", "sxyz"})
+        s_cols = [c for c in cols if c in ("sx", "sy", "sz", "sxyz")]
+        if s_cols and not (s_cols == ["sxyz"] or sorted(s_cols) == ["sx", "sy", "sz"]):
+            raise InputError("σ columns are either sxyz or all of sx, sy, sz", path=path, line=fn.line, field="format")
+        file = _resolve(base, fn.value, here, dbat_dir, path, fn.line, "file")
+        ids, labels, XYZ, sig, lines = [], [], [], [], []
+        seen = {}
+        for line, r in _rows(file, cols, path, fn.line):
+            pid = _id(r["id"])
+            if pid in seen:
+                raise InputError(f"point {quote(pid)} listed twice (first on line {seen[pid]})", path=file, line=line,
+                                 field="id")
+            seen[pid] = line
+            xyz = [_num(r[c], file, line, c) for c in ("x", "y", "z")]
+            if "sxyz" in r:
+                s = [_num(r["sxyz"], file, line, "sxyz")] * 3
+            elif "sx" in r:
+                s = [_num(r[c], file, line, c) for c in ("sx", "sy", "sz")]
+            else:
+                s = [FIXED] * 3
+            for c, v in zip(("sx", "sy", "sz") if "sx" in r else ("sxyz",) * 3, s):
+                if v < 0:
+                    raise InputError(f"a standard deviation must not be negative, got {v:g}", path=file, line=line,
+                                     field=c)
+            ids.append(pid)
+            labels.append(r.get("label", ""))
+            XYZ.append(xyz)
+            sig.append(s)
+            lines.append(line)
+        keep = np.ones(len(ids), bool)
+        for action, fids, fline in filters:
+            unknown = sorted(set(fids) - set(ids))
+            if unknown:
+                raise InputError(f"the filter names point(s) not in {file.name}: {', '.join(unknown[:5])}",
+                                 path=path, line=fline, field="id")
+            inside = np.isin(ids, fids)
+            keep &= inside if action == "keep" else ~inside
+        k = np.flatnonzero(keep)
+        sets.append(PointSet(ids=[ids[i] for i in k], labels=[labels[i] for i in k],
+                             XYZ=np.asarray(XYZ, float).reshape(-1, 3)[k],
+                             sigma=np.asarray(sig, float).reshape(-1, 3)[k], file=file,
+                             filters=[(a, f) for a, f, _ in filters], lines=[lines[i] for i in k]))
+    return sets
+
+
+def _images(section: Node, path, base, here, dbat_dir):
+    fns = section.findall("file")
+    if len(fns) != 1:
+        raise InputError(f"<images> must name exactly one <file>, got {len(fns)}", path=path, line=section.line,
+                         field="file")
+    fn = fns[0]
+    cols = _format(fn, path, {"id", "path"}, {"id", "path"})
+    file = _resolve(base, fn.value, here, dbat_dir, path, fn.line, "file")
+    img_base_txt = section.attrib.get("image_base_dir")
+    img_base = None
+    if img_base_txt:
+        try:
+            img_base = _expand(img_base_txt, here, dbat_dir, path, section.line, "image_base_dir")
+        except InputError:
+            img_base = None                        # $DBAT unknown: look beside the list instead
+    images, files = {}, {}
+    for line, r in _rows(file, cols, path, fn.line):
+        iid = _id(r["id"])
+        if iid in images:
+            raise InputError(f"image {quote(iid)} listed twice", path=file, line=line, field="id")
+        images[iid] = r["path"]
+        cands = []
+        p = r["path"].replace("\\", "/")
+        if _is_absolute(p):
+            cands.append(Path(p))
+        elif img_base is not None:
+            cands.append(img_base / p)
+        cands.append(file.parent / Path(p).name)
+        files[iid] = next((c for c in cands if c.is_file()), None)
+    if not images:
+        raise InputError("the image list is empty", path=file)
+    return images, files, file
+
+
+def _marks(section: Node, path, base, here, dbat_dir, pixel_mm) -> list[MarkFile]:
+    fns = section.findall("file")
+    if not fns:
+        raise InputError("<image_pts> names no <file>", path=path, line=section.line, field="file")
+    out = []
+    for fn in fns:
+        cols = _format(fn, path, {"im", "id", "x", "y"}, {"im", "id", "x", "y", "sxy"})
+        attr = fn.attrib.get("sxy")
+        if attr is not None:
+            s_attr = _num(attr, path, fn.line, "sxy")
+            if not s_attr > 0:
+                raise InputError(f"sxy must be positive, got {s_attr:g}", path=path, line=fn.line, field="sxy")
+        elif "sxy" not in cols:
+            raise InputError("no standard deviation for these marks: give a column sxy or the attribute sxy "
+                             "(pixels)", path=path, line=fn.line, field="sxy")
+        file = _resolve(base, fn.value, here, dbat_dir, path, fn.line, "file")
+        im, pt, uv, sg, lines = [], [], [], [], []
+        for line, r in _rows(file, cols, path, fn.line):
+            u = _num(r["x"], file, line, "x")
+            v = _num(r["y"], file, line, "y")
+            if attr is not None:
+                s = s_attr
+            else:
+                s = _num(r["sxy"], file, line, "sxy")
+                if not s > 0:
+                    raise InputError(f"sxy must be positive, got {s:g}", path=file, line=line, field="sxy")
+            im.append(_id(r["im"]))
+            pt.append(_id(r["id"]))
+            uv.append((u, v))
+            sg.append(s)
+            lines.append(line)
+        out.append(MarkFile(file=file, image=im, point=pt, uv=np.asarray(uv, float).reshape(-1, 2),
+                            sigma_px=np.asarray(sg, float), lines=lines,
+                            sigma_source="attribute" if attr is not None else "column"))
+    return out
+
+
+def _camera(section: Node, path) -> DbatCamera:
+    cams = section.findall("camera")
+    if len(cams) != 1:
+        raise InputError(f"expected exactly one <camera> (baarda reads single-camera DBAT projects), got "
+                         f"{len(cams)}", path=path, line=section.line, field="camera")
+    c = cams[0]
+
+    def need(tag):
+        n = c.find(tag)
+        if n is None:
+            raise InputError(f"the camera has no <{tag}>", path=path, line=c.line, field=tag)
+        return n
+
+    unit = c.find("unit")
+    unit_v = unit.value if unit is not None else "mm"
+    if unit_v != "mm":
+        raise InputError(f"camera unit must be mm, got {quote(unit_v)}", path=path,
+                         line=unit.line if unit is not None else c.line, field="unit")
+    sn = need("sensor")
+    toks = [t.strip() for t in sn.value.split(",")]
+    if len(toks) != 2:
+        raise InputError("expected sensor as 'width,height' or 'auto,height' (mm)", path=path, line=sn.line,
+                         field="sensor")
+    sw = None if toks[0].lower() == "auto" else _num(toks[0], path, sn.line, "sensor")
+    sh = _num(toks[1], path, sn.line, "sensor")
+    if (sw is not None and not sw > 0) or not sh > 0:
+        raise InputError("sensor dimensions must be positive", path=path, line=sn.line, field="sensor")
+    im = need("image")
+    W, H = _nums(im, path, 2)
+    if not (W >= 1 and H >= 1 and W == int(W) and H == int(H)):
+        raise InputError("image size must be two positive whole numbers of pixels", path=path, line=im.line,
+                         field="image")
+    focal = _nums(need("focal"), path, 1)[0]
+    ccn = c.find("cc")
+    cc = _nums(ccn, path, 1)[0] if ccn is not None else None
+    for name, v, node in (("focal", focal, c.find("focal")), ("cc", cc, ccn)):
+        if v is not None and not v > 0:
+            raise InputError(f"{name} must be positive, got {v:g}", path=path, line=node.line, field=name)
+    ppn = c.find("pp")
+    pp = tuple(_nums(ppn, path, 2)) if ppn is not None else None
+    modeln = c.find("model")
+    model = int(_nums(modeln, path, 1)[0]) if modeln is not None else 3
+    if model not in SUPPORTED_LENS_MODELS:
+        raise InputError(f"DBAT lens model {model} is not supported (baarda reads model 3, the backward Brown "
+                         "model with aspect and skew)", path=path, line=modeln.line, field="model")
+
+    def count(tag, default, hi):
+        n = c.find(tag)
+        if n is None:
+            return default
+        v = _nums(n, path, 1)[0]
+        if v != int(v) or not 0 <= v <= hi:
+            raise InputError(f"{tag} must be a whole number from 0 to {hi}, got {v:g}", path=path, line=n.line,
+                             field=tag)
+        return int(v)
+
+    nK = count("nK", 3, 3)
+    nP = count("nP", 2, 2)
+    Kn, Pn = c.find("K"), c.find("P")
+    K = tuple(_nums(Kn, path, (0, 1, 2, 3))) if Kn is not None else ()
+    P = tuple(_nums(Pn, path, (0, 2))) if Pn is not None else ()
+    an = c.find("aspect")
+    aspect = _nums(an, path, 1)[0] if an is not None else 1.0
+    if not aspect > 0:
+        raise InputError(f"aspect must be positive, got {aspect:g}", path=path, line=an.line, field="aspect")
+    skn = c.find("skew")
+    skew = _nums(skn, path, 1)[0] if skn is not None else 0.0
+    name = c.find("name")
+    return DbatCamera(name=name.value if name is not None else "", unit=unit_v, sensor=(sw, sh),
+                      image=(int(W), int(H)), focal=focal, cc=cc, pp=pp, K=K, P=P, aspect=aspect, skew=skew,
+                      model=model, nK=nK, nP=nP, line=c.line)
+
+
+IO_FLAGS = ("cc", "px", "py", "K1", "K2", "K3", "P1", "P2", "aspect", "skew")
+
+
+def _estimate_io(node: Node | None, path, nK, nP) -> dict[str, bool]:
+    est = {k: False for k in IO_FLAGS}
+    if node is None:
+        return est
+    if not node.children:
+        v = _bool(node, path, "io")
+        return {k: v for k in IO_FLAGS}
+    groups = {"cc": ("cc",), "pp": ("px", "py"), "px": ("px",), "py": ("py",), "K": ("K1", "K2", "K3"),
+              "P": ("P1", "P2"), "aspect": ("aspect",), "skew": ("skew",),
+              **{k: (k,) for k in ("K1", "K2", "K3", "P1", "P2")}}
+    for ch in node.children:
+        if ch.tag == "c":
+            continue
+        if ch.tag == "all":
+            v = _bool(ch, path, "all")
+            est = {k: v for k in IO_FLAGS}
+        elif ch.tag in groups:
+            v = _bool(ch, path, ch.tag)
+            for k in groups[ch.tag]:
+                est[k] = v
+        else:
+            raise InputError(f"unknown interior-orientation parameter <{ch.tag}> (known: all, cc, pp, aspect, skew, "
+                             "K, P)", path=path, line=ch.line, field=ch.tag)
+    for i in range(nK, 3):
+        est[f"K{i + 1}"] = False
+    for i in range(nP, 2):
+        est[f"P{i + 1}"] = False
+    return est
+
+
+def read_dbat(path: Path, *, dbat_dir: Path | None = None) -> DbatScript:
+    """Read a DBAT script project and every file it names."""
+    path = Path(path)
+    root = parse_xml(path)
+    if root.tag != "document":
+        raise InputError(f"expected a DBAT script (<document dbat_script_version=…>), the root is <{root.tag}>",
+                         path=path, line=root.line, field=root.tag)
+    here = path.parent.resolve()
+    meta = root.find("meta")
+    name = ""
+    unit = "m"
+    if meta is not None:
+        n = meta.find("name")
+        name = n.value if n is not None else ""
+        u = meta.find("project_unit")
+        if u is not None:
+            unit = u.value
+            if unit not in ("m", "mm", "cm", "ft"):
+                raise InputError(f"project_unit must be m, mm, cm or ft, got {quote(unit)}", path=path, line=u.line,
+                                 field="project_unit")
+    inp = root.find("input")
+    if inp is None:
+        raise InputError("the script has no <input> section", path=path, line=root.line, field="input")
+    base = _expand(inp.attrib.get("base_dir", "$HERE"), here, dbat_dir, path, inp.line, "base_dir")
+    if not _is_absolute(str(base)):
+        base = here / base
+    cams = inp.find("cameras")
+    if cams is None:
+        raise InputError("the script has no <cameras> section", path=path, line=inp.line, field="cameras")
+    camera = _camera(cams, path)
+    ctrl = inp.find("ctrl_pts")
+    if ctrl is None:
+        raise InputError("the script has no <ctrl_pts> section (a datum is needed)", path=path, line=inp.line,
+                         field="ctrl_pts")
+    control = _points(ctrl, path, base, here, dbat_dir, "control")
+    chk = inp.find("check_pts")
+    check = _points(chk, path, base, here, dbat_dir, "check") if chk is not None else []
+    imgs = inp.find("images")
+    if imgs is None:
+        raise InputError("the script has no <images> section", path=path, line=inp.line, field="images")
+    images, image_files, images_list = _images(imgs, path, base, here, dbat_dir)
+    ip = inp.find("image_pts")
+    if ip is None:
+        raise InputError("the script has no <image_pts> section", path=path, line=inp.line, field="image_pts")
+    marks = _marks(ip, path, base, here, dbat_dir, camera.pixel_mm)
+    # operations
+    ops_node = root.find("operations")
+    operations, unknown = [], []
+    min_rays = 2
+    io_initial = "default"
+    est_io = {k: False for k in IO_FLAGS}
+    est_eo = True
+    for op in ops_node.findall("operation") if ops_node is not None else []:
+        kids = [k for k in op.children if k.tag != "c"]
+        opname = kids[0].tag if kids else op.value
+        operations.append(opname)
+        if opname not in KNOWN_OPERATIONS:
+            unknown.append(opname)
+        if opname == "check_ray_count":
+            mr = op.attrib.get("min_rays", "2")
+            v = _num(mr, path, op.line, "min_rays")
+            if v != int(v) or v < 1:
+                raise InputError(f"min_rays must be a whole number ≥ 1, got {quote(mr)}", path=path, line=op.line,
+                                 field="min_rays")
+            min_rays = int(v)
+        elif opname == "set_initial_values":
+            io = kids[0].find("io")
+            if io is not None:
+                v = (io.find("all").value if io.find("all") is not None else io.value).lower()
+                if v not in ("default", "loaded"):
+                    raise InputError(f"initial io values are 'default' or 'loaded', got {quote(v)}", path=path,
+                                     line=io.line, field="io")
+                io_initial = v
+        elif opname == "set_bundle_estimate_params":
+            est_io = _estimate_io(kids[0].find("io"), path, camera.nK, camera.nP)
+            eo = kids[0].find("eo")
+            if eo is not None:
+                allv = eo.find("all")
+                est_eo = _bool(allv if allv is not None else eo, path, "eo")
+                if not est_eo:
+                    raise InputError("fixed exterior orientations need given orientations, which DBAT scripts "
+                                     "without <eo> files do not have", path=path, line=eo.line, field="eo")
+    return DbatScript(path=path, name=name, object_unit=unit, control=control, check=check, images=images,
+                      image_files=image_files, images_list=images_list, marks=marks, camera=camera,
+                      min_rays=min_rays, io_initial=io_initial, estimate_io=est_io, estimate_eo=est_eo,
+                      operations=operations, unknown_operations=unknown)
+
+
+# --------------------------------------------------------------------------------------------
+# the block
+
+
+def camera_values(cam: DbatCamera, io_initial: str) -> dict:
+    """Initial interior orientation in baarda's frame: c, xp, yp (mm, y up, origin at the format
+    centre) and the ``brown-backward`` parameters (:data:`AP_NAMES`)."""
+    p = cam.pixel_mm
+    W, H = cam.image
+    loaded = io_initial == "loaded"
+    c = (cam.cc if cam.cc is not None else cam.focal) if loaded else cam.focal
+    if loaded and cam.pp is not None:
+        xp, yp = cam.pp[0] - W * p / 2, H * p / 2 - cam.pp[1]
+    else:
+        xp, yp = 0.0, 0.0
+    dbat = np.zeros(7)
+    if loaded:
+        dbat[:len(cam.K)] = cam.K
+        dbat[3:3 + len(cam.P)] = cam.P
+        dbat[5] = cam.aspect - 1.0
+        dbat[6] = cam.skew
+    return {"c": float(c), "xp": float(xp), "yp": float(yp), "ap": dbat * DBAT_SIGN}
+
+
+def dbat_from_baarda(c, xp, yp, ap, cam: DbatCamera) -> dict:
+    """baarda's camera values in DBAT's conventions: cc, pp (mm from the image corner, y down), K, P,
+    as (aspect − 1), sk."""
+    p = cam.pixel_mm
+    W, H = cam.image
+    d = np.asarray(ap, float) * DBAT_SIGN
+    return {"cc": float(c), "px": float(xp + W * p / 2), "py": float(H * p / 2 - yp), "K1": d[0], "K2": d[1],
+            "K3": d[2], "P1": d[3], "P2": d[4], "as": d[5], "sk": d[6]}
+
+
+def dbat_block(script: DbatScript) -> Block:
+    """The script as a baarda block: one ``brown-backward`` camera, one photo per listed image (no
+    orientation: the bundle resects and intersects), control (fixed or weighted), check and tie
+    points, marks in mm with their σ.  Tie and check points with fewer than ``min_rays`` rays are left
+    out (DBAT's ``check_ray_count``), with their marks."""
+    cam = script.camera
+    p = cam.pixel_mm
+    W, H = cam.image
+    iv = camera_values(cam, script.io_initial)
+    e = script.estimate_io
+    s_iop = [FREE if e["cc"] else FIXED, FREE if e["px"] else FIXED, FREE if e["py"] else FIXED]
+    s_ap = [FREE if e[k] else FIXED for k in ("K1", "K2", "K3", "P1", "P2", "aspect", "skew")]
+    cameras = Cameras.make(["1"], iv["c"], iv["xp"], iv["yp"], ap_model=SUPPORTED_LENS_MODELS[cam.model],
+                           ap=iv["ap"][None], sigma_iop=[s_iop], sigma_ap=[s_ap],
+                           format_mm=[(W * p, H * p)], pixel_mm=p, resolution=[(W, H)])
+    # points: control, check, tie
+    ids, XYZ, role, sig, labels = [], [], [], [], {}
+    where = {}
+    for kind, sets in (("control", script.control), ("check", script.check)):
+        for s in sets:
+            for k, pid in enumerate(s.ids):
+                if pid in where:
+                    raise InputError(f"point {quote(pid)} is both {where[pid]} and {kind}" if where[pid] != kind else
+                                     f"point {quote(pid)} listed twice as {kind}", path=s.file, line=s.lines[k],
+                                     field="id")
+                where[pid] = kind
+                ids.append(pid)
+                XYZ.append(s.XYZ[k])
+                role.append("full" if kind == "control" else "check")
+                sig.append(s.sigma[k] if kind == "control" else np.full(3, FREE))
+                labels[pid] = s.labels[k]
+    # marks
+    img_index = {iid: k for k, iid in enumerate(script.images)}
+    ob_img, ob_pt, ob_uv, ob_s = [], [], [], []
+    seen = {}
+    for mf in script.marks:
+        for k in range(len(mf.point)):
+            iid, pid = mf.image[k], mf.point[k]
+            if iid not in img_index:
+                raise InputError(f"image {quote(iid)} is not in the image list", path=mf.file, line=mf.lines[k],
+                                 field="im")
+            key = (iid, pid)
+            if key in seen:
+                raise InputError(f"point {quote(pid)} measured twice in image {quote(iid)} (first: {seen[key]})",
+                                 path=mf.file, line=mf.lines[k], field="id")
+            seen[key] = f"{mf.file.name}:{mf.lines[k]}"
+            u, v = mf.uv[k]
+            if not (-0.5 * W <= u <= 1.5 * W and -0.5 * H <= v <= 1.5 * H):
+                raise InputError(f"mark ({u:g}, {v:g}) px lies far outside the {W} × {H} image", path=mf.file,
+                                 line=mf.lines[k], field="x")
+            ob_img.append(img_index[iid])
+            ob_pt.append(pid)
+            ob_uv.append((u, v))
+            ob_s.append(mf.sigma_px[k])
+    if not ob_pt:
+        raise InputError("no image measurements", path=script.marks[0].file)
+    for pid in ob_pt:
+        if pid not in where:
+            where[pid] = "tie"
+            ids.append(pid)
+            XYZ.append(np.full(3, np.nan))
+            role.append("tie")
+            sig.append(np.full(3, FREE))
+    ob_pt_arr = np.asarray(ob_pt, dtype=object)
+    rays = {pid: 0 for pid in ids}
+    for pid in ob_pt:
+        rays[pid] += 1
+    dropped = [pid for pid, r in zip(ids, role) if r in ("tie", "check") and rays[pid] < script.min_rays]
+    keep_obs = ~np.isin(ob_pt_arr, dropped)
+    keep_pt = [pid not in set(dropped) for pid in ids]
+    index = {}
+    for pid, kp in zip(ids, keep_pt):
+        if kp:
+            index[pid] = len(index)
+    points = Points.make([i for i, kp in zip(ids, keep_pt) if kp],
+                         np.asarray([x for x, kp in zip(XYZ, keep_pt) if kp], float).reshape(-1, 3),
+                         role=[r for r, kp in zip(role, keep_pt) if kp],
+                         sigma=np.asarray([s for s, kp in zip(sig, keep_pt) if kp], float).reshape(-1, 3))
+    uv = np.asarray(ob_uv, float)[keep_obs]
+    xy = mm_from_pixels(uv, (W, H), p, convention="colmap")
+    obs = Observations.make(np.asarray(ob_img, int)[keep_obs], [index[q] for q in ob_pt_arr[keep_obs]], xy,
+                            sigma=np.asarray(ob_s, float)[keep_obs] * p)
+    photos = Photos.make(list(script.images), camera=0)
+    unused_ctrl = [pid for pid, r in zip(ids, role) if r == "full" and rays[pid] == 0]
+    meta = {
+        "dbat": {
+            "script": str(script.path), "name": script.name, "camera": dataclasses.asdict(cam), "io_initial": script.io_initial,
+            "estimate_io": dict(script.estimate_io), "min_rays": script.min_rays, "operations": script.operations,
+            "unknown_operations": script.unknown_operations, "labels": labels,
+            "images": {k: (str(v) if v is not None else None) for k, v in script.image_files.items()},
+            "image_paths": dict(script.images),
+            "marks": [{"file": str(m.file), "count": len(m.point), "sigma_px": sorted(set(m.sigma_px.tolist())),
+                       "sigma_source": m.sigma_source} for m in script.marks],
+            "dropped_points": dropped, "dropped_marks": int((~keep_obs).sum()),
+            "unmeasured_control": unused_ctrl,
+            "control_files": [str(s.file) for s in script.control],
+            "check_files": [str(s.file) for s in script.check],
+        },
+        "ap_meta": {},
+    }
+    return Block(cameras, photos, points, obs, object_unit=script.object_unit, meta=meta)
