@@ -366,6 +366,68 @@ def targets_cases() -> list[Case]:
     ]
 
 
+# -- DBAT script projects -------------------------------------------------------------------------
+
+DBAT_CAMCAL = SHARED / "dbat-camcal"
+
+
+def dbat_cases() -> list[Case]:
+    names = {"p.xml": "camcaldemo.xml", "reference/camcal-fixed.txt": "reference/camcal-fixed.txt",
+             "images/images.txt": "images/images.txt", "measurements/markpts.txt": "measurements/markpts.txt"}
+    files = {k: (DBAT_CAMCAL / v).read_text(encoding="utf-8") for k, v in names.items()}
+
+    def project(**changes):
+        out = dict(files)
+        for key, (old, new) in changes.items():
+            name = {"xml": "p.xml", "ctrl": "reference/camcal-fixed.txt", "images": "images/images.txt",
+                    "marks": "measurements/markpts.txt"}[key]
+            assert old in out[name], old
+            out[name] = out[name].replace(old, new, 1)
+        return out
+
+    mark = " 1,    2, 1429.1871, 1456.4278, 0.1"
+    cases = {
+        "marks-letter": ("markpts.txt", {"marks": (mark, mark.replace("1429.1871", "14z9.1871"))}),
+        "marks-nan": ("markpts.txt", {"marks": (mark, mark.replace("1429.1871", "nan"))}),
+        "marks-short": ("markpts.txt", {"marks": (mark, mark.rsplit(",", 1)[0])}),
+        "marks-zero-sigma": ("markpts.txt", {"marks": (mark, mark.replace("0.1", "0"))}),
+        "marks-unknown-image": ("markpts.txt", {"marks": (mark, mark.replace(" 1,", " 99,", 1))}),
+        "marks-twice": ("markpts.txt", {"marks": (" 1,    3, 1217.8557", " 1,    2, 1217.8557")}),
+        "marks-far-outside": ("markpts.txt", {"marks": (mark, mark.replace("1429.1871", "91429.1871"))}),
+        "marks-binary": ("markpts.txt", {"marks": (files["measurements/markpts.txt"], "\x00\xff\xfe" * 40)}),
+        "ctrl-duplicate": ("camcal-fixed.txt", {"ctrl": ("1002,CP2", "1001,CP2")}),
+        "ctrl-letter": ("camcal-fixed.txt", {"ctrl": ("1002,CP2,1,1,0", "1002,CP2,1,one,0")}),
+        "ctrl-inf": ("camcal-fixed.txt", {"ctrl": ("1002,CP2,1,1,0", "1002,CP2,inf,1,0")}),
+        "images-duplicate": ("images.txt", {"images": (" 2, data", " 1, data")}),
+        "images-empty": ("images.txt", {"images": (files["images/images.txt"], "# nothing\n")}),
+        "xml-malformed": ("p.xml", {"xml": ("<operation>spatial_resection</operation>",
+                                            "<operation>spatial_resection</operation")}),
+        "xml-not-dbat": ("p.xml", {"xml": (files["p.xml"], "<?xml version='1.0'?>\n<project/>\n")}),
+        "xml-lens-model": ("p.xml", {"xml": ("<model>3</model>", "<model>1</model>")}),
+        "xml-unknown-column": ("p.xml", {"xml": ('format="id,label,x,y,z"', 'format="id,label,x,y,q"')}),
+        "xml-no-sigma": ("p.xml", {"xml": ('format="im,id,x,y,sxy"', 'format="im,id,x,y"')}),
+        "xml-missing-file": ("p.xml", {"xml": ("reference/camcal-fixed.txt", "reference/nowhere.txt")}),
+        "xml-negative-sensor": ("p.xml", {"xml": ("<sensor>auto,5.43764</sensor>", "<sensor>auto,-5.4</sensor>")}),
+        "xml-zero-focal": ("p.xml", {"xml": ("<focal>7.5</focal>", "<focal>0</focal>")}),
+        "xml-image-size": ("p.xml", {"xml": ("<image>2272,1704</image>", "<image>2272.5,1704</image>")}),
+        "xml-bad-flag": ("p.xml", {"xml": ("<skew>false</skew>", "<skew>nope</skew>")}),
+        "xml-unknown-io": ("p.xml", {"xml": ("<skew>false</skew>", "<lens>false</lens>")}),
+        "xml-filter-unknown": ("p.xml", {"xml": ("</ctrl_pts>", '<filter id="7777">keep</filter></ctrl_pts>')}),
+        "xml-dbat-dir": ("p.xml", {"xml": ('<input base_dir="$HERE">', '<input base_dir="$DBAT/x">')}),
+        "xml-min-rays": ("p.xml", {"xml": ('min_rays="2"', 'min_rays="two"')}),
+        "xml-two-cameras": ("p.xml", {"xml": ("</cameras>", "<camera><sensor>1,1</sensor></camera></cameras>")}),
+    }
+    c = [Case(f"dbat/{n}", project(**ch), source_project("dbat", "p.xml"), names=f) for n, (f, ch) in cases.items()]
+    not_utf8 = dict(files)
+    not_utf8["measurements/markpts.txt"] = files["measurements/markpts.txt"].encode("utf-8") + b"\xff\xfe 1, 2\n"
+    c.append(Case("dbat/marks-not-utf8", not_utf8, source_project("dbat", "p.xml"), names="markpts.txt"))
+    c.append(Case("dbat/no-path", files, '[[stage]]\nuse = "dbat"\nid = "source"\n', names="project.toml"))
+    c.append(Case("dbat/missing-xml", files, source_project("dbat", "nowhere.xml"), names="nowhere.xml"))
+    c += [Case(f"dbat/validate-{n}", project(**cases[n][1]), source_project("dbat", "p.xml"), command="validate",
+               names=cases[n][0]) for n in ("marks-letter", "xml-malformed", "ctrl-duplicate")]
+    return c
+
+
 # -- options (types and ranges) -------------------------------------------------------------------
 
 def option_cases() -> list[Case]:
@@ -519,7 +581,7 @@ def run_cases() -> list[Case]:
 
 def all_cases() -> list[Case]:
     return (comparator_cases() + bal_cases() + aicon_cases() + colmap_cases() + targets_cases()
-            + option_cases() + project_cases() + run_cases())
+            + dbat_cases() + option_cases() + project_cases() + run_cases())
 
 
 # -- running a case -------------------------------------------------------------------------------
