@@ -1,6 +1,9 @@
 """The ``baarda`` command.
 
-    baarda run PROJECT.toml [--out DIR] [--quiet] [--threads N]   run a project, write a run directory
+    baarda run PROJECT.toml [--out DIR] [--quiet] [--threads N] [--scheduler S] [--workers N]
+                                                    run a project, write a run directory
+    baarda batch PROJECT… [--sweep TABLE] --out DIR [--scheduler S] [--workers N]
+                                                    many runs through Dask, one summary
     baarda validate PROJECT.toml                    check a project and every input file without running it
     baarda stages [--verbose]                       list installed stages (and their options)
     baarda review RUN_DIR                           what each recording holds, read back from the files
@@ -58,17 +61,43 @@ def _print_outcome(outcome) -> None:
             print(f"baarda: the complete earlier run in {outcome.kept} is kept unchanged", file=sys.stderr)
 
 
+def _engine(args):
+    """The Dask engine of ``--scheduler`` / ``--workers`` (nothing starts until work needs it)."""
+    from .montecarlo import Engine, Scheduler
+
+    log = None if getattr(args, "quiet", False) else (lambda text: print(text, file=sys.stderr, flush=True))
+    return Engine(Scheduler.parse(args.scheduler, args.workers), log=log)
+
+
 def _cmd_run(args) -> int:
+    from .montecarlo import using
     from .runner import RunInterrupted, run_project
 
     _set_threads(args.threads)
-    try:
-        outcome = run_project(args.project, args.out, verbose=not args.quiet)
-    except RunInterrupted as e:
-        _print_outcome(e.outcome)
-        raise KeyboardInterrupt from None
+    with _engine(args) as engine, using(engine):
+        try:
+            outcome = run_project(args.project, args.out, verbose=not args.quiet)
+        except RunInterrupted as e:
+            _print_outcome(e.outcome)
+            raise KeyboardInterrupt from None
     _print_outcome(outcome)
     return EXIT_STATUS[outcome.failure or "ok"]
+
+
+def _cmd_batch(args) -> int:
+    from .batch import open_batch, plan_batch, run_batch
+
+    _set_threads(args.threads)
+    out = open_batch(args.out)
+    jobs = plan_batch(args.projects, out, sweep=args.sweep)
+    say = (lambda text: None) if args.quiet else (lambda text: print(text, file=sys.stderr, flush=True))
+    with _engine(args) as engine:
+        say(f"batch: {len(jobs)} run(s) on {engine.scheduler.describe()}")
+        rows = run_batch(jobs, out, engine, progress=say)
+    ok = sum(r["status"] == "ok" for r in rows)
+    print(f"batch directory: {out}")
+    print(f"runs: {ok}/{len(rows)} ok; summary: {out / 'summary.csv'}, {out / 'summary.md'}")
+    return 0 if ok == len(rows) else 1
 
 
 def _cmd_validate(args) -> int:
@@ -177,7 +206,25 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--quiet", action="store_true", help="no progress output")
     r.add_argument("--threads", type=_positive_int, default=None, metavar="N",
                    help="BLAS/OpenMP threads (default 1: faster for the bundle's small dense solves)")
+    _scheduler_args(r)
     r.set_defaults(func=_cmd_run)
+    b = sub.add_parser("batch", help="run many projects (a list, a glob, or a sweep of one) through Dask",
+                       formatter_class=argparse.RawDescriptionHelpFormatter, epilog=BATCH_HELP, description=(
+                           "Run many projects, each into its own run directory under OUT/runs, through Dask: "
+                           "worker processes on this machine by default, or an existing Dask cluster. A failed "
+                           "run is reported in the summary (OUT/summary.csv, OUT/summary.md) and does not stop "
+                           "the others. See docs/batch.md."))
+    b.add_argument("projects", nargs="+", metavar="PROJECT",
+                   help="project files, folders of them, or glob patterns (quote them: 'projects/*.toml')")
+    b.add_argument("--sweep", metavar="TABLE",
+                   help="a CSV (or TOML [[run]] tables) whose columns are stage_id.option values: one run "
+                        "of the one PROJECT per row")
+    b.add_argument("--out", required=True, help="batch directory (new, empty, or an earlier batch's)")
+    b.add_argument("--quiet", action="store_true", help="no progress output")
+    b.add_argument("--threads", type=_positive_int, default=None, metavar="N",
+                   help="BLAS/OpenMP threads of this process (workers use 1)")
+    _scheduler_args(b)
+    b.set_defaults(func=_cmd_batch)
     v = sub.add_parser("validate", help="check a project and its input files without running it",
                        epilog=EXIT_HELP, formatter_class=argparse.RawDescriptionHelpFormatter,
                        description="Check the project, every option, and every input file with the "
@@ -191,6 +238,22 @@ def build_parser() -> argparse.ArgumentParser:
     rv.add_argument("run_dir")
     rv.set_defaults(func=_cmd_review)
     return p
+
+
+BATCH_HELP = """exit status:
+  0    every run succeeded
+  1    at least one run failed (see the summary: status, failure, message)
+  2    an input error before anything ran (a project, the sweep table, --out, --scheduler)"""
+
+
+def _scheduler_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--scheduler", default="local", metavar="S",
+                   help="where Monte Carlo tasks and batch runs go: local (default: a Dask cluster of "
+                        "worker processes on 127.0.0.1, started when the work needs it), processes "
+                        "(dask's multiprocessing scheduler), sync (this process) or the address of a "
+                        "running Dask scheduler, e.g. tcp://10.0.0.5:8786 (docs/batch.md)")
+    p.add_argument("--workers", type=_positive_int, default=None, metavar="N",
+                   help="worker processes of local/processes (default: the CPUs of this machine)")
 
 
 def _positive_int(text: str) -> int:

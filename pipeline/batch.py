@@ -1,0 +1,440 @@
+"""Many runs at once: ``baarda batch`` (a list of projects, a glob, or one project with a sweep
+table) through the Dask engine of :mod:`baarda.pipeline.montecarlo`.
+
+A batch directory holds
+
+* ``runs/<name>/`` — one run directory per run, written by the ordinary runner
+  (:func:`baarda.pipeline.runner.run_project`) with its rules (staging directory, a failed
+  re-run never replaces a complete one, foreign files refused);
+* ``projects/<name>.toml`` — the project file of each sweep row (the base project with the row's
+  options, input paths made absolute), so that every run can be repeated with ``baarda run``;
+* ``summary.csv`` and ``summary.md`` — one row per run: status, failure kind and message,
+  seconds, stages ok, the sweep's values and the stages' numeric summary figures
+  (``<stage>.<figure>``);
+* ``batch.json`` — the same rows, typed (:func:`summary_rows` reads them back, e.g. for an
+  HTML report), and what ran them.
+
+A failed run is a row with its status; it never stops the other runs.  A sweep table is a CSV
+whose header names ``<stage id>.<option>`` columns (and optionally ``name``), one run per row,
+cells read as TOML values (``0.01``, ``true``, ``"text"``, ``[1, 2]``; a bare word is a string),
+or a TOML file of ``[[run]]`` tables with the same keys.  Every name and value is checked against
+the stage's options before anything runs (an InputError naming the table, its line and the
+column).
+"""
+
+from __future__ import annotations
+
+import csv
+import datetime as _dt
+import glob as _glob
+import io
+import json
+import re
+import time
+import tomllib
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+from . import __version__
+from .errors import BaardaError, InputError
+
+__all__ = ["BatchJob", "plan_batch", "read_sweep", "run_batch", "run_job", "summary_rows", "write_summary",
+           "BATCH_MARKER"]
+
+BATCH_MARKER = "batch.json"
+BASE_COLUMNS = ["name", "status", "failure", "message", "seconds", "stages_ok", "stages", "run_dir", "project"]
+"""The summary's first columns; then the sweep's ``stage.option`` values, then the figures."""
+
+
+@dataclass(frozen=True)
+class BatchJob:
+    """One run of a batch."""
+
+    name: str
+    project: Path                 # the project file to run
+    out: Path                     # its run directory
+    source: str = ""              # where it came from (project file, or sweep table and line)
+    overrides: dict = field(default_factory=dict)   # {"stage.option": value}
+
+
+# ---------------------------------------------------------------------------------------- planning
+def expand_projects(patterns: list[str]) -> list[Path]:
+    """Project files named by paths or glob patterns, in order, each once."""
+    out: list[Path] = []
+    for pat in patterns:
+        if _glob.has_magic(pat):
+            hits = sorted(Path(p) for p in _glob.glob(pat, recursive=True))
+            if not hits:
+                raise InputError("no project file matches this pattern", path=pat)
+        else:
+            p = Path(pat)
+            if not p.exists():
+                raise InputError("project file not found", path=p)
+            hits = sorted(p.glob("*.toml")) if p.is_dir() else [p]
+            if not hits:
+                raise InputError("no project file (*.toml) in this folder", path=p)
+        for h in hits:
+            if h.resolve() not in {q.resolve() for q in out}:
+                out.append(h)
+    return out
+
+
+def _unique_names(names: list[str]) -> list[str]:
+    seen: dict[str, int] = {}
+    out = []
+    for n in names:
+        n = re.sub(r"[^A-Za-z0-9_.-]+", "-", n).strip("-.") or "run"
+        k = seen.get(n, 0)
+        seen[n] = k + 1
+        out.append(n if k == 0 else f"{n}-{k + 1}")
+    return out
+
+
+def plan_batch(projects: list[str | Path], out: str | Path, sweep: str | Path | None = None,
+               plugins=None) -> list[BatchJob]:
+    """The runs of a batch: every project of ``projects`` (paths or globs), or — with ``sweep`` —
+    one run per row of the sweep table applied to the one project.  Checks the projects (and the
+    sweep's names and values) and writes the sweep's project files into ``out/projects``."""
+    from .plugins import PluginManager
+    from .project import load_project
+
+    plugins = plugins or PluginManager()
+    out = Path(out)
+    paths = expand_projects([str(p) for p in projects])
+    if sweep is None:
+        names = _unique_names([p.stem for p in paths])
+        return [BatchJob(name=n, project=p, out=out / "runs" / n, source=str(p)) for n, p in zip(names, paths)]
+    if len(paths) != 1:
+        raise InputError(f"a sweep applies to one project; {len(paths)} were given", path=sweep, field="--sweep")
+    base = load_project(paths[0], plugins)
+    rows = read_sweep(sweep, base)
+    out = open_batch(out)
+    names = _unique_names([r["name"] or f"{paths[0].stem}-{k + 1:03d}" for k, r in enumerate(rows)])
+    (out / "projects").mkdir(parents=True, exist_ok=True)
+    jobs = []
+    for name, row in zip(names, rows):
+        path = out / "projects" / f"{name}.toml"
+        _write_variant(base, row["overrides"], name, path)
+        jobs.append(BatchJob(name=name, project=path, out=out / "runs" / name,
+                             source=f"{sweep}:{row['line']}", overrides=dict(row["overrides"])))
+    return jobs
+
+
+def _toml_value(text: str) -> Any:
+    """A CSV cell as a TOML value; a bare word that is not TOML is a string."""
+    text = text.strip()
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def read_sweep(path: str | Path, project) -> list[dict]:
+    """Rows of a sweep table, each ``{"name", "line", "overrides": {"stage.option": value}}``,
+    every column checked against ``project``'s stages and every value against the option's type
+    and range."""
+    import difflib
+
+    from .options import describe, parse_options
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("sweep table not found" if not path.exists() else "not a file", path=path)
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError as e:
+        raise InputError(f"not a UTF-8 text file (byte offset {e.start})", path=path) from None
+    rows: list[dict] = []
+    if path.suffix.lower() == ".toml":
+        try:
+            data = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as e:
+            m = re.search(r"line (\d+)", str(e))
+            raise InputError(f"not valid TOML: {e}", path=path, line=int(m.group(1)) if m else None) from None
+        bad = sorted(set(data) - {"run"})
+        if bad:
+            raise InputError(f"unknown table '{bad[0]}' (a sweep file holds [[run]] tables)", path=path, field=bad[0])
+        runs = data.get("run", [])
+        if not isinstance(runs, list) or not all(isinstance(r, dict) for r in runs):
+            raise InputError("a sweep file holds [[run]] tables", path=path, field="run")
+        starts = [i + 1 for i, ln in enumerate(text.splitlines()) if re.match(r"\s*\[\[\s*run\s*\]\]", ln)]
+        for k, r in enumerate(runs):
+            line = starts[k] if k < len(starts) else None
+            name = r.get("name", "")
+            if not isinstance(name, str):
+                raise InputError("name must be a string", path=path, line=line, field="name")
+            rows.append({"name": name, "line": line, "overrides": {c: v for c, v in r.items() if c != "name"}})
+    else:
+        reader = csv.reader(io.StringIO(text))
+        try:
+            header = next(reader)
+        except StopIteration:
+            raise InputError("the sweep table is empty (expected a header of stage.option columns)", path=path) from None
+        header = [h.strip() for h in header]
+        for c in header:
+            if not c:
+                raise InputError("an empty column name in the header", path=path, line=1)
+        dup = [c for c in header if header.count(c) > 1]
+        if dup:
+            raise InputError(f"column '{dup[0]}' appears twice", path=path, line=1, field=dup[0])
+        for cells in reader:
+            line = reader.line_num
+            if not any(c.strip() for c in cells):
+                continue
+            if len(cells) != len(header):
+                raise InputError(f"{len(cells)} cells for {len(header)} columns", path=path, line=line)
+            row = dict(zip(header, cells))
+            name = row.pop("name", "").strip()
+            rows.append({"name": name, "line": line,
+                         "overrides": {c: _toml_value(v) for c, v in row.items() if v.strip() != ""}})
+    if not rows:
+        raise InputError("the sweep table has no runs", path=path)
+    stages = {s.id: s for s in project.stages}
+    is_toml = path.suffix.lower() == ".toml"
+    for row in rows:
+        name_line = row["line"] if is_toml else 1        # where a column is named
+        per_stage: dict[str, dict] = {}
+        for col, value in row["overrides"].items():
+            sid, dot, opt = col.rpartition(".")
+            if not dot or not sid or not opt:
+                raise InputError(f"column '{col}' must be <stage id>.<option>", path=path, line=name_line, field=col)
+            if sid not in stages:
+                close = difflib.get_close_matches(sid, list(stages), n=1)
+                did = f"did you mean '{close[0]}'? " if close else ""
+                raise InputError(f"no stage '{sid}' in {project.path.name}; {did}its stages: "
+                                 f"{', '.join(stages)}", path=path, line=name_line, field=col)
+            known = [o["name"] for o in describe(stages[sid].cls.Options)]
+            renamed = dict(getattr(stages[sid].cls.Options, "RENAMED", {}) or {})
+            if opt in renamed:
+                raise InputError(f"option '{col}' is now '{sid}.{renamed[opt]}'", path=path, line=name_line, field=col)
+            if opt not in known:
+                close = difflib.get_close_matches(opt, known, n=2, cutoff=0.6)
+                did = f"did you mean {' or '.join(repr(sid + '.' + c) for c in close)}? " if close else ""
+                raise InputError(f"unknown option '{col}'; {did}stage '{sid}' accepts: {', '.join(known)}",
+                                 path=path, line=name_line, field=col)
+            per_stage.setdefault(sid, {})[opt] = value
+        for sid, over in per_stage.items():       # types and ranges: the row's line
+            spec = stages[sid]
+            parse_options(spec.cls.Options, {**spec.raw_options, **over}, path=path, line=row["line"],
+                          prefix=f"{sid}.")
+    return rows
+
+
+def _write_variant(project, overrides: dict, name: str, path: Path) -> None:
+    """The project file of one sweep row: the base project's TOML with the row's options, input
+    paths made absolute (the file lives in the batch directory)."""
+    from .project import path_roles
+    from .report import write_toml
+
+    data = tomllib.loads(project.text)
+    by_id = {s.id: s for s in project.stages}
+    for st in data.get("stage", []):
+        sid = st.get("id", st.get("use"))
+        spec = by_id.get(sid)
+        if spec is None:                    # a disabled stage: left as it is
+            continue
+        opts = st.setdefault("options", {})
+        for col, value in overrides.items():
+            s, _, opt = col.rpartition(".")
+            if s == sid:
+                opts[opt] = value
+        for opt, role in path_roles(spec.cls).items():
+            if role == "output" or opt not in opts:
+                continue
+            opts[opt] = _absolute(opts[opt], project.directory)
+    proj = data.setdefault("project", {})
+    proj["name"] = f"{proj.get('name', project.path.stem)} [{name}]"
+    proj["description"] = (str(proj.get("description", "")) + f" (batch sweep of {project.path})").strip()
+    write_toml(path, data)
+
+
+def _absolute(value: Any, base: Path) -> Any:
+    if isinstance(value, list):
+        return [_absolute(v, base) for v in value]
+    if not isinstance(value, str) or not value or value == ".":
+        return value
+    p = Path(value).expanduser()
+    return str(p if p.is_absolute() else (base / p).resolve())
+
+
+# ---------------------------------------------------------------------------------------- running
+def open_batch(out: str | Path) -> Path:
+    """Check the batch directory: new, empty, or an earlier batch's (``batch.json``)."""
+    out = Path(out).expanduser().absolute()
+    if out.exists():
+        if not out.is_dir():
+            raise InputError("the batch directory exists and is not a directory; choose another --out", path=out)
+        if any(out.iterdir()) and not (out / BATCH_MARKER).is_file():
+            raise InputError("refusing to write a batch into a non-empty directory that is not a baarda batch "
+                             "directory; choose another --out", path=out)
+    try:
+        (out / "runs").mkdir(parents=True, exist_ok=True)
+        if not (out / BATCH_MARKER).is_file():      # marks the directory as a batch's from the start
+            write_summary(out, [], total=0)
+    except OSError as e:
+        raise InputError(f"cannot write the batch directory: {e.strerror or e}", path=out) from None
+    return out
+
+
+def run_job(job: BatchJob) -> dict:
+    """Run one project of a batch (on a worker); never raises for a failed run: returns its row."""
+    from .runner import run_project
+
+    row = {"name": job.name, "status": "failed", "failure": "", "message": "", "seconds": 0.0, "stages_ok": 0,
+           "stages": 0, "run_dir": str(job.out), "project": str(job.project), "source": job.source,
+           "overrides": dict(job.overrides), "figures": {}}
+    t0 = time.perf_counter()
+    try:
+        outcome = run_project(job.project, job.out, verbose=False)
+    except BaardaError as e:
+        row.update(failure="input", message=str(e))
+    except KeyboardInterrupt:
+        row.update(failure="interrupted", message="interrupted")
+    except Exception as e:     # noqa: BLE001 - a bug in a stage: reported, the batch goes on
+        row.update(failure="internal", message=f"{type(e).__name__}: {str(e).splitlines()[0][:200] if str(e) else ''}")
+    else:
+        row.update(status="ok" if outcome.ok else "failed", failure=outcome.failure,
+                   message=outcome.message.splitlines()[0][:300] if outcome.message else "",
+                   stages_ok=sum(r.status == "ok" for r in outcome.stages), stages=len(outcome.stages),
+                   run_dir=str(outcome.run_dir), figures=_figures(outcome.stages))
+    row["seconds"] = round(time.perf_counter() - t0, 3)
+    return row
+
+
+def _figures(records) -> dict:
+    """``{"stage.key": number}`` of every stage's numeric top-level summary values."""
+    out = {}
+    for r in records:
+        for k, v in (r.summary or {}).items():
+            if isinstance(v, bool):
+                out[f"{r.id}.{k}"] = v
+            elif isinstance(v, (int, float)):
+                out[f"{r.id}.{k}"] = v
+    return out
+
+
+def run_batch(jobs: list[BatchJob], out: str | Path, engine=None,
+              progress: Callable[[str], None] | None = None) -> list[dict]:
+    """Run every job on ``engine`` (a :class:`~baarda.pipeline.montecarlo.Engine`; default: the
+    local scheduler), write the summary as each run ends, return the rows in job order."""
+    from .montecarlo import Engine
+
+    out = open_batch(out)
+    started = _dt.datetime.now().isoformat(timespec="seconds")
+    own = engine is None
+    engine = engine or Engine()
+    rows: list[dict | None] = [None] * len(jobs)
+    t0 = time.perf_counter()
+    try:
+        for n_done, (k, row) in enumerate(engine.as_completed(run_job, jobs), start=1):
+            rows[k] = row
+            if progress:
+                tail = f" — {row['failure']}: {row['message']}" if row["status"] != "ok" else ""
+                progress(f"[{n_done}/{len(jobs)}] {row['name']}: {row['status']} ({row['seconds']:.1f} s){tail}")
+            write_summary(out, [r for r in rows if r is not None], started=started,
+                          scheduler=engine.scheduler.describe(), seconds=time.perf_counter() - t0,
+                          total=len(jobs))
+    finally:
+        if own:
+            engine.close()
+    done = [r for r in rows if r is not None]
+    write_summary(out, done, started=started, scheduler=engine.scheduler.describe(),
+                  seconds=time.perf_counter() - t0, total=len(jobs))
+    return done
+
+
+# ---------------------------------------------------------------------------------------- summary
+def _columns(rows: list[dict]) -> tuple[list[str], list[str]]:
+    sweep = sorted({c for r in rows for c in r.get("overrides", {})})
+    figs = sorted({c for r in rows for c in r.get("figures", {})})
+    return sweep, figs
+
+
+def flat_rows(rows: list[dict]) -> list[dict]:
+    """Rows with the sweep's values and the figures as columns of their own (CSV, tables)."""
+    sweep, figs = _columns(rows)
+    out = []
+    for r in rows:
+        d = {c: r.get(c, "") for c in BASE_COLUMNS}
+        d.update({c: r.get("overrides", {}).get(c, "") for c in sweep})
+        d.update({c: r.get("figures", {}).get(c, "") for c in figs})
+        out.append(d)
+    return out
+
+
+def write_summary(out: Path, rows: list[dict], *, started: str = "", scheduler: str = "",
+                  seconds: float = 0.0, total: int | None = None) -> None:
+    """``batch.json``, ``summary.csv`` and ``summary.md`` of ``rows`` (rewritten as runs end)."""
+    out = Path(out)
+    flat = flat_rows(rows)
+    cols = list(flat[0]) if flat else list(BASE_COLUMNS)
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=cols, lineterminator="\n")
+    w.writeheader()
+    for d in flat:
+        w.writerow({k: json.dumps(v) if isinstance(v, (list, dict)) else v for k, v in d.items()})
+    _atomic(out / "summary.csv", buf.getvalue())
+    _atomic(out / "summary.md", _markdown(rows, started, scheduler, seconds, total))
+    _atomic(out / BATCH_MARKER, json.dumps({
+        "baarda_version": __version__, "kind": "batch", "started": started, "scheduler": scheduler,
+        "seconds": round(seconds, 3), "runs": total if total is not None else len(rows),
+        "done": len(rows), "ok": sum(r["status"] == "ok" for r in rows), "rows": rows},
+        indent=1, default=str))
+
+
+def _atomic(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text, encoding="utf-8")
+    tmp.replace(path)
+
+
+def _markdown(rows: list[dict], started: str, scheduler: str, seconds: float, total: int | None) -> str:
+    from .report import markdown_table
+
+    ok = sum(r["status"] == "ok" for r in rows)
+    n = total if total is not None else len(rows)
+    sweep, figs = _columns(rows)
+    # the figures that differ between the successful runs tell a sweep's story: at most eight
+    varying = [c for c in figs if len({json.dumps(r["figures"].get(c)) for r in rows if r["status"] == "ok"}) > 1][:8]
+    lines = [f"# Batch summary", "",
+             f"{len(rows)} of {n} run(s) done, {ok} ok, {len(rows) - ok} failed; started {started}; "
+             f"{seconds:.1f} s on {scheduler or 'this machine'}.", ""]
+    head = ["run", "status", "seconds", "stages ok", *sweep, *varying, "message"]
+    body = []
+    for r in rows:
+        body.append([r["name"], r["status"] + (f" ({r['failure']})" if r["failure"] else ""), f"{r['seconds']:.1f}",
+                     f"{r['stages_ok']}/{r['stages']}", *(_cell(r["overrides"].get(c, "")) for c in sweep),
+                     *(_cell(r["figures"].get(c, "")) for c in varying), _cell(r["message"])])
+    lines += [markdown_table(head, body), ""]
+    if figs:
+        lines += [f"Every stage's numeric summary figures are columns of summary.csv ({len(figs)} of them)"
+                  + ("; those that differ between the runs are shown above." if varying else "."), ""]
+    return "\n".join(lines)
+
+
+def _cell(v: Any) -> str:
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    return str(v).replace("|", "\\|").replace("\n", " ")
+
+
+def summary_rows(batch_dir: str | Path) -> list[dict]:
+    """The rows of a batch (as :func:`run_job` returns them: name, status, failure, message,
+    seconds, stages_ok, stages, run_dir, project, source, overrides, figures), read back from
+    its ``batch.json`` — for a report that shows the batch."""
+    path = Path(batch_dir) / BATCH_MARKER
+    if not path.is_file():
+        raise InputError("not a batch directory (no batch.json)", path=batch_dir)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+        rows = data["rows"]
+        if not isinstance(rows, list):
+            raise ValueError("rows is not a list")
+    except (ValueError, KeyError, TypeError, UnicodeDecodeError) as e:
+        raise InputError(f"not a baarda batch file ({e})", path=path) from None
+    return rows
+
+
+def jobs_as_dicts(jobs: list[BatchJob]) -> list[dict]:
+    return [{**asdict(j), "project": str(j.project), "out": str(j.out)} for j in jobs]

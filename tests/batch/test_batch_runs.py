@@ -1,0 +1,104 @@
+"""`baarda batch` end to end on real Dask clusters: three projects with one broken, a sweep."""
+
+import csv
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from baarda.pipeline import montecarlo as mc
+from baarda.pipeline.batch import plan_batch, run_batch, summary_rows
+from baarda.pipeline.cli import main
+
+ROOT = Path(__file__).resolve().parents[2]
+FIX = ROOT / "fixtures" / "paper000"
+
+
+def _broken(tmp_path) -> Path:
+    p = tmp_path / "broken" / "bad.toml"
+    p.parent.mkdir()
+    p.write_text('[project]\nname = "broken"\n\n[[stage]]\nuse = "comparator"\n[stage.options]\n'
+                 'path = "missing.cmp"\n', encoding="utf-8")
+    return p
+
+
+def test_cli_batch_of_three_projects_one_broken(tmp_path, capsys):
+    """Default scheduler: baarda starts (and stops) a local cluster of 2 worker processes."""
+    out = tmp_path / "batch"
+    code = main(["batch", str(FIX / "data1.toml"), str(FIX / "data2.toml"), str(_broken(tmp_path)),
+                 "--out", str(out), "--workers", "2"])
+    cap = capsys.readouterr()
+    assert code == 1                                    # one run failed
+    assert "local Dask cluster, 2 worker process(es) on 127.0.0.1" in cap.err
+    assert sorted(ln.split("]")[0] for ln in cap.err.splitlines() if ln.startswith("[")) == ["[1/3", "[2/3", "[3/3"]
+    assert "runs: 2/3 ok" in cap.out
+    rows = summary_rows(out)
+    assert [r["name"] for r in rows] == ["data1", "data2", "bad"]          # job order
+    ok = {r["name"]: r for r in rows}
+    assert ok["data1"]["status"] == ok["data2"]["status"] == "ok"
+    assert ok["data1"]["stages_ok"] == ok["data1"]["stages"] == 3
+    assert ok["bad"]["status"] == "failed" and ok["bad"]["failure"] == "input"
+    assert "bad.toml" in ok["bad"]["message"] and "missing.cmp" in ok["bad"]["message"]
+    for name in ("data1", "data2"):
+        assert (out / "runs" / name / "results.json").is_file()
+    import json
+
+    assert json.loads((out / "runs" / "bad" / "results.json").read_text())["ok"] is False   # the failed run's own record
+    with open(out / "summary.csv", newline="", encoding="utf-8") as f:
+        table = list(csv.DictReader(f))
+    assert [t["status"] for t in table] == ["ok", "ok", "failed"]
+    assert table[0]["source.observations"] == "18"          # a stage's summary figure as a column
+    md = (out / "summary.md").read_text(encoding="utf-8")
+    assert "3 of 3 run(s) done, 2 ok, 1 failed" in md and "| bad | failed (input) |" in md
+    # a second batch into the same directory replaces the complete runs
+    assert main(["batch", str(FIX / "data1.toml"), "--out", str(out), "--scheduler", "sync", "--quiet"]) == 0
+    assert [r["name"] for r in summary_rows(out)] == ["data1"]
+
+
+def test_sweep_on_a_given_cluster(tmp_path, client):
+    sweep = tmp_path / "sweep.csv"
+    sweep.write_text("name,screening.threshold_mm,blunders.alpha_rrr,blunders.method\n"
+                     "strict,1.5,0.01,rrr\n"
+                     ",3.0,0.001,ids\n"
+                     "loose,5,0.001,\n", encoding="utf-8")
+    out = tmp_path / "sweep-batch"
+    jobs = plan_batch([FIX / "data1.toml"], out, sweep=sweep)
+    assert [j.name for j in jobs] == ["strict", "data1-002", "loose"]
+    assert jobs[1].source == f"{sweep}:3"
+    seen = []
+    with mc.Engine(client=client) as eng:
+        rows = run_batch(jobs, out, eng, progress=seen.append)
+        assert eng.tasks_sent == 3
+    assert len(seen) == 3 and all(r["status"] == "ok" for r in rows), [r["message"] for r in rows]
+    for row, (thr, alpha, method) in zip(rows, [(1.5, 0.01, "rrr"), (3.0, 0.001, "ids"), (5.0, 0.001, "all")]):
+        resolved = tomllib.loads((Path(row["run_dir"]) / "project.resolved.toml").read_text(encoding="utf-8"))
+        opts = {s["id"]: s["options"] for s in resolved["stage"]}
+        assert opts["screening"]["threshold_mm"] == thr
+        assert opts["blunders"]["alpha_rrr"] == alpha and opts["blunders"]["method"] == method
+        assert row["overrides"]["screening.threshold_mm"] == thr
+    # the sweep's project files live in the batch directory and run again on their own
+    variant = out / "projects" / "strict.toml"
+    assert "[strict]" in tomllib.loads(variant.read_text(encoding="utf-8"))["project"]["name"]
+    assert main(["run", str(variant), "--out", str(tmp_path / "again"), "--quiet", "--scheduler", "sync"]) == 0
+    md = (out / "summary.md").read_text(encoding="utf-8")
+    assert "screening.threshold_mm" in md.splitlines()[4]
+
+
+def test_batch_refuses_a_foreign_directory_and_a_bad_scheduler(tmp_path, capsys):
+    foreign = tmp_path / "mine"
+    foreign.mkdir()
+    (foreign / "notes.txt").write_text("keep me")
+    assert main(["batch", str(FIX / "data1.toml"), "--out", str(foreign)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "not a baarda batch directory" in err and "Traceback" not in err
+    assert main(["batch", str(FIX / "data1.toml"), "--out", str(tmp_path / "b"), "--scheduler", "nowhere"]) == 2
+    assert "field '--scheduler'" in capsys.readouterr().err
+    assert main(["batch", str(tmp_path / "nope-*.toml"), "--out", str(tmp_path / "c")]) == 2
+    assert "no project file matches" in capsys.readouterr().err
+
+
+def test_run_takes_the_scheduler_options(tmp_path, capsys):
+    assert main(["run", str(FIX / "data1.toml"), "--out", str(tmp_path / "r"), "--scheduler", "10.0.0.1"]) == 2
+    assert "field '--scheduler': expected local, processes, sync or a Dask scheduler address" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["run", str(FIX / "data1.toml"), "--workers", "0"])
