@@ -17,7 +17,7 @@ import numpy as np
 from baarda.pipeline.errors import InputError
 from baarda.pipeline.options import option
 from baarda.pipeline.report import markdown_table
-from baarda.pipeline.stage import Context, SourceStage, StageResult, TableData
+from baarda.pipeline.stage import Context, SourceStage, Stage, StageResult, TableData
 
 from .reader import AP_NAMES, DBAT_SIGN, dbat_block, read_dbat
 
@@ -144,3 +144,171 @@ def _tables(block) -> dict:
         "marks": np.bincount(obs.photo, minlength=len(ph)),
     }, "photos: image file (empty when not found) and number of marks")
     return {"points": points, "photos": photos}
+
+
+# ---------------------------------------------------------------------------------------------
+# dbat-report: DBAT's quality figures of the bundle's result
+
+
+@dataclass(frozen=True)
+class DbatReportOptions:
+    rho_high: float = option(0.95, "camera-parameter correlations above this (absolute) are listed, as DBAT does",
+                             gt=0.0, le=1.0)
+    smallest_angles: int = option(10, "list the tie points with the smallest intersection angles (how many)", ge=0)
+
+
+class DbatReport(Stage):
+    summary = ("DBAT-style quality report of a bundle: camera in DBAT's conventions with σ and high correlations, "
+               "control prior/adjusted/difference/σ, check-point errors, ray counts, intersection angles")
+    reads = ("bundle",)
+    writes = ("dbat_report",)
+    Options = DbatReportOptions
+
+    def run(self, inputs, options: DbatReportOptions, ctx: Context) -> StageResult:
+        res = inputs["bundle"]
+        if res is None:
+            raise InputError("dbat-report needs the result of a bundle stage before it", path=ctx.project_file,
+                             field="use")
+        q = _quality(res)
+        summary = {"sigma0_hat": q["sigma0"], "sigma0_hat_corrected": q["sigma0_corrected"], "dof": q["dof"],
+                   "rms_px": q["rms_px"], "rms_px_corrected": q["rms_px_corrected"],
+                   "camera": {k: {"value": v[0], "sigma": v[1]} for k, v in q["camera"].items()},
+                   "control": {i: {"diff": d.tolist(), "sigma": s.tolist()} for i, d, s in
+                               zip(q["control"]["ids"], q["control"]["diff"], q["control"]["sigma"])},
+                   "check": {i: {"error": d.tolist(), "sigma": s.tolist()} for i, d, s in
+                             zip(q["check"]["ids"], q["check"]["diff"], q["check"]["sigma"])},
+                   "angles_deg": q["angle_stats"], "rays": q["ray_stats"]}
+        return StageResult(artefacts={"dbat_report": q}, summary=summary, report=_quality_report(q, options),
+                           tables=_quality_tables(q))
+
+
+def _quality(res) -> dict:
+    from .quality import corrected_space_residuals, intersection_angles, point_comparison
+    from .reader import DbatCamera, dbat_from_baarda
+
+    block = res.block_in
+    st = res.state
+    obs, pts = block.observations, block.points
+    act = np.asarray(res.obs_active, bool)
+    pix = float(block.cameras.pixel_mm[0]) if np.isfinite(block.cameras.pixel_mm[0]) else float("nan")
+    rc = corrected_space_residuals(block, st, act)
+    ok = act & np.isfinite(rc).all(axis=1)
+    # vᵀPv with the image residuals replaced by the corrected-space ones (weighted constraints kept)
+    P = np.linalg.inv(obs.cov[ok])
+    qf = lambda r: float(np.einsum("ki,kij,kj->", r, P, r))
+    s0c = (float(np.sqrt(max(res.vtpv - qf(res.residuals[ok]) + qf(rc[ok]), 0.0) / res.dof))
+           if ok.any() and res.dof > 0 else float("nan"))
+    v = res.residuals[act]
+    rays = np.bincount(obs.point[act], minlength=len(pts))
+    ang = np.rad2deg(intersection_angles(st.XYZ, st.X0, obs.photo[act], obs.point[act], len(pts)))
+    meta = block.meta.get("dbat", {})
+    camera = {}
+    names = res.cam_param_names[0]
+    table = res.camera_table(0)
+    if meta.get("camera"):
+        cam = DbatCamera(**{k: (tuple(x) if isinstance(x, list) else x) for k, x in meta["camera"].items()})
+        vals = dbat_from_baarda(st.cam_params[0, 0], st.cam_params[0, 1], st.cam_params[0, 2], st.cam_params[0, 3:], cam)
+        for key, bn in zip(("cc", "px", "py", "K1", "K2", "K3", "P1", "P2", "as", "sk"), names):
+            row = next(r for r in table if r["parameter"] == bn)
+            camera[key] = (vals[key], row["sigma"], row["status"], bn)
+    else:
+        for row in table:
+            camera[row["parameter"]] = (row["value"], row["sigma"], row["status"], row["parameter"])
+    ctrl = np.flatnonzero((pts.role != "tie") & (pts.role != "check") & res.problem.point_used)
+    chk = np.flatnonzero((pts.role == "check") & res.problem.point_used & np.isfinite(pts.XYZ).all(axis=1))
+    tie = np.flatnonzero((pts.role == "tie") & res.problem.point_used)
+
+    def stats(idx):
+        a = ang[idx]
+        if not len(idx):
+            return None
+        r = rays[idx]
+        return {"min": float(np.nanmin(a)), "max": float(np.nanmax(a)), "mean": float(np.nanmean(a)),
+                "min_id": str(pts.ids[idx][np.nanargmin(a)]), "max_id": str(pts.ids[idx][np.nanargmax(a)]),
+                "rays_min": int(r.min()), "rays_max": int(r.max()), "rays_mean": float(r.mean()),
+                "rays_hist": {int(k): int((r == k).sum()) for k in np.unique(r)}}
+
+    return {
+        "sigma0": res.sigma0_hat, "sigma0_corrected": s0c, "dof": int(res.dof), "pixel_mm": pix,
+        "rms_px": float(np.sqrt(np.mean(np.sum(v ** 2, axis=1)))) / pix,
+        "rms_px_corrected": float(np.sqrt(np.mean(np.sum(rc[ok] ** 2, axis=1)))) / pix if ok.any() else float("nan"),
+        "camera": {k: (float(a), float(b)) for k, (a, b, _, _) in camera.items()},
+        "camera_rows": camera, "correlation": res.correlation_camera(0), "names": names,
+        "control": point_comparison(pts, ctrl, st.XYZ, res.cov_points),
+        "check": point_comparison(pts, chk, st.XYZ, res.cov_points),
+        "rays": rays, "angles_deg": ang, "ids": pts.ids, "role": pts.role, "tie": tie,
+        "labels": meta.get("labels", {}), "object_unit": block.object_unit,
+        "angle_stats": {"control": stats(ctrl), "check": stats(chk), "tie": stats(tie)},
+        "ray_stats": {k: (v_["rays_hist"] if v_ else {}) for k, v_ in
+                      (("control", stats(ctrl)), ("check", stats(chk)), ("tie", stats(tie)))},
+    }
+
+
+def _quality_report(q, options) -> str:
+    u = q["object_unit"]
+    lines = [f"σ̂0 = {q['sigma0']:.4f} from the residuals of the measured marks (RMS {q['rms_px']:.3f} px), "
+             f"redundancy {q['dof']}."]
+    if np.isfinite(q["sigma0_corrected"]):
+        lines[-1] += (f" DBAT forms the residuals of the *corrected* marks (backward model): at this solution they "
+                      f"give σ̂0 = {q['sigma0_corrected']:.4f}, RMS {q['rms_px_corrected']:.3f} px (docs/dbat.md).")
+    lines += ["", "Camera, in DBAT's conventions (mm; principal point from the image corner, y down):", ""]
+    rows = [[k, bn, f"{v:.6g}", f"{s:.3g}" if st != "fixed" else "", st] for k, (v, s, st, bn) in q["camera_rows"].items()]
+    lines += [markdown_table(["DBAT", "baarda", "value", "σ", "status"], rows), ""]
+    R, names = q["correlation"], q["names"]
+    high = [(names[i], names[j], R[i, j]) for i in range(len(names)) for j in range(i + 1, len(names))
+            if np.isfinite(R[i, j]) and abs(R[i, j]) > options.rho_high]
+    lines += [f"Correlations above {options.rho_high:.0%}: " +
+              (", ".join(f"{a}–{b} {r:+.1%}" for a, b, r in high) if high else "none") + ".", ""]
+    for kind, title in (("control", "Control points"), ("check", "Check points (error = adjusted − surveyed)")):
+        c = q[kind]
+        if not c["ids"]:
+            continue
+        idx = {i: k for k, i in enumerate(q["ids"].tolist())}
+        rows = []
+        for k, pid in enumerate(c["ids"]):
+            p = idx[pid]
+            rows.append([pid, q["labels"].get(pid, ""), *[f"{x:.3f}" for x in c["prior"][k]],
+                         "fixed" if np.all(c["prior_sigma"][k] == 0) else
+                         ("" if kind == "check" else "/".join(f"{s:g}" for s in c["prior_sigma"][k])),
+                         *[f"{x:.3f}" for x in c["adjusted"][k]], *[f"{x:+.3f}" for x in c["diff"][k]],
+                         *[f"{x:.4f}" for x in c["sigma"][k]], int(q["rays"][p]), f"{q['angles_deg'][p]:.1f}"])
+        lines += [f"{title} ({u}):", "",
+                  markdown_table(["point", "label", "X prior", "Y prior", "Z prior", "σ prior", "X", "Y", "Z",
+                                  "dX", "dY", "dZ", "σX", "σY", "σZ", "rays", "angle (°)"], rows), ""]
+        d = c["diff"]
+        lines.append(f"RMS of the {kind} differences: {np.sqrt(np.mean(np.sum(d ** 2, axis=1))):.3f} {u} "
+                     f"(3-D), largest {np.max(np.linalg.norm(d, axis=1)):.3f} {u} at {c['ids'][int(np.argmax(np.linalg.norm(d, axis=1)))]}.")
+        lines.append("")
+    rows = []
+    for kind, s in q["angle_stats"].items():
+        if s is None:
+            continue
+        rows.append([kind, f"{s['rays_min']}–{s['rays_max']} ({s['rays_mean']:.1f})",
+                     ", ".join(f"{n} × {r}" for r, n in s["rays_hist"].items()),
+                     f"{s['min']:.1f} ({s['min_id']})", f"{s['max']:.1f} ({s['max_id']})", f"{s['mean']:.1f}"])
+    lines += ["Rays and intersection angles (the largest angle between two rays of a point):", "",
+              markdown_table(["points", "rays min–max (mean)", "points × rays", "angle min (°)", "angle max (°)",
+                              "mean (°)"], rows), ""]
+    n = options.smallest_angles
+    if n and len(q["tie"]):
+        t = q["tie"][np.argsort(q["angles_deg"][q["tie"]])[:n]]
+        lines.append("Smallest intersection angles of tie points: " +
+                     ", ".join(f"{q['ids'][i]} {q['angles_deg'][i]:.2f}° ({q['rays'][i]} rays)" for i in t) + ".")
+    return "\n".join(lines)
+
+
+def _quality_tables(q) -> dict:
+    ids = q["ids"]
+    points = TableData({"point": ids.tolist(), "role": q["role"].tolist(), "rays": q["rays"],
+                        "angle_deg": q["angles_deg"]}, "rays and largest intersection angle of every point")
+    out = {"points": points}
+    for kind in ("control", "check"):
+        c = q[kind]
+        if c["ids"]:
+            out[kind] = TableData({
+                "point": c["ids"], "X_prior": c["prior"][:, 0], "Y_prior": c["prior"][:, 1], "Z_prior": c["prior"][:, 2],
+                "X": c["adjusted"][:, 0], "Y": c["adjusted"][:, 1], "Z": c["adjusted"][:, 2],
+                "dX": c["diff"][:, 0], "dY": c["diff"][:, 1], "dZ": c["diff"][:, 2],
+                "sX": c["sigma"][:, 0], "sY": c["sigma"][:, 1], "sZ": c["sigma"][:, 2]},
+                f"{kind} points: prior, adjusted, adjusted − prior, a-posteriori σ")
+    return out
