@@ -72,7 +72,8 @@ class BundleResult:
     check: dict
     timings: dict
     warnings: list
-    Qx: np.ndarray | None = field(default=None, repr=False)   # cofactors of the global unknowns
+    Qx: np.ndarray | None = field(default=None, repr=False)   # cofactors of the global unknowns (dense route)
+    cofactors: object = field(default=None, repr=False)       # DenseCofactors / SparseCofactors
     extras: dict = field(default_factory=dict, repr=False)     # stage-level results (tests, AP selection)
 
     # -- derived -------------------------------------------------------------------------------
@@ -148,6 +149,20 @@ class BundleResult:
         if snap is None:
             return snap
         return dataclasses.replace(snap, meta={**snap.meta, "result": res})
+
+    def cofactor_columns(self, cols) -> np.ndarray:
+        """Columns ``cols`` of the cofactor matrix of the global unknowns (n_g, len(cols)), either
+        route (the sparse route solves for them)."""
+        return self.cofactors.columns(cols)
+
+    def cofactor_diagonal(self) -> np.ndarray:
+        """Diagonal of the cofactor matrix of the global unknowns (n_g,)."""
+        return self.cofactors.diagonal()
+
+    @property
+    def solver_route(self) -> str:
+        """How the reduced camera system was solved: ``"dense"`` or ``"sparse"``."""
+        return self.problem.solver_route()
 
     @property
     def point_used(self) -> np.ndarray:
@@ -285,26 +300,21 @@ def adjust(block: Block, settings: BundleSettings | None = None, *, row_active=N
     PQ_all = np.zeros((k_all, 2, 2))
     snapshot = None
     Qx = None
+    cofactors = None
     if want_cov:
         lin, red = final_system(prob, st, info["proj"])     # the precision's normal equations
         pre = precision(prob, lin, red, st)
         Qx = pre["Qx"]
-        Qg = np.zeros((prob.n_g + 1, prob.n_g + 1))
-        Qg[:prob.n_g, :prob.n_g] = Qx[:prob.n_g, :prob.n_g]
-        dummy = prob.n_g
-        for j, nm in enumerate(names):
-            idx = np.where(prob.g_cam[j, :len(nm)] >= 0, prob.g_cam[j, :len(nm)], dummy)
-            cov_cams[j] = var * Qg[idx[:, None], idx[None, :]]
-        idx = np.where(prob.g_eo >= 0, prob.g_eo, dummy)
-        cov_eo = var * Qg[idx[:, :, None], idx[:, None, :]]
+        cofactors = pre["cofactors"]
+        cov_cams = [var * Q for Q in pre["Q_cam"]]
+        cov_eo = var * pre["Q_eo"]
         cov_pts[~prob.point_used] = np.nan
         cov_pts[prob.point_used] = 0.0
         if prob.n_e:
             cov_pts[prob.elim_points] = var * pre["Qpp"]
         gp = np.flatnonzero((prob.g_pt >= 0).any(axis=1))
         if gp.size:
-            idx = np.where(prob.g_pt[gp] >= 0, prob.g_pt[gp], dummy)
-            cov_pts[gp] = var * Qg[idx[:, :, None], idx[:, None, :]]
+            cov_pts[gp] = var * pre["Q_gpt"][gp]
         r, PQ = reliability_rows(prob, pre["H"])
         red_all[prob.oi] = r
         PQ_all[prob.oi] = PQ
@@ -330,7 +340,7 @@ def adjust(block: Block, settings: BundleSettings | None = None, *, row_active=N
                         residuals=v_all, obs_active=prob.obs_active.copy(), row_active=prob.row_active.copy(),
                         snapshot=snapshot, cam_param_names=names, cov_cameras=cov_cams, cov_eo=cov_eo,
                         cov_points=cov_pts, redundancy=red_all, PQvvP=PQ_all, check=check, timings=timings,
-                        warnings=list(prob.warnings), Qx=Qx)
+                        warnings=list(prob.warnings), Qx=Qx, cofactors=cofactors)
 
 
 def _project_all(prob: BundleProblem, st: BundleState) -> np.ndarray:

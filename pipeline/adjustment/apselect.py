@@ -333,15 +333,15 @@ def select_aps_weak_priors(block, settings=None, *, rho_max: float = 0.75, alpha
 def _candidate_correlations(res, names, cand):
     """For each candidate: largest |ρ| with another global unknown, that unknown's name, |x/σ|."""
     prob = res.problem
-    Q = res.Qx[:prob.n_g, :prob.n_g]
-    d = np.sqrt(np.clip(np.diag(Q), 1e-300, None))
-    R = Q / np.outer(d, d)
+    gcols = [int(prob.g_cam[0, names.index(n)]) for n in cand]
+    Qc = res.cofactor_columns(gcols)                                  # (n_g, candidates)
+    d = np.sqrt(np.clip(res.cofactor_diagonal(), 1e-300, None))
     labels = parameter_names(prob)
     cam_name = {int(g): n for n, g in zip(names, prob.g_cam[0]) if g >= 0}
     rho, partner, t = [], [], []
-    for n in cand:
-        g = prob.g_cam[0, names.index(n)]
-        row = np.abs(R[g]).copy()
+    for i, n in enumerate(cand):
+        g = gcols[i]
+        row = np.abs(Qc[:, i] / (d[g] * d))
         row[g] = 0.0
         j = int(np.argmax(row))
         rho.append(row[j])

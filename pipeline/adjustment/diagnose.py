@@ -52,20 +52,31 @@ def _centre_and_radius(prob, st) -> tuple[np.ndarray, float]:
     return ctr, float(scale or 1.0)
 
 
+def _pos_motion(X, ctr, scale):
+    """(len, 3, 7) change of positions X under the 7 motions (rotations ΔX = ε × (X − ctr))."""
+    Xc = X - ctr
+    out = np.zeros((len(X), 3, 7))
+    out[:, [0, 1, 2], [0, 1, 2]] = 1.0
+    out[:, 1, 3], out[:, 2, 3] = -Xc[:, 2], Xc[:, 1]
+    out[:, 0, 4], out[:, 2, 4] = Xc[:, 2], -Xc[:, 0]
+    out[:, 0, 5], out[:, 1, 5] = -Xc[:, 1], Xc[:, 0]
+    out[:, :, 6] = Xc / scale
+    return out
+
+
+def point_motions(prob, st, XYZ) -> np.ndarray:
+    """(len, 3, 7) change of object points ``XYZ`` under the motions of :func:`datum_motions`."""
+    ctr, scale = _centre_and_radius(prob, st)
+    return _pos_motion(np.asarray(XYZ, float).reshape(-1, 3), ctr, scale)
+
+
 def datum_motions(prob, st) -> np.ndarray:
     """(n_g, 7) change of every global unknown under the 7 infinitesimal similarity motions."""
     G = np.zeros((prob.n_g, 7))
     ctr, scale = _centre_and_radius(prob, st)
 
     def pos_motion(X):
-        Xc = X - ctr                           # rotations: ΔX = ε × (X − ctr), angles change by ε
-        out = np.zeros((len(X), 3, 7))
-        out[:, [0, 1, 2], [0, 1, 2]] = 1.0
-        out[:, 1, 3], out[:, 2, 3] = -Xc[:, 2], Xc[:, 1]
-        out[:, 0, 4], out[:, 2, 4] = Xc[:, 2], -Xc[:, 0]
-        out[:, 0, 5], out[:, 1, 5] = -Xc[:, 1], Xc[:, 0]
-        out[:, :, 6] = Xc / scale
-        return out
+        return _pos_motion(X, ctr, scale)
 
     mX = pos_motion(st.X0)
     R = rotation_from_opk_many(st.opk)

@@ -57,7 +57,7 @@ class NormalEquations:
         Jpe = Jp[:, 0, :] * e[:, 0, None] + Jp[:, 1, :] * e[:, 1, None]
         bp = (self.obs_to_point @ Jpe)[:-1]
         # priors
-        np.add.at(U, (self.prior_g_idx, self.prior_g_idx), self.prior_g_w)
+        U = U + _triplets(self.prior_g_idx, self.prior_g_idx, self.prior_g_w, ng1, sparse=self.solver_route() == "sparse")
         np.add.at(g, self.prior_g_idx, self.prior_g_w * dg)
         if len(self.prior_p_idx):
             np.add.at(V, (self.prior_p_idx, self.prior_p_coord, self.prior_p_coord), self.prior_p_w)
@@ -74,9 +74,9 @@ class NormalEquations:
             cols = np.where(ok, cols, self.n_g)
             Jd = Jd * ok
             dist_lin = (Jd, cols)
-            Uext = np.zeros((ng1, ng1))
-            np.add.at(Uext, (cols[:, :, None], cols[:, None, :]), Jd[:, :, None] * Jd[:, None, :])
-            U = U + Uext[:-1, :-1]
+            r6 = np.broadcast_to(cols[:, :, None], (len(cols), 6, 6))
+            c6 = np.broadcast_to(cols[:, None, :], (len(cols), 6, 6))
+            U = U + _triplets(r6, c6, Jd[:, :, None] * Jd[:, None, :], ng1, sparse=self.solver_route() == "sparse")
             gext = np.zeros(ng1)
             np.add.at(gext, cols, Jd * (wd * dd)[:, None])
             g = g + gext[:-1]
@@ -97,31 +97,35 @@ class NormalEquations:
         return bmm(self.L, J)
 
     def gram_U(self, Jc, e=None):
-        """``Σ_k Jc_kᵀ Jc_k`` scattered into (n_g, n_g) (and ``Σ_k Jc_kᵀ e_k`` when ``e`` is given):
-        per photo with BLAS for the photo-constant columns, by bincount for the few observations
-        of global points."""
+        """``Σ_k Jc_kᵀ Jc_k`` over the global unknowns (and ``Σ_k Jc_kᵀ e_k`` when ``e`` is given):
+        per photo with BLAS for the photo-constant columns, per observation for the few
+        observations of global points.  Dense (n_g, n_g), or scipy CSR on the sparse route."""
         ng1 = self.n_g + 1
-        Up = np.zeros((ng1, ng1))
         gp = np.zeros(ng1)
         q_ph = self.q_ph
         whole = q_ph == self.q
-        for s0, s1, idx in zip(self.seg_start.tolist(), self.seg_end.tolist(), self.seg_cols):
-            A = Jc[s0:s1].reshape(-1, q_ph) if whole else Jc[s0:s1, :, :q_ph].reshape(-1, q_ph)
-            Up[np.ix_(idx, idx)] += A.T @ A
-            if e is not None:
-                gp[idx] += A.T @ e[s0:s1].reshape(-1)
+        A = Jc if whole else np.ascontiguousarray(Jc[:, :, :q_ph])
+        blocks = segment_sums(np.swapaxes(A, 1, 2), A, self.seg_start)
+        if e is not None:
+            ge = np.add.reduceat(np.matmul(np.swapaxes(A, 1, 2), e[:, :, None])[:, :, 0], self.seg_start, axis=0)
+            gp += np.bincount(self.seg_cols.ravel(), ge.ravel(), minlength=ng1)
+        sc = self.seg_cols
+        U = _triplets(np.broadcast_to(sc[:, :, None], blocks.shape), np.broadcast_to(sc[:, None, :], blocks.shape),
+                      blocks, ng1, sparse=self.solver_route() == "sparse")
         if len(self.gp_obs):
             J = Jc[self.gp_obs]
             outer = bmm(np.transpose(J, (0, 2, 1)), J)
             outer[:, :q_ph, :q_ph] = 0.0          # counted above
-            Up += np.bincount(self.flatU_gp, outer.ravel(), minlength=ng1 * ng1).reshape(ng1, ng1)
+            gc = self.cidx[self.gp_obs]
+            U = U + _triplets(np.broadcast_to(gc[:, :, None], outer.shape), np.broadcast_to(gc[:, None, :], outer.shape),
+                              outer, ng1, sparse=self.solver_route() == "sparse")
             if e is not None:
                 eg = e[self.gp_obs]
                 gv = J[:, 0, q_ph:] * eg[:, 0, None] + J[:, 1, q_ph:] * eg[:, 1, None]
                 gp += np.bincount(self.cidx[self.gp_obs, q_ph:].ravel(), gv.ravel(), minlength=ng1)
         if e is None:
-            return Up[:-1, :-1]
-        return Up[:-1, :-1], gp[:-1]
+            return U
+        return U, gp[:-1]
 
     def gram_mode(self) -> str:
         """Cheapest way to form ``B Bᵀ`` for this problem (cost model in flops-equivalents)."""
@@ -269,13 +273,25 @@ class NormalEquations:
         return Cg, Cp
 
     # ------------------------------------------------------------------------------------------
-    def reduced_system(self, lin, st: BundleState, lam: float = 0.0):
-        """Schur complement: K (n_x, n_x), rhs (n_x,), the factors needed to back-substitute."""
+    def reduced_system(self, lin, st: BundleState, lam: float = 0.0, route: str | None = None):
+        """Schur complement: K, rhs (n_x,), the factors needed to back-substitute.
+
+        Dense route: K (n_x, n_x) with the inner-constraint rows bordered.  Sparse route
+        (:meth:`solver_route`): K is the scipy CSR matrix of the global unknowns alone (n_g, n_g);
+        a free network's datum is applied by :func:`.factor.solve_reduced` (minimal constraints and
+        an S-transformation), so the right-hand side's constraint part is zero."""
+        route = route or self.solver_route()
+        if route == "sparse" and self.n_c:
+            from .factor import minimal_datum
+            if minimal_datum(self, st) is None:          # the datum motions reach no photo parameters
+                self._route = route = "dense"
         U, g, V, bp = lin["U"], lin["g"], lin["V"], lin["bp"]
         Jc, Jp = lin["Jc"], lin["Jp"]
         n_g, n_e, n_c = self.n_g, self.n_e, self.n_c
+        if route == "dense" and sp.issparse(U):
+            U = U.toarray()
         if lam > 0:
-            U = U + lam * np.diag(np.diag(U))
+            U = U + lam * (sp.diags(U.diagonal()) if sp.issparse(U) else np.diag(np.diag(U)))
             V = V + lam * np.einsum("pii->pi", V)[:, :, None] * np.eye(3)
         Li = _chol3_inv(V, self)                                   # (n_e, 3, 3) lower, L⁻¹ with V = L Lᵀ
         Li1 = np.concatenate([Li, np.eye(3)[None]], axis=0)        # dummy point for global-point obs
@@ -286,16 +302,126 @@ class NormalEquations:
         Cg, Cp = self.constraint_rows(st)
         n_x = n_g + n_c
         Bc = np.einsum("pac,pba->pcb", Cp, Li) if n_c else None   # (n_e, n_c, 3) = Cpᵀ L⁻ᵀ
-        B = BMatrix(self, BkT, Bc)
+        B = BMatrix(self, BkT, Bc, sparse=route == "sparse")
+        z = bmv(Li, bp)                                             # L⁻¹ b_p
+        rhs = np.concatenate([g, np.zeros(n_c)]) - (B.matvec(z) if n_e else 0.0)
+        if route == "sparse":
+            K = sp.csr_matrix(U) - B.gram_sparse() if n_e else sp.csr_matrix(U)
+            if n_c and not self._datum_is_null_space(K, st):
+                self._route = "dense"                    # control as well as inner constraints: bordered
+                return self.reduced_system(lin, st, lam, route="dense")
+            if n_c:
+                rhs[n_g:] = 0.0
+            return dict(K=K.tocsr(), rhs=rhs, Li=Li, z=z, B=B, route="sparse", lin=lin, lam=lam, Cg=Cg, Cp=Cp)
         K = np.zeros((n_x, n_x))
         K[:n_g, :n_g] = U
         if n_c:
             K[:n_g, n_g:] = Cg
             K[n_g:, :n_g] = Cg.T
         K -= B.gram()
-        z = bmv(Li, bp)                                             # L⁻¹ b_p
-        rhs = np.concatenate([g, np.zeros(n_c)]) - (B.matvec(z) if n_e else 0.0)
-        return dict(K=K, rhs=rhs, Li=Li, z=z, B=B)
+        return dict(K=K, rhs=rhs, Li=Li, z=z, B=B, route="dense")
+
+    def solver_route(self) -> str:
+        """``"dense"`` or ``"sparse"`` reduced system (``BundleSettings.solver``; ``"auto"``: sparse
+        from :data:`SPARSE_MIN_UNKNOWNS` global unknowns on, when the symbolic analysis finds a
+        factor with less than half the entries of the dense triangle; free networks need a minimal
+        datum among the photos' parameters (see :func:`.factor.minimal_datum`))."""
+        if getattr(self, "_route", None) is None:
+            want = self.settings.solver
+            route = "dense"
+            if want == "sparse" or (want == "auto" and self.n_g >= SPARSE_MIN_UNKNOWNS):
+                route = "sparse"
+                if want == "auto":
+                    sym = self.symbolic()
+                    if sym.nnz_factor > 0.5 * self.n_g * (self.n_g + 1) / 2:
+                        route = "dense"
+            self._route = route
+        return self._route
+
+    def _datum_is_null_space(self, K, st) -> bool:
+        """Do the similarity motions span the null space of the (undamped) reduced system?  Only
+        then a free network's inner constraints are a choice of datum (the sparse route's minimal
+        constraints and S-transformation); with control or priors as well they constrain the
+        solution, and the bordered dense system solves that.  Decided once per problem."""
+        if getattr(self, "_datum_null", None) is None:
+            from .diagnose import datum_motions
+
+            G = datum_motions(self, st)[:, :self.n_c]
+            d = np.sqrt(np.maximum(K.diagonal(), 1e-300))
+            Gs = G * d[:, None]                               # motions in the Jacobi-scaled system
+            KG = (K @ G) / d[:, None]
+            rel = np.linalg.norm(KG, axis=0) / np.maximum(np.linalg.norm(Gs, axis=0), 1e-300)
+            self._datum_null = bool(np.all(rel < 1e-6))
+        return self._datum_null
+
+    def node_of_global(self) -> tuple[np.ndarray, list[int]]:
+        """The node of every global unknown (a camera's parameters, a photo's orientation, a
+        scale-bar point's coordinates) and the camera nodes (ordered last by the sparse route)."""
+        node = np.full(self.n_g, -1)
+        k = 0
+        cams = []
+        for j in range(self.K):
+            c = self.g_cam[j][self.g_cam[j] >= 0]
+            if c.size:
+                node[c] = k
+                cams.append(k)
+                k += 1
+        for table in (self.g_eo, self.g_pt):
+            rows = np.flatnonzero((table >= 0).any(axis=1))
+            for i in rows.tolist():
+                node[table[i][table[i] >= 0]] = k
+                k += 1
+        return node, cams
+
+    def global_pattern(self) -> sp.csr_matrix:
+        """Sparsity of the reduced system of the global unknowns (n_g, n_g): the photo blocks with
+        their cameras, photo pairs that share a point, observations of scale-bar points, priors and
+        distances."""
+        if getattr(self, "_pattern", None) is None:
+            ng1 = self.n_g + 1
+            sc = self.seg_cols
+            q = sc.shape[1]
+            sh = (len(sc), q, q)
+            pat = _triplets(np.broadcast_to(sc[:, :, None], sh), np.broadcast_to(sc[:, None, :], sh), np.ones(sh),
+                            ng1, sparse=True)
+            if len(self.gp_obs):
+                gc = self.cidx[self.gp_obs]
+                sh = (len(gc), gc.shape[1], gc.shape[1])
+                pat = pat + _triplets(np.broadcast_to(gc[:, :, None], sh), np.broadcast_to(gc[:, None, :], sh),
+                                      np.ones(sh), ng1, sparse=True)
+            if len(self.dist_l):
+                cols = np.concatenate([self.g_pt[self.dist_a], self.g_pt[self.dist_b]], axis=1)
+                cols = np.where(cols >= 0, cols, self.n_g)
+                sh = (len(cols), 6, 6)
+                pat = pat + _triplets(np.broadcast_to(cols[:, :, None], sh), np.broadcast_to(cols[:, None, :], sh),
+                                      np.ones(sh), ng1, sparse=True)
+            if self.n_e:
+                pl = self.pair_plan()
+                rows, cols = np.divmod(pl["flat"], ng1)
+                pat = pat + _triplets(rows, cols, np.ones(len(rows)), ng1, sparse=True)
+                pat = pat + pat.T
+            self._pattern = pat.tocsr()
+        return self._pattern
+
+    def symbolic(self, keep: np.ndarray | None = None):
+        """Ordering and supernodes of the reduced system (of the unknowns ``keep``; cached)."""
+        from .sparse import Symbolic
+
+        key = None if keep is None else np.flatnonzero(~keep).tobytes()
+        cache = getattr(self, "_symbolic", None)
+        if cache is None or cache[0] != key:
+            pat = self.global_pattern()
+            node, cams = self.node_of_global()
+            if keep is not None:
+                pat = pat[keep][:, keep]
+                node = node[keep]
+                used = np.unique(node)
+                renum = np.full(int(node.max(initial=-1)) + 2, -1)
+                renum[used] = np.arange(len(used))
+                cams = [int(renum[c]) for c in cams if renum[c] >= 0]
+                node = renum[node]
+            self._symbolic = (key, Symbolic.analyse(pat, node, last_nodes=cams))
+        return self._symbolic[1]
 
     def back_substitute(self, red, dx):
         """Δp = L⁻ᵀ (z − B_pᵀ Δx) for every eliminated point."""
@@ -303,6 +429,41 @@ class NormalEquations:
             return np.zeros((0, 3))
         t = red["z"] - red["B"].rmatvec(dx)
         return bmv(np.transpose(red["Li"], (0, 2, 1)), t)
+
+
+SPARSE_MIN_UNKNOWNS = 2000
+"""``solver = "auto"`` considers the sparse route from this many global unknowns on."""
+
+
+def segment_sums(AT, A, starts, chunk: int = 1 << 16):
+    """``Σ_{k in segment} AT_k A_k`` for consecutive segments beginning at ``starts`` (AT (k, a, r),
+    A (k, r, b) → (n_seg, a, b)): batched products in chunks of whole segments, then reduceat."""
+    k = len(A)
+    out = np.empty((len(starts), AT.shape[1], A.shape[2]))
+    if k == 0:
+        return out
+    ends = np.r_[starts[1:], k]
+    j0 = 0
+    while j0 < len(starts):
+        j1 = max(j0 + 1, int(np.searchsorted(ends, starts[j0] + chunk, side="right")))
+        a, b = int(starts[j0]), int(ends[j1 - 1])
+        out[j0:j1] = np.add.reduceat(np.matmul(AT[a:b], A[a:b]), starts[j0:j1] - a, axis=0)
+        j0 = j1
+    return out
+
+
+def _triplets(rows, cols, vals, ng1: int, sparse: bool):
+    """Σ of ``vals`` at (``rows``, ``cols``) as an (ng1 − 1)² matrix; index ng1 − 1 is the dummy
+    column of fixed parameters and is dropped.  Dense array or scipy CSR."""
+    r = np.asarray(rows).ravel()
+    c = np.asarray(cols).ravel()
+    v = np.asarray(vals, float).ravel()
+    n = ng1 - 1
+    keep = (r < n) & (c < n)
+    r, c, v = r[keep], c[keep], v[keep]
+    if sparse:
+        return sp.csr_matrix((v, (r, c)), shape=(n, n))
+    return np.bincount(r.astype(np.int64) * n + c, v, minlength=n * n).reshape(n, n)
 
 
 def _chol3(V, prob):
@@ -351,11 +512,13 @@ class BMatrix:
     ``sparse`` (scipy CSR product).
     """
 
-    def __init__(self, prob: BundleProblem, BkT, Bc):
+    def __init__(self, prob: BundleProblem, BkT, Bc, sparse: bool = False):
         self.prob = prob
         self.BkT, self.Bc = BkT, Bc
         self.n_x = prob.n_g + prob.n_c
         self.mode = prob.gram_mode()
+        if sparse:
+            self.mode = "pairs"
 
     @property
     def Bk(self):
@@ -377,20 +540,8 @@ class BMatrix:
         X = self.BkT if q == prob.q else np.ascontiguousarray(self.BkT[:, :, :q])
         if self.mode == "pairs":
             pl = prob.pair_plan()
-            gs, ge, oa, ob = pl["gs"], pl["ge"], pl["oa"], pl["ob"]
-            S = np.empty((len(gs), q, q))
-            for g0, g1 in pl["chunks"]:
-                p0, p1 = gs[g0], ge[g1 - 1]
-                XA = X[oa[p0:p1]]
-                XB = X[ob[p0:p1]]
-                for g in range(g0, g1):
-                    a, b = gs[g] - p0, ge[g] - p0
-                    np.matmul(XA[a:b].reshape(-1, q).T, XB[a:b].reshape(-1, q), out=S[g])
+            S, Dg = self.pair_blocks(X)
             A = np.bincount(pl["flat"], S.ravel(), minlength=ng1 * ng1).reshape(ng1, ng1)
-            Dg = np.empty((len(prob.seg_start), q, q))
-            for j, (s0, s1) in enumerate(zip(prob.seg_start.tolist(), prob.seg_end.tolist())):
-                Y = X[s0:s1].reshape(-1, q)
-                np.matmul(Y.T, Y, out=Dg[j])
             A = A + A.T
             A += np.bincount(pl["flat_diag"], Dg.ravel(), minlength=ng1 * ng1).reshape(ng1, ng1)
             out[:n_g, :n_g] = A[:-1, :-1]
@@ -410,6 +561,38 @@ class BMatrix:
             Bcf = np.transpose(self.Bc, (1, 0, 2)).reshape(n_c, -1)
             out[n_g:, n_g:] = Bcf @ Bcf.T
         return out
+
+    def pair_blocks(self, X=None):
+        """``S_ab = Σ_p B_ap B_bpᵀ`` of every photo pair (a < b) of :meth:`BundleProblem.pair_plan` and
+        ``Y_aᵀ Y_a`` of every photo: (n_pairs, q, q), (n_photos, q, q) over the photo columns."""
+        prob = self.prob
+        q = prob.q_ph
+        if X is None:
+            X = self.BkT if q == prob.q else np.ascontiguousarray(self.BkT[:, :, :q])
+        pl = prob.pair_plan()
+        gs, ge, oa, ob = pl["gs"], pl["ge"], pl["oa"], pl["ob"]
+        S = np.empty((len(gs), q, q))
+        XT = np.swapaxes(X, 1, 2)
+        for g0, g1 in pl["chunks"]:
+            p0, p1 = gs[g0], ge[g1 - 1]
+            P = np.matmul(XT[oa[p0:p1]], X[ob[p0:p1]])                   # one q×q product per observation pair
+            S[g0:g1] = np.add.reduceat(P, np.asarray(gs[g0:g1]) - p0, axis=0)
+        return S, segment_sums(XT, X, prob.seg_start)
+
+    def gram_sparse(self) -> sp.csr_matrix:
+        """``B Bᵀ`` of the global unknowns (n_g, n_g) as scipy CSR (no constraint rows)."""
+        prob = self.prob
+        n_g = prob.n_g
+        ng1 = n_g + 1
+        if self.mode == "pairs":
+            pl = prob.pair_plan()
+            S, Dg = self.pair_blocks()
+            r, c = np.divmod(pl["flat"], ng1)
+            A = _triplets(r, c, S.ravel(), ng1, sparse=True)
+            rd, cd = np.divmod(pl["flat_diag"], ng1)
+            return (A + A.T + _triplets(rd, cd, Dg.ravel(), ng1, sparse=True)).tocsr()
+        S = self.sparse()[:n_g]
+        return (S @ S.T).tocsr()
 
     # -- products with vectors -----------------------------------------------------------------
     def matvec(self, z):

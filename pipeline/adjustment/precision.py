@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .collinearity import bmm
+from .collinearity import bmm, bmv
 from .factor import solve_reduced, solve_factored
 from .problem import BundleProblem
 
@@ -39,9 +39,13 @@ def reduced_inverse(prob: BundleProblem, red, st) -> np.ndarray:
 def precision(prob: BundleProblem, lin, red, st, chunk_bytes: float = 6.4e7):
     """Cofactors and per-observation hat-matrix blocks.
 
-    Returns dict with ``Qx`` (n_x × n_x, global part incl. constraint rows), ``Qpp`` (n_e, 3, 3)
-    and ``H`` (k, 2, 2) for the active observations (whitened).
+    Returns dict with ``Qpp`` (n_e, 3, 3), ``H`` (k, 2, 2) for the active observations (whitened),
+    the cofactor blocks ``Q_cam`` (per camera, over ``[c, xp, yp, ap…]``), ``Q_eo`` (m, 6, 6) and
+    ``Q_gpt`` (n, 3, 3; the global points' rows, zero elsewhere), and — dense route only — ``Qx``
+    (n_x × n_x, global part incl. constraint rows).
     """
+    if red.get("route") == "sparse":
+        return _precision_sparse(prob, lin, red, st)
     Qx = reduced_inverse(prob, red, st)
     n_g, n_e = prob.n_g, prob.n_e
     n_x = Qx.shape[0]
@@ -53,11 +57,7 @@ def precision(prob: BundleProblem, lin, red, st, chunk_bytes: float = 6.4e7):
     # camera–camera part, photo by photo (the photo-constant columns share one Q block)
     H = np.zeros((k, 2, 2))
     q_ph = prob.q_ph
-    for s0, s1 in zip(prob.seg_start, prob.seg_end):
-        idx = cidx[s0, :q_ph]
-        J = Jc[s0:s1, :, :q_ph]
-        T = (J.reshape(-1, q_ph) @ Qg[np.ix_(idx, idx)]).reshape(s1 - s0, 2, q_ph)
-        H[s0:s1] = (T[:, :, None, :] * J[:, None, :, :]).sum(axis=3)
+    _photo_terms(prob, range(len(prob.seg_start)), lambda idx: Qg[np.ix_(idx, idx)], Jc, H)
     if len(prob.gp_obs):
         ob = prob.gp_obs
         Qk = Qg[cidx[ob][:, :, None], cidx[ob][:, None, :]]
@@ -74,7 +74,27 @@ def precision(prob: BundleProblem, lin, red, st, chunk_bytes: float = 6.4e7):
             _points_by_chunks(prob, Qx, B, Li, Jc, Jp, H, Qpp, chunk_bytes)
         # fixed coordinates of partly controlled points are not unknowns
         Qpp *= prob.elim_free[:, :, None] & prob.elim_free[:, None, :]
-    return dict(Qx=Qx, Qpp=Qpp, H=H)
+    out = dict(Qx=Qx, Qpp=Qpp, H=H, cofactors=DenseCofactors(Qx[:n_g, :n_g]))
+    out.update(_global_blocks(prob, lambda idx: Qg[idx[..., :, None], idx[..., None, :]]))
+    return out
+
+
+def _global_blocks(prob, gather):
+    """Cofactor blocks of the cameras, the photos' orientations and the global points through
+    ``gather(idx)`` (idx (..., c) global columns, n_g = fixed → the block (..., c, c))."""
+    n_g = prob.n_g
+    P = 3 + prob.pmax
+    Q_cam = []
+    for j, mdl in enumerate(prob.models):
+        idx = prob.g_cam[j, :3 + mdl.n_params]
+        Q_cam.append(gather(np.where(idx >= 0, idx, n_g)))
+    Q_eo = gather(np.where(prob.g_eo >= 0, prob.g_eo, n_g))
+    Q_gpt = np.zeros((prob.n, 3, 3))
+    gp = np.flatnonzero((prob.g_pt >= 0).any(axis=1))
+    if gp.size:
+        Q_gpt[gp] = gather(np.where(prob.g_pt[gp] >= 0, prob.g_pt[gp], n_g))
+    del P
+    return dict(Q_cam=Q_cam, Q_eo=Q_eo, Q_gpt=Q_gpt)
 
 
 def _add_point_terms(prob, ob, Mk, Li, Jc, Jp, H, Qpp):
@@ -115,37 +135,248 @@ def _points_by_chunks(prob, Qx, B, Li, Jc, Jp, H, Qpp, chunk_bytes):
 
 
 def _points_by_pairs(prob, Qx, B, Li, Jc, Jp, H, Qpp):
-    """Sparse route: per point, only the rows of K⁻¹ its observations touch (short tracks).
-
-    ``M_k = Σ_l K⁻¹[cidx_k, cidx_l] B_l + K⁻¹[cidx_k, λ] Bc_p`` and
-    ``T_p = Σ_k B_kᵀ M_k + Bc_pᵀ (K⁻¹[λ, ·] B_p)``.
-    """
+    """Sparse route of the dense system: per point, only the rows of K⁻¹ its observations touch
+    (short tracks), for all points of one track length at once."""
     n_g, n_c = prob.n_g, prob.n_c
-    q = prob.q
     Qg = np.zeros((n_g + 1, n_g + 1))
     Qg[:n_g, :n_g] = Qx[:n_g, :n_g]
+    cons = None
     if n_c:
         Qgc = np.zeros((n_g + 1, n_c))
         Qgc[:n_g] = Qx[:n_g, n_g:]
-        Qcc = Qx[n_g:, n_g:]
+        cons = (Qgc, Qx[n_g:, n_g:])
     for obs_mat, _ in prob.track_groups():
         N, t = obs_mat.shape
-        C = prob.cidx[obs_mat].reshape(N, t * q)                               # (N, tq)
-        X = B.Bk[obs_mat].reshape(N, t * q, 3)
-        Qsub = Qg[C[:, :, None], C[:, None, :]]                                # (N, tq, tq)
-        M = np.matmul(Qsub, X)                                                 # (N, tq, 3)
-        pts = prob.pidx[obs_mat[:, 0]]
-        if n_c:
-            Bcp = B.Bc[pts]                                                    # (N, n_c, 3)
-            M += np.matmul(Qgc[C], Bcp)
-        T = np.matmul(np.transpose(X, (0, 2, 1)), M)                           # (N, 3, 3)
-        if n_c:
-            lamB = np.matmul(np.transpose(Qgc[C], (0, 2, 1)), X) + np.matmul(Qcc[None], Bcp)   # (N, n_c, 3)
-            T += np.matmul(np.transpose(Bcp, (0, 2, 1)), lamB)
-        T[:, [0, 1, 2], [0, 1, 2]] += 1.0
-        Lc = Li[pts]
-        Qpp[pts] = bmm(bmm(np.transpose(Lc, (0, 2, 1)), T), Lc)
-        _add_point_terms(prob, obs_mat.ravel(), M.reshape(N * t, q, 3), Li, Jc, Jp, H, Qpp)
+        C = prob.cidx[obs_mat].reshape(N, t * prob.q)                          # (N, tq)
+        _track_terms(prob, Qg[C[:, :, None], C[:, None, :]], C, obs_mat, B, Li, Jc, Jp, H, Qpp, cons)
+
+
+def _track_terms(prob, Qsub, C, obs_mat, B, Li, Jc, Jp, H, Qpp, cons=None):
+    """Points whose observations are the rows of ``obs_mat`` (N, t), with ``Qsub`` (N, tq, tq) the
+    cofactors of their observations' global columns ``C`` (N, tq):
+
+    ``M_k = Σ_l K⁻¹[cidx_k, cidx_l] B_l (+ K⁻¹[cidx_k, λ] Bc_p)``,
+    ``Qpp_p = L_p⁻ᵀ (I + Σ_k B_kᵀ M_k (+ Bc_pᵀ K⁻¹[λ, ·] B_p)) L_p⁻¹``; then the observations' H."""
+    N, t = obs_mat.shape
+    q = prob.q
+    X = B.Bk[obs_mat].reshape(N, t * q, 3)
+    M = np.matmul(Qsub, X)                                                     # (N, tq, 3)
+    pts = prob.pidx[obs_mat[:, 0]]
+    if cons is not None:
+        Qgc, Qcc = cons
+        Bcp = B.Bc[pts]                                                        # (N, n_c, 3)
+        M += np.matmul(Qgc[C], Bcp)
+    T = np.matmul(np.transpose(X, (0, 2, 1)), M)                               # (N, 3, 3)
+    if cons is not None:
+        lamB = np.matmul(np.transpose(Qgc[C], (0, 2, 1)), X) + np.matmul(Qcc[None], Bcp)   # (N, n_c, 3)
+        T += np.matmul(np.transpose(Bcp, (0, 2, 1)), lamB)
+    T[:, [0, 1, 2], [0, 1, 2]] += 1.0
+    Lc = Li[pts]
+    Qpp[pts] = bmm(bmm(np.transpose(Lc, (0, 2, 1)), T), Lc)
+    _add_point_terms(prob, obs_mat.ravel(), M.reshape(N * t, q, 3), Li, Jc, Jp, H, Qpp)
+
+
+def _photo_terms(prob, segs, gather, Jc, H):
+    """H_k += Jc_k Q Jc_kᵀ over the photo-constant columns, for the photo segments ``segs``."""
+    q_ph = prob.q_ph
+    for j in segs:
+        s0, s1 = int(prob.seg_start[j]), int(prob.seg_end[j])
+        J = Jc[s0:s1, :, :q_ph]
+        T = (J.reshape(-1, q_ph) @ gather(prob.seg_cols[j])).reshape(s1 - s0, 2, q_ph)
+        H[s0:s1] = (T[:, :, None, :] * J[:, None, :, :]).sum(axis=3)
+
+
+def _precision_sparse(prob, lin, red, st):
+    """Sparse route: the selected inversion of the reduced system's factor visits every front
+    (:meth:`.sparse.SupernodalCholesky.selected_inverse`); each photo, point and scale-bar
+    observation is handled in the front of its first column in the elimination order, which holds
+    the cofactors of all the columns it touches (they form a clique of the filled graph).  A free
+    network's minimal-constraint cofactors are S-transformed onto the inner constraints (H, and so
+    the redundancy numbers, are datum-invariant; the orientations' and points' cofactors are not)."""
+    from .factor import solve_reduced
+
+    if "factor" not in red:
+        solve_reduced(prob, red, st)
+    F, d, kidx = red["factor"][1]
+    sym = F.sym
+    n_g, n_e = prob.n_g, prob.n_e
+    n = sym.n
+    Jc, Jp = lin["Jc"], lin["Jp"]
+    Li, B = red["Li"], red["B"]
+    k = len(prob.oi)
+    H = np.zeros((k, 2, 2))
+    Qpp = np.zeros((n_e, 3, 3))
+    posg = np.full(n_g + 1, n)                                   # elimination position (n: fixed)
+    posg[kidx] = sym.ipos
+    scale = np.zeros(n_g + 1)
+    scale[kidx] = d
+    sn_of_pos = np.repeat(np.arange(sym.n_super), np.diff(sym.start))
+
+    def owners(C):
+        m = posg[C].reshape(len(C), -1).min(axis=1) if len(C) else np.zeros(0, int)
+        return np.where(m < n, sn_of_pos[np.minimum(m, n - 1)], -1)
+
+    def by_owner(own):
+        order = np.argsort(own, kind="stable")
+        bounds = np.searchsorted(own[order], np.arange(-1, sym.n_super + 1))
+        return order, bounds
+
+    items = {}
+    items["seg"] = by_owner(owners(prob.seg_cols))
+    tracks = [(obs_mat, prob.cidx[obs_mat].reshape(len(obs_mat), -1)) for obs_mat, _ in prob.track_groups()]
+    items["trk"] = [by_owner(owners(C)) for _, C in tracks]
+    gpo = prob.gp_obs
+    items["gp"] = by_owner(owners(prob.cidx[gpo]))
+    blk_cols = {"eo": np.where(prob.g_eo >= 0, prob.g_eo, n_g)}
+    blk_cols["cam"] = [np.where(prob.g_cam[j, :3 + m.n_params] >= 0, prob.g_cam[j, :3 + m.n_params], n_g)
+                       for j, m in enumerate(prob.models)]
+    gpt = np.flatnonzero((prob.g_pt >= 0).any(axis=1))
+    blk_cols["gpt"] = np.where(prob.g_pt[gpt] >= 0, prob.g_pt[gpt], n_g)
+    items["eo"] = by_owner(owners(blk_cols["eo"]))
+    items["gpt"] = by_owner(owners(blk_cols["gpt"]))
+    cam_own = owners(np.array([np.resize(c, max(len(c) for c in blk_cols["cam"])) for c in blk_cols["cam"]])) \
+        if blk_cols["cam"] else np.zeros(0, int)
+    Q_cam = [np.zeros((len(c), len(c))) for c in blk_cols["cam"]]
+    Q_diag = np.zeros(n_g)
+    Q_eo = np.zeros((prob.m, 6, 6))
+    Q_gpt = np.zeros((prob.n, 3, 3))
+
+    def take(kind, s, sub=None):
+        order, bounds = items[kind] if sub is None else items[kind][sub]
+        return order[bounds[s + 1]:bounds[s + 2]]
+
+    def visit(s, front, Z):
+        nf = len(front)
+        Zx = np.zeros((nf + 1, nf + 1))
+        sc = d[front]
+        Zx[:nf, :nf] = Z * sc[:, None] * sc[None, :]
+        fpos = sym.ipos[front]
+
+        def loc(C):
+            p = posg[C]
+            return np.where(p < n, np.searchsorted(fpos, np.minimum(p, n - 1)), nf)
+
+        def gather(idx):
+            li = loc(idx)
+            return Zx[li[..., :, None], li[..., None, :]]
+
+        ns = int(sym.start[s + 1] - sym.start[s])
+        Q_diag[kidx[front[:ns]]] = np.diag(Zx)[:ns]
+        _photo_terms(prob, take("seg", s), gather, Jc, H)
+        for g, (obs_mat, C) in enumerate(tracks):
+            sel = take("trk", s, g)
+            if sel.size:
+                Cl = loc(C[sel])
+                _track_terms(prob, Zx[Cl[:, :, None], Cl[:, None, :]], None, obs_mat[sel], B, Li, Jc, Jp, H, Qpp)
+        ob = gpo[take("gp", s)]
+        if ob.size:
+            Qk = gather(prob.cidx[ob])
+            Qk[:, :prob.q_ph, :prob.q_ph] = 0.0
+            H[ob] += np.einsum("kiq,kqr,kjr->kij", Jc[ob], Qk, Jc[ob])
+        sel = take("eo", s)
+        if sel.size:
+            Q_eo[sel] = gather(blk_cols["eo"][sel])
+        sel = take("gpt", s)
+        if sel.size:
+            Q_gpt[gpt[sel]] = gather(blk_cols["gpt"][sel])
+        for j in np.flatnonzero(cam_own == s):
+            Q_cam[j] = gather(blk_cols["cam"][j])
+
+    F.selected_inverse(visit)
+    # observations and points whose columns are all fixed: only their own terms
+    for kind, sub in [("trk", g) for g in range(len(tracks))]:
+        sel = take(kind, -1, sub)
+        if sel.size:
+            obs_mat, C = tracks[sub]
+            Z0 = np.zeros((len(sel), C.shape[1], C.shape[1]))
+            _track_terms(prob, Z0, None, obs_mat[sel], B, Li, Jc, Jp, H, Qpp)
+    datum = _s_transform(prob, red, st, Q_eo, Q_gpt, gpt, Qpp, Q_diag) if prob.n_c else None
+    if n_e:
+        Qpp *= prob.elim_free[:, :, None] & prob.elim_free[:, None, :]
+    return dict(Qx=None, Qpp=Qpp, H=H, Q_cam=Q_cam, Q_eo=Q_eo, Q_gpt=Q_gpt,
+                cofactors=SparseCofactors(red["factor"][1], Q_diag, datum))
+
+
+def _s_transform(prob, red, st, Q_eo, Q_gpt, gpt, Qpp, Q_diag):
+    """Minimal-constraint cofactors → inner constraints: ``Q = S Q₀ Sᵀ``, ``S = I − G T Cᵀ``,
+    ``T = (Cᵀ G)⁻¹``; per block ``Q_a − G_a T Y_aᵀ − Y_a Tᵀ G_aᵀ + G_a T (Cᵀ Y) Tᵀ G_aᵀ`` with
+    ``Y = Q₀ C`` (n_c solves).  Camera parameters do not move with the datum (G = 0 there)."""
+    from .factor import datum_basis, sparse_solve
+
+    n_g, n_c = prob.n_g, prob.n_c
+    Gg, Gp, T = datum_basis(prob, red, st)
+    Cg, Cp = red["Cg"], red["Cp"]
+    B, Li = red["B"], red["Li"]
+    LiT = np.transpose(Li, (0, 2, 1))
+    rhs = np.empty((n_g, n_c))
+    zc = [bmv(Li, Cp[:, :, c]) for c in range(n_c)]
+    for c in range(n_c):
+        rhs[:, c] = Cg[:, c] - (B.matvec(zc[c])[:n_g] if prob.n_e else 0.0)
+    Yg = sparse_solve(red, rhs)
+    Yp = np.zeros_like(Gp)
+    for c in range(n_c):
+        if prob.n_e:
+            Yp[:, :, c] = bmv(LiT, zc[c] - B.rmatvec(np.r_[Yg[:, c], np.zeros(n_c)]))
+    CY = Cg.T @ Yg + np.einsum("pac,pad->cd", Cp, Yp)
+
+    def correct(Q, G, Y):
+        GT = G @ T
+        YT = Y @ T.T
+        Q += -GT @ np.swapaxes(Y, -1, -2) - YT @ np.swapaxes(G, -1, -2) + GT @ CY @ np.swapaxes(GT, -1, -2)
+
+    Gx = np.vstack([Gg, np.zeros((1, n_c))])
+    Yx = np.vstack([Yg, np.zeros((1, n_c))])
+    eo = np.where(prob.g_eo >= 0, prob.g_eo, n_g)
+    correct(Q_eo, Gx[eo], Yx[eo])
+    if gpt.size:
+        idx = np.where(prob.g_pt[gpt] >= 0, prob.g_pt[gpt], n_g)
+        Qg = Q_gpt[gpt]
+        correct(Qg, Gx[idx], Yx[idx])
+        Q_gpt[gpt] = Qg
+    if prob.n_e:
+        correct(Qpp, Gp, Yp)
+    Qd = Q_diag[:, None, None].copy()
+    correct(Qd, Gg[:, None, :], Yg[:, None, :])
+    Q_diag[:] = Qd[:, 0, 0]
+    return Gg, T, Yg, CY
+
+
+class DenseCofactors:
+    """Cofactors of the global unknowns from the dense inverse."""
+
+    def __init__(self, Qg: np.ndarray):
+        self.Qg = Qg
+
+    def diagonal(self) -> np.ndarray:
+        return np.diag(self.Qg).copy()
+
+    def columns(self, cols) -> np.ndarray:
+        return self.Qg[:, np.asarray(cols, int)].copy()
+
+
+class SparseCofactors:
+    """Cofactors of the global unknowns from the sparse factor: the diagonal (from the selected
+    inversion) and any columns on demand (solves; a free network's S-transformation applied)."""
+
+    def __init__(self, factor, diag: np.ndarray, datum=None):
+        self.factor, self.diag, self.datum = factor, diag, datum
+
+    def diagonal(self) -> np.ndarray:
+        return self.diag.copy()
+
+    def columns(self, cols) -> np.ndarray:
+        F, d, kidx = self.factor
+        cols = np.asarray(cols, int)
+        n_g = len(self.diag)
+        E = np.zeros((n_g, len(cols)))
+        E[cols, np.arange(len(cols))] = 1.0
+        Q = np.zeros_like(E)
+        Q[kidx] = F.solve(E[kidx] * d[:, None]) * d[:, None]
+        if self.datum is not None:
+            G, T, Y, CY = self.datum
+            GT, YT = G @ T, Y @ T.T
+            Q += -GT @ Y[cols].T - YT @ G[cols].T + GT @ CY @ GT[cols].T
+        return Q
 
 
 def reliability_rows(prob: BundleProblem, H: np.ndarray):
@@ -173,6 +404,8 @@ def predicted_variance(prob: BundleProblem, st, red, Qx: np.ndarray, Qpp: np.nda
     photo or the point is not adjusted)."""
     from .collinearity import project_observations
 
+    if red.get("route") == "sparse":
+        return _predicted_variance_sparse(prob, st, red, obs_idx)
     obs = prob.block.observations
     idx = np.asarray(obs_idx, int)
     out = np.full((len(idx), 2), np.nan)
@@ -206,4 +439,63 @@ def predicted_variance(prob: BundleProblem, st, red, Qx: np.ndarray, Qpp: np.nda
         H[rows] += X + np.transpose(X, (0, 2, 1))
         H[rows] += np.einsum("kia,ab,kjb->kij", Jp[rows], Qpp[p], Jp[rows])
     out[sel] = np.einsum("kii->ki", H)
+    return out
+
+
+def _prediction_rows(prob, st, obs_idx):
+    """Jacobian rows of block observations ``obs_idx`` over the global unknowns (``J`` (r, 2, q'),
+    columns ``C``, n_g = fixed) and the eliminated point (``Jp`` (r, 2, 3), ``e`` its index or −1);
+    ``sel``: the observations whose photo and point are adjusted."""
+    from .collinearity import project_observations
+
+    obs = prob.block.observations
+    idx = np.asarray(obs_idx, int)
+    ph, pt = obs.photo[idx], obs.point[idx]
+    sel = np.flatnonzero(prob.photo_used[ph] & prob.point_used[pt])
+    ph, pt = ph[sel], pt[sel]
+    pr = project_observations(ph, pt, st.XYZ, st.X0, st.opk, prob.block.photos.camera, st.cam_params,
+                              prob.block.cameras.ap_model, prob.meta)
+    cam = prob.block.photos.camera[ph]
+    C = np.concatenate([prob.g_cam[cam], prob.g_eo[ph], prob.g_pt[pt]], axis=1)
+    J = np.concatenate([pr.J_cam, pr.J_eo, pr.J_point], axis=2) * (C >= 0)[:, None, :]
+    C = np.where(C >= 0, C, prob.n_g)
+    Jp = pr.J_point * prob.pt_free[pt][:, None, :]
+    return sel, J, C, Jp, prob.elim_of[pt]
+
+
+def _predicted_variance_sparse(prob, st, red, obs_idx, chunk: int = 256):
+    """:func:`predicted_variance` with the sparse factor: ``a Q aᵀ`` through solves of the whole
+    system, ``x = K⁻¹ (a_g − B L⁻¹ a_p)``, ``y = L⁻ᵀ (L⁻¹ a_p − Bᵀ x)`` (a free network's
+    minimal-constraint cofactors give the same value: a prediction does not depend on the datum)."""
+    from .factor import sparse_solve
+
+    out = np.full((len(obs_idx), 2), np.nan)
+    sel, J, C, Jp, e = _prediction_rows(prob, st, obs_idx)
+    n_g = prob.n_g
+    Li, B = red["Li"], red["B"]
+    csr = prob.obs_to_point.tocsr()
+    var = np.zeros((len(sel), 2))
+    for c0 in range(0, len(sel), chunk):
+        rows = range(c0, min(c0 + chunk, len(sel)))
+        R = np.zeros((n_g + 1, 2 * len(rows)))
+        zp = {}
+        for j, r in enumerate(rows):
+            np.add.at(R[:, 2 * j:2 * j + 2], C[r], J[r].T)
+            if e[r] >= 0:
+                z = Li[e[r]] @ Jp[r].T                                  # L⁻¹ a_pᵀ (3, 2)
+                zp[r] = z
+                ol = csr.indices[csr.indptr[e[r]]:csr.indptr[e[r] + 1]]
+                np.add.at(R[:, 2 * j:2 * j + 2], prob.cidx[ol], -np.matmul(B.Bk[ol], z))
+        X = sparse_solve(red, R[:n_g])
+        Xp = np.vstack([X, np.zeros((1, X.shape[1]))])
+        for j, r in enumerate(rows):
+            x = Xp[:, 2 * j:2 * j + 2]
+            v = np.einsum("iq,qi->i", J[r], x[C[r]])
+            if r in zp:
+                ol = csr.indices[csr.indptr[e[r]]:csr.indptr[e[r] + 1]]
+                Btx = np.einsum("kaq,kqi->ai", B.BkT[ol], x[prob.cidx[ol]])      # B_pᵀ x (3, 2)
+                y = Li[e[r]].T @ (zp[r] - Btx)
+                v = v + np.einsum("ia,ai->i", Jp[r], y)
+            var[r] = v
+    out[sel] = var
     return out

@@ -93,6 +93,9 @@ class BundleOptions:
                        "any |w| exceeds the critical value (for a-priori σ scaled from these data, where "
                        "the global test accepts by construction)")
     covariance: bool = option(True, "compute covariances, redundancy numbers and w-tests")
+    solver: Literal["auto", "dense", "sparse"] = option(
+        "auto", "reduced camera system: dense Cholesky, or sparse (METIS ordering, supernodal Cholesky, selected "
+                "inversion) for large blocks; auto chooses by size and fill (docs/bundle.md)")
     arrow_scale: float = option(0.0, "scale of residual arrows in the recording (0: automatic)")
 
     def __post_init__(self):
@@ -194,7 +197,7 @@ def settings_from(o: BundleOptions, block: Block) -> BundleSettings:
         datum=o.datum, datum_points=tuple(o.datum_points) or None, datum_centres=o.datum_on == "centres",
         sigma0=o.sigma0, max_iter=o.max_iter, tol_obs=o.tol_obs, tol_rel=o.tol_rel, damping=o.damping,
         distances=tuple(Distance(str(d.from_), str(d.to), d.distance, d.sigma) for d in o.distances),
-        on_weak=o.on_weak, ap_meta=ap_meta, covariance=o.covariance)
+        on_weak=o.on_weak, ap_meta=ap_meta, covariance=o.covariance, solver=o.solver)
 
 
 class BundleAdjustment:
@@ -411,7 +414,8 @@ def _report(res: BundleResult, extras, o, block) -> str:
                  f"Sxy = {_f(c['Sxy'])}, Sz = {_f(c['Sz'])} ({block.object_unit})")
     t = res.timings
     L.append(f"- time: {t.get('total', 0):.3f} s (initial values {t.get('initial_values', 0):.3f}, linearise "
-             f"{t.get('linearize', 0):.3f}, solve {t.get('solve', 0):.3f}, covariance {t.get('covariance', 0):.3f})")
+             f"{t.get('linearize', 0):.3f}, solve {t.get('solve', 0):.3f}, covariance {t.get('covariance', 0):.3f}; "
+             f"{res.solver_route} reduced system)")
     for w in res.warnings:
         L.append(f"- warning: {w}")
     L.append("")
