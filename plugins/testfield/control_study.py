@@ -23,6 +23,7 @@ Table 4.  Check-point errors are adjusted minus surveyed over the points whose r
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass, field
 from typing import Callable, Literal
 
@@ -30,6 +31,7 @@ import numpy as np
 
 from baarda.pipeline.accuracy import check_point_rmse
 from baarda.pipeline.adjustment import BundleSettings, adjust, select_aps
+from baarda.pipeline import montecarlo
 from baarda.pipeline.errors import AdjustmentError
 from baarda.pipeline.options import option
 from baarda.pipeline.report import markdown_table
@@ -76,37 +78,54 @@ def _run(block, with_aps: bool, cfg: ControlStudyConfig):
     return sel.result, [k["parameter"] for k in sel.kept], SELECTION_LABEL[sel.method]
 
 
-def control_study(cfg: ControlStudyConfig, seed: int, progress: Callable | None = None) -> dict:
+def control_study(cfg: ControlStudyConfig, seed: int, progress: Callable | None = None,
+                  mapper: Callable | None = None) -> dict:
     """Run the study; returns ``{"rows": [...], "tables": {...}, "conclusions": [...]}``.
 
     Each row: repetition, block ("block"/"single-model"), case, aps (bool), dof, sigma0_um,
-    Sx, Sy, Sz (m), kept (AP names).  ``progress(i, total)`` is called after each realisation.
+    Sx, Sy, Sz (m), kept (AP names).  Realisation ``rep`` draws from ``default_rng([seed, rep])``
+    whoever computes it.  ``mapper(fn, repetitions)`` runs the realisations (any callable with the
+    signature of the built-in ``map``, e.g. :func:`baarda.pipeline.montecarlo.mapper`'s; it reports
+    its own progress); without one they run here and ``progress(i, total)`` is called after each.
     """
+    one = functools.partial(realisation_rows, cfg, seed)
+    if mapper is None:
+        per_rep = []
+        for rep in range(cfg.repetitions):
+            per_rep.append(one(rep))
+            if progress:
+                progress(rep + 1, cfg.repetitions)
+    else:
+        per_rep = list(mapper(one, range(cfg.repetitions)))
+    rows = [r for rep_rows in per_rep for r in rep_rows]
+    tables = summarise(rows)
+    return {"rows": rows, "tables": tables, "conclusions": conclusions(rows, cfg)}
+
+
+def realisation_rows(cfg: ControlStudyConfig, seed: int, rep: int) -> list[dict]:
+    """Every adjustment of realisation ``rep`` (``rng = default_rng([seed, rep])``, the same draws
+    for every case, with and without APs): one row each (see :func:`control_study`)."""
     rows = []
     jobs = [("block", c) for c in cfg.cases]
     if cfg.single_model_case is not None:
         jobs.append(("single-model", cfg.single_model_case))
-    for rep in range(cfg.repetitions):
-        for kind, case in jobs:
-            for with_aps in ((False, True) if kind == "block" else (True,)):
-                tf = cfg.field(case, kind, ap_model=cfg.ap_model if with_aps else "none",
-                               calibrate_iop=with_aps and cfg.calibrate_iop)
-                block, _ = simulate_testfield(tf, np.random.default_rng([seed, rep]))
-                row = {"repetition": rep, "block": kind, "case": case, "aps": with_aps}
-                try:
-                    res, kept, method = _run(block, with_aps, cfg)
-                except AdjustmentError as e:
-                    rows.append({**row, "dof": -1, "sigma0_um": np.nan, "Sx": np.nan, "Sy": np.nan, "Sz": np.nan,
-                                 "kept": [], "selection": "", "error": str(e)})
-                    continue
-                S = _check_rmse(res, block)
-                rows.append({**row, "dof": res.dof, "sigma0_um": res.sigma0_hat * cfg.sigma_image_um,
-                             "Sx": S[0], "Sy": S[1], "Sz": S[2], "kept": kept, "selection": method,
-                             "error": ""})
-        if progress:
-            progress(rep + 1, cfg.repetitions)
-    tables = summarise(rows)
-    return {"rows": rows, "tables": tables, "conclusions": conclusions(rows, cfg)}
+    for kind, case in jobs:
+        for with_aps in ((False, True) if kind == "block" else (True,)):
+            tf = cfg.field(case, kind, ap_model=cfg.ap_model if with_aps else "none",
+                           calibrate_iop=with_aps and cfg.calibrate_iop)
+            block, _ = simulate_testfield(tf, np.random.default_rng([seed, rep]))
+            row = {"repetition": rep, "block": kind, "case": case, "aps": with_aps}
+            try:
+                res, kept, method = _run(block, with_aps, cfg)
+            except AdjustmentError as e:
+                rows.append({**row, "dof": -1, "sigma0_um": np.nan, "Sx": np.nan, "Sy": np.nan, "Sz": np.nan,
+                             "kept": [], "selection": "", "error": str(e)})
+                continue
+            S = _check_rmse(res, block)
+            rows.append({**row, "dof": res.dof, "sigma0_um": res.sigma0_hat * cfg.sigma_image_um,
+                         "Sx": S[0], "Sy": S[1], "Sz": S[2], "kept": kept, "selection": method,
+                         "error": ""})
+    return rows
 
 
 def _pooled(rows, key) -> float:
@@ -282,7 +301,8 @@ class ControlStudy(Stage):
                           single_model_case=options.single_model_case if options.single_model else None)
         seed = options.seed if options.seed is not None else int(ctx.rng.integers(2**31))
         bar = iter(ctx.progress.track(range(cfg.repetitions), total=cfg.repetitions, what="realisation"))
-        study = control_study(cfg, seed, progress=lambda i, n: next(bar, None))
+        step = lambda i, n: next(bar, None)  # noqa: E731
+        study = control_study(cfg, seed, progress=step, mapper=montecarlo.mapper(progress=step))
         for _ in bar:
             pass
         study["config"] = dataclasses.asdict(cfg)

@@ -31,6 +31,7 @@ difference is more than the noise of ``repetitions`` draws.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import partial
 from typing import Callable
 
 import numpy as np
@@ -349,17 +350,25 @@ def conclusions(rows, cfg: MethodStudyConfig) -> list[dict]:
     return out
 
 
-def method_study(cfg: MethodStudyConfig, seed: int, progress: Callable | None = None) -> dict:
+def method_study(cfg: MethodStudyConfig, seed: int, progress: Callable | None = None,
+                 mapper: Callable | None = None) -> dict:
     """Run the study.  Returns ``{"config", "seed", "rows", "variants": summarise(rows),
-    "conclusions", "comparisons": {name: compare(...)}, "geometry": field_geometry(cfg)}``;
-    ``progress(i, total)`` is called after each realisation."""
+    "conclusions", "comparisons": {name: compare(...)}, "geometry": field_geometry(cfg)}``.
+    ``mapper(fn, repetitions)`` runs the realisations (any callable with the signature of the
+    built-in ``map``, e.g. :func:`baarda.pipeline.montecarlo.mapper`'s, which reports its own
+    progress); without one they run here and ``progress(i, total)`` is called after each.  Each
+    realisation has its own seed (:func:`run_realisation`), so the result is the same either way."""
     if cfg.repetitions < 1:
         raise ValueError("repetitions must be at least 1")
-    rows = []
-    for rep in range(cfg.repetitions):
-        rows += run_realisation(cfg, seed, rep)
-        if progress:
-            progress(rep + 1, cfg.repetitions)
+    one = partial(run_realisation, cfg, seed)
+    if mapper is None:
+        rows = []
+        for rep in range(cfg.repetitions):
+            rows += one(rep)
+            if progress:
+                progress(rep + 1, cfg.repetitions)
+    else:
+        rows = [r for rep_rows in mapper(one, range(cfg.repetitions)) for r in rep_rows]
     pairs = {"APs vs no APs": (BUNDLE_AP, BUNDLE),
              "independent models vs bundle": (IM, BUNDLE_AP),
              "independent models vs bundle without APs": (IM, BUNDLE)}

@@ -13,6 +13,7 @@ from typing import Literal
 
 import numpy as np
 
+from baarda.pipeline import montecarlo
 from baarda.pipeline.options import option
 from baarda.pipeline.report import markdown_table
 from baarda.pipeline.stage import Context, Stage, StageResult, TableData
@@ -103,7 +104,8 @@ class MethodStudy(Stage):
         cfg, source = study_config(options, inputs.get("block"))
         seed = options.seed if options.seed is not None else int(ctx.rng.integers(2 ** 31))
         bar = iter(ctx.progress.track(range(cfg.repetitions), total=cfg.repetitions, what="realisation"))
-        study = method_study(cfg, seed, progress=lambda i, n: next(bar, None))
+        step = lambda i, n: next(bar, None)  # noqa: E731
+        study = method_study(cfg, seed, progress=step, mapper=montecarlo.mapper(progress=step))
         for _ in bar:
             pass
         study["source"] = source

@@ -73,3 +73,16 @@ def test_control_study_identical_on_the_cluster(clients):
     key = lambda r: (r["repetition"], r["case"], r["aps"], r["Sx"], r["Sy"], r["Sz"], tuple(r["kept"]))  # noqa: E731
     assert [key(r) for r in there["rows"]] == [key(r) for r in here["rows"]]
     assert len(here["rows"]) == 4
+
+
+def test_study_stage_uses_the_current_engine(clients, tmp_path):
+    """What `baarda run --scheduler …` does: the stage hands its realisations to the engine."""
+    from baarda.pipeline.testing import run_stage
+    from baarda.plugins.testfield.method_study_stage import MethodStudy
+
+    opts = {"repetitions": 2, "seed": 4, "methods": ["bundle, no APs"], "single_model": False}
+    here = run_stage(MethodStudy, {}, opts, tmp_path=tmp_path / "a")
+    with mc.Engine(client=clients[2]) as eng, mc.using(eng):
+        there = run_stage(MethodStudy, {}, opts, tmp_path=tmp_path / "b")
+        assert eng.tasks_sent == 2
+    assert there.summary["variants"] == here.summary["variants"]
