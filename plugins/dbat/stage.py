@@ -214,9 +214,9 @@ def _quality(res) -> dict:
     else:
         for row in table:
             camera[row["parameter"]] = (row["value"], row["sigma"], row["status"], row["parameter"])
-    ctrl = np.flatnonzero((pts.role != "tie") & (pts.role != "check") & res.problem.point_used)
-    chk = np.flatnonzero((pts.role == "check") & res.problem.point_used & np.isfinite(pts.XYZ).all(axis=1))
-    tie = np.flatnonzero((pts.role == "tie") & res.problem.point_used)
+    ctrl = np.flatnonzero((pts.role != "tie") & (pts.role != "check") & res.point_used)
+    chk = np.flatnonzero((pts.role == "check") & res.point_used & np.isfinite(pts.XYZ).all(axis=1))
+    tie = np.flatnonzero((pts.role == "tie") & res.point_used)
 
     def stats(idx):
         a = ang[idx]
