@@ -670,9 +670,16 @@ def dbat_from_baarda(c, xp, yp, ap, cam: DbatCamera) -> dict:
             "K3": d[2], "P1": d[3], "P2": d[4], "as": d[5], "sk": d[6]}
 
 
+def photo_ids(images: dict[str, str]) -> list[str]:
+    """Photo ids: the image files' names without extension (``P8250021``), as other sources name
+    photos; DBAT's image numbers when two files share a name."""
+    stems = [re.split(r"[/\\]", p)[-1].rsplit(".", 1)[0] for p in images.values()]
+    return stems if len(set(stems)) == len(stems) and all(stems) else list(images)
+
+
 def dbat_block(script: DbatScript) -> Block:
-    """The script as a baarda block: one ``brown-backward`` camera, one photo per listed image (no
-    orientation: the bundle resects and intersects), control (fixed or weighted), check and tie
+    """The script as a baarda block: one ``brown-backward`` camera, one photo per listed image (id: the
+    file name without extension; no orientation: the bundle resects and intersects), control (fixed or weighted), check and tie
     points, marks in mm with their σ.  Tie and check points with fewer than ``min_rays`` rays are left
     out (DBAT's ``check_ray_count``), with their marks."""
     cam = script.camera
@@ -752,7 +759,7 @@ def dbat_block(script: DbatScript) -> Block:
     xy = mm_from_pixels(uv, (W, H), p, convention="colmap")
     obs = Observations.make(np.asarray(ob_img, int)[keep_obs], [index[q] for q in ob_pt_arr[keep_obs]], xy,
                             sigma=np.asarray(ob_s, float)[keep_obs] * p)
-    photos = Photos.make(list(script.images), camera=0)
+    photos = Photos.make(photo_ids(script.images), camera=0)
     unused_ctrl = [pid for pid, r in zip(ids, role) if r == "full" and rays[pid] == 0]
     meta = {
         "dbat": {
@@ -761,6 +768,7 @@ def dbat_block(script: DbatScript) -> Block:
             "unknown_operations": script.unknown_operations, "labels": labels,
             "images": {k: (str(v) if v is not None else None) for k, v in script.image_files.items()},
             "image_paths": dict(script.images),
+            "image_numbers": dict(zip(photo_ids(script.images), script.images)),
             "marks": [{"file": str(m.file), "count": len(m.point), "sigma_px": sorted(set(m.sigma_px.tolist())),
                        "sigma_source": m.sigma_source} for m in script.marks],
             "dropped_points": dropped, "dropped_marks": int((~keep_obs).sum()),

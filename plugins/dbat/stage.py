@@ -32,7 +32,7 @@ class DbatOptions:
 class DbatSource(SourceStage):
     summary = "Read a DBAT script project (XML, control/check points, marks, PhotoModeler-style camera)"
     reads = ()
-    writes = ("block",)
+    writes = ("block", "dbat_marks")
     Options = DbatOptions
 
     def run(self, inputs, options: DbatOptions, ctx: Context) -> StageResult:
@@ -50,7 +50,7 @@ class DbatSource(SourceStage):
                    "dropped_points": len(d["dropped_points"]), "dropped_marks": d["dropped_marks"],
                    "photos_found": sum(v is not None for v in d["images"].values()),
                    "estimated": [k for k, v in d["estimate_io"].items() if v]}
-        return StageResult(artefacts={"block": block}, summary=summary, report=_report(block),
+        return StageResult(artefacts={"block": block, "dbat_marks": block}, summary=summary, report=_report(block),
                            tables=_tables(block), data={"block": block})
 
     def log(self, result: StageResult, rec, ctx: Context) -> None:
@@ -160,7 +160,7 @@ class DbatReportOptions:
 class DbatReport(Stage):
     summary = ("DBAT-style quality report of a bundle: camera in DBAT's conventions with σ and high correlations, "
                "control prior/adjusted/difference/σ, check-point errors, ray counts, intersection angles")
-    reads = ("bundle",)
+    reads = ("bundle", "dbat_report?")
     writes = ("dbat_report",)
     Options = DbatReportOptions
 
@@ -178,7 +178,13 @@ class DbatReport(Stage):
                    "check": {i: {"error": d.tolist(), "sigma": s.tolist()} for i, d, s in
                              zip(q["check"]["ids"], q["check"]["diff"], q["check"]["sigma"])},
                    "angles_deg": q["angle_stats"], "rays": q["ray_stats"]}
-        return StageResult(artefacts={"dbat_report": q}, summary=summary, report=_quality_report(q, options),
+        report = _quality_report(q, options)
+        earlier = inputs.get("dbat_report")
+        if earlier is not None:
+            report += "\n\n" + _camera_comparison(earlier, q)
+            summary["camera_vs_earlier"] = {k: (q["camera"][k][0] - earlier["camera"][k][0]) for k in q["camera"]
+                                            if k in earlier["camera"]}
+        return StageResult(artefacts={"dbat_report": q}, summary=summary, report=report,
                            tables=_quality_tables(q))
 
 
@@ -312,3 +318,69 @@ def _quality_tables(q) -> dict:
                 "sX": c["sigma"][:, 0], "sY": c["sigma"][:, 1], "sZ": c["sigma"][:, 2]},
                 f"{kind} points: prior, adjusted, adjusted − prior, a-posteriori σ")
     return out
+
+
+def _camera_comparison(earlier, q) -> str:
+    """The camera of this report beside an earlier dbat-report's (e.g. PhotoModeler's marks against
+    baarda's own detections)."""
+    rows = []
+    for k, (v, sg, st, bn) in q["camera_rows"].items():
+        if k not in earlier["camera"] or st == "fixed":
+            continue
+        v0, s0 = earlier["camera"][k]
+        s = np.hypot(sg, s0)
+        rows.append([k, f"{v0:.6g}", f"{s0:.3g}", f"{v:.6g}", f"{sg:.3g}", f"{v - v0:+.3g}",
+                     f"{(v - v0) / s:+.2f}" if s > 0 else ""])
+    return ("Camera against the earlier dbat-report's (DBAT conventions); the last column divides the "
+            "difference by the two σ combined as if independent — they share the photos, so this "
+            "understates its significance:\n\n"
+            + markdown_table(["DBAT", "earlier", "σ", "this", "σ", "difference", "diff / σ"], rows))
+
+
+# ---------------------------------------------------------------------------------------------
+# dbat-marks: the marks of the script against another block's image points (e.g. detections)
+
+
+@dataclass(frozen=True)
+class DbatMarksOptions:
+    match_radius_px: float = option(3.0, "largest distance (pixels) of a detection from a mark it is paired with")
+
+
+class DbatMarks(Stage):
+    summary = ("Compare the script's marks (PhotoModeler's) with the image points of the current block (e.g. "
+               "opencv-targets detections), paired by position: count, bias, RMS per photo and overall")
+    reads = ("dbat_marks", "block")
+    writes = ("dbat_marks_comparison",)
+    Options = DbatMarksOptions
+
+    def run(self, inputs, options: DbatMarksOptions, ctx: Context) -> StageResult:
+        from .quality import compare_marks
+
+        marks, block = inputs.get("dbat_marks"), inputs.get("block")
+        if marks is None or block is None:
+            raise InputError("dbat-marks needs a dbat source stage and a later stage that writes a block",
+                             path=ctx.project_file, field="use")
+        cmp = compare_marks(marks, block, options.match_radius_px)
+        a = cmp["all"]
+        summary = {k: a[k] for k in ("marks", "points", "matched", "same_id", "bias_px", "rms_px", "sd_px")}
+        rows = [[r["photo"], r["marks"], r["points"], r["matched"], r["same_id"], f"{r['bias_px'][0]:+.3f}",
+                 f"{r['bias_px'][1]:+.3f}", f"{r['rms_px'][0]:.3f}", f"{r['rms_px'][1]:.3f}"] for r in cmp["photos"]]
+        rows.append(["all", a["marks"], a["points"], a["matched"], a["same_id"], f"{a['bias_px'][0]:+.3f}",
+                     f"{a['bias_px'][1]:+.3f}", f"{a['rms_px'][0]:.3f}", f"{a['rms_px'][1]:.3f}"])
+        report = (f"The script's {a['marks']} marks against the block's {a['points']} image points, paired by "
+                  f"position (nearest, one-to-one, within {options.match_radius_px:g} px): {a['matched']} pairs, "
+                  f"{a['same_id']} of them with the same point id. Differences (block − marks, pixels, x right, "
+                  f"y down): bias ({a['bias_px'][0]:+.3f}, {a['bias_px'][1]:+.3f}), RMS ({a['rms_px'][0]:.3f}, "
+                  f"{a['rms_px'][1]:.3f}), standard deviation about the bias ({a['sd_px'][0]:.3f}, "
+                  f"{a['sd_px'][1]:.3f}). Both in image mm first, each with its own pixel convention (DBAT's "
+                  "marks: the image corner at 0; OpenCV's detections: the first pixel's centre at 0), so a bias "
+                  "here is a real offset of the centres.\n\n"
+                  + markdown_table(["photo", "marks", "points", "pairs", "same id", "bias x", "bias y", "RMS x",
+                                    "RMS y"], rows))
+        d = cmp["pairs"]
+        table = TableData({"photo": d["photo"], "mark_point": d["mark_point"], "point": d["point"],
+                           "u_mark": d["uv_mark"][:, 0], "v_mark": d["uv_mark"][:, 1],
+                           "du_px": d["duv"][:, 0], "dv_px": d["duv"][:, 1]},
+                          "paired marks and image points: differences in pixels (block − marks)")
+        return StageResult(artefacts={"dbat_marks_comparison": cmp}, summary=summary, report=report,
+                           tables={"pairs": table})

@@ -24,10 +24,10 @@ CAMCAL = {"cc": (7.457, 0.00105), "px": (3.61546, 0.00082), "py": (2.61329, 0.00
           "K1": (0.00458861, 2.21e-05), "K2": (-4.51351e-05, 2.65e-06), "K3": (-2.05253e-06, 1.01e-07),
           "P1": (-6.12803e-05, 3.52e-06), "P2": (-4.41171e-05, 3.94e-06), "as": (0.000389598, 2.08e-05)}
 CAMCAL_K2K3_CORR = -0.979
-# projection centres of photos 1, 9 and 21 (object units, σ)
-CAMCAL_CENTRES = {"1": ((0.454947, 1.793849, 1.468066), (0.000155, 0.000179, 0.000207)),
-                  "9": ((0.524897, -0.543737, 1.533003), (0.000161, 0.000167, 0.000208)),
-                  "21": ((0.269149, 0.822761, 1.904844), (0.000314, 0.000266, 0.000243))}
+# projection centres of photos 1, 9 and 21 (P8250021.JPG, …; object units, σ)
+CAMCAL_CENTRES = {"P8250021": ((0.454947, 1.793849, 1.468066), (0.000155, 0.000179, 0.000207)),
+                  "P8250029": ((0.524897, -0.543737, 1.533003), (0.000161, 0.000167, 0.000208)),
+                  "P8250041": ((0.269149, 0.822761, 1.904844), (0.000314, 0.000266, 0.000243))}
 
 # --- sxb: DBAT's report --------------------------------------------------------------------------
 SXB_SIGMA0 = 1.1786
@@ -141,7 +141,7 @@ def test_sxb_agrees_with_dbat(sxb):
         assert np.allclose(got[pid], err, atol=0.0011), (pid, got[pid])
         k = ids.index(pid)
         assert np.allclose(np.sqrt(np.diag(res.cov_points[k])), s, rtol=0.03, atol=1e-3), pid
-    k = block.photos.ids.tolist().index("1")
+    k = block.photos.ids.tolist().index("8811")                        # DBAT's photo 1
     X0, opk_deg, s = SXB_PHOTO1
     assert np.allclose(res.state.X0[k], X0, atol=0.002)
     assert np.allclose(np.rad2deg(res.state.opk[k]), opk_deg, atol=2e-5)

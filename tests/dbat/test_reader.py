@@ -33,9 +33,10 @@ def test_camcal_is_read(shared_data):
     assert (b.cameras.c[0], b.cameras.xp[0], b.cameras.yp[0]) == (7.5, 0.0, 0.0)
     assert not b.photos.has_orientation.any()
     assert all(v is not None for v in b.meta["dbat"]["images"].values())   # found beside images.txt
+    assert b.photos.ids[0] == "P8250021" and b.meta["dbat"]["image_numbers"]["P8250021"] == "1"
     # a mark in pixels (origin at the image corner, y down) → mm (centre, y up) and back
     first = s.marks[0]
-    k = next(i for i in range(len(b.observations)) if b.photos.ids[b.observations.photo[i]] == first.image[0]
+    k = next(i for i in range(len(b.observations)) if b.observations.photo[i] == int(first.image[0]) - 1
              and b.points.ids[b.observations.point[i]] == first.point[0])
     assert np.allclose(pixels_from_mm(b.observations.xy[k], (2272, 1704), p, convention="colmap"), first.uv[0])
     assert np.allclose(b.observations.xy[k], [(1429.1871 - 1136) * p, -(1456.4278 - 852) * p])

@@ -1,0 +1,72 @@
+"""PhotoModeler's marks against baarda's own detections (fixtures/dbat/camcal-detect.toml): the pairing
+by position against a closed form, and the real photos — OpenCV's blob centres against PhotoModeler's
+marks, and the calibration from the detections against the one from the marks."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from baarda.pipeline.model import Observations
+from baarda.plugins.dbat import dbat_block, read_dbat
+from baarda.plugins.dbat.quality import compare_marks
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_compare_marks_closed_form(shared_data):
+    marks = dbat_block(read_dbat(shared_data / "dbat-camcal" / "camcaldemo.xml"))
+    p = marks.cameras.pixel_mm[0]
+    o = marks.observations
+    rng = np.random.default_rng(3)
+    shift = np.array([0.3, -0.2])                         # pixels, x right, y down
+    noise = rng.normal(0, 0.05, (len(o), 2))
+    xy = o.xy + (shift + noise) * [p, -p]
+    keep = np.ones(len(o), bool)
+    keep[::50] = False                                   # some marks not detected
+    other = marks.replace(observations=Observations.make(o.photo[keep], o.point[keep], xy[keep], sigma=0.1 * p))
+    c = compare_marks(marks, other, 3.0)
+    a = c["all"]
+    assert (a["marks"], a["points"], a["matched"], a["same_id"]) == (len(o), keep.sum(), keep.sum(), keep.sum())
+    d = (shift + noise)[keep]
+    assert np.allclose(a["bias_px"], d.mean(axis=0), atol=1e-9)
+    assert np.allclose(a["rms_px"], np.sqrt((d ** 2).mean(axis=0)), atol=1e-9)
+    # beyond the radius nothing pairs
+    far = marks.replace(observations=Observations.make(o.photo, o.point, o.xy + 5 * p, sigma=0.1 * p))
+    assert compare_marks(marks, far, 3.0)["all"]["matched"] == 0
+
+
+@pytest.fixture(scope="module")
+def detect_run(shared_data, tmp_path_factory):
+    from baarda.pipeline.cli import main
+
+    out = tmp_path_factory.mktemp("camcal-detect") / "run"
+    assert main(["run", str(ROOT / "fixtures" / "dbat" / "camcal-detect.toml"), "--out", str(out), "--quiet"]) == 0
+    return json.loads((out / "results.json").read_text())
+
+
+def _summary(results, stage_id):
+    return next(s for s in results["stages"] if s["id"] == stage_id)["summary"]
+
+
+def test_detections_agree_with_photomodeler_marks(detect_run):
+    m = _summary(detect_run, "marks_vs_detections")
+    assert m["marks"] == 2074
+    assert m["matched"] >= 2060 and m["same_id"] == m["matched"]
+    # after each side's own pixel convention the centres agree to a few hundredths of a pixel on average
+    assert np.all(np.abs(m["bias_px"]) < 0.05)
+    assert np.all(np.array(m["rms_px"]) < 0.16)
+
+
+def test_calibration_from_detections(detect_run):
+    a, b = _summary(detect_run, "report_marks"), _summary(detect_run, "report_detected")
+    assert a["sigma0_hat"] == pytest.approx(1.5553, abs=0.002)
+    assert b["sigma0_hat"] < a["sigma0_hat"]              # the detections fit at least as well
+    for k in ("cc", "px", "py", "K1", "K2", "K3", "P1", "P2", "as"):
+        va, sa = a["camera"][k]["value"], a["camera"][k]["sigma"]
+        vb, sb = b["camera"][k]["value"], b["camera"][k]["sigma"]
+        assert abs(vb - va) < 3 * np.hypot(sa, sb), k
+        assert sb == pytest.approx(sa, rel=0.05), k
