@@ -3,7 +3,7 @@
 Run as a script (from the repository root; ``make bench-scale`` runs the full set)::
 
     .venv/bin/python benchmarks/scale.py [--sizes 500 1000 2000 5000 10000] [--skip-pycolmap] [--bal]
-                                         [--timeout 1800] [--mem-gb 22] [--tol-rel 1e-6] [--repeat N]
+                                         [--timeout 3600] [--mem-gb 22] [--tol-rel 1e-6] [--repeat N]
                                          [--threads N] [--workdir DIR] [--json FILE]
 
 For every size the block is simulated once (:func:`baarda.pipeline.synthetic.aerial.simulate_aerial`:
@@ -354,7 +354,7 @@ def _machine() -> str:
     return f"machine: {os.cpu_count()} cores, {mem} memory, load average {load:.2f}; Python {sys.version.split()[0]}"
 
 
-def run(sizes=(500, 1000, 2000, 5000, 10000), *, pycolmap: bool = True, bal: bool = False, timeout: float = 1800.0,
+def run(sizes=(500, 1000, 2000, 5000, 10000), *, pycolmap: bool = True, bal: bool = False, timeout: float = 3600.0,
         mem_gb: float = 22.0, tol_rel: float = 1e-6, max_iter: int = 200, seed: int = 1, threads: int = -1,
         repeat: int = 1, workdir: Path | None = None, stream=sys.stdout) -> dict:
     """Simulate each size once, solve it with baarda and pycolmap in their own processes, print
@@ -440,7 +440,7 @@ def main(argv=None) -> int:
                     help="photos per block (each laid out as strips × photos per strip)")
     ap.add_argument("--skip-pycolmap", action="store_true", help="baarda only")
     ap.add_argument("--bal", action="store_true", help="also BAL problem-49 (benchmarks/bal_vs_pycolmap.py)")
-    ap.add_argument("--timeout", type=float, default=1800.0, help="seconds per child before it is killed")
+    ap.add_argument("--timeout", type=float, default=3600.0, help="seconds per child before it is killed")
     ap.add_argument("--mem-gb", type=float, default=22.0, help="address-space limit per child (0: none)")
     ap.add_argument("--tol-rel", type=float, default=1e-6, help="relative cost decrease that stops both solvers")
     ap.add_argument("--max-iter", type=int, default=200)
