@@ -302,6 +302,15 @@ def run_job(job: BatchJob) -> dict:
     return row
 
 
+def _lost(job: BatchJob, error: BaseException) -> dict:
+    """The row of a run whose task did not come back (its worker died, or it could not be sent)."""
+    text = str(error).splitlines()[0][:300] if str(error) else ""
+    return {"name": job.name, "status": "failed", "failure": "internal",
+            "message": f"the task did not complete: {type(error).__name__}: {text}", "seconds": 0.0,
+            "stages_ok": 0, "stages": 0, "run_dir": str(job.out), "project": str(job.project), "source": job.source,
+            "overrides": dict(job.overrides), "figures": {}}
+
+
 def _figures(records) -> dict:
     """``{"stage.key": number}`` of every stage's numeric top-level summary values."""
     out = {}
@@ -327,7 +336,9 @@ def run_batch(jobs: list[BatchJob], out: str | Path, engine=None,
     rows: list[dict | None] = [None] * len(jobs)
     t0 = time.perf_counter()
     try:
-        for n_done, (k, row) in enumerate(engine.as_completed(run_job, jobs), start=1):
+        for n_done, (k, row) in enumerate(engine.as_completed(run_job, jobs, errors="return"), start=1):
+            if isinstance(row, BaseException):      # the worker died (or the task could not run)
+                row = _lost(jobs[k], row)
             rows[k] = row
             if progress:
                 tail = f" — {row['failure']}: {row['message']}" if row["status"] != "ok" else ""

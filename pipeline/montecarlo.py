@@ -343,16 +343,23 @@ class Engine:
         self._processes(fn, items, todo, got)
         return out
 
-    def as_completed(self, fn: Callable, items: Sequence) -> Iterator[tuple[int, Any]]:
+    def as_completed(self, fn: Callable, items: Sequence, *, errors: str = "raise") -> Iterator[tuple[int, Any]]:
         """``(index, fn(items[index]))`` in the order tasks finish, every task on the engine (a
-        batch: nothing is run here first).  An exception of ``fn`` is raised when its task is
-        reached; callers that must go on catch inside ``fn``."""
+        batch: nothing is run here first).  A task that fails — ``fn`` raised, or its worker died
+        (``distributed.KilledWorker``) — raises when it is reached, or with ``errors="return"`` is
+        yielded as ``(index, the exception)`` and the other tasks go on."""
         items = list(items)
         if not items:
             return
         if (self.scheduler.kind == "sync" and self._client is None) or in_task():
             for k, x in enumerate(items):
-                yield k, _Task(fn)(x)
+                try:
+                    r = _Task(fn)(x)
+                except Exception as e:      # noqa: BLE001 - handed to the caller
+                    if errors == "raise":
+                        raise
+                    r = e
+                yield k, r
             return
         if self.distributed:
             from distributed import as_completed
@@ -362,7 +369,13 @@ class Engine:
             index = {f.key: k for k, f in enumerate(futures)}
             try:
                 for f in as_completed(futures):
-                    yield index[f.key], f.result()
+                    try:
+                        r = f.result()
+                    except Exception as e:      # noqa: BLE001 - handed to the caller
+                        if errors == "raise":
+                            raise
+                        r = e
+                    yield index[f.key], r
             finally:
                 for f in futures:
                     f.release()

@@ -102,3 +102,20 @@ def test_run_takes_the_scheduler_options(tmp_path, capsys):
     assert "field '--scheduler': expected local, processes, sync or a Dask scheduler address" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["run", str(FIX / "data1.toml"), "--workers", "0"])
+
+
+def test_a_run_whose_task_never_returns_is_a_failed_row(tmp_path):
+    """The engine hands back the exception of a lost task (a dead worker); the batch records it
+    and keeps the other rows."""
+    jobs = plan_batch([FIX / "data1.toml", FIX / "data2.toml"], tmp_path / "b")
+
+    class Lossy(mc.Engine):
+        def as_completed(self, fn, items, *, errors="raise"):
+            assert errors == "return"
+            yield 1, RuntimeError("worker tcp://127.0.0.1:1 died")
+            yield from ((0, r) for _, r in super().as_completed(fn, items[:1], errors=errors))
+
+    rows = run_batch(jobs, tmp_path / "b", Lossy(mc.Scheduler("sync")))
+    assert [r["status"] for r in rows] == ["ok", "failed"]
+    assert rows[1]["failure"] == "internal" and "RuntimeError: worker tcp://127.0.0.1:1 died" in rows[1]["message"]
+    assert [r["name"] for r in summary_rows(tmp_path / "b")] == ["data1", "data2"]

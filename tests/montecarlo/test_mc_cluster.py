@@ -86,3 +86,62 @@ def test_study_stage_uses_the_current_engine(clients, tmp_path):
         there = run_stage(MethodStudy, {}, opts, tmp_path=tmp_path / "b")
         assert eng.tasks_sent == 2
     assert there.summary["variants"] == here.summary["variants"]
+
+
+def test_local_engine_starts_and_stops_its_own_cluster():
+    """`--scheduler local`: the first task runs here, the rest on a LocalCluster it starts."""
+    with mc.Engine(mc.Scheduler("local", workers=2), min_seconds=0) as eng:
+        got = mc.map_realisations(_draw, 60, 11, client=eng, chunk=10)
+        assert eng.tasks_sent == 5 and eng._client is not None
+        client = eng._client
+    assert eng._client is None and client.status == "closed"
+    assert got == mc.map_realisations(_draw, 60, 11, chunk=10)
+
+
+def _die_on_one(x):
+    import os
+
+    if x == 1:
+        __import__("time").sleep(1.0)     # the others finish first
+        os._exit(3)                        # the worker process dies
+    if x == 2:
+        raise ValueError("task two fails")
+    return x * 10
+
+
+def test_a_dead_worker_or_failing_task_does_not_stop_the_others():
+    import dask
+    from distributed import Client, KilledWorker, LocalCluster
+
+    with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
+        with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                          dashboard_address="127.0.0.1:0") as cluster, Client(cluster) as client:
+            with mc.Engine(client=client) as eng:
+                got = dict(eng.as_completed(_die_on_one, [0, 1, 2, 3, 4, 5], errors="return"))
+    assert sorted(got) == [0, 1, 2, 3, 4, 5]              # every task accounted for, none raised
+    assert isinstance(got[1], KilledWorker)
+    # a task queued on the dying worker may die with it (allowed-failures 0); the rest come back
+    others = [got[k] for k in (0, 3, 4, 5)]
+    assert all(v == 10 * k or isinstance(v, KilledWorker) for k, v in zip((0, 3, 4, 5), others))
+    assert sum(not isinstance(v, KilledWorker) for v in others) >= 2
+    assert isinstance(got[2], ValueError) and "task two fails" in str(got[2])
+
+
+def test_run_command_sends_a_study_to_a_cluster_by_address(clients, tmp_path, capsys):
+    """`baarda run --scheduler tcp://…`: the study's realisations go to the running cluster; the
+    run's tables equal those of a run in this process."""
+    from baarda.pipeline.cli import main
+
+    p = tmp_path / "study.toml"
+    p.write_text('[project]\nname = "study"\nseed = 3\n\n[[stage]]\nuse = "testfield-method-study"\nid = "study"\n'
+                 '[stage.options]\nrepetitions = 3\nmethods = ["bundle, no APs"]\nsingle_model = false\n',
+                 encoding="utf-8")
+    address = clients[2].scheduler.address
+    assert address.startswith("tcp://127.0.0.1:")
+    assert main(["run", str(p), "--out", str(tmp_path / "dask"), "--quiet", "--scheduler", address]) == 0
+    assert main(["run", str(p), "--out", str(tmp_path / "here"), "--quiet", "--scheduler", "sync"]) == 0
+    capsys.readouterr()
+    tables = sorted(f.name for f in (tmp_path / "here").glob("*.csv"))
+    assert tables
+    for name in tables:
+        assert (tmp_path / "dask" / name).read_text() == (tmp_path / "here" / name).read_text(), name
