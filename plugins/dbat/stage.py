@@ -237,8 +237,9 @@ def _quality(res) -> dict:
     return {
         "sigma0": res.sigma0_hat, "sigma0_corrected": s0c, "dof": int(res.dof), "pixel_mm": pix,
         "rms_px": float(np.sqrt(np.mean(np.sum(v ** 2, axis=1)))) / pix,
+        "rms_mm": float(np.sqrt(np.mean(np.sum(v ** 2, axis=1)))),
         "rms_px_corrected": float(np.sqrt(np.mean(np.sum(rc[ok] ** 2, axis=1)))) / pix if ok.any() else float("nan"),
-        "camera": {k: (float(a), float(b)) for k, (a, b, _, _) in camera.items()},
+        "camera": {k: (float(a), float(b)) for k, (a, b, _, _) in camera.items()}, "dbat_camera": bool(meta.get("camera")),
         "camera_rows": camera, "correlation": res.correlation_camera(0), "names": names,
         "control": point_comparison(pts, ctrl, st.XYZ, res.cov_points),
         "check": point_comparison(pts, chk, st.XYZ, res.cov_points),
@@ -252,12 +253,14 @@ def _quality(res) -> dict:
 
 def _quality_report(q, options) -> str:
     u = q["object_unit"]
-    lines = [f"σ̂0 = {q['sigma0']:.4f} from the residuals of the measured marks (RMS {q['rms_px']:.3f} px), "
+    rms = f"RMS {q['rms_px']:.3f} px" if np.isfinite(q["rms_px"]) else f"RMS {q['rms_mm'] * 1000:.3f} µm"
+    lines = [f"σ̂0 = {q['sigma0']:.4f} from the residuals of the measured image points ({rms}), "
              f"redundancy {q['dof']}."]
     if np.isfinite(q["sigma0_corrected"]):
         lines[-1] += (f" DBAT forms the residuals of the *corrected* marks (backward model): at this solution they "
                       f"give σ̂0 = {q['sigma0_corrected']:.4f}, RMS {q['rms_px_corrected']:.3f} px (docs/dbat.md).")
-    lines += ["", "Camera, in DBAT's conventions (mm; principal point from the image corner, y down):", ""]
+    lines += ["", "Camera, in DBAT's conventions (mm; principal point from the image corner, y down):" if q["dbat_camera"]
+              else "Camera (not from a DBAT script: baarda's names and conventions):", ""]
     rows = [[k, bn, f"{v:.6g}", f"{s:.3g}" if st != "fixed" else "", st] for k, (v, s, st, bn) in q["camera_rows"].items()]
     lines += [markdown_table(["DBAT", "baarda", "value", "σ", "status"], rows), ""]
     R, names = q["correlation"], q["names"]

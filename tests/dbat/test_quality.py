@@ -77,3 +77,18 @@ def test_sxb_quality_as_dbat(shared_data):
     # control: DBAT's ctrl point delta RMS 0.035, max 0.073 at 492; check RMS 0.421, max 0.488 at 351
     assert "RMS of the control differences: 0.035 m (3-D), largest 0.073 m at 492" in out.report
     assert "RMS of the check differences: 0.421 m (3-D), largest 0.488 m at 351" in out.report
+
+
+def test_report_of_a_block_not_from_dbat():
+    """dbat-report on any bundle: baarda's parameter names, no corrected-space σ̂0 (no backward camera),
+    noise-free data give σ̂0 = 0 and the true camera."""
+    from baarda.pipeline.synthetic.closerange import make_block
+
+    block, truth = make_block(model="brown", n_photos=4, n_points=12)
+    res = adjust(block, BundleSettings())
+    out = DbatReport().run({"bundle": res}, DbatReportOptions(), None)
+    q = out.artefacts["dbat_report"]
+    assert not q["dbat_camera"] and np.isnan(q["sigma0_corrected"])
+    assert q["sigma0"] < 1e-6
+    assert np.allclose([q["camera"][k][0] for k in ("c", "xp", "yp")], truth["cam"][:3], atol=1e-8)
+    assert "not from a DBAT script" in out.report
