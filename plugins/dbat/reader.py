@@ -309,7 +309,7 @@ def _id(tok: str) -> str:
 # the sections
 
 
-def _points(section: Node, path, base, here, dbat_dir, role: str) -> list[PointSet]:
+def _points(section: Node, path, base, here, dbat_dir) -> list[PointSet]:
     files = section.findall("file")
     if not files:
         raise InputError(f"<{section.tag}> names no <file>", path=path, line=section.line, field="file")
@@ -405,7 +405,7 @@ def _images(section: Node, path, base, here, dbat_dir):
     return images, files, file
 
 
-def _marks(section: Node, path, base, here, dbat_dir, pixel_mm) -> list[MarkFile]:
+def _marks(section: Node, path, base, here, dbat_dir) -> list[MarkFile]:
     fns = section.findall("file")
     if not fns:
         raise InputError("<image_pts> names no <file>", path=path, line=section.line, field="file")
@@ -582,9 +582,9 @@ def read_dbat(path: Path, *, dbat_dir: Path | None = None) -> DbatScript:
     if ctrl is None:
         raise InputError("the script has no <ctrl_pts> section (a datum is needed)", path=path, line=inp.line,
                          field="ctrl_pts")
-    control = _points(ctrl, path, base, here, dbat_dir, "control")
+    control = _points(ctrl, path, base, here, dbat_dir)
     chk = inp.find("check_pts")
-    check = _points(chk, path, base, here, dbat_dir, "check") if chk is not None else []
+    check = _points(chk, path, base, here, dbat_dir) if chk is not None else []
     imgs = inp.find("images")
     if imgs is None:
         raise InputError("the script has no <images> section", path=path, line=inp.line, field="images")
@@ -592,7 +592,7 @@ def read_dbat(path: Path, *, dbat_dir: Path | None = None) -> DbatScript:
     ip = inp.find("image_pts")
     if ip is None:
         raise InputError("the script has no <image_pts> section", path=path, line=inp.line, field="image_pts")
-    marks = _marks(ip, path, base, here, dbat_dir, camera.pixel_mm)
+    marks = _marks(ip, path, base, here, dbat_dir)
     # operations
     ops_node = root.find("operations")
     operations, unknown = [], []
