@@ -1,8 +1,9 @@
 """The two DBAT script projects against DBAT's published results.
 
-Reference: niclasborlin/dbat, ``data/script/camcaldemo/result/report.txt`` (DBAT 0.9.0.1,
-28-Nov-2019) and ``data/script/sxb/result/report.txt`` (DBAT 0.9.1.2, 10-Dec-2019), the reports of
-the very scripts in ``../shared/data/dbat-*``.  The numbers below are copied from them.  How they
+Reference: niclasborlin/dbat, ``data/script/camcaldemo/result/report.txt`` (commit 08b5c63, DBAT
+0.9.0.1, 28-Nov-2019) and ``data/script/sxb/result/report.txt`` (commit 0e33f62, DBAT 0.9.1.2,
+10-Dec-2019), the reports of the very scripts in ``../shared/data/dbat-*`` (whose ``reference/``
+folders hold only the control points).  The numbers below are copied from them.  How they
 compare and why: ``docs/dbat.md``.
 """
 
