@@ -224,7 +224,7 @@ class Engine:
     context manager, or call :meth:`close`; a cluster this engine started is stopped then.
     """
 
-    def __init__(self, scheduler: Scheduler | None = None, *, client: Any = None, min_seconds: float = 2.0,
+    def __init__(self, scheduler: Scheduler | None = None, *, client: Any = None, min_seconds: float = 10.0,
                  log: Callable[[str], None] | None = None):
         self.scheduler = scheduler or Scheduler()
         self.min_seconds = float(min_seconds)
@@ -304,7 +304,7 @@ class Engine:
 
         todo = list(range(total))
         remote = self._remote_wanted(total)
-        if remote and self.scheduler.kind == "local" and self._client is None and total > 1:
+        if remote and self.scheduler.kind == "local" and self._client is None:
             # is the job worth a cluster?  time the first task here
             t0 = time.perf_counter()
             out[0] = _Task(fn)(items[0])

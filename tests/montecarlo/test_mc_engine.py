@@ -70,6 +70,9 @@ def test_local_engine_keeps_small_jobs_in_process():
     with mc.Engine(mc.Scheduler("local", workers=2), min_seconds=60) as e:
         assert mc.map_realisations(_draw, 40, 3, client=e, chunk=6) == _reference(40, 3)
         assert e.tasks_sent == 0 and e._client is None
+    with mc.Engine(mc.Scheduler("local", workers=2), min_seconds=0) as e:
+        assert e.map(abs, [-4]) == [4]                        # one task: never worth a cluster
+        assert e.tasks_sent == 0 and e._client is None
 
 
 def test_nested_maps_run_in_process():
