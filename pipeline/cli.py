@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -37,15 +38,19 @@ EXIT_HELP = """exit status:
   130  interrupted (what was done is kept)"""
 
 
-def _set_threads(n: int | None) -> None:
-    """Limit the BLAS/OpenMP thread pools for the whole process (``--threads``).
+def _set_threads(n: int | None) -> int:
+    """BLAS/OpenMP pools single-threaded for the whole process; returns the threads for the work
+    that pays (``--threads``, default every core), which stages get as ``ctx.threads``.
 
-    One thread by default: the bundle's many small dense solves run slower with threaded OpenBLAS
-    on a shared machine (measured: the AICON fixture 25.5 s threaded, 15.8 s with one thread).
+    Single-threaded BLAS: the bundle's many small dense solves run slower with threaded OpenBLAS
+    (measured: the AICON fixture 25.5 s threaded, 15.8 s with one thread).  Where threads pay —
+    the sparse route's independent subtrees and its large fronts — the code asks for them.
     """
     from threadpoolctl import threadpool_limits
 
-    threadpool_limits(limits=n if n else 1)
+    threadpool_limits(limits=1)
+    return int(n) if n else max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
+                                else (os.cpu_count() or 1))
 
 
 def _print_outcome(outcome) -> None:
@@ -73,10 +78,10 @@ def _cmd_run(args) -> int:
     from .montecarlo import using
     from .runner import RunInterrupted, run_project
 
-    _set_threads(args.threads)
+    threads = _set_threads(args.threads)
     with _engine(args) as engine, using(engine):
         try:
-            outcome = run_project(args.project, args.out, verbose=not args.quiet)
+            outcome = run_project(args.project, args.out, verbose=not args.quiet, threads=threads)
         except RunInterrupted as e:
             _print_outcome(e.outcome)
             raise KeyboardInterrupt from None
@@ -205,7 +210,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--out", help="run directory (default: runs/<project>-<timestamp>)")
     r.add_argument("--quiet", action="store_true", help="no progress output")
     r.add_argument("--threads", type=_positive_int, default=None, metavar="N",
-                   help="BLAS/OpenMP threads (default 1: faster for the bundle's small dense solves)")
+                   help="threads for the work that pays, e.g. the bundle's sparse route (default: every core; "
+                        "BLAS itself stays single-threaded, faster for the many small dense solves)")
     _scheduler_args(r)
     r.set_defaults(func=_cmd_run)
     b = sub.add_parser("batch", help="run many projects (a list, a glob, or a sweep of one) through Dask",

@@ -75,7 +75,7 @@ def default_run_dir(project_path: Path) -> Path:
 
 def run_project(project_path: str | Path, out: str | Path | None = None, *,
                 plugins: PluginManager | None = None, verbose: bool = True,
-                stream=None) -> RunOutcome:
+                stream=None, threads: int = 1) -> RunOutcome:
     """Load, validate and run a project; write the run directory. Raises InputError for a bad
     project (nothing is written then) and re-raises KeyboardInterrupt after keeping what was done."""
     stream = stream or sys.stderr
@@ -96,7 +96,7 @@ def run_project(project_path: str | Path, out: str | Path | None = None, *,
         for k, (spec, rec) in enumerate(zip(project.stages, records)):
             if verbose:
                 print(f"[{k + 1}/{n}] {spec.id} ({spec.use}) …", file=stream, flush=True)
-            ctx = stage_context(project, spec, run_dir=run_dir, previous=list(previous),
+            ctx = stage_context(project, spec, run_dir=run_dir, previous=list(previous), threads=threads,
                                 progress=Progress(spec.id, stream=stream, enabled=verbose))
             inputs = {name.rstrip("?"): store[name.rstrip("?")] for name in spec.cls.reads
                       if name.rstrip("?") in store}

@@ -137,6 +137,9 @@ class Context:
     """Line of each option the project sets, in ``project_file`` (for :meth:`option_error`)."""
     stage_line: int | None = None
     """Line of the stage's ``[[stage]]`` table in ``project_file``."""
+    threads: int = 1
+    """Cores the stage may use for work that pays (``baarda run --threads``; e.g. the bundle's
+    sparse route).  BLAS itself stays single-threaded outside such work."""
 
     def __post_init__(self):
         if self.progress is None:

@@ -368,8 +368,10 @@ def _snapshot(block, prob, v_all, r_all, PQ_all, vtpv, dof, sigma0, sv_pred=None
     Pv = np.einsum("kji,kj->ki", L, np.einsum("kij,kj->ki", L, v))
     PQd = np.einsum("kii->ki", PQ_all)
     sig = np.sqrt(np.einsum("kii->ki", obs.cov))
-    ids = block.observation_ids()
-    labels = np.array([f"photo {a} point {b} {c}" for a, b in ids for c in ("x", "y")], dtype=str)
+    # "photo <id> point <id> x|y", built with numpy's string ufuncs (no list of 2k Python strings)
+    ph = np.strings.add("photo ", block.photos.ids.astype(str)[obs.photo])
+    base = np.strings.add(np.strings.add(ph, " point "), block.points.ids.astype(str)[obs.point])
+    labels = np.strings.add(np.repeat(base, 2), np.tile(np.array([" x", " y"]), k))
     group = np.repeat(np.arange(k), 2)
     blocks = {int(i): PQ_all[i] for i in np.flatnonzero(act.all(axis=1))}
     return Snapshot(v=v.reshape(-1), Pv=Pv.reshape(-1), PQvvP=PQd.reshape(-1), r=r_all.reshape(-1),

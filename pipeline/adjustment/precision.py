@@ -183,7 +183,7 @@ def _photo_terms(prob, segs, gather, Jc, H):
         s0, s1 = int(prob.seg_start[j]), int(prob.seg_end[j])
         J = Jc[s0:s1, :, :q_ph]
         T = (J.reshape(-1, q_ph) @ gather(prob.seg_cols[j])).reshape(s1 - s0, 2, q_ph)
-        H[s0:s1] = (T[:, :, None, :] * J[:, None, :, :]).sum(axis=3)
+        H[s0:s1] += (T[:, :, None, :] * J[:, None, :, :]).sum(axis=3)
 
 
 def _precision_sparse(prob, lin, red, st):

@@ -47,6 +47,9 @@ class BundleSettings:
     ap_meta: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
     """camera id -> AP-model meta overrides (``b`` for ebner12, ``r0`` for aicon)."""
     covariance: bool = True
+    threads: int = 1
+    """threads of the sparse route (independent subtrees of the elimination tree in parallel, the
+    large fronts with as many BLAS threads); results do not depend on it."""
     solver: Literal["auto", "dense", "sparse"] = "auto"
     """reduced camera system: dense Cholesky, or the sparse supernodal factorisation with selected
     inversion (``docs/bundle.md``, "Sparse route"); ``auto`` chooses by size and fill."""

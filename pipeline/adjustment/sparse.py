@@ -26,6 +26,8 @@ Selected inversion
 
 from __future__ import annotations
 
+import threading
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -92,6 +94,57 @@ class Symbolic:
         w = np.diff(self.start).astype(float)
         nr = np.array([len(r) for r in self.rows], float)
         return float(np.sum(w ** 3 / 3 + w * w * nr + w * nr * nr))
+
+    def work(self) -> np.ndarray:
+        """Flops of each supernode's factorisation step (≈)."""
+        w = np.diff(self.start).astype(float)
+        nr = np.array([len(r) for r in self.rows], float)
+        return w ** 3 / 3 + w * w * nr + w * nr * nr + 50.0 * (w + nr) ** 2
+
+    def split(self, n: int) -> tuple[np.ndarray, list[np.ndarray]]:
+        """Independent subtrees for ``n`` threads: ``(top, groups)`` — the supernodes above the cut
+        (ascending) and ``n`` groups of whole subtrees (each ascending), balanced by work.  The
+        largest subtree is split at its root until there are ``4 n`` of them or none is larger
+        than a quarter of a thread's share."""
+        S = self.n_super
+        if n <= 1 or S < 4:
+            return np.arange(S), []
+        kids: list = [[] for _ in range(S)]
+        for s in range(S):
+            if self.parent[s] >= 0:
+                kids[self.parent[s]].append(s)
+        work = self.work()
+        sub = work.copy()                                   # work of each subtree
+        for s in range(S):                                  # children come before parents
+            if self.parent[s] >= 0:
+                sub[self.parent[s]] += sub[s]
+        total = float(sub[self.parent < 0].sum())
+        roots = [int(r) for r in np.flatnonzero(self.parent < 0)]
+        top: list[int] = []
+        while roots:
+            big = max(roots, key=lambda r: sub[r])
+            if len(roots) >= 4 * n or sub[big] < 0.25 * total / n or not kids[big]:
+                break
+            roots.remove(big)
+            top.append(big)
+            roots.extend(kids[big])
+        if len(roots) < 2:
+            return np.arange(S), []
+        load = np.zeros(n)
+        members: list = [[] for _ in range(n)]
+        for r in sorted(roots, key=lambda r: -sub[r]):      # longest first onto the least loaded
+            t = int(np.argmin(load))
+            load[t] += sub[r]
+            members[t].append(r)
+        owner = np.full(S, -1)
+        for t, rs in enumerate(members):
+            owner[rs] = t
+        for s in range(S - 1, -1, -1):                      # parents after children: go top-down
+            if owner[s] < 0 and self.parent[s] >= 0 and owner[self.parent[s]] >= 0 \
+                    and self.parent[s] not in top:
+                owner[s] = owner[self.parent[s]]
+        groups = [np.flatnonzero(owner == t) for t in range(n) if (owner == t).any()]
+        return np.flatnonzero(owner < 0), groups
 
     @property
     def max_front(self) -> int:
@@ -185,52 +238,63 @@ class SupernodalCholesky:
     ``pivot_tol``: a pivot below ``pivot_tol`` × the column's diagonal raises
     :class:`NotPositiveDefinite` (a numerically singular system)."""
 
-    def __init__(self, sym: Symbolic, K: sp.spmatrix, pivot_tol: float = 1e-11):
+    def __init__(self, sym: Symbolic, K: sp.spmatrix, pivot_tol: float = 1e-11, threads: int = 1):
         self.sym = sym
+        self.threads = max(1, int(threads))
         p = sym.perm
         Kp = sp.csc_matrix(K)[p][:, p].tocsc()
         Kp.sort_indices()
-        diag = Kp.diagonal()
+        self._K = Kp
+        self._diag = Kp.diagonal()
+        self._tol = pivot_tol
         S = sym.n_super
         self.L11: list = [None] * S
         self.L21: list = [None] * S
-        pending: dict = {}
         self._upd: dict = {}
+        self._pending: dict = {}
+        top, groups = sym.split(self.threads)
+        _parallel(groups, self._factor_step, reverse=False)
+        with _blas(self.threads):
+            for s in top:
+                self._factor_step(int(s))
+        del self._K, self._upd, self._pending
+
+    def _factor_step(self, s: int) -> None:
+        sym = self.sym
+        Kp = self._K
         indptr, indices, data = Kp.indptr, Kp.indices, Kp.data
-        for s in range(S):
-            c0, c1 = int(sym.start[s]), int(sym.start[s + 1])
-            ns = c1 - c0
-            R = sym.rows[s]
-            nf = ns + len(R)
-            F = np.zeros((nf, nf))
-            a, b = indptr[c0], indptr[c1]
-            r = indices[a:b]
-            cj = np.repeat(np.arange(ns), np.diff(indptr[c0:c1 + 1]))
-            keep = r >= c0
-            r, cj, v = r[keep], cj[keep], data[a:b][keep]
-            inJ = r < c1
-            loc = np.where(inJ, r - c0, ns + np.searchsorted(R, r))
-            F[loc, cj] = v
-            for c in pending.pop(s, ()):
-                rc = sym.rel[c]
-                F[np.ix_(rc, rc)] += self._upd.pop(c)
-            A11 = F[:ns, :ns]
-            L11, info = lapack.dpotrf(A11, lower=1, clean=1, overwrite_a=0)
-            d = np.diag(L11) ** 2 if info == 0 else None
-            if info != 0 or (d < pivot_tol * np.maximum(diag[c0:c1], 1e-300)).any():
-                k = info - 1 if info > 0 else int(np.argmax(d < pivot_tol * np.maximum(diag[c0:c1], 1e-300)))
-                raise NotPositiveDefinite(int(p[c0 + max(k, 0)]))
-            self.L11[s] = L11
-            if len(R):
-                L21 = sla.solve_triangular(L11, F[ns:, :ns].T, lower=True, check_finite=False).T
-                self.L21[s] = L21
-                U = F[ns:, ns:]
-                U -= L21 @ L21.T
-                self._upd[s] = U
-                pending.setdefault(int(sym.parent[s]), []).append(s)
-            else:
-                self.L21[s] = np.zeros((0, ns))
-        self._upd = {}
+        c0, c1 = int(sym.start[s]), int(sym.start[s + 1])
+        ns = c1 - c0
+        R = sym.rows[s]
+        nf = ns + len(R)
+        F = np.zeros((nf, nf))
+        a, b = indptr[c0], indptr[c1]
+        r = indices[a:b]
+        cj = np.repeat(np.arange(ns), np.diff(indptr[c0:c1 + 1]))
+        keep = r >= c0
+        r, cj, v = r[keep], cj[keep], data[a:b][keep]
+        inJ = r < c1
+        loc = np.where(inJ, r - c0, ns + np.searchsorted(R, r))
+        F[loc, cj] = v
+        for c in sorted(self._pending.pop(s, ())):           # fixed order: the same sums whatever the threads
+            rc = sym.rel[c]
+            F[np.ix_(rc, rc)] += self._upd.pop(c)
+        L11, info = lapack.dpotrf(F[:ns, :ns], lower=1, clean=1, overwrite_a=0)
+        diag = self._diag[c0:c1]
+        d = np.diag(L11) ** 2 if info == 0 else None
+        if info != 0 or (d < self._tol * np.maximum(diag, 1e-300)).any():
+            k = info - 1 if info > 0 else int(np.argmax(d < self._tol * np.maximum(diag, 1e-300)))
+            raise NotPositiveDefinite(int(sym.perm[c0 + max(k, 0)]))
+        self.L11[s] = L11
+        if len(R):
+            L21 = sla.solve_triangular(L11, F[ns:, :ns].T, lower=True, check_finite=False).T
+            self.L21[s] = L21
+            U = F[ns:, ns:]
+            U -= L21 @ L21.T
+            self._upd[s] = U
+            self._pending.setdefault(int(sym.parent[s]), []).append(s)
+        else:
+            self.L21[s] = np.zeros((0, ns))
 
     # ------------------------------------------------------------------------------------------
     def solve(self, b: np.ndarray) -> np.ndarray:
@@ -258,35 +322,70 @@ class SupernodalCholesky:
 
     # ------------------------------------------------------------------------------------------
     def selected_inverse(self, visit) -> None:
-        """Call ``visit(s, front, Z)`` for every supernode, root first: ``front`` the original column
-        indices of the supernode's columns followed by its rows, ``Z`` the dense block of ``K⁻¹`` on
-        them (the front's own copy: the visitor may keep it)."""
+        """Call ``visit(s, front, Z)`` for every supernode, a parent before its children: ``front``
+        the original column indices of the supernode's columns followed by its rows, ``Z`` the dense
+        block of ``K⁻¹`` on them (the front's own copy: the visitor may keep it).  With ``threads``
+        > 1, independent subtrees are visited concurrently (one thread each): ``visit`` must only
+        write what belongs to its supernode's subtree."""
         sym = self.sym
-        fronts: dict = {}
-        left = sym.n_children.copy()
-        for s in range(sym.n_super - 1, -1, -1):
-            c0, c1 = int(sym.start[s]), int(sym.start[s + 1])
-            ns = c1 - c0
-            R = sym.rows[s]
-            nr = len(R)
-            Linv = sla.solve_triangular(self.L11[s], np.eye(ns), lower=True, check_finite=False)
-            Z = np.empty((ns + nr, ns + nr))
-            if nr:
-                p = int(sym.parent[s])
-                rl = sym.rel[s]
-                ZRR = fronts[p][np.ix_(rl, rl)]
-                left[p] -= 1
-                if left[p] == 0:
-                    del fronts[p]
-                Lh = self.L21[s] @ Linv                       # L̂_RJ = L_RJ L_JJ⁻¹
-                ZRJ = -(ZRR @ Lh)
-                ZJJ = Linv.T @ Linv - Lh.T @ ZRJ
-                Z[ns:, ns:] = ZRR
-                Z[ns:, :ns] = ZRJ
-                Z[:ns, ns:] = ZRJ.T
-            else:
-                ZJJ = Linv.T @ Linv
-            Z[:ns, :ns] = 0.5 * (ZJJ + ZJJ.T)
-            if left[s] > 0:
-                fronts[s] = Z
-            visit(s, sym.perm[np.r_[np.arange(c0, c1), R].astype(np.intp)], Z)
+        self._fronts: dict = {}
+        self._left = sym.n_children.copy()
+        self._lock = threading.Lock()
+        top, groups = sym.split(self.threads)
+        with _blas(self.threads):
+            for s in top[::-1]:
+                self._inverse_step(int(s), visit)
+        _parallel(groups, lambda s: self._inverse_step(s, visit), reverse=True)
+        del self._fronts, self._left, self._lock
+
+    def _inverse_step(self, s: int, visit) -> None:
+        sym = self.sym
+        c0, c1 = int(sym.start[s]), int(sym.start[s + 1])
+        ns = c1 - c0
+        R = sym.rows[s]
+        nr = len(R)
+        Linv = sla.solve_triangular(self.L11[s], np.eye(ns), lower=True, check_finite=False)
+        Z = np.empty((ns + nr, ns + nr))
+        if nr:
+            p = int(sym.parent[s])
+            rl = sym.rel[s]
+            ZRR = self._fronts[p][np.ix_(rl, rl)]
+            with self._lock:
+                self._left[p] -= 1
+                if self._left[p] == 0:
+                    del self._fronts[p]
+            Lh = self.L21[s] @ Linv                       # L̂_RJ = L_RJ L_JJ⁻¹
+            ZRJ = -(ZRR @ Lh)
+            ZJJ = Linv.T @ Linv - Lh.T @ ZRJ
+            Z[ns:, ns:] = ZRR
+            Z[ns:, :ns] = ZRJ
+            Z[:ns, ns:] = ZRJ.T
+        else:
+            ZJJ = Linv.T @ Linv
+        Z[:ns, :ns] = 0.5 * (ZJJ + ZJJ.T)
+        if self._left[s] > 0:
+            self._fronts[s] = Z
+        visit(s, sym.perm[np.r_[np.arange(c0, c1), R].astype(np.intp)], Z)
+
+
+def _parallel(groups, step, reverse: bool) -> None:
+    """Run ``step(s)`` over every group's supernodes (ascending, or descending with ``reverse``),
+    one thread per group, BLAS single-threaded meanwhile; exceptions propagate."""
+    if not groups:
+        return
+    order = [g[::-1] if reverse else g for g in groups]
+    if len(order) == 1:
+        for s in order[0]:
+            step(int(s))
+        return
+    with _blas(1), ThreadPoolExecutor(max_workers=len(order)) as pool:
+        futures = [pool.submit(lambda g=g: [step(int(s)) for s in g]) for g in order]
+        for f in futures:
+            f.result()
+
+
+def _blas(n: int):
+    """BLAS/OpenMP pools limited to ``n`` threads for the block (threadpoolctl)."""
+    from threadpoolctl import threadpool_limits
+
+    return threadpool_limits(limits=max(1, int(n)))

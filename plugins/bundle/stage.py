@@ -189,7 +189,7 @@ def configure_block(block: Block, o: BundleOptions) -> Block:
     return block
 
 
-def settings_from(o: BundleOptions, block: Block) -> BundleSettings:
+def settings_from(o: BundleOptions, block: Block, threads: int = 1) -> BundleSettings:
     ap_meta = {}
     if o.ebner_b > 0:
         ap_meta = {cid: {"b": o.ebner_b} for cid in block.cameras.ids.tolist()}
@@ -197,7 +197,7 @@ def settings_from(o: BundleOptions, block: Block) -> BundleSettings:
         datum=o.datum, datum_points=tuple(o.datum_points) or None, datum_centres=o.datum_on == "centres",
         sigma0=o.sigma0, max_iter=o.max_iter, tol_obs=o.tol_obs, tol_rel=o.tol_rel, damping=o.damping,
         distances=tuple(Distance(str(d.from_), str(d.to), d.distance, d.sigma) for d in o.distances),
-        on_weak=o.on_weak, ap_meta=ap_meta, covariance=o.covariance, solver=o.solver)
+        on_weak=o.on_weak, ap_meta=ap_meta, covariance=o.covariance, solver=o.solver, threads=threads)
 
 
 class BundleAdjustment:
@@ -209,7 +209,7 @@ class BundleAdjustment:
     def run(self, inputs, options: BundleOptions, ctx: Context) -> StageResult:
         block_in = inputs["block"]
         block = configure_block(block_in, options)
-        settings = settings_from(options, block)
+        settings = settings_from(options, block, threads=ctx.threads)
         ctx.progress.message(f"adjusting {len(block.photos)} photos, {len(block.points)} points, "
                              f"{int(block.observations.active.sum())} observations")
         try:

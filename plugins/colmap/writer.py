@@ -96,8 +96,9 @@ def reconstruction_from_block(block, *, camera_model: str = "keep"):
     use = active & oriented[obs.photo] & np.isfinite(pts.XYZ[obs.point]).all(axis=1)
     # keypoints per image: the original ones (meta) or one per observation
     keypoints, obs_kp = [], np.full(len(obs), -1)
+    by_photo = _groups(obs.photo, len(photos))
     for k in range(len(photos)):
-        rows = np.flatnonzero(obs.photo == k)
+        rows = by_photo[k]
         if same_shape:
             kp = np.array(meta["keypoints_px"][k], float).reshape(-1, 2)
             obs_kp[rows] = meta["point2D_idx"][rows]
@@ -114,8 +115,10 @@ def reconstruction_from_block(block, *, camera_model: str = "keep"):
     colors = meta.get("colors") if same_shape else None
     pt_ids = list(meta["point3D_ids"]) if same_shape else None
     written = 0
+    in_use = np.flatnonzero(use)
+    by_point = _groups(obs.point[in_use], len(pts))
     for j in range(len(pts)):
-        rows = np.flatnonzero(use & (obs.point == j))
+        rows = in_use[by_point[j]]
         if rows.size == 0:
             continue
         track = pycolmap.Track()
@@ -134,6 +137,13 @@ def reconstruction_from_block(block, *, camera_model: str = "keep"):
             "observations": int(use.sum()), "skipped_photos": photos.ids[~oriented].tolist(),
             "camera_models": [m for m, _ in cam_params]}
     return rec, info
+
+
+def _groups(keys: np.ndarray, n: int) -> list[np.ndarray]:
+    """Indices of ``keys`` equal to 0 … n−1, each in ascending order (one stable sort, not n scans)."""
+    order = np.argsort(keys, kind="stable")
+    bounds = np.searchsorted(keys[order], np.arange(n + 1))
+    return [order[bounds[j]:bounds[j + 1]] for j in range(n)]
 
 
 def write_colmap(block, path: str | Path, *, fmt: str = "binary", camera_model: str = "keep") -> dict:

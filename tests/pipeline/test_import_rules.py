@@ -22,7 +22,8 @@ ROOT = Path(__file__).resolve().parents[2]
 #: numerical libraries (modules or packages under pipeline/)
 LIBRARIES = ("geometry", "camera", "adjustment", "stats", "synthetic", "contracts", "accuracy", "model")
 #: what a library may import besides the standard library and other libraries
-LIBRARY_THIRD_PARTY = {"numpy", "scipy", "pymetis"}    # pymetis: the sparse route's fill-reducing ordering
+#: (pymetis: the sparse route's fill-reducing ordering; threadpoolctl: its BLAS threads per phase)
+LIBRARY_THIRD_PARTY = {"numpy", "scipy", "pymetis", "threadpoolctl"}
 #: plugin → plugin edges allowed (through the other plugin's ``__init__`` only), and why
 ALLOWED_PLUGIN_EDGES = {
     ("testfield", "independent_models"): "the method study compares the bundle with the independent-model block",
