@@ -106,7 +106,7 @@ class NormalEquations:
         q_ph = self.q_ph
         whole = q_ph == self.q
         A = Jc if whole else Jc[:, :, :q_ph]
-        blocks = segment_sums(A, self.seg_start, self.seg_end)
+        blocks = segment_sums(A, self.seg_start, self.seg_end, self.settings.threads)
         if e is not None:
             for s0, s1, idx in zip(self.seg_start.tolist(), self.seg_end.tolist(), self.seg_cols):
                 gp[idx] += A[s0:s1].reshape(-1, q_ph).T @ e[s0:s1].reshape(-1)
@@ -184,7 +184,7 @@ class NormalEquations:
             self._tracks = groups
         return self._tracks
 
-    def pair_plan(self, chunk_pairs: int = 1 << 15):
+    def pair_plan(self, chunk_pairs: int = 1 << 13):
         """The observation pairs of every eliminated point, grouped by photo pair (built once).
 
         ``B Bᵀ`` (global part) is ``Σ_photos Y_aᵀ Y_a + Σ_{a<b} (S_ab + S_abᵀ)`` with
@@ -436,15 +436,43 @@ SPARSE_MIN_UNKNOWNS = 2000
 """``solver = "auto"`` considers the sparse route from this many global unknowns on."""
 
 
-def segment_sums(A, starts, ends):
+def segment_sums(A, starts, ends, threads: int = 1):
     """``Yᵀ Y`` of every segment ``Y = A[s0:s1]`` flattened to rows (A (k, r, q) → (n_seg, q, q)):
     one BLAS product per segment."""
     q = A.shape[-1]
     out = np.empty((len(starts), q, q))
-    for j, (s0, s1) in enumerate(zip(starts.tolist(), ends.tolist())):
-        Y = A[s0:s1].reshape(-1, q)
-        np.matmul(Y.T, Y, out=out[j])
+    st, en = starts.tolist(), ends.tolist()
+    n = len(st)
+    parts = max(1, min(int(threads), n // 64 or 1))
+
+    def part(t):
+        for j in range(t * n // parts, (t + 1) * n // parts):
+            Y = A[st[j]:en[j]].reshape(-1, q)
+            np.matmul(Y.T, Y, out=out[j])
+
+    parallel_for(parts, part, parts)
     return out
+
+
+_POOLS: dict = {}
+
+
+def parallel_for(n: int, fn, threads: int = 1) -> None:
+    """``fn(i)`` for i = 0 … n−1, on ``threads`` threads of a persistent pool (numpy's gathers and
+    BLAS release the GIL; measured 1.7–3× for the Schur product's photo-pair loop on 2 cores).
+    Each ``fn(i)`` must write only its own part of the output."""
+    threads = max(1, min(int(threads), n))
+    if threads == 1:
+        for i in range(n):
+            fn(i)
+        return
+    from concurrent.futures import ThreadPoolExecutor
+
+    pool = _POOLS.get(threads)
+    if pool is None:
+        pool = _POOLS[threads] = ThreadPoolExecutor(max_workers=threads, thread_name_prefix="baarda-normal")
+    for f in [pool.submit(fn, i) for i in range(n)]:
+        f.result()
 
 
 def _triplets(rows, cols, vals, ng1: int, sparse: bool):
@@ -567,14 +595,18 @@ class BMatrix:
         pl = prob.pair_plan()
         gs, ge, oa, ob = pl["gs"], pl["ge"], pl["oa"], pl["ob"]
         S = np.empty((len(gs), q, q))
-        for g0, g1 in pl["chunks"]:                    # one BLAS product per photo pair (measured faster
-            p0, p1 = gs[g0], ge[g1 - 1]                # than batched q×q products per observation pair:
-            XA = X[oa[p0:p1]]                          # BAL 0.034 s against 0.24 s, 2 000 aerial photos
-            XB = X[ob[p0:p1]]                          # 0.13 s against 0.59 s)
+
+        def chunk(c):                                  # one BLAS product per photo pair (measured faster
+            g0, g1 = pl["chunks"][c]                   # than batched q×q products per observation pair:
+            p0, p1 = gs[g0], ge[g1 - 1]                # BAL 0.034 s against 0.24 s, 2 000 aerial photos
+            XA = X[oa[p0:p1]]                          # 0.13 s against 0.59 s)
+            XB = X[ob[p0:p1]]
             for g in range(g0, g1):
                 a, b = gs[g] - p0, ge[g] - p0
                 np.matmul(XA[a:b].reshape(-1, q).T, XB[a:b].reshape(-1, q), out=S[g])
-        return S, segment_sums(X, prob.seg_start, prob.seg_end)
+
+        parallel_for(len(pl["chunks"]), chunk, prob.settings.threads)
+        return S, segment_sums(X, prob.seg_start, prob.seg_end, prob.settings.threads)
 
     def gram_sparse(self) -> sp.csr_matrix:
         """``B Bᵀ`` of the global unknowns (n_g, n_g) as scipy CSR (no constraint rows)."""
