@@ -14,6 +14,22 @@ ROOT = Path(__file__).resolve().parents[2]
 FIX = ROOT / "fixtures" / "paper000"
 
 
+@pytest.fixture(scope="module")
+def client():
+    """A real Dask cluster (2 worker processes on 127.0.0.1), stopped here."""
+    from distributed import Client, LocalCluster
+
+    cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                           dashboard_address="127.0.0.1:0")
+    c = Client(cluster)
+    try:
+        c.wait_for_workers(2, timeout=60)
+        yield c
+    finally:
+        c.close()
+        cluster.close()
+
+
 def _broken(tmp_path) -> Path:
     p = tmp_path / "broken" / "bad.toml"
     p.parent.mkdir()

@@ -8,6 +8,28 @@ from baarda.pipeline import montecarlo as mc
 from baarda.pipeline.stats import LinearModel, rrr
 
 
+def _cluster(n_workers: int):
+    from distributed import Client, LocalCluster
+
+    cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                           dashboard_address="127.0.0.1:0")
+    client = Client(cluster)
+    client.wait_for_workers(n_workers, timeout=60)
+    return cluster, client
+
+
+@pytest.fixture(scope="module")
+def clients():
+    """``{1: client of a 1-worker cluster, 2: client of a 2-worker cluster}``, stopped here."""
+    made = {n: _cluster(n) for n in (1, 2)}
+    try:
+        yield {n: client for n, (_, client) in made.items()}
+    finally:
+        for cluster, client in made.values():
+            client.close()
+            cluster.close()
+
+
 def _draw(rng, i):
     return rng.standard_normal(4).tolist()
 
