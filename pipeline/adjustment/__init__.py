@@ -6,7 +6,8 @@ priors, datum), :mod:`.normal` (normal equations, reduced camera system), :mod:`
 solution), :mod:`.lm` (the Levenberg–Marquardt iteration), :mod:`.precision` (cofactors,
 redundancy numbers), :mod:`.diagnose` (a singular system named), :mod:`.initial` (resection,
 intersection, initial values), :mod:`.apselect` (additional-parameter selection), :mod:`.adjust`
-(the entry point and its result), :mod:`.reproject` (a block's reprojection errors).
+(the entry point and its result), :mod:`.reproject` (a block's reprojection errors),
+:mod:`.variance` (variance components per observation group).
 
 Everything other code needs is imported from this package::
 
@@ -27,10 +28,14 @@ from .lm import solve_bundle
 from .problem import BundleProblem
 from .reproject import project_block, reprojection_px, reprojection_summary
 from .settings import BundleSettings, BundleState, Distance, camera_meta
+from .variance import (LinearComponents, VarianceComponents, VarianceGroup, estimate_components, group_parts,
+                       image_group_labels, linear_components)
 
 __all__ = [
     "adjust", "BundleResult", "result_of", "BundleSettings", "BundleState", "Distance", "padded_ap", "camera_meta",
     "select_aps", "APSelection", "project_observations", "EO_NAMES", "IOP_NAMES", "parameter_names",
     "resection", "ResectionResult", "intersection", "initial_values", "solve_bundle", "BundleProblem",
     "project_block", "reprojection_px", "reprojection_summary",
+    "estimate_components", "VarianceComponents", "VarianceGroup", "linear_components", "LinearComponents",
+    "group_parts", "image_group_labels",
 ]
