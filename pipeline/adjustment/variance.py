@@ -189,7 +189,7 @@ def group_parts(result: BundleResult, image_labels: np.ndarray) -> list[dict]:
         d = out.setdefault(name, {"name": name, "kind": kind, "n": 0, "omega": 0.0, "redundancy": 0.0})
         d["n"] += int(n)
         d["omega"] += float(om)
-        d["redundancy"] += float(r)
+        d["redundancy"] += max(float(r), 0.0)      # a share of 0 computes as ±1e-14
 
     # image coordinates (observations prob.oi; switched-off rows have zero weight and r = 0)
     oi = prob.oi
@@ -316,7 +316,7 @@ def estimate_components(block: Block, settings: BundleSettings | None = None, *,
     groups = []
     for p in parts:
         ok = p["name"] in est
-        f = factors.get(p["name"], 1.0) * (float(np.sqrt(est[p["name"]])) if ok else 1.0)
+        f = factors.get(p["name"], 1.0)          # the factor the last adjustment used
         r = p["redundancy"]
         T, pv, rej = component_test(f, r, alpha) if ok else (float("nan"), float("nan"), False)
         groups.append(VarianceGroup(name=p["name"], kind=p["kind"], n=p["n"], redundancy=r, omega=p["omega"],

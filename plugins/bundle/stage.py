@@ -22,6 +22,7 @@ from baarda.pipeline.stage import Context, StageResult, TableData
 from baarda.pipeline import stats
 from baarda.pipeline.contracts import AdjustmentArtefact
 
+from baarda.pipeline.adjustment import estimate_components
 from baarda.pipeline.adjustment import (EO_NAMES, BundleResult, BundleSettings, Distance, adjust, padded_ap,
                                         result_of, select_aps)
 from baarda.pipeline.camera import ap_model_names, get_ap_model
@@ -97,6 +98,18 @@ class BundleOptions:
         "auto", "reduced camera system: dense Cholesky, or sparse (METIS ordering, supernodal Cholesky, selected "
                 "inversion) for large blocks; auto chooses by size and fill (docs/bundle.md)")
     arrow_scale: float = option(0.0, "scale of residual arrows in the recording (0: automatic)")
+    variance_components: Literal["none", "estimate", "apply"] = option(
+        "none", "variance components per observation group (Förstner, iterated; docs/bundle.md): none, estimate "
+                "and report them (the adjustment keeps the a-priori σ), or apply them (the adjustment, its tests "
+                "and data snooping use the re-weighted σ)")
+    vc_groups: Literal["camera", "photo", "all"] = option(
+        "camera", "variance components: image coordinates grouped per camera, per photo, or one group; control, "
+                  "EO priors, weighted camera parameters and scale bars are groups of their own")
+    vc_photo_groups: dict[str, list[str]] = option(
+        {}, "variance components: user-defined image groups, name -> photo ids (override vc_groups for those photos)")
+    vc_alpha: float = option(0.05, "variance components: significance level of each group's test of f = 1 (two-sided)")
+    vc_max_iter: int = option(20, "variance components: at most this many re-adjustments")
+
 
     def __post_init__(self):
         names = ap_model_names()
@@ -128,6 +141,10 @@ class BundleOptions:
                              f"got {self.sigma_eo!r}")
         if not self.sigma_image_scale > 0:
             raise ValueError("sigma_image_scale must be positive")
+        if not 0 < self.vc_alpha < 1:
+            raise ValueError("vc_alpha must lie strictly between 0 and 1")
+        if self.vc_max_iter < 1:
+            raise ValueError("vc_max_iter must be at least 1")
 
 
 def configure_block(block: Block, o: BundleOptions) -> Block:
@@ -219,13 +236,19 @@ class BundleAdjustment:
                 selection = select_aps(block, settings, rho_max=options.rho_max, alpha=options.ap_alpha,
                                        significance=options.ap_significance, result=res)
                 res = selection.result
+            vc = None
+            if options.variance_components != "none":
+                vc = _variance_components(block, settings, res, options, ctx)
+                if options.variance_components == "apply":
+                    res, block = vc.result, vc.block
         except AdjustmentError as e:
             _save_state(e, block, ctx)
             raise
         for w in res.warnings:
             ctx.warn(w)
         snap = res.snapshot
-        extras = {"selection": selection, "global_test": None, "snooping": None, "ids": None, "joint": None}
+        extras = {"selection": selection, "global_test": None, "snooping": None, "ids": None, "joint": None,
+                  "vc": vc}
         decision = np.array(["ok"] * len(block.observations), dtype=object)
         decision[~block.observations.active] = "inactive"
         rejected_rows = np.zeros(2 * len(block.observations), bool)
@@ -351,6 +374,9 @@ def _summary(res: BundleResult, extras, o) -> dict:
     if isinstance(out.get("check_points"), dict) and out["check_points"].get("n"):
         out["check_points"]["unit"] = res.block_in.object_unit
     flagged = out.get("data_snooping", {}).get("n_flagged")
+    if extras.get("vc") is not None:
+        out["variance_components"] = {"mode": o.variance_components, "groups_by": o.vc_groups,
+                                      **extras["vc"].summary()}
     out["headline"] = (f"σ̂0 = {res.sigma0_hat:.3g} (dof {res.dof}, {res.iterations} iterations)"
                        + (f"; {flagged} coordinate(s) flagged by data snooping" if flagged else "")
                        + (f"; IDS removed {len(extras['ids'].removed_labels)}" if extras.get("ids") is not None else ""))
@@ -441,7 +467,45 @@ def _report(res: BundleResult, extras, o, block) -> str:
     sel = extras.get("selection")
     if sel is not None:
         L += ["", "### Additional-parameter selection", "", sel.markdown()]
+    if extras.get("vc") is not None:
+        L += ["", "### Variance components", ""] + _vc_lines(extras["vc"], o)
     return "\n".join(L)
+
+
+def _variance_components(block, settings, res, o, ctx):
+    ctx.progress.message("variance components")
+    try:
+        return estimate_components(block, settings, image_groups=o.vc_groups, photo_groups=o.vc_photo_groups,
+                                   first=res, max_iter=o.vc_max_iter, alpha=o.vc_alpha, covariance=True)
+    except KeyError as e:
+        raise InputError(f"vc_photo_groups: unknown photo {e}", field="vc_photo_groups") from None
+
+
+def _vc_lines(vc, o) -> list[str]:
+    """Each group's factor on its a-priori σ, σ(f), r_g and the test of f = 1."""
+    first = vc.first
+    L = [f"Förstner's estimate, iterated ({vc.iterations} re-adjustment(s), "
+         f"{'converged' if vc.converged else 'NOT converged'}); image groups per {o.vc_groups}. "
+         f"f = estimated σ / a-priori σ; test of H0: f = 1 by T = f² ~ χ²(r)/r, two-sided at α = {vc.alpha:g}. "
+         + ("The adjustment above and its tests use the a-priori σ × f." if o.variance_components == "apply"
+            else "Estimated only: the adjustment above keeps the a-priori σ "
+                 f"(σ̂0 = {_f(first.sigma0_hat)}) — variance_components = \"apply\" re-weights it."), "",
+         "| group | rows | r | f | σ(f) | T | p | H0: f = 1 |", "|---|---|---|---|---|---|---|---|"]
+    for g in vc.groups:
+        if g.estimable:
+            L.append(f"| {g.name} | {g.n} | {g.redundancy:.1f} | {g.factor:.4g} | {g.sigma_factor:.2g} | "
+                     f"{g.T:.4g} | {g.p_value:.3g} | {'rejected' if g.rejected else 'accepted'} |")
+        else:
+            L.append(f"| {g.name} | {g.n} | {g.redundancy:.3g} | 1 (not estimable: r < 1) | – | – | – | – |")
+    return L
+
+
+def _sigma0_equivalent(res: BundleResult, protocol) -> str:
+    """σ̂0 × the median a-priori image σ in the unit of the source (µm, or px for a pixel source)."""
+    um = _sigma0_um(res)
+    if protocol and protocol.get("unit") == "px":
+        return f"{_f(um / 1000.0 / float(res.block_in.cameras.pixel_mm[0]), 3)} px"
+    return f"{_f(um, 3)} µm"
 
 
 def _flagged_lines(res: BundleResult, ds, most: int = 15) -> list[str]:

@@ -175,3 +175,39 @@ def test_unestimable_scale_bar_and_single_group():
     assert vc.result.sigma0_hat == pytest.approx(1.0, abs=1e-3)
     # the input block is untouched
     assert np.all(blk.observations.cov[:, 0, 0] == 1e-6)
+
+
+def test_bundle_stage_option(tmp_path):
+    """The bundle stage: variance_components = estimate reports the groups and keeps the a-priori
+    σ; apply re-weights (σ̂0 = 1, each camera's σ scaled); results.json carries σ̂_g, r_g and the test."""
+    from baarda.pipeline.errors import InputError
+    from baarda.pipeline.testing import run_stage
+    from baarda.plugins.bundle.stage import BundleAdjustment
+
+    blk = _two_camera_block(11, 0.001, 0.003, 0.0015)
+    est = run_stage(BundleAdjustment, {"block": blk}, {"variance_components": "estimate"}, tmp_path=tmp_path)
+    app = run_stage(BundleAdjustment, {"block": blk}, {"variance_components": "apply"}, tmp_path=tmp_path)
+    vc = app.summary["variance_components"]
+    g = {x["name"]: x for x in vc["groups"]}
+    assert vc["converged"] and vc["mode"] == "apply"
+    assert 0.55 < g["image camera A"]["factor"] < 0.8 and 1.7 < g["image camera B"]["factor"] < 2.3
+    assert g["image camera A"]["rejected"] and g["image camera B"]["rejected"]
+    assert g["image camera A"]["redundancy"] + g["image camera B"]["redundancy"] == pytest.approx(
+        app.artefacts["bundle"].dof, rel=1e-9)
+    assert app.artefacts["bundle"].sigma0_hat == pytest.approx(1.0, abs=1e-3)
+    assert est.artefacts["bundle"].sigma0_hat > 1.2                     # estimate only: a-priori σ kept
+    ge = {x["name"]: x for x in est.summary["variance_components"]["groups"]}
+    assert ge["image camera B"]["factor"] == pytest.approx(g["image camera B"]["factor"], rel=1e-6)
+    assert "### Variance components" in app.report and "image camera B" in app.report
+    cov = app.artefacts["bundle"].block_in.observations.cov
+    on_b = blk.photos.camera[blk.observations.photo] == 1
+    assert np.sqrt(cov[on_b, 0, 0]).mean() == pytest.approx(0.0015 * g["image camera B"]["factor"], rel=1e-9)
+    # user-defined groups: photos P1, P2 on their own
+    usr = run_stage(BundleAdjustment, {"block": blk}, {"variance_components": "estimate",
+                                                       "vc_photo_groups": {"first two": ["P1", "P2"]}},
+                    tmp_path=tmp_path)
+    names = {x["name"] for x in usr.summary["variance_components"]["groups"]}
+    assert names == {"image camera A", "image camera B", "image first two"}
+    with pytest.raises(InputError, match="vc_photo_groups"):
+        run_stage(BundleAdjustment, {"block": blk}, {"variance_components": "estimate",
+                                                     "vc_photo_groups": {"x": ["P99"]}}, tmp_path=tmp_path)
