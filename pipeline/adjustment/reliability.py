@@ -1,0 +1,510 @@
+"""External reliability of the bundle and covariances of chosen parameters, on both solver routes.
+
+An undetected bias ``∇_i`` in scalar image row ``i`` moves the unknowns by (Baarda 1968)::
+
+    ∇x_i = Q Aᵀ P e_i ∇_i = Q J̃ᵀ (L e_i) ∇_i            (J̃ = L J the whitened Jacobian, LᵀL = P)
+
+with ``∇_i`` the row's minimal detectable bias ``δ0 σ0 / √(P Qvv P)_ii``.  ``Aᵀ P e_i`` is non-zero
+only on the observation's own photo (its camera, orientation, scale-bar point) and its own point, so
+
+* :func:`own_effects` — the effect of every row on **its own point and its own photo's
+  orientation** (usually the largest), vectorised over the observations: with the points
+  eliminated (``V_p = L_p L_pᵀ``, ``B = W L⁻ᵀ``, ``K`` the reduced system) ``Q a`` is
+  ``x = K⁻¹(a_g − B L⁻¹ a_p)``, ``y = L⁻ᵀ(L⁻¹ a_p − Bᵀ x)``; for a row of point ``p`` the
+  right-hand side lives on the columns of ``p``'s track, so only ``K⁻¹`` on those columns is needed —
+  the blocks the precision forms anyway (dense route: gathered from ``K⁻¹``; sparse route: from the
+  selected inversion, front by front; a free network's minimal-datum effects S-transformed onto
+  the inner constraints with ``Y = Q₀ C`` from ``n_c`` solves);
+* :func:`effect_vectors` — the full effect on **every** parameter for chosen rows (one solve of the
+  whole system per row);
+* :func:`parameter_covariance` — the joint covariance of any named parameters (``"photo 3"``,
+  ``"point 17"``, ``"camera cam"``, or one component ``"point 17 Z"``), from the same solves.
+
+Baarda's scalar ``δ̄0_i = √(∇xᵀ N ∇x)/σ0 = ∇_i √(P − P Qvv P)_ii / σ0`` bounds the effect on any
+function ``f`` of the unknowns: ``|∇f| ≤ δ̄0_i σ_f`` (a-priori ``σ_f``).  Effects "in σ" below use the
+a-priori standard deviations ``σ0 √Q``, the same scale as the MDBs.  Everything here is pure: a
+:class:`~.adjust.BundleResult` in, new arrays out.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .collinearity import EO_NAMES
+
+__all__ = ["OwnEffects", "own_effects", "effect_vectors", "parameter_covariance", "parameter_names_of",
+           "row_mdb", "bar_delta0"]
+
+
+# --------------------------------------------------------------------------------------------------
+# the linearised system at the solution
+def _system(res):
+    """``(prob, lin, red)`` at the solution, with the reduced system factored (sparse) and ``Qx``
+    (dense route; the result's own when it has one)."""
+    from .factor import solve_reduced
+    from .lm import final_system
+    from .precision import reduced_inverse
+
+    prob, st = res.problem, res.state
+    lin, red = final_system(prob, st)
+    if red.get("route") == "sparse":
+        solve_reduced(prob, red, st)
+        Qx = None
+    else:
+        Qx = res.Qx if res.Qx is not None else reduced_inverse(prob, red, st)
+    return prob, lin, red, Qx
+
+
+def _datum_Y(prob, red, st):
+    """Sparse free network: ``(Gg, Gp, T, Yg, Yp)`` with ``Y = Q₀ C`` (minimal-datum cofactors times
+    the inner-constraint rows) for the S-transformation ``Δ = Δ₀ − G T Cᵀ Δ₀``, ``Cᵀ Δ₀ = Yᵀ a``."""
+    from .collinearity import bmv
+    from .factor import datum_basis, sparse_solve
+
+    n_g, n_c = prob.n_g, prob.n_c
+    Gg, Gp, T = datum_basis(prob, red, st)
+    Cg, Cp, B, Li = red["Cg"], red["Cp"], red["B"], red["Li"]
+    LiT = np.transpose(Li, (0, 2, 1))
+    zc = [bmv(Li, Cp[:, :, c]) for c in range(n_c)]
+    rhs = np.empty((n_g, n_c))
+    for c in range(n_c):
+        rhs[:, c] = Cg[:, c] - (B.matvec(zc[c])[:n_g] if prob.n_e else 0.0)
+    Yg = sparse_solve(red, rhs)
+    Yp = np.zeros((prob.n_e, 3, n_c))
+    for c in range(n_c):
+        if prob.n_e:
+            Yp[:, :, c] = bmv(LiT, zc[c] - B.rmatvec(np.r_[Yg[:, c], np.zeros(n_c)]))
+    return Gg, Gp, T, Yg, Yp
+
+
+def _apply_Q(prob, red, Qx, st, a_g: np.ndarray, a_p: np.ndarray):
+    """``Q a`` for right-hand sides ``a_g`` (n_g, j) on the global unknowns and ``a_p`` (n_e, 3, j)
+    on the eliminated points: ``(x_g (n_g, j), y (n_e, 3, j))``, inner-constraint datum for a free
+    network on either route."""
+    n_g, n_e, n_c = prob.n_g, prob.n_e, prob.n_c
+    B, Li = red["B"], red["Li"]
+    j = a_g.shape[1]
+    z = np.einsum("pab,pbj->paj", Li, a_p) if n_e else np.zeros((0, 3, j))
+    n_x = n_g + n_c
+    r = np.zeros((n_x, j))
+    r[:n_g] = a_g
+    if n_e:
+        for c in range(j):
+            r[:, c] -= B.matvec(z[:, :, c])
+    sparse = red.get("route") == "sparse"
+    if sparse:
+        from .factor import sparse_solve
+
+        x = np.zeros((n_x, j))
+        x[:n_g] = sparse_solve(red, r[:n_g])
+    else:
+        x = Qx @ r
+    y = np.zeros((n_e, 3, j))
+    if n_e:
+        for c in range(j):
+            y[:, :, c] = np.einsum("pba,pb->pa", Li, z[:, :, c] - B.rmatvec(x[:, c]))
+    xg = x[:n_g]
+    if sparse and n_c:
+        Gg, Gp, T, Yg, Yp = _datum_Y(prob, red, st)
+        CtD = red["Cg"].T @ xg + np.einsum("pac,paj->cj", red["Cp"], y)
+        xg = xg - Gg @ (T @ CtD)
+        y = y - np.einsum("pac,cj->paj", Gp, T @ CtD)
+    y = y * prob.elim_free[:, :, None]
+    return xg, y
+
+
+# --------------------------------------------------------------------------------------------------
+def row_mdb(res, delta0: float) -> np.ndarray:
+    """(k_all, 2) minimal detectable bias of every image row (mm): ``δ0 σ0 / √(P Qvv P)_ii``
+    (nan inactive, inf uncontrolled)."""
+    PQ = np.einsum("kii->ki", res.PQvvP)
+    act = res.row_active
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = np.where(PQ > 1e-14 * np.maximum(_p_diag(res), 1e-300), delta0 * res.sigma0 / np.sqrt(PQ), np.inf)
+    out[~act] = np.nan
+    return out
+
+
+def _p_diag(res) -> np.ndarray:
+    prob = res.problem
+    P = np.zeros((len(res.residuals), 2))
+    P[prob.oi] = np.einsum("kji,kji->ki", prob.L, prob.L)          # (LᵀL)_ii
+    return P
+
+
+def bar_delta0(res, mdb: np.ndarray) -> np.ndarray:
+    """(k_all, 2) Baarda's ``δ̄0_i = ∇_i √(P − P Qvv P)_ii / σ0``: the bound on the effect of row i's
+    MDB on any function of the unknowns in units of its (a-priori) σ."""
+    q = np.clip(_p_diag(res) - np.einsum("kii->ki", res.PQvvP), 0.0, None)
+    with np.errstate(invalid="ignore"):
+        return np.abs(mdb) * np.sqrt(q) / res.sigma0
+
+
+# --------------------------------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class OwnEffects:
+    """Effect of every image row's bias on its own point and its own photo's orientation.
+
+    ``point`` (k_all, 2, 3): shift of the observed point's X, Y, Z (object units) for the bias
+    ``bias`` (k_all, 2) (mm) in the row; ``eo`` (k_all, 2, 6): shift of the photo's
+    X0, Y0, Z0 (object units), ω, φ, κ (rad).  ``point_sigma`` (k_all, 2, 3), ``eo_sigma``
+    (k_all, 2, 6): a-priori σ of those parameters (σ0 √Q; 0 fixed).  Inactive rows: nan.
+    ``point_in_sigma`` / ``eo_in_sigma``: |effect| / σ (nan for fixed parameters)."""
+
+    bias: np.ndarray
+    point: np.ndarray
+    eo: np.ndarray
+    point_sigma: np.ndarray
+    eo_sigma: np.ndarray
+    bar_delta0: np.ndarray = field(repr=False)
+
+    def _in_sigma(self, eff, sig):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(sig > 0, np.abs(eff) / np.where(sig > 0, sig, 1.0), np.nan)
+
+    @property
+    def point_in_sigma(self) -> np.ndarray:
+        return self._in_sigma(self.point, self.point_sigma)
+
+    @property
+    def eo_in_sigma(self) -> np.ndarray:
+        return self._in_sigma(self.eo, self.eo_sigma)
+
+    def largest(self):
+        """Per row: ``(point coordinate 0..2, its effect, in σ; orientation component 0..5, its
+        effect, in σ)`` of the largest effect measured in σ (arrays (k_all, 2); −1 / nan when none:
+        inactive rows, fixed points such as control)."""
+        out = []
+        for eff, s in ((self.point, self.point_in_sigma), (self.eo, self.eo_in_sigma)):
+            sn = np.nan_to_num(s, nan=-1.0)
+            j = np.argmax(sn, axis=2)
+            val = np.take_along_axis(eff, j[..., None], axis=2)[..., 0]
+            sv = np.take_along_axis(s, j[..., None], axis=2)[..., 0]
+            j = np.where(np.isfinite(sv), j, -1)
+            out += [j, val, sv]
+        return tuple(out)
+
+
+def own_effects(res, delta0: float = 4.13, bias=None, chunk_bytes: float = 3.2e7) -> OwnEffects:
+    """Effect of the MDB (``δ0`` with the a-priori σ0; or ``bias`` (k_all, 2) mm) of every active
+    image row on its own point's coordinates and its own photo's orientation, either solver route."""
+    if res.snapshot is None:
+        raise ValueError("external reliability needs the precision: adjust with covariance = true")
+    prob, lin, red, Qx = _system(res)
+    st = res.state
+    k_all = len(res.residuals)
+    bias = row_mdb(res, delta0) if bias is None else np.asarray(bias, float).reshape(k_all, 2)
+    n_g, n_e, n_c, q = prob.n_g, prob.n_e, prob.n_c, prob.q
+    Jc, Jp, L = lin["Jc"], lin["Jp"], prob.L
+    Li, B = red["Li"], red["B"]
+    k = len(prob.oi)
+    pt_eff = np.zeros((k, 2, 3))          # per unit bias, active order
+    eo_eff = np.zeros((k, 2, 6))
+    eo_pos, pt_pos = _layout(prob)
+    G_all = np.einsum("kiq,kic->kqc", Jc, L)                 # a_g of row c: J̃cᵀ L e_c   (k, q, 2)
+    Ap_all = np.einsum("kia,kic->kac", Jp, L)                # a_p                       (k, 3, 2)
+    sparse = red.get("route") == "sparse"
+    cons = None
+    if not sparse and n_c:
+        Qgc = np.zeros((n_g + 1, n_c))
+        Qgc[:n_g] = Qx[:n_g, n_g:]
+        cons = (Qgc, Qx[n_g:, n_g:])
+    datum = _datum_Y(prob, red, st) if sparse and n_c else None
+
+    def tracks(obs_mat, Qsub):
+        """Rows of the points whose observations are ``obs_mat`` (N, t); ``Qsub`` (N, tq, tq)."""
+        N, t = obs_mat.shape
+        C = prob.cidx[obs_mat].reshape(N, t * q)
+        pts = prob.pidx[obs_mat[:, 0]]
+        Bk = B.Bk[obs_mat]                                                     # (N, t, q, 3)
+        z = np.einsum("nab,ntbc->ntac", Li[pts], Ap_all[obs_mat])              # L⁻¹ a_p  (N, t, 3, 2)
+        R = -np.einsum("nlqa,nsac->nlqsc", Bk, z)                              # (N, t, q, t, 2)
+        s = np.arange(t)
+        R[:, s, :, s, :] += np.transpose(G_all[obs_mat], (1, 0, 2, 3))
+        R = R.reshape(N, t * q, 2 * t)
+        X = np.matmul(Qsub, R)                                                 # (N, tq, 2t)
+        if cons is not None:
+            Qgc, Qcc = cons
+            Bc = B.Bc[pts]                                                     # (N, n_c, 3)
+            rc = -np.einsum("nca,nsad->ncsd", Bc, z).reshape(N, n_c, 2 * t)
+            X += np.matmul(Qgc[C], rc)
+            lam = np.matmul(np.transpose(Qgc[C], (0, 2, 1)), R) + np.matmul(Qcc[None], rc)
+        X5 = X.reshape(N, t, q, t, 2)
+        own = X5[:, s, :, s, :]                                                # (t, N, q, 2)
+        BtX = np.einsum("nlqa,nlqsc->nasc", Bk, X5)                            # (N, 3, t, 2)
+        if cons is not None:
+            BtX += np.einsum("nca,ncsd->nasd", Bc, lam.reshape(N, n_c, t, 2))
+        y = np.einsum("nba,ntbc->ntac", Li[pts], z - np.transpose(BtX, (0, 2, 1, 3)))   # (N, t, 3, 2)
+        rows = obs_mat.ravel()
+        own = np.transpose(own, (1, 0, 2, 3)).reshape(N * t, q, 2)
+        _store(rows, own, y.reshape(N * t, 3, 2))
+
+    def singles(ob, Qk):
+        """Rows of observations of no eliminated point (scale-bar points): ``Qk`` (r, q, q)."""
+        X = np.matmul(Qk, G_all[ob])
+        _store(ob, X, None)
+
+    def _store(rows, own, y):
+        eo_eff[rows] = np.transpose(_pick(own, eo_pos), (0, 2, 1))
+        if y is not None:
+            pt_eff[rows] = np.transpose(y, (0, 2, 1)) * prob.pt_mask[rows][:, None, :]
+        else:
+            pt_eff[rows] = np.transpose(_pick(own, pt_pos), (0, 2, 1))
+
+    groups = [obs_mat for obs_mat, _ in prob.track_groups()] if n_e else []
+    single = np.flatnonzero(prob.pidx == n_e)
+    if sparse:
+        _sparse_visit(prob, red, groups, single, tracks, singles, chunk_bytes)
+    else:
+        Qg = np.zeros((n_g + 1, n_g + 1))
+        Qg[:n_g, :n_g] = Qx[:n_g, :n_g]
+        for obs_mat in groups:
+            N, t = obs_mat.shape
+            c = max(1, int(chunk_bytes / (8.0 * 6 * (t * q) ** 2)))
+            for a in range(0, N, c):
+                om = obs_mat[a:a + c]
+                C = prob.cidx[om].reshape(len(om), -1)
+                tracks(om, Qg[C[:, :, None], C[:, None, :]])
+        for a in range(0, len(single), 4096):
+            ob = single[a:a + 4096]
+            Ck = prob.cidx[ob]
+            singles(ob, Qg[Ck[:, :, None], Ck[:, None, :]])
+    if datum is not None:
+        Gg, Gp, T, Yg, Yp = datum
+        Yx = np.vstack([Yg, np.zeros((1, n_c))])
+        CtD = np.einsum("kqc,kqd->kcd", Yx[prob.cidx], G_all)                  # (k, n_c, 2)
+        ep = prob.pidx < n_e
+        if ep.any():
+            CtD[ep] += np.einsum("kac,kad->kcd", Yp[prob.pidx[ep]], Ap_all[ep])
+        TC = np.einsum("cd,kdr->kcr", T, CtD)
+        Gx = np.vstack([Gg, np.zeros((1, n_c))])
+        geo = np.where(prob.g_eo[prob.obs_photo] >= 0, prob.g_eo[prob.obs_photo], n_g)
+        eo_eff -= np.einsum("kac,kcr->kra", Gx[geo], TC)
+        if ep.any():
+            pt_eff[ep] -= np.einsum("kac,kcr->kra", Gp[prob.pidx[ep]], TC[ep]) * prob.pt_mask[ep][:, None, :]
+        gpt = np.where(prob.g_pt[prob.obs_point] >= 0, prob.g_pt[prob.obs_point], n_g)
+        if (~ep).any():
+            pt_eff[~ep] -= np.einsum("kac,kcr->kra", Gx[gpt[~ep]], TC[~ep])
+    # to block order, scaled by the biases
+    point = np.full((k_all, 2, 3), np.nan)
+    eo = np.full((k_all, 2, 6), np.nan)
+    b = bias[prob.oi]
+    bf = np.where(np.isfinite(b), b, np.nan)
+    point[prob.oi] = pt_eff * bf[:, :, None]
+    eo[prob.oi] = eo_eff * bf[:, :, None]
+    point[~res.row_active] = np.nan
+    eo[~res.row_active] = np.nan
+    var0 = res.sigma0 ** 2 / res.variance_factor
+    obs = res.block_in.observations
+    psig = np.sqrt(np.clip(np.einsum("nii->ni", np.nan_to_num(res.cov_points)), 0, None) * var0)[obs.point]
+    esig = np.sqrt(np.clip(np.einsum("mii->mi", res.cov_eo), 0, None) * var0)[obs.photo]
+    return OwnEffects(bias=bias, point=point, eo=eo, point_sigma=np.repeat(psig[:, None], 2, axis=1),
+                      eo_sigma=np.repeat(esig[:, None], 2, axis=1), bar_delta0=bar_delta0(res, bias))
+
+
+def _layout(prob):
+    """Positions of the orientation's 6 and a global point's 3 columns in ``cidx`` (−1: dropped)."""
+    P = 3 + prob.pmax
+    off = {}
+    o = 0
+    for name, w in prob.col_groups:
+        off[name] = o
+        o += w
+    where = {int(c): j for j, c in enumerate(prob.col_keep)}
+    eo = np.array([where.get(off["eo"] + a, -1) for a in range(6)]) if "eo" in off else np.full(6, -1)
+    pt = np.array([where.get(off["pt"] + a, -1) for a in range(3)]) if "pt" in off else np.full(3, -1)
+    del P
+    return eo, pt
+
+
+def _pick(X, pos):
+    """X (r, q, 2) → (r, len(pos), 2) with zeros where ``pos`` is −1."""
+    Xp = np.concatenate([X, np.zeros((X.shape[0], 1, X.shape[2]))], axis=1)
+    return Xp[:, np.where(pos >= 0, pos, X.shape[1]), :]
+
+
+def _sparse_visit(prob, red, groups, single, tracks, singles, chunk_bytes):
+    """Hand every track (and every scale-bar-point observation) the block of ``K⁻¹`` on its columns
+    from the selected inversion, in the front of its first column in the elimination order (the
+    columns form a clique of the filled graph, so that front holds them all)."""
+    F, d, kidx = red["factor"][1]
+    sym = F.sym
+    n_g, n = prob.n_g, sym.n
+    posg = np.full(n_g + 1, n)
+    posg[kidx] = sym.ipos
+    sn_of_pos = np.repeat(np.arange(sym.n_super), np.diff(sym.start))
+
+    def by_owner(C):
+        m = posg[C].reshape(len(C), -1).min(axis=1) if len(C) else np.zeros(0, int)
+        own = np.where(m < n, sn_of_pos[np.minimum(m, n - 1)], -1)
+        order = np.argsort(own, kind="stable")
+        return order, np.searchsorted(own[order], np.arange(-1, sym.n_super + 1))
+
+    Cs = [prob.cidx[om].reshape(len(om), -1) for om in groups]
+    own_t = [by_owner(C) for C in Cs]
+    Csg = prob.cidx[single]
+    own_s = by_owner(Csg)
+
+    def take(ob, s):
+        order, bounds = ob
+        return order[bounds[s + 1]:bounds[s + 2]]
+
+    def visit(s, front, Z):
+        nf = len(front)
+        Zx = np.zeros((nf + 1, nf + 1))
+        sc = d[front]
+        Zx[:nf, :nf] = Z * sc[:, None] * sc[None, :]
+        fpos = sym.ipos[front]
+
+        def loc(C):
+            p = posg[C]
+            return np.where(p < n, np.searchsorted(fpos, np.minimum(p, n - 1)), nf)
+
+        _hand(s, Zx, loc)
+
+    def _hand(s, Zx, loc):
+        for g, om in enumerate(groups):
+            sel = take(own_t[g], s)
+            if sel.size:
+                w = Cs[g].shape[1]
+                c = max(1, int(chunk_bytes / (8.0 * 6 * w * w)))
+                for a in range(0, sel.size, c):
+                    ss = sel[a:a + c]
+                    Cl = loc(Cs[g][ss]) if Zx is not None else None
+                    Qsub = Zx[Cl[:, :, None], Cl[:, None, :]] if Zx is not None else np.zeros((ss.size, w, w))
+                    tracks(om[ss], Qsub)
+        sel = take(own_s, s)
+        if sel.size:
+            Cl = loc(Csg[sel]) if Zx is not None else None
+            w = Csg.shape[1]
+            singles(single[sel], Zx[Cl[:, :, None], Cl[:, None, :]] if Zx is not None
+                    else np.zeros((sel.size, w, w)))
+
+    F.selected_inverse(visit)
+    _hand(-1, None, None)                       # tracks whose columns are all fixed
+
+
+# --------------------------------------------------------------------------------------------------
+def effect_vectors(res, rows, delta0: float = 4.13, bias=None) -> dict:
+    """Full effect of the MDB (or ``bias``) of chosen scalar rows on **every** parameter (one solve
+    per row).  ``rows``: scalar row indices ``2 i + c`` (observation i, c = 0 x / 1 y).
+
+    Returns ``cameras`` (list per camera of (r, 3 + p)), ``eo`` (r, m, 6), ``points`` (r, n, 3)
+    (object units / rad; zero for fixed parameters, nan for points and photos not adjusted)."""
+    prob, lin, red, Qx = _system(res)
+    rows = np.asarray(rows, int).reshape(-1)
+    k_all = len(res.residuals)
+    bias = row_mdb(res, delta0) if bias is None else np.asarray(bias, float).reshape(k_all, 2)
+    pos = np.full(k_all, -1)
+    pos[prob.oi] = np.arange(len(prob.oi))
+    obs_i, coord = rows // 2, rows % 2
+    kl = pos[obs_i]
+    if (kl < 0).any() or not res.row_active[obs_i, coord].all():
+        bad = int(rows[(kl < 0) | ~res.row_active[obs_i, coord]][0])
+        raise ValueError(f"row {bad} is not an active image row of the adjustment")
+    Jc, Jp, L = lin["Jc"], lin["Jp"], prob.L
+    r = len(rows)
+    a_g = np.zeros((prob.n_g + 1, r))
+    a_p = np.zeros((prob.n_e + 1, 3, r))
+    for j, (kk, c) in enumerate(zip(kl, coord)):
+        u = L[kk][:, c]
+        np.add.at(a_g[:, j], prob.cidx[kk], Jc[kk].T @ u)
+        a_p[prob.pidx[kk], :, j] += Jp[kk].T @ u
+    xg, y = _apply_Q(prob, red, Qx, res.state, a_g[:-1], a_p[:-1])
+    b = bias[obs_i, coord]
+    xg = xg * b[None, :]
+    y = y * b[None, None, :]
+    return _scatter(res, xg, y)
+
+
+def _scatter(res, xg, y) -> dict:
+    """Global vector (n_g, r) and eliminated points (n_e, 3, r) → per-parameter arrays."""
+    prob = res.problem
+    r = xg.shape[1]
+    xpad = np.vstack([xg, np.zeros((1, r))])
+    n_g = prob.n_g
+
+    def gather(idx):
+        return np.moveaxis(xpad[np.where(idx >= 0, idx, n_g)], -1, 0)
+
+    cams = [gather(prob.g_cam[j, :3 + m.n_params]) for j, m in enumerate(prob.models)]
+    eo = gather(prob.g_eo)
+    eo[:, ~prob.photo_used] = np.nan
+    pts = gather(prob.g_pt)
+    if prob.n_e:
+        pts[:, prob.elim_points] = np.moveaxis(y, -1, 0)
+    pts[:, ~prob.point_used] = np.nan
+    return {"cameras": cams, "eo": eo, "points": pts}
+
+
+# --------------------------------------------------------------------------------------------------
+def parameter_names_of(res, spec: str) -> list[tuple[str, int, int, str]]:
+    """Parse one request: ``"photo <id>"`` (X0 … kappa), ``"point <id>"`` (X, Y, Z), ``"camera <id>"``
+    (c, xp, yp, APs), optionally followed by one component name (``"point 17 Z"``, ``"photo 3 kappa"``).
+    Returns ``[(kind, index, component, name)]``; ``KeyError`` naming what is unknown."""
+    blk = res.block_in
+    parts = str(spec).split()
+    if len(parts) < 2 or parts[0] not in ("photo", "point", "camera"):
+        raise KeyError(f"{spec!r}: expected 'photo <id>', 'point <id>' or 'camera <id>' (optionally + a component)")
+    kind = parts[0]
+    table = {"photo": blk.photos, "point": blk.points, "camera": blk.cameras}[kind]
+    ids = [str(i) for i in table.ids]
+    ident, comp = " ".join(parts[1:]), None
+    if ident not in ids and len(parts) > 2:
+        ident, comp = " ".join(parts[1:-1]), parts[-1]
+    if ident not in ids:
+        raise KeyError(f"{spec!r}: no {kind} with id {ident!r}")
+    i = ids.index(ident)
+    if kind == "photo":
+        comps = list(EO_NAMES)
+    elif kind == "point":
+        comps = ["X", "Y", "Z"]
+    else:
+        comps = list(res.cam_param_names[i])
+    if comp is not None:
+        if comp not in comps:
+            raise KeyError(f"{spec!r}: {kind} components are {', '.join(comps)}")
+        sel = [comps.index(comp)]
+    else:
+        sel = range(len(comps))
+    return [(kind, i, t, f"{kind} {ident} {comps[t]}") for t in sel]
+
+
+def parameter_covariance(res, specs) -> tuple[list[str], np.ndarray]:
+    """Joint a-posteriori covariance (``σ̂0² Q``; ``σ0² Q`` without redundancy) of the parameters
+    named by ``specs`` (see :func:`parameter_names_of`): ``(names, C)``.  Fixed parameters have zero
+    rows and columns.  Needs ``len`` solves of the whole system (both routes)."""
+    prob = res.problem
+    params = [p for s in specs for p in parameter_names_of(res, s)]
+    names = [p[3] for p in params]
+    r = len(params)
+    a_g = np.zeros((prob.n_g + 1, r))
+    a_p = np.zeros((prob.n_e + 1, 3, r))
+    gidx = np.full(r, -1)
+    for j, (kind, i, t, _) in enumerate(params):
+        if kind == "camera":
+            g = prob.g_cam[i, t] if t < prob.g_cam.shape[1] else -1
+        elif kind == "photo":
+            g = prob.g_eo[i, t]
+        else:
+            g = prob.g_pt[i, t]
+            if g < 0 and prob.elim_of[i] >= 0 and prob.pt_free[i, t]:
+                a_p[prob.elim_of[i], t, j] = 1.0
+        if g >= 0:
+            a_g[g, j] = 1.0
+            gidx[j] = g
+    _, lin, red, Qx = _system(res)
+    xg, y = _apply_Q(prob, red, Qx, res.state, a_g[:-1], a_p[:-1])
+    out = _scatter(res, xg, y)
+    C = np.zeros((r, r))
+    for j, (kind, i, t, _) in enumerate(params):
+        if kind == "camera":
+            C[:, j] = out["cameras"][i][:, t]
+        elif kind == "photo":
+            C[:, j] = out["eo"][:, i, t]
+        else:
+            C[:, j] = out["points"][:, i, t]
+    C = np.nan_to_num(0.5 * (C + C.T)) * res.variance_factor
+    return names, C

@@ -1,0 +1,155 @@
+"""External reliability of the bundle (own point / own photo, full vectors on demand) and the
+covariance of chosen parameters, against a dense reference: finite-difference Jacobians, numpy
+inverse (tests/adjustment/test_precision.py), on both solver routes and in free networks."""
+
+import numpy as np
+import pytest
+
+from baarda.pipeline.model import FREE
+from baarda.pipeline.adjustment import BundleSettings, adjust
+from baarda.pipeline.adjustment.reliability import (effect_vectors, own_effects, parameter_covariance,
+                                                    row_mdb)
+from baarda.pipeline.synthetic.closerange import make_block
+
+from .test_precision import _dense_reference
+
+D0 = 4.13
+
+
+def _reference(res, free=False):
+    """Dense Q, A, P, unknowns.  A free network: the inner constraints on the points' coordinates,
+    ``Cᵀ x = 0`` with ``C`` the null space of N (the similarity motions) restricted to the point
+    rows, through the bordered matrix ``[[N, C], [Cᵀ, 0]]⁻¹``."""
+    unknowns, A, P, N = _dense_reference(res)
+    if not free:
+        return unknowns, A, P, np.linalg.inv(N)
+    d = res.n_datum_constraints
+    w, V = np.linalg.eigh(N / np.abs(N).max())
+    G = V[:, :d]
+    assert w[d] > 1e3 * abs(w[d - 1])                       # a d-dimensional null space
+    C = G * np.array([kind == "pt" for kind, _, _ in unknowns])[:, None]
+    u = len(unknowns)
+    M = np.zeros((u + d, u + d))
+    M[:u, :u], M[:u, u:], M[u:, :u] = N, C, C.T
+    Q = np.linalg.inv(M)[:u, :u]
+    pos = _position(unknowns)
+    p = next(i for kind, i, t in unknowns if kind == "pt")
+    ref = res.variance_factor * Q[np.ix_(*[[pos[("pt", p, t)] for t in range(3)]] * 2)]
+    assert np.allclose(res.cov_points[p], ref, rtol=1e-5)   # the same datum as the bundle's
+    return unknowns, A, P, Q
+
+
+def _position(unknowns):
+    return {u: j for j, u in enumerate(unknowns)}
+
+
+def _check_own(res, free=False, rtol=2e-4):
+    unknowns, A, P, Q = _reference(res, free)
+    pos = _position(unknowns)
+    PQP = P - P @ A @ Q @ A.T @ P
+    oi = np.flatnonzero(res.obs_active)
+    eff = own_effects(res, D0)
+    mdb = row_mdb(res, D0)
+    obs = res.block_in.observations
+    # the MDBs themselves
+    assert np.allclose(mdb[oi].reshape(-1), D0 * res.sigma0 / np.sqrt(np.diag(PQP)), rtol=1e-4)
+    worst = 0.0
+    scale_pt = scale_eo = 0.0
+    for r_loc, k in enumerate(oi):
+        for c in (0, 1):
+            i = 2 * r_loc + c
+            dx = Q @ A.T @ P[:, i] * mdb[k, c]
+            ph, pt = obs.photo[k], obs.point[k]
+            ref_pt = np.array([dx[pos[("pt", pt, t)]] if ("pt", pt, t) in pos else 0.0 for t in range(3)])
+            ref_eo = np.array([dx[pos[("eo", ph, t)]] if ("eo", ph, t) in pos else 0.0 for t in range(6)])
+            scale_pt = max(scale_pt, np.abs(ref_pt).max())
+            scale_eo = max(scale_eo, np.abs(ref_eo).max())
+            worst = max(worst, np.abs(eff.point[k, c] - ref_pt).max() / max(np.abs(ref_pt).max(), 1e-12),
+                        np.abs(eff.eo[k, c] - ref_eo).max() / max(np.abs(ref_eo).max(), 1e-12))
+    assert worst < rtol, worst
+    assert scale_pt > 0 and scale_eo > 0
+    # Baarda's bound: no effect exceeds δ̄0 σ (a-priori σ)
+    s_pt = eff.point_in_sigma[oi]
+    assert np.all(np.nan_to_num(s_pt) <= eff.bar_delta0[oi][:, :, None] * (1 + 1e-6))
+    return unknowns, A, P, Q, eff
+
+
+def test_own_effects_match_dense_reference_control_datum():
+    blk, _ = make_block(model="brown", n_photos=5, n_points=14, noise_mm=0.002, rng=np.random.default_rng(2),
+                        n_control=5)
+    res = adjust(blk)
+    unknowns, A, P, Q, eff = _check_own(res)
+    # the largest per row is one of the own-point / own-photo entries
+    j, val, s, je, vale, se = eff.largest()
+    oi = np.flatnonzero(res.obs_active)
+    tie = oi[res.problem.pt_free[res.block_in.observations.point[oi]].any(axis=1)]
+    fixed = np.setdiff1d(oi, tie)
+    assert tie.size and fixed.size
+    assert np.all(j[tie] >= 0) and np.all(np.abs(val[tie]) > 0) and np.all(j[fixed] == -1)
+    assert np.all(je[oi] >= 0) and np.all(se[oi] > 0)
+    k = tie[3]
+    assert abs(val[k, 0]) == pytest.approx(np.abs(eff.point[k, 0, j[k, 0]]))
+
+
+def test_effect_vectors_full_and_on_both_routes():
+    blk, _ = make_block(model="brown", n_photos=5, n_points=14, noise_mm=0.002, rng=np.random.default_rng(3),
+                        n_control=5)
+    for solver in ("dense", "sparse"):
+        res = adjust(blk, BundleSettings(solver=solver))
+        assert res.solver_route == solver
+        unknowns, A, P, Q = _reference(res)
+        mdb = row_mdb(res, D0)
+        oi = np.flatnonzero(res.obs_active)
+        rows = np.array([2 * oi[0], 2 * oi[7] + 1, 2 * oi[20]])
+        ev = effect_vectors(res, rows, D0)
+        loc = {k: r for r, k in enumerate(oi)}
+        for j, row in enumerate(rows):
+            k, c = divmod(int(row), 2)
+            dx = Q @ A.T @ P[:, 2 * loc[k] + c] * mdb[k, c]
+            for u, (kind, i, t) in enumerate(unknowns):
+                got = ev["cameras"][i][j, t] if kind == "cam" else ev["eo"][j, i, t] if kind == "eo" else \
+                    ev["points"][j, i, t]
+                assert got == pytest.approx(dx[u], rel=2e-4, abs=2e-4 * np.abs(dx).max()), (solver, kind, i, t)
+        if solver == "sparse":
+            _check_own(res)
+
+
+@pytest.mark.parametrize("solver", ["dense", "sparse"])
+def test_free_network_effects_on_inner_constraints(solver):
+    """Free network on all points: effects on the inner-constraint datum (the pseudo-inverse), the
+    sparse route via minimal constraints + S-transformation."""
+    blk, _ = make_block(model="none", n_photos=6, n_points=24, noise_mm=0.002, rng=np.random.default_rng(5))
+    pts = blk.points
+    blk = blk.replace(points=pts.replace(role=np.array(["tie"] * len(pts)), sigma=np.full((len(pts), 3), FREE)))
+    res = adjust(blk, BundleSettings(datum="free", solver=solver))
+    assert res.n_datum_constraints > 0 and res.solver_route == solver
+    _check_own(res, free=True, rtol=5e-4)
+
+
+def test_parameter_covariance_against_dense_inverse():
+    blk, _ = make_block(model="brown", n_photos=5, n_points=14, noise_mm=0.002, rng=np.random.default_rng(2),
+                        n_control=5)
+    for solver in ("dense", "sparse"):
+        res = adjust(blk, BundleSettings(solver=solver))
+        unknowns, A, P, Q = _reference(res)
+        pos = _position(unknowns)
+        tie = next(i for kind, i, t in unknowns if kind == "pt")
+        ph = res.block_in.photos.ids[2]
+        cam = res.block_in.cameras.ids[0]
+        pid = res.block_in.points.ids[tie]
+        names, C = parameter_covariance(res, [f"photo {ph}", f"point {pid}", f"camera {cam}", f"point {pid} Z"])
+        assert names[:6] == [f"photo {ph} {n}" for n in ("X0", "Y0", "Z0", "omega", "phi", "kappa")]
+        assert names[-1] == f"point {pid} Z" and len(names) == 6 + 3 + len(res.cam_param_names[0]) + 1
+        keys = [("eo", 2, t) for t in range(6)] + [("pt", tie, t) for t in range(3)] + \
+            [("cam", 0, t) for t in range(len(res.cam_param_names[0]))] + [("pt", tie, 2)]
+        idx = [pos.get(k, -1) for k in keys]
+        ref = np.zeros((len(keys), len(keys)))
+        for a, ia in enumerate(idx):
+            for b, ib in enumerate(idx):
+                if ia >= 0 and ib >= 0:
+                    ref[a, b] = res.variance_factor * Q[ia, ib]
+        assert np.allclose(C, ref, rtol=1e-4, atol=1e-6 * np.abs(ref).max()), solver
+        # the reported blocks agree
+        assert np.allclose(C[:6, :6], res.cov_eo[2], rtol=1e-6, atol=1e-12)
+    with pytest.raises(KeyError, match="no point with id 'nope'"):
+        parameter_covariance(res, ["point nope"])
