@@ -26,6 +26,7 @@ from baarda.pipeline.adjustment import estimate_components
 from baarda.pipeline.adjustment import (EO_NAMES, BundleResult, BundleSettings, Distance, adjust, padded_ap,
                                         result_of, select_aps)
 from baarda.pipeline.camera import ap_model_names, get_ap_model
+from baarda.plugins.bundle import external as bundle_external
 
 
 
@@ -109,6 +110,16 @@ class BundleOptions:
         {}, "variance components: user-defined image groups, name -> photo ids (override vc_groups for those photos)")
     vc_alpha: float = option(0.05, "variance components: significance level of each group's test of f = 1 (two-sided)")
     vc_max_iter: int = option(20, "variance components: at most this many re-adjustments")
+    external_reliability: bool = option(
+        True, "effect of every coordinate's MDB on its own point and its own photo's orientation (bundle_observations.csv "
+              "ext_*, report, results.json; docs/statistics.md)")
+    confidence: float = option(
+        0.0, "confidence of the points' error ellipsoids, plan ellipses and height intervals in bundle_points.csv "
+             "(χ² quantiles with 3, 2, 1 dof); 0 = the 1-σ figures", ge=0.0, lt=1.0)
+    covariance_of: list[str] = option(
+        [], "parameters whose joint covariance is written to bundle_covariance.csv, e.g. "
+            "['photo 001', 'point 17', 'camera cam', 'point 18 Z'] (a photo's X0…kappa, a point's X, Y, Z, a camera's "
+            "c, xp, yp, APs, or one component)")
 
 
     def __post_init__(self):
@@ -279,6 +290,7 @@ class BundleAdjustment:
             if options.blunders != "none":
                 decision[flagged_obs] = "flagged"
             decision[np.unique(np.flatnonzero(rejected_rows) // 2)] = "rejected"
+        extras.update(bundle_external.compute(res, options))
         res.extras = extras
         out_block = res.block
         if rejected_rows.any():
@@ -377,6 +389,7 @@ def _summary(res: BundleResult, extras, o) -> dict:
     if extras.get("vc") is not None:
         out["variance_components"] = {"mode": o.variance_components, "groups_by": o.vc_groups,
                                       **extras["vc"].summary()}
+    out.update(bundle_external.summary_entries(extras, res.block_in))
     out["headline"] = (f"σ̂0 = {res.sigma0_hat:.3g} (dof {res.dof}, {res.iterations} iterations)"
                        + (f"; {flagged} coordinate(s) flagged by data snooping" if flagged else "")
                        + (f"; IDS removed {len(extras['ids'].removed_labels)}" if extras.get("ids") is not None else ""))
@@ -469,6 +482,7 @@ def _report(res: BundleResult, extras, o, block) -> str:
         L += ["", "### Additional-parameter selection", "", sel.markdown()]
     if extras.get("vc") is not None:
         L += ["", "### Variance components", ""] + _vc_lines(extras["vc"], o)
+    L += bundle_external.report_entries(extras, block)
     return "\n".join(L)
 
 
@@ -596,8 +610,10 @@ def _tables(res: BundleResult, extras, decision, block) -> dict:
         "vx": v[:, 0], "vy": v[:, 1], "rx": r[:, 0], "ry": r[:, 1], "wx": w[:, 0], "wy": w[:, 1],
         "nabla_x": nab[:, 0], "nabla_y": nab[:, 1], "mdb_x": mdbs[:, 0], "mdb_y": mdbs[:, 1],
         **_joint_columns(extras.get("joint"), len(obs)),
+        **bundle_external.observation_columns(extras.get("external"), len(obs)),
         "decision": decision.tolist()},
-        "every image observation: residual (mm), redundancy, w-test, MDB (mm), 2-D test of the point (χ²(2))")
+        "every image observation: residual (mm), redundancy, w-test, MDB (mm), 2-D test of the point (χ²(2)), "
+        "largest effect of each MDB on its own point / photo (ext_*: object units, degrees, in σ), δ̄0")
     pts = block.points
     sp = res.point_sigmas()
     rays = np.bincount(obs.point[res.obs_active], minlength=len(pts))
@@ -606,8 +622,10 @@ def _tables(res: BundleResult, extras, decision, block) -> dict:
     tables["points"] = TableData({
         "point": pts.ids.tolist(), "role": pts.role.tolist(), "X": XYZ[:, 0], "Y": XYZ[:, 1], "Z": XYZ[:, 2],
         "sX": sp[:, 0], "sY": sp[:, 1], "sZ": sp[:, 2], "rays": rays,
-        "dX_check": dXYZ[:, 0], "dY_check": dXYZ[:, 1], "dZ_check": dXYZ[:, 2]},
-        f"adjusted object points ({block.object_unit}) with a-posteriori σ; check points: adjusted − surveyed")
+        "dX_check": dXYZ[:, 0], "dY_check": dXYZ[:, 1], "dZ_check": dXYZ[:, 2],
+        **bundle_external.point_columns(res, extras.get("confidence", 0.0))},
+        f"adjusted object points ({block.object_unit}) with a-posteriori σ; check points: adjusted − surveyed; "
+        "error ellipsoid (semi-axes, direction of the largest), plan ellipse (bearing from +X), height interval")
     chk = pts.role == "check"
     if chk.any():
         tables["check_points"] = TableData({
@@ -640,4 +658,5 @@ def _tables(res: BundleResult, extras, decision, block) -> dict:
     tables["convergence"] = TableData({k: [h[k] for h in res.history] for k in
                                        ("iteration", "vtpv", "lambda", "max_step_sigma")},
                                       "vᵀPv, damping and largest correction (in σ of an observation) per iteration")
+    tables.update(bundle_external.tables(extras))
     return tables

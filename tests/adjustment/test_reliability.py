@@ -153,3 +153,43 @@ def test_parameter_covariance_against_dense_inverse():
         assert np.allclose(C[:6, :6], res.cov_eo[2], rtol=1e-6, atol=1e-12)
     with pytest.raises(KeyError, match="no point with id 'nope'"):
         parameter_covariance(res, ["point nope"])
+
+
+def test_bundle_stage_tables_report_and_summary(tmp_path):
+    """The stage's ext_* columns, the largest effect in results.json, the points' ellipses and the
+    requested covariance table agree with the library functions; a wrong name is an InputError."""
+    from baarda.pipeline.errors import InputError
+    from baarda.pipeline.stats.ellipses import error_ellipsoids, plan_ellipses
+    from baarda.pipeline.testing import run_stage
+    from baarda.plugins.bundle.stage import BundleAdjustment
+
+    blk, _ = make_block(model="brown", n_photos=6, n_points=30, noise_mm=0.002, rng=np.random.default_rng(4),
+                        n_control=5)
+    ph, pt = str(blk.photos.ids[1]), str(blk.points.ids[12])
+    res = run_stage(BundleAdjustment, {"block": blk},
+                    {"confidence": 0.95, "covariance_of": [f"photo {ph}", f"point {pt}"]}, tmp_path=tmp_path)
+    b = res.artefacts["bundle"]
+    eff = own_effects(b, 4.13)          # δ0(0.1 %, 80 %) = 4.13, the stage's defaults
+    t = res.tables["observations"].columns
+    k = np.flatnonzero(b.obs_active & b.problem.pt_free[blk.observations.point].any(axis=1))[5]
+    s = eff.point_in_sigma[k, 0]
+    j = int(np.nanargmax(s))
+    assert t["ext_point_coord_x"][k] == "XYZ"[j]
+    assert t["ext_point_in_sigma_x"][k] == pytest.approx(s[j], rel=1e-3)
+    assert t["ext_point_x"][k] == pytest.approx(eff.point[k, 0, j], rel=1e-3)
+    big = res.summary["external_reliability"]["largest_on_point"]
+    assert big["in_sigma"] == pytest.approx(np.nanmax(eff.point_in_sigma), rel=1e-3)
+    assert "### External reliability" in res.report and big["point"] in res.report
+    pts = res.tables["points"].columns
+    semi, _ = error_ellipsoids(b.cov_points, 0.95)
+    a, _, _ = plan_ellipses(b.cov_points, 0.95)
+    i = 12
+    assert pts["ellipsoid_a1"][i] == pytest.approx(semi[i, 0]) and pts["plan_a"][i] == pytest.approx(a[i])
+    cov = res.tables["covariance"].columns
+    names, C = parameter_covariance(b, [f"photo {ph}", f"point {pt}"])
+    assert cov["parameter"] == names and len(names) == 9
+    assert np.allclose(np.column_stack([cov[n] for n in names]), C)
+    assert np.allclose(C[6:, 6:], b.cov_points[12], rtol=1e-6)
+    assert "### Covariance of the requested parameters" in res.report
+    with pytest.raises(InputError, match="covariance_of"):
+        run_stage(BundleAdjustment, {"block": blk}, {"covariance_of": ["point nope"]}, tmp_path=tmp_path)

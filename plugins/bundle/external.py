@@ -1,0 +1,174 @@
+"""The bundle stage's external reliability, error ellipses and covariances on demand (tables, report
+lines, summary).  Numerics: :mod:`baarda.pipeline.adjustment.reliability`,
+:mod:`baarda.pipeline.stats.ellipses`; this module only arranges their results."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from baarda.pipeline.adjustment.reliability import own_effects, parameter_covariance
+from baarda.pipeline.errors import InputError
+from baarda.pipeline.stage import TableData
+from baarda.pipeline.stats.critical import delta0 as _delta0
+from baarda.pipeline.stats.ellipses import ellipse_columns
+
+EO_LABELS = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
+
+
+def external_reliability(res, alpha0: float, beta0: float) -> dict | None:
+    """Own-point / own-photo effects of every image row's MDB (δ0(α0, β0)) and the block's largest."""
+    if res.snapshot is None:
+        return None
+    eff = own_effects(res, _delta0(alpha0, beta0))
+    jp, vp, sp, je, ve, se = eff.largest()
+    # angles to degrees for tables and reports
+    ve = np.where(je >= 3, np.degrees(ve), ve)
+    return {"effects": eff, "point": (jp, vp, sp), "eo": (je, ve, se), "delta0": _delta0(alpha0, beta0)}
+
+
+def observation_columns(ext: dict | None, k: int) -> dict:
+    """Columns of ``bundle_observations.csv``: per coordinate (x, y) of each image point the
+    largest effect of its MDB on its own point (coordinate, object units, in σ) and on its own
+    photo's orientation (component, object units or degrees, in σ), and Baarda's δ̄0."""
+    out = {}
+    for c, cn in enumerate("xy"):
+        if ext is None:
+            for name in ("ext_point_coord", "ext_point", "ext_point_in_sigma", "ext_eo_param", "ext_eo",
+                         "ext_eo_in_sigma", "bar_delta0"):
+                out[f"{name}_{cn}"] = [""] * k if name.endswith(("coord", "param")) else np.full(k, np.nan)
+            continue
+        jp, vp, sp = (a[:, c] for a in ext["point"])
+        je, ve, se = (a[:, c] for a in ext["eo"])
+        out[f"ext_point_coord_{cn}"] = ["XYZ"[j] if j >= 0 else "" for j in jp]
+        out[f"ext_point_{cn}"] = np.where(jp >= 0, vp, np.nan)
+        out[f"ext_point_in_sigma_{cn}"] = np.where(jp >= 0, sp, np.nan)
+        out[f"ext_eo_param_{cn}"] = [EO_LABELS[j] if j >= 0 else "" for j in je]
+        out[f"ext_eo_{cn}"] = np.where(je >= 0, ve, np.nan)
+        out[f"ext_eo_in_sigma_{cn}"] = np.where(je >= 0, se, np.nan)
+        out[f"bar_delta0_{cn}"] = ext["effects"].bar_delta0[:, c]
+    return out
+
+
+def _largest(ext, block, which: str) -> dict | None:
+    j, v, s = ext[which]
+    sv = np.where(j >= 0, np.nan_to_num(s, nan=-1.0), -1.0)
+    if not (sv >= 0).any():
+        return None
+    k, c = np.unravel_index(int(np.argmax(sv)), sv.shape)
+    obs = block.observations
+    ph, pt = str(block.photos.ids[obs.photo[k]]), str(block.points.ids[obs.point[k]])
+    out = {"observation": f"photo {ph} point {pt} {'xy'[c]}", "mdb_mm": float(ext["effects"].bias[k, c]),
+           "in_sigma": float(s[k, c]), "effect": float(v[k, c])}
+    if which == "point":
+        out.update(point=pt, coordinate="XYZ"[j[k, c]])
+    else:
+        out.update(photo=ph, parameter=EO_LABELS[j[k, c]], unit="deg" if j[k, c] >= 3 else "object")
+    return out
+
+
+def summary(ext: dict | None, block) -> dict | None:
+    """``results.json``: the largest effect on a point and on an orientation, and where."""
+    if ext is None:
+        return None
+    bd = ext["effects"].bar_delta0
+    return {"delta0": ext["delta0"], "largest_on_point": _largest(ext, block, "point"),
+            "largest_on_orientation": _largest(ext, block, "eo"),
+            "bar_delta0_max": float(np.nanmax(bd)) if np.isfinite(bd).any() else None,
+            "bar_delta0_median": float(np.nanmedian(bd)) if np.isfinite(bd).any() else None}
+
+
+def report_lines(ext: dict | None, block, most: int = 5) -> list[str]:
+    if ext is None:
+        return []
+    s = summary(ext, block)
+    unit = block.object_unit
+    L = ["", "### External reliability", "",
+         f"Effect of each coordinate's minimal detectable bias (δ0 = {ext['delta0']:.2f}) on its own point "
+         "and its own photo's orientation (in σ: a-priori σ of that parameter; per coordinate in "
+         "bundle_observations.csv, ext_*). Baarda's δ̄0 bounds the effect on any function of the unknowns: "
+         f"largest {s['bar_delta0_max']:.2f} σ, median {s['bar_delta0_median']:.2f} σ.", ""]
+    p, e = s["largest_on_point"], s["largest_on_orientation"]
+    if p:
+        L.append(f"- largest on a point: {p['observation']} (MDB {p['mdb_mm'] * 1000:.2f} µm) moves point "
+                 f"{p['point']} {p['coordinate']} by {p['effect']:+.4g} {unit} = {p['in_sigma']:.2f} σ")
+    if e:
+        u = "°" if e["unit"] == "deg" else f" {unit}"
+        L.append(f"- largest on an orientation: {e['observation']} (MDB {e['mdb_mm'] * 1000:.2f} µm) moves photo "
+                 f"{e['photo']} {e['parameter']} by {e['effect']:+.4g}{u} = {e['in_sigma']:.2f} σ")
+    j, v, sg = ext["point"]
+    sv = np.where(j >= 0, np.nan_to_num(sg, nan=-1.0), -1.0).reshape(-1)
+    order = np.argsort(-sv)[:most]
+    order = order[sv[order] >= 0]
+    if order.size:
+        obs = block.observations
+        L += ["", "| observation | point coordinate | effect | in σ |", "|---|---|---|---|"]
+        for f in order:
+            k, c = divmod(int(f), 2)
+            L.append(f"| photo {block.photos.ids[obs.photo[k]]} point {block.points.ids[obs.point[k]]} {'xy'[c]} | "
+                     f"{block.points.ids[obs.point[k]]} {'XYZ'[j[k, c]]} | {v[k, c]:+.4g} {unit} | {sg[k, c]:.2f} |")
+    return L
+
+
+def point_columns(res, confidence: float) -> dict:
+    """Error ellipsoid, plan ellipse and height interval of every point from its covariance."""
+    cols = ellipse_columns(res.cov_points, confidence or None)
+    return cols
+
+
+def covariance_of(res, specs, option: str = "covariance_of"):
+    """``(TableData, summary dict, report lines)`` of the joint covariance of ``specs``."""
+    try:
+        names, C = parameter_covariance(res, specs)
+    except KeyError as e:
+        raise InputError(str(e.args[0]), None, None, option) from None
+    d = np.sqrt(np.clip(np.diag(C), 0, None))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        R = np.where(np.outer(d, d) > 0, C / np.outer(d, d), 0.0)
+    cols = {"parameter": names}
+    for j, n in enumerate(names):
+        cols[n] = C[:, j]
+    table = TableData(cols, "joint a-posteriori covariance of the requested parameters (object units, rad, mm)")
+    pairs = [(abs(R[a, b]), names[a], names[b], R[a, b]) for a in range(len(names)) for b in range(a + 1, len(names))
+             if d[a] > 0 and d[b] > 0]
+    pairs.sort(key=lambda t: -t[0])
+    summ = {"parameters": names, "sigma": d.tolist(),
+            "largest_correlations": [{"p1": p1, "p2": p2, "rho": float(r)} for _, p1, p2, r in pairs[:10]]}
+    L = ["", "### Covariance of the requested parameters", "",
+         f"{len(names)} parameters (bundle_covariance.csv: the joint covariance matrix, σ̂0² Q). "
+         "Largest correlations:", ""]
+    L += [f"- {p1} / {p2}: ρ = {r:+.3f}" for _, p1, p2, r in pairs[:10]] or ["- none (every parameter fixed)"]
+    return table, summ, L
+
+
+# -- the stage's hooks (extras keys "external", "covariance_of", "confidence") -----------------------
+def compute(res, o) -> dict:
+    """What the stage adds to its extras for options ``o`` (``external_reliability``,
+    ``confidence``, ``covariance_of``)."""
+    out = {"external": None, "covariance_of": None, "confidence": o.confidence}
+    if res.snapshot is None:
+        return out
+    if o.external_reliability:
+        out["external"] = external_reliability(res, o.alpha0, o.beta0)
+    if o.covariance_of:
+        out["covariance_of"] = covariance_of(res, o.covariance_of)
+    return out
+
+
+def summary_entries(extras, block) -> dict:
+    out = {}
+    if extras.get("external") is not None:
+        out["external_reliability"] = summary(extras["external"], block)
+    if extras.get("covariance_of") is not None:
+        out["covariance_of"] = extras["covariance_of"][1]
+    return out
+
+
+def report_entries(extras, block) -> list[str]:
+    L = report_lines(extras.get("external"), block)
+    if extras.get("covariance_of") is not None:
+        L += extras["covariance_of"][2]
+    return L
+
+
+def tables(extras) -> dict:
+    return {"covariance": extras["covariance_of"][0]} if extras.get("covariance_of") is not None else {}
