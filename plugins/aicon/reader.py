@@ -30,6 +30,10 @@ from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Pho
 
 SUFFIXES = ("ior", "eor", "obc", "phc", "scale")
 AP_NAMES = ("A1", "A2", "A3", "B1", "B2", "C1", "C2")
+VENDOR_FREE_AP = ("A1", "A2", "B1", "B2")
+"""The additional parameters AICON 3D Studio estimated for this kind of export: its protocol of the
+reference network (JAICOV/example/example.htm, "Innere Orientierungen") lists A1, A2, B1, B2 with a
+standard deviation and A3, C1, C2 as "fest" (fixed at the exported values)."""
 """Order of AICON's parameters in ``Cameras.ap`` (the bundle's ``aicon`` model)."""
 
 
@@ -303,13 +307,15 @@ def read_aicon(path: str | Path) -> AiconExport:
 
 
 def aicon_block(export: AiconExport, *, sigma_image_um: float | None = None, self_calibration: bool = True,
-                keep_unused: bool = False) -> Block:
+                keep_unused: bool = False, free_ap: tuple[str, ...] | list[str] | None = VENDOR_FREE_AP) -> Block:
     """The export as a :class:`~baarda.pipeline.model.Block` (object unit mm).
 
     * camera: ``c = −c_AICON`` (positive), ``xp, yp = x0, y0``, ``ap_model = "aicon"`` with
       ``ap = (A1, A2, A3, B1, B2, C1, C2)``; ``r0`` in ``meta["aicon"]["r0"][camera]`` and
-      ``meta["ap_meta"][camera]["r0"]``.  With ``self_calibration`` c, xp, yp and every AP that
-      is not exactly 0 in the file are free, the zero ones fixed; otherwise all fixed.
+      ``meta["ap_meta"][camera]["r0"]``.  With ``self_calibration`` c, xp, yp and the APs named in
+      ``free_ap`` are free (default :data:`VENDOR_FREE_AP`: A1 A2 B1 B2, as AICON ran it; A3, C1, C2
+      stay fixed at the exported values); ``free_ap = None`` frees every AP that is not exactly 0 in
+      the file.  Without ``self_calibration`` everything is fixed.
     * photos: ω φ κ as exported, all free.  Points: role ``tie``, XYZ from the ``.obc``.
     * observations: cov ``diag(sx², sy²)`` from the file, or ``sigma_image_um`` for all;
       ``active = False`` for disabled measurements.
@@ -325,7 +331,13 @@ def aicon_block(export: AiconExport, *, sigma_image_um: float | None = None, sel
     cams = export.cameras
     ap = np.array([c.ap for c in cams], float)
     free = FREE if self_calibration else FIXED
-    sigma_ap = np.where(ap != 0.0, free, FIXED)
+    if free_ap is None:
+        sigma_ap = np.where(ap != 0.0, free, FIXED)
+    else:
+        unknown = [n for n in free_ap if n not in AP_NAMES]
+        if unknown:
+            raise ValueError(f"free_ap: {unknown[0]!r} is not an AICON parameter ({', '.join(AP_NAMES)})")
+        sigma_ap = np.where(np.isin(AP_NAMES, list(free_ap))[None, :], free, FIXED) * np.ones_like(ap)
     cameras = Cameras.make(
         [c.id for c in cams], [-c.c for c in cams], [c.x0 for c in cams], [c.y0 for c in cams],
         ap_model="aicon", ap=ap, sigma_ap=sigma_ap, sigma_iop=free,
@@ -398,13 +410,14 @@ def perturb_initial_values(block: Block, rng: np.random.Generator, *, sigma_posi
                            zero_distortion: bool = False) -> Block:
     """A copy of ``block`` with its initial values disturbed (normal draws from ``rng``):
     projection centres by ``sigma_position`` (object unit), ω φ κ by ``sigma_angle_deg``, c by
-    ``sigma_c`` (mm), point coordinates by ``sigma_point``; ``zero_distortion`` sets every
-    additional parameter to 0 (which are free stays as it was).  The input is not modified."""
+    ``sigma_c`` (mm), point coordinates by ``sigma_point``; ``zero_distortion`` sets every free
+    additional parameter to 0 (a fixed one keeps its value: it is not estimated, so a start at 0
+    would change the model).  The input is not modified."""
     ph, cam, pts = block.photos, block.cameras, block.points
     X0 = ph.X0 + rng.normal(0.0, sigma_position, ph.X0.shape) if sigma_position else ph.X0
     opk = ph.opk + np.deg2rad(rng.normal(0.0, sigma_angle_deg, ph.opk.shape)) if sigma_angle_deg else ph.opk
     c = cam.c + rng.normal(0.0, sigma_c, cam.c.shape) if sigma_c else cam.c
     XYZ = pts.XYZ + rng.normal(0.0, sigma_point, pts.XYZ.shape) if sigma_point else pts.XYZ
-    ap = np.zeros_like(cam.ap) if zero_distortion else cam.ap
+    ap = np.where(cam.sigma_ap != 0, 0.0, cam.ap) if zero_distortion else cam.ap
     return replace(block, photos=ph.replace(X0=X0, opk=opk), cameras=cam.replace(c=c, ap=ap),
                    points=pts.replace(XYZ=XYZ))

@@ -19,7 +19,7 @@ from baarda.pipeline.options import option
 from baarda.pipeline.report import markdown_table
 from baarda.pipeline.stage import Context, SourceStage, Stage, StageResult, TableData
 
-from .reader import AP_NAMES, aicon_block, perturb_initial_values, read_aicon
+from .reader import AP_NAMES, VENDOR_FREE_AP, aicon_block, perturb_initial_values, read_aicon
 
 
 @dataclasses.dataclass(frozen=True)
@@ -50,11 +50,17 @@ class AiconOptions:
     seed: int | None = option(None, "seed of the perturbation; default: the project's seed for this stage")
     sigma_image_um: float | None = option(None, "a-priori sigma of every image coordinate (µm); default: "
                                                 "the .phc columns sx, sy")
-    self_calibration: bool = option(True, "c, xp, yp and the non-zero AICON parameters free (true) or fixed")
+    self_calibration: bool = option(True, "c, xp, yp and the parameters in free_ap free (true), or everything fixed")
+    free_ap: list[str] = option(list(VENDOR_FREE_AP), "AICON parameters estimated with self_calibration (A1 A2 A3 "
+                                                     "B1 B2 C1 C2); the others stay fixed at the exported values. "
+                                                     "Default: A1 A2 B1 B2, what AICON estimated for the export")
     keep_unused: bool = option(False, "keep points without .obc coordinates (as unknown tie points) and "
                                       "points with fewer than two active measurements")
 
     def __post_init__(self):
+        bad = [n for n in self.free_ap if n not in AP_NAMES]
+        if bad:
+            raise ValueError(f"free_ap: {bad[0]!r} is not an AICON parameter ({', '.join(AP_NAMES)})")
         if self.sigma_image_um is not None and not self.sigma_image_um > 0:
             raise ValueError("sigma_image_um must be positive")
 
@@ -72,7 +78,8 @@ class AiconSource(SourceStage):
                              path=ctx.project_file, field="path")
         export = read_aicon(ctx.resolve(options.path))
         exported = aicon_block(export, sigma_image_um=options.sigma_image_um,
-                               self_calibration=options.self_calibration, keep_unused=options.keep_unused)
+                               self_calibration=options.self_calibration, keep_unused=options.keep_unused,
+                               free_ap=tuple(options.free_ap))
         block = exported
         if options.perturb is not None:
             rng = np.random.default_rng(options.seed) if options.seed is not None else ctx.rng

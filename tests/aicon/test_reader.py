@@ -128,8 +128,13 @@ def test_counts_flags_and_scale(block, export_dir):
     assert block.meta["aicon"]["disabled_measurements"] == 58
     assert block.meta["distances"] == [("506", "507", 1389.688, 0.01)]
     assert block.object_unit == "mm"
-    # A3 is exactly 0 in the file: fixed; the others free; IOP free (self-calibration)
-    assert block.cameras.sigma_ap[0, 2] == 0 and np.isinf(np.delete(block.cameras.sigma_ap[0], 2)).all()
+    # as AICON ran it: A1 A2 B1 B2 free, A3 (= 0), C1, C2 fixed at the file's values; IOP free
+    assert list(np.isinf(block.cameras.sigma_ap[0])) == [True, True, False, True, True, False, False]
+    assert (block.cameras.sigma_ap[0, [2, 5, 6]] == 0).all()
+    every = aicon_block(read_aicon(export_dir), free_ap=None)       # every non-zero parameter free
+    assert list(np.isinf(every.cameras.sigma_ap[0])) == [True, True, False, True, True, True, True]
+    with pytest.raises(ValueError, match="free_ap: 'K1'"):
+        aicon_block(read_aicon(export_dir), free_ap=("A1", "K1"))
     assert np.isinf(block.cameras.sigma_iop).all()
     assert block.cameras.pixel_mm[0] == pytest.approx(35.968 / 8688)
     # every point left has at least two active rays
@@ -152,7 +157,10 @@ def test_perturbation_is_seeded_and_leaves_input(block):
     b = perturb_initial_values(block, np.random.default_rng(5), sigma_position=50.0, sigma_angle_deg=1.0,
                                sigma_c=0.2, zero_distortion=True)
     np.testing.assert_array_equal(a.photos.X0, b.photos.X0)
-    assert np.all(a.cameras.ap == 0) and np.any(block.cameras.ap != 0)
+    # free parameters start at 0; fixed ones (C1, C2) keep the file's values, A3 stays 0
+    free = block.cameras.sigma_ap[0] != 0
+    assert np.all(a.cameras.ap[0, free] == 0) and np.any(block.cameras.ap[0, free] != 0)
+    np.testing.assert_array_equal(a.cameras.ap[0, ~free], block.cameras.ap[0, ~free])
     d = a.photos.X0 - block.photos.X0
     assert 35 < np.std(d) < 65                      # σ 50 mm over 345 draws
     np.testing.assert_array_equal(a.cameras.sigma_ap, block.cameras.sigma_ap)

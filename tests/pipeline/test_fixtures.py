@@ -28,6 +28,7 @@ PROJECTS = sorted((ROOT / "fixtures").rglob("*.toml"))
 #: jobs ran on it)
 SECONDS = {
     "aicon/aicon.toml": 23.3,
+    "aicon/vendor.toml": 6.6,
     "bal/bal.toml": 1.8,
     "bal/libmv.toml": 7.6,
     "calibration/charuco.toml": 0.3,
