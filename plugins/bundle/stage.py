@@ -109,7 +109,7 @@ class BundleOptions:
     vc_photo_groups: dict[str, list[str]] = option(
         {}, "variance components: user-defined image groups, name -> photo ids (override vc_groups for those photos)")
     vc_alpha: float = option(0.05, "variance components: significance level of each group's test of f = 1 (two-sided)")
-    vc_max_iter: int = option(20, "variance components: at most this many re-adjustments")
+    vc_iterations: int = option(20, "variance components: at most this many re-adjustments")
     external_reliability: bool = option(
         True, "effect of every coordinate's MDB on its own point and its own photo's orientation (bundle_observations.csv "
               "ext_*, report, results.json; docs/statistics.md)")
@@ -154,8 +154,8 @@ class BundleOptions:
             raise ValueError("sigma_image_scale must be positive")
         if not 0 < self.vc_alpha < 1:
             raise ValueError("vc_alpha must lie strictly between 0 and 1")
-        if self.vc_max_iter < 1:
-            raise ValueError("vc_max_iter must be at least 1")
+        if self.vc_iterations < 1:
+            raise ValueError("vc_iterations must be at least 1")
 
 
 def configure_block(block: Block, o: BundleOptions) -> Block:
@@ -490,7 +490,7 @@ def _variance_components(block, settings, res, o, ctx):
     ctx.progress.message("variance components")
     try:
         return estimate_components(block, settings, image_groups=o.vc_groups, photo_groups=o.vc_photo_groups,
-                                   first=res, max_iter=o.vc_max_iter, alpha=o.vc_alpha, covariance=True)
+                                   first=res, max_iter=o.vc_iterations, alpha=o.vc_alpha, covariance=True)
     except KeyError as e:
         raise InputError(f"vc_photo_groups: unknown photo {e}", field="vc_photo_groups") from None
 
