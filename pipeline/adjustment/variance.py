@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
+from pathlib import PurePath as Path
 from typing import Any, Sequence
 
 import numpy as np
@@ -149,7 +150,9 @@ def linear_components(A: np.ndarray, l: np.ndarray, sigma: np.ndarray, groups: n
 def image_group_labels(block: Block, by: str | Sequence | np.ndarray = "camera",
                        photo_groups: dict | None = None) -> np.ndarray:
     """A group name per observation: ``"all"``, ``"camera"`` (``image camera <id>``), ``"photo"``
-    (``image photo <id>``), or an array of names (one per observation).  ``photo_groups``
+    (``image photo <id>``), ``"source"`` (``image source <file name>``: the file a reader took the
+    observation from, ``block.meta["source_lines"]`` (photo, point) → (file, line), else
+    ``block.meta["source"]``), or an array of names (one per observation).  ``photo_groups``
     (name → photo ids) overrides the photos it lists (``image <name>``)."""
     obs, photos = block.observations, block.photos
     k = len(obs)
@@ -162,8 +165,16 @@ def image_group_labels(block: Block, by: str | Sequence | np.ndarray = "camera",
         elif by == "photo":
             pid = photos.ids.astype(str)[obs.photo]
             lab = np.array(["image photo " + p for p in pid.tolist()], dtype=object)
+        elif by == "source":
+            meta = block.meta if isinstance(block.meta, dict) else {}
+            lines = meta.get("source_lines") or {}
+            default = meta.get("source")
+            lab = np.empty(k, dtype=object)
+            for i, (ph, pt) in enumerate(zip(obs.photo.tolist(), obs.point.tolist())):
+                src = lines.get((ph, pt), (default,))[0]
+                lab[i] = "image source " + (Path(str(src)).name if src is not None else "unknown")
         else:
-            raise ValueError(f"image groups by {by!r}: expected all, camera or photo")
+            raise ValueError(f"image groups by {by!r}: expected all, camera, photo or source")
     else:
         lab = np.asarray(by, dtype=object)
         if lab.shape != (k,):

@@ -103,8 +103,9 @@ class BundleOptions:
         "none", "variance components per observation group (Förstner, iterated; docs/bundle.md): none, estimate "
                 "and report them (the adjustment keeps the a-priori σ), or apply them (the adjustment, its tests "
                 "and data snooping use the re-weighted σ)")
-    vc_groups: Literal["camera", "photo", "all"] = option(
-        "camera", "variance components: image coordinates grouped per camera, per photo, or one group; control, "
+    vc_groups: Literal["camera", "photo", "source", "all"] = option(
+        "camera", "variance components: image coordinates grouped per camera, per photo, per source file, or one "
+                  "group; control, "
                   "EO priors, weighted camera parameters and scale bars are groups of their own")
     vc_photo_groups: dict[str, list[str]] = option(
         {}, "variance components: user-defined image groups, name -> photo ids (override vc_groups for those photos)")
@@ -504,6 +505,8 @@ def _vc_lines(vc, o) -> list[str]:
          + ("The adjustment above and its tests use the a-priori σ × f." if o.variance_components == "apply"
             else "Estimated only: the adjustment above keeps the a-priori σ "
                  f"(σ̂0 = {_f(first.sigma0_hat)}) — variance_components = \"apply\" re-weights it."), "",
+         f"First adjustment, on the a-priori σ: {first.iterations} iterations, σ̂0 = {_f(first.sigma0_hat)}, "
+         f"dof {first.dof}.", "",
          "| group | rows | r | f | σ(f) | T | p | H0: f = 1 |", "|---|---|---|---|---|---|---|---|"]
     for g in vc.groups:
         if g.estimable:

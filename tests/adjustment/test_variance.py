@@ -211,3 +211,28 @@ def test_bundle_stage_option(tmp_path):
     with pytest.raises(InputError, match="vc_photo_groups"):
         run_stage(BundleAdjustment, {"block": blk}, {"variance_components": "estimate",
                                                      "vc_photo_groups": {"x": ["P99"]}}, tmp_path=tmp_path)
+
+
+def test_image_groups_by_source_photo_and_user():
+    """Groups per source file (the reader's source_lines, else the block's source), per photo, and
+    user groups of photos overriding them; a wrong grouping is refused."""
+    blk = _two_camera_block(3, 0.001, 0.001, 0.001)
+    obs = blk.observations
+    half = len(obs) // 2
+    lines = {(int(obs.photo[i]), int(obs.point[i])): ("/data/run1/left.txt", i + 1) for i in range(half)}
+    blk = blk.replace(meta={**blk.meta, "source_lines": lines, "source": "/data/right.txt"})
+    lab = image_group_labels(blk, "source")
+    assert set(lab[:half]) == {"image source left.txt"} and set(lab[half:]) == {"image source right.txt"}
+    lab = image_group_labels(blk, "photo", photo_groups={"pair": ["P1", "P2"]})
+    assert lab[obs.photo == 0][0] == "image pair" and lab[obs.photo == 2][0] == "image photo P3"
+    assert len(set(image_group_labels(blk, "photo").tolist())) == len(blk.photos)
+    with pytest.raises(ValueError, match="expected all, camera, photo or source"):
+        image_group_labels(blk, "lens")
+    with pytest.raises(ValueError, match="one name per observation"):
+        image_group_labels(blk, np.array(["a", "b"]))
+    # by source: two groups with the same true σ give factors that agree within their σ(f)
+    vc = estimate_components(blk, BundleSettings(), image_groups="source")
+    g = {x.name: x for x in vc.groups}
+    a, b = g["image source left.txt"], g["image source right.txt"]
+    assert abs(a.factor - b.factor) < 4 * np.hypot(a.sigma_factor, b.sigma_factor)
+    assert not a.rejected or not b.rejected
