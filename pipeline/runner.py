@@ -4,6 +4,8 @@ The run directory holds
 
 * ``project.resolved.toml`` — the project with every option's default filled in;
 * ``report.md`` — one section per stage (rewritten after each stage);
+* ``report.html`` — the same as one self-contained page: the protocol summary first, then each
+  stage with its figures embedded (:mod:`baarda.pipeline.html`; rewritten after each stage);
 * ``<stage>_<table>.csv`` — the stage's tables; ``<stage>_<figure>.png`` — its figures;
 * ``<stage>.rrd`` — the stage's rerun recording; all share the run's recording id;
 * ``results.json`` — a machine-readable summary per stage and the list of every file of the run,
@@ -50,6 +52,8 @@ class StageRecord:
     files: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
     error: str | None = None
+    html_figures: list = field(default_factory=list)
+    """The stage's figures for ``report.html`` (:class:`baarda.pipeline.html.HtmlFigure`)."""
 
 
 @dataclass
@@ -182,11 +186,40 @@ def _write_outputs(run_dir, spec, stage, result, ctx, rec, recording_id) -> None
         fname = f"{spec.id}_{name}.png"
         (run_dir / fname).write_bytes(png)
         rec.files.append(fname)
+        rec.html_figures.append(_html_figure(name, fname, png))
+    if hasattr(stage, "plots"):
+        try:
+            _write_plots(run_dir, spec, stage, result, ctx, rec)
+        except Exception as e:  # a broken plot must not lose the numbers
+            (run_dir / f"{spec.id}.plots-error.txt").write_text(traceback.format_exc(), encoding="utf-8")
+            rec.warnings.append(f"figures incomplete: {type(e).__name__}: {_first_line(e)}")
     try:
         _write_recording(run_dir, spec, stage, result, ctx, rec, recording_id)
     except Exception as e:  # a broken log() must not lose the numbers
         (run_dir / f"{spec.id}.error.txt").write_text(traceback.format_exc(), encoding="utf-8")
         rec.warnings.append(f"recording incomplete: {type(e).__name__}: {_first_line(e)}")
+
+
+def _html_figure(name, fname, png, caption=""):
+    from .html import HtmlFigure
+
+    return HtmlFigure(name, fname, png, caption)
+
+
+def _write_plots(run_dir, spec, stage, result, ctx, rec) -> None:
+    """The stage's ``plots(result, ctx)``: matplotlib figures (or ``(figure, caption)``) by name,
+    drawn with Agg into ``<stage>_<name>.png`` and kept for ``report.html``."""
+    from .html import png_of, use_agg
+
+    use_agg()
+    figs = stage.plots(result, ctx) or {}
+    for name, item in figs.items():
+        fig, caption = item if isinstance(item, tuple) else (item, "")
+        png = png_of(fig)
+        fname = f"{spec.id}_{name}.png"
+        (run_dir / fname).write_bytes(png)
+        rec.files.append(fname)
+        rec.html_figures.append(_html_figure(name, fname, png, caption))
 
 
 def _moved(text: str, run, final: Path) -> str:
@@ -253,12 +286,51 @@ def _write_results(run_dir, project, records, recording_id, started):
     })
 
 
+def _scrubber(project, run_dir, shown):
+    """Reports name no absolute path of this machine: the run directory becomes ``.``, the
+    project's folder its relative name, the home folder ``~``."""
+    pairs = []
+    for d in {run_dir, shown}:
+        if d is not None:
+            pairs.append((str(Path(d).resolve()) + "/", ""))
+            pairs.append((str(Path(d).resolve()), "."))
+            pairs.append((str(d) + "/", ""))
+    proj = Path(project.path).resolve().parent
+    pairs += [(str(proj) + "/", ""), (str(proj), ".")]
+    try:
+        cwd = Path.cwd().resolve()
+        pairs += [(str(cwd) + "/", ""), (str(cwd), ".")]
+    except OSError:
+        pass
+    pairs.append((str(Path.home()), "~"))
+    pairs.sort(key=lambda p: -len(p[0]))
+
+    def scrub(text: str) -> str:
+        for a, b in pairs:
+            if a and a not in ("/", "./"):
+                text = text.replace(a, b)
+        return text
+
+    return scrub
+
+
+def _shown_viewer() -> str:
+    """The rerun viewer as a path relative to the current folder (or plain ``rerun``)."""
+    v = Path(viewer_command())
+    try:
+        return str(v.resolve().relative_to(Path.cwd().resolve()))
+    except (ValueError, OSError):
+        return v.name
+
+
 def _write_report(run_dir, project, records, recording_id, started, shown=None):
+    scrub = _scrubber(project, run_dir, shown)
     lines = [f"# {project.name}", ""]
     if project.description:
         lines += [project.description, ""]
-    lines += [f"- project file: `{project.path}`", f"- started: {started}, baarda {__version__}",
-              f"- recording id: `{recording_id}` (open all recordings: `{viewer_command()} {shown or run_dir}/*.rrd`)", "",
+    lines += [f"- project file: `{Path(project.path).name}`", f"- started: {started}, baarda {__version__}",
+              f"- recording id: `{recording_id}` (open all recordings, in the run directory: "
+              f"`{_shown_viewer()} *.rrd`); the same report with figures: [report.html](report.html)", "",
               "| stage | uses | status | time (s) |", "|---|---|---|---|"]
     lines += [f"| {r.id} | {r.use} | {r.status} | {r.seconds:.2f} |" for r in records]
     lines.append("")
@@ -267,8 +339,22 @@ def _write_report(run_dir, project, records, recording_id, started, shown=None):
             continue
         lines += [f"## {r.id} ({r.use})", ""]
         if r.warnings:
-            lines += ["Warnings:", ""] + [f"- {w}" for w in r.warnings] + [""]
-        lines += [r.report.strip(), ""]
+            lines += ["Warnings:", ""] + [f"- {scrub(w)}" for w in r.warnings] + [""]
+        lines += [scrub(r.report.strip()), ""]
         if r.files:
             lines += ["Files: " + ", ".join(f"[{f}]({f})" for f in r.files), ""]
     (run_dir / "report.md").write_text("\n".join(lines), encoding="utf-8")
+    _write_html(run_dir, project, records, recording_id, started, scrub)
+
+
+def _write_html(run_dir, project, records, recording_id, started, scrub) -> None:
+    from .html import HtmlStage, render_report
+
+    stages = [HtmlStage(r.id, r.use, r.status, r.seconds, scrub(r.report), [scrub(w) for w in r.warnings],
+                        list(r.files), list(r.html_figures),
+                        r.summary.get("protocol") if isinstance(r.summary, dict) else None)
+              for r in records]
+    page = render_report(title=project.name, description=(project.description or "").strip(),
+                         project_file=Path(project.path).name, started=started, version=__version__,
+                         recording_id=recording_id, stages=stages)
+    (run_dir / "report.html").write_text(page, encoding="utf-8")

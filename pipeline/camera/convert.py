@@ -147,3 +147,72 @@ def colmap_from_brown(c, xp, yp, ap, size, pixel_mm, model: str = "auto") -> tup
         raise UnsupportedCamera(f"COLMAP {model} cannot hold brown {', '.join(sorted(extra))}")
     v.update(cx=float(cx), cy=float(cy), k4=0.0, k5=0.0, k6=0.0, f=v["fy"], k=v["k1"])
     return model, np.array([v[name] for name in COLMAP_PARAMS[model]], float)
+
+
+# --------------------------------------------------------------------------------------------
+# Reporting a camera in the units of its source (pixels, OpenCV's coefficients)
+# --------------------------------------------------------------------------------------------
+
+PIXEL_SOURCES = {"colmap": "COLMAP", "bal": "BAL", "libmv": "libmv", "targets": "OpenCV"}
+"""``Block.meta`` keys of the sources whose image measurements are pixels, and their names."""
+
+
+def pixel_source(meta) -> str | None:
+    """Name of the pixel source (``"COLMAP"``, ``"BAL"``, ``"libmv"``, ``"OpenCV"``) a block's
+    ``meta`` records, or None for a source measured in mm (comparator, AICON, DBAT, test field)."""
+    if not isinstance(meta, dict):
+        return None
+    for key, name in PIXEL_SOURCES.items():
+        if key in meta:
+            return name
+    return None
+
+
+OPENCV_NAMES = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
+
+
+def opencv_style(c, xp, yp, ap_model: str, ap, cov, size, pixel_mm, convention: str = "opencv") -> list[dict] | None:
+    """A camera as OpenCV writes it — ``fx, fy, cx, cy`` (px) and ``k1, k2, p1, p2, k3`` — with σ.
+
+    ``cov`` is the covariance of ``(c, xp, yp, *ap)`` (mm; the AP model's units), propagated
+    linearly (every relation is polynomial; the Jacobian is exact at the estimate).  Returns
+    ``[{"name", "value", "sigma"}]`` in :data:`OPENCV_NAMES` order, or None when the camera has no
+    OpenCV form (an AP model other than ``none``/``brown``, or a brown shear ``B2 ≠ 0``).
+    """
+    if ap_model not in ("none", "brown"):
+        return None
+    p = float(pixel_mm)
+    apv = np.zeros(7)
+    n_ap = 7 if ap_model == "brown" else 0
+    if n_ap:
+        a = np.asarray(ap, float).reshape(-1)[:7]
+        apv[:a.size] = a
+    K1, K2, K3, P1, P2, B1, B2 = apv
+    if B2 != 0.0:
+        return None
+    v = opencv_from_brown(c, apv, p)
+    cx, cy = pixels_from_mm([xp, yp], size, p, convention)
+    values = {"fx": v["fx"], "fy": v["fy"], "cx": float(cx), "cy": float(cy),
+              **{k: v[k] for k in ("k1", "k2", "p1", "p2", "k3")}}
+    J = np.zeros((9, 3 + n_ap))
+    J[0, 0], J[1, 0], J[2, 1], J[3, 2] = (1.0 + B1) / p, 1.0 / p, 1.0 / p, -1.0 / p
+    if n_ap:
+        iK1, iK2, iK3, iP1, iP2, iB1 = 3, 4, 5, 6, 7, 8
+        J[0, iB1] = c / p
+        J[4, 0], J[4, iK1] = 2 * K1 * c, c**2
+        J[5, 0], J[5, iK2] = 4 * K2 * c**3, c**4
+        J[6, 0], J[6, iP2] = -P2, -c
+        J[7, 0], J[7, iP1] = P1, c
+        J[8, 0], J[8, iK3] = 6 * K3 * c**5, c**6
+    C = np.asarray(cov, float)
+    m = min(C.shape[0], J.shape[1])
+    S = J[:, :m] @ C[:m, :m] @ J[:, :m].T
+    sig = np.sqrt(np.clip(np.diag(S), 0.0, None))
+    return [{"name": k, "value": float(values[k]), "sigma": float(s)} for k, s in zip(OPENCV_NAMES, sig)]
+
+
+def opencv_rms(residuals_px) -> float:
+    """OpenCV's RMS re-projection error (``calibrateCamera``'s return value): the root of the sum
+    of squared 2-D residual lengths over the number of image points (not of coordinates)."""
+    v = np.asarray(residuals_px, float).reshape(-1, 2)
+    return float(np.sqrt(np.sum(v * v) / len(v))) if len(v) else float("nan")

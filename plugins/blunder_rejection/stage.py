@@ -110,11 +110,18 @@ class BlunderRejection:
         stats = row_statistics(art, settings)
         return StageResult(
             artefacts={"blunders": report, "block": out_block},
-            summary=_summary(report, block, art) | {"rrr_note": _rho_note(report, options, art.snapshot.dof)},
+            summary=_summary(report, block, art) | {"rrr_note": _rho_note(report, options, art.snapshot.dof)}
+            | _protocol_entry(report, art, options),
             report=_report(report, block, art, options),
             tables={"observations": _table(report, art, block, stats)},
-            data={"report": report, "artefact": art, "block": block},
+            data={"report": report, "artefact": art, "block": block, "options": options},
         )
+
+    def plots(self, result: StageResult, ctx: Context) -> dict:
+        """Figures for report.html (drawn by the engine): w against N(0, 1), redundancy numbers."""
+        from .figures import figures
+
+        return figures(result.data["artefact"], result.data["options"])
 
     def log(self, result: StageResult, rec, ctx: Context) -> None:
         import rerun as rr
@@ -142,6 +149,13 @@ class BlunderRejection:
             rec.log(f"{base}/rejected", rr.AnyValues(labels=[d.label for d in res.decisions] or [""],
                                                      skipped=res.skipped or ""))
         rec.log("blunders/report", rr.TextDocument(result.report, media_type=rr.MediaType.MARKDOWN))
+
+
+def _protocol_entry(report, art, options) -> dict:
+    from .figures import protocol
+
+    p = protocol(report, art, options)
+    return {"protocol": p} if p else {}
 
 
 def _num(x) -> float:

@@ -28,6 +28,8 @@ from baarda.pipeline.adjustment import (EO_NAMES, BundleResult, BundleSettings, 
 from baarda.pipeline.camera import ap_model_names, get_ap_model
 from baarda.plugins.bundle import external as bundle_external
 
+from .protocol import bundle_protocol, protocol_lines
+
 
 
 @dataclasses.dataclass(frozen=True)
@@ -305,11 +307,17 @@ class BundleAdjustment:
             artefacts["adjustment"] = None
         return StageResult(
             artefacts=artefacts,
-            summary=_summary(res, extras, options),
-            report=_report(res, extras, options, block),
+            summary=(summary := _summary(res, extras, options)),
+            report=_report(res, extras, options, block, summary.get("protocol")),
             tables=_tables(res, extras, decision, block),
             data={"result": res, "decision": decision, "options": options, "extras": extras},
         )
+
+    def plots(self, result: StageResult, ctx: Context) -> dict:
+        """Figures for report.html (drawn by the engine; see plugins/bundle/figures.py)."""
+        from .figures import bundle_figures
+
+        return bundle_figures(result.data["result"], result.data["decision"])
 
     def log(self, result: StageResult, rec, ctx: Context) -> None:
         from .rrlog import log_bundle
@@ -384,6 +392,7 @@ def _summary(res: BundleResult, extras, o) -> dict:
         out["ap_selection"] = extras["selection"].summary()
     out["cameras"] = [r for j in range(len(res.block_in.cameras)) for r in res.camera_table(j)]
     out["sigma0_um_equivalent"] = _sigma0_um(res)
+    out["protocol"] = bundle_protocol(res, extras, alpha0=o.alpha0, beta0=o.beta0)
     if isinstance(out.get("check_points"), dict) and out["check_points"].get("n"):
         out["check_points"]["unit"] = res.block_in.object_unit
     flagged = out.get("data_snooping", {}).get("n_flagged")
@@ -406,7 +415,7 @@ def _sigma0_um(res: BundleResult) -> float:
     return float(res.sigma0_hat * s * 1000.0 / res.sigma0)
 
 
-def _report(res: BundleResult, extras, o, block) -> str:
+def _report(res: BundleResult, extras, o, block, protocol=None) -> str:
     L = []
     L.append(f"Bundle adjustment of {int(res.photo_used.sum())} photos, {int(res.point_used.sum())} points, "
              f"{int(res.obs_active.sum())} image points ({res.n_observation_rows} coordinates); "
@@ -416,7 +425,7 @@ def _report(res: BundleResult, extras, o, block) -> str:
                 f"{res.n_datum_constraints} constraints)" if o.datum == "free" else "") + ".")
     L.append("")
     L.append(f"- iterations: {res.iterations}; vᵀPv = {res.vtpv:.6g}; dof = {res.dof}; "
-             f"σ̂0 = {_f(res.sigma0_hat)} (≈ {_f(_sigma0_um(res), 3)} µm)")
+             f"σ̂0 = {_f(res.sigma0_hat)} (≈ {_sigma0_equivalent(res, protocol)})")
     gt = extras.get("global_test")
     if gt is not None:
         L.append(f"- global test: T = σ̂0²/σ0² = {_f(gt.T)} vs F-critical {_f(gt.critical)} "
@@ -458,6 +467,8 @@ def _report(res: BundleResult, extras, o, block) -> str:
              f"{res.solver_route} reduced system)")
     for w in res.warnings:
         L.append(f"- warning: {w}")
+    if protocol:
+        L += protocol_lines(protocol)
     L.append("")
     L.append("### Camera parameters")
     L.append("")
@@ -515,6 +526,14 @@ def _vc_lines(vc, o) -> list[str]:
         else:
             L.append(f"| {g.name} | {g.n} | {g.redundancy:.3g} | 1 (not estimable: r < 1) | – | – | – | – |")
     return L
+
+
+def _sigma0_equivalent(res: BundleResult, protocol) -> str:
+    """σ̂0 × the median a-priori image σ in the unit of the source (µm, or px for a pixel source)."""
+    um = _sigma0_um(res)
+    if protocol and protocol.get("unit") == "px":
+        return f"{_f(um / 1000.0 / float(res.block_in.cameras.pixel_mm[0]), 3)} px"
+    return f"{_f(um, 3)} µm"
 
 
 def _sigma0_equivalent(res: BundleResult, protocol) -> str:

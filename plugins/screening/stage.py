@@ -169,6 +169,12 @@ class HelmertScreening:
             data={"artefact": artefact, "block": block, "arrow_scale": options.arrow_scale},
         )
 
+    def plots(self, result: StageResult, ctx: Context) -> dict:
+        """Figures for report.html (drawn by the engine): residual vectors and |w| per pair."""
+        from .figures import helmert_residuals
+
+        return helmert_residuals(result.data["artefact"])
+
     def log(self, result: StageResult, rec, ctx: Context) -> None:
         import rerun as rr
 

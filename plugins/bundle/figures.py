@@ -1,0 +1,236 @@
+"""The bundle's figures for ``report.html`` (matplotlib, drawn by the engine with Agg).
+
+Only called from :meth:`BundleAdjustment.plots`; the numbers come from the
+:class:`~baarda.pipeline.adjustment.BundleResult` and its snapshot, never recomputed.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from baarda.pipeline import stats
+from baarda.pipeline.camera import get_ap_model
+
+from baarda.pipeline.plots import redundancy_numbers, w_distribution
+
+from .protocol import image_units
+
+MAX_PHOTOS = 12
+"""Photos drawn in the residual figure (the largest RMS first)."""
+
+
+def _plt():
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def residual_vectors(res, decision=None):
+    """Residual vectors (observed − computed) per photo over the format, the photos with the
+    largest RMS first; one arrow scale for all panels."""
+    plt = _plt()
+    block = res.block_in
+    obs, cams = block.observations, block.cameras
+    unit, scale, _ = image_units(block)
+    act = np.asarray(res.obs_active, bool)
+    v = np.asarray(res.residuals, float)
+    photos = np.unique(obs.photo[act])
+    r = np.array([np.sqrt(np.mean(v[act & (obs.photo == p)] ** 2)) for p in photos])
+    photos = photos[np.argsort(-r)][:MAX_PHOTOS]
+    n = len(photos)
+    ncol = min(4, n)
+    nrow = int(np.ceil(n / ncol))
+    fig, axes = plt.subplots(nrow, ncol, figsize=(3.3 * ncol, 3.0 * nrow + 0.4), squeeze=False)
+    vmax = np.nanpercentile(np.hypot(v[act, 0], v[act, 1]), 95) if act.any() else 1.0
+    for ax, p in zip(axes.ravel(), photos):
+        j = block.photos.camera[p]
+        fw, fh = cams.format_mm[j]
+        m = act & (obs.photo == p)
+        xy = obs.xy[m]
+        size = max(fw, fh) if fw > 0 else np.ptp(xy) or 1.0
+        k = 0.08 * size / (vmax or 1.0)          # mm of arrow per mm of residual
+        flag = np.zeros(m.sum(), bool) if decision is None else np.isin(np.asarray(decision)[m], ["flagged", "rejected"])
+        ax.quiver(xy[~flag, 0], xy[~flag, 1], k * v[m][~flag, 0], k * v[m][~flag, 1], angles="xy", scale_units="xy",
+                  scale=1, color="#1f4e9c", width=0.006)
+        if flag.any():
+            ax.quiver(xy[flag, 0], xy[flag, 1], k * v[m][flag, 0], k * v[m][flag, 1], angles="xy", scale_units="xy",
+                      scale=1, color="#c0392b", width=0.008)
+        ax.plot(xy[:, 0], xy[:, 1], ".", ms=2, color="#555")
+        if fw > 0:
+            ax.add_patch(plt.Rectangle((-fw / 2, -fh / 2), fw, fh, fill=False, ec="#999", lw=0.8))
+        rm = np.sqrt(np.mean(v[m] ** 2)) * scale
+        ax.set_title(f"photo {block.photos.ids[p]}: RMS {rm:.3g} {unit}", fontsize=9)
+        ax.set_aspect("equal")
+        ax.tick_params(labelsize=7)
+    for ax in axes.ravel()[n:]:
+        ax.axis("off")
+    fig.suptitle(f"Image residuals (observed − computed) over the format, mm; an arrow of "
+                 f"{0.08 * 100:.0f} % of the format is {vmax * scale:.3g} {unit} (95th percentile); red: flagged/rejected",
+                 fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+def _ellipse(cov2):
+    w, V = np.linalg.eigh(np.asarray(cov2, float))
+    w = np.sqrt(np.clip(w, 0, None))
+    t = np.linspace(0, 2 * np.pi, 40)
+    return V @ np.vstack([w[0] * np.cos(t), w[1] * np.sin(t)])
+
+
+def network(res):
+    """Plan (X, Y) and elevation (X, Z) of projection centres and points, with the points'
+    standard error ellipses exaggerated by one common factor."""
+    plt = _plt()
+    block = res.block_in
+    pts, used = block.points, res.point_used
+    XYZ, X0 = res.state.XYZ, res.state.X0[res.photo_used]
+    C = res.cov_points
+    sig = res.point_sigmas()
+    ok = used & np.all(np.isfinite(sig), axis=1)
+    span = max(float(np.ptp(np.vstack([XYZ[used], X0]), axis=0)[:2].max()), 1e-9)
+    smax = float(np.max(sig[ok])) if ok.any() else 0.0
+    k = 0.04 * span / smax if smax > 0 else 1.0
+    fig, axes = plt.subplots(1, 2, figsize=(12, 5))
+    for ax, (i, j, name) in zip(axes, [(0, 1, "plan (X, Y)"), (0, 2, "elevation (X, Z)")]):
+        colours = {"check": "#d35400", "tie": "#1f4e9c"}
+        for role in np.unique(pts.role[used]):
+            m = used & (pts.role == role)
+            ax.plot(XYZ[m, i], XYZ[m, j], "^" if role in ("full", "xy", "z") else "o", ms=4,
+                    color=colours.get(role, "#27ae60"), label=f"{role} ({int(m.sum())})", ls="none")
+        ax.plot(X0[:, i], X0[:, j], "s", ms=5, color="k", label=f"projection centres ({len(X0)})")
+        for p in np.flatnonzero(ok)[:3000]:
+            e = _ellipse(C[p][np.ix_([i, j], [i, j])]) * k
+            ax.plot(XYZ[p, i] + e[0], XYZ[p, j] + e[1], color="#c0392b", lw=0.6)
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_title(name, fontsize=10)
+        ax.set_xlabel(f"{'XYZ'[i]} ({block.object_unit})")
+        ax.set_ylabel(f"{'XYZ'[j]} ({block.object_unit})")
+        ax.tick_params(labelsize=8)
+    axes[0].legend(fontsize=7, loc="best")
+    fig.suptitle(f"Network; standard error ellipses × {k:.3g} (largest σ {smax:.3g} {block.object_unit})", fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+def checkpoint_errors(res):
+    plt = _plt()
+    block = res.block_in
+    pts = block.points
+    chk = np.flatnonzero((pts.role == "check") & res.point_used)
+    d = res.state.XYZ[chk] - pts.XYZ[chk]
+    ou = block.object_unit
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.2), gridspec_kw={"width_ratios": [1.3, 1]})
+    span = max(float(np.ptp(pts.XYZ[res.point_used][:, :2], axis=0).max()), 1e-9)
+    dmax = float(np.max(np.hypot(d[:, 0], d[:, 1]))) if len(d) else 0.0
+    k = 0.1 * span / dmax if dmax > 0 else 1.0
+    a.plot(res.state.XYZ[res.point_used, 0], res.state.XYZ[res.point_used, 1], ".", color="#bbb", ms=3)
+    a.quiver(pts.XYZ[chk, 0], pts.XYZ[chk, 1], k * d[:, 0], k * d[:, 1], angles="xy", scale_units="xy", scale=1,
+             color="#d35400", width=0.005)
+    for p, x, y in zip(pts.ids[chk], pts.XYZ[chk, 0], pts.XYZ[chk, 1]):
+        a.annotate(str(p), (x, y), fontsize=7, xytext=(3, 3), textcoords="offset points")
+    a.set_aspect("equal", adjustable="datalim")
+    a.set_title(f"check points: plan error vectors × {k:.3g} (adjusted − surveyed)", fontsize=10)
+    b.bar(np.arange(len(chk)), d[:, 2], color="#5b7fb5")
+    b.set_xticks(np.arange(len(chk)), [str(x) for x in pts.ids[chk]], fontsize=7, rotation=90)
+    b.axhline(0, color="k", lw=0.7)
+    b.set_title(f"dZ ({ou})", fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+def convergence(history):
+    plt = _plt()
+    it = [h["iteration"] for h in history]
+    fig, a = plt.subplots(figsize=(6.5, 3.4))
+    a.semilogy(it, [max(h["vtpv"], 1e-300) for h in history], "o-", color="#1f4e9c", label="vᵀPv")
+    steps = [(h["iteration"], h["max_step_sigma"]) for h in history if np.isfinite(h.get("max_step_sigma", np.nan))]
+    if steps:
+        a2 = a.twinx()
+        a2.semilogy(*zip(*steps), "s--", color="#d35400", label="largest correction / σ")
+        a2.set_ylabel("largest correction (σ of an observation)", fontsize=8, color="#d35400")
+    a.set_xlabel("iteration")
+    a.set_ylabel("vᵀPv")
+    a.set_title("Convergence", fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+def distortion(res, j: int, n: int = 60):
+    """Radial profile along the x and y axes and the 2-D distortion field of camera ``j``, with
+    ±1σ from the covariance of its additional parameters."""
+    plt = _plt()
+    cams = res.block_in.cameras
+    model = get_ap_model(str(cams.ap_model[j]))
+    names = res.cam_param_names[j]
+    p = len(names) - 3
+    if p == 0:
+        return None
+    ap = res.state.cam_params[j, 3:3 + p][None, :]
+    c = float(res.state.cam_params[j, 0])
+    meta = res.camera_meta[j]
+    fw, fh = cams.format_mm[j]
+    if not (fw > 0):
+        obs = res.block_in.observations
+        m = res.block_in.photos.camera[obs.photo] == j
+        fw = fh = 2 * float(np.max(np.abs(obs.xy[m]))) if m.any() else 1.0
+    Cap = np.asarray(res.cov_cameras[j], float)[3:3 + p, 3:3 + p]
+    unit, scale, _ = image_units(res.block_in)
+
+    def delta(x, y):
+        dx, dy = model.distortion(x, y, np.repeat(ap, len(x), 0), np.full(len(x), c), meta)
+        J = model.jacobian_params(x, y, np.repeat(ap, len(x), 0), np.full(len(x), c), meta)
+        sx = np.sqrt(np.clip(np.einsum("ni,ij,nj->n", J[:, 0], Cap, J[:, 0]), 0, None))
+        sy = np.sqrt(np.clip(np.einsum("ni,ij,nj->n", J[:, 1], Cap, J[:, 1]), 0, None))
+        return np.asarray(dx) * scale, np.asarray(dy) * scale, sx * scale, sy * scale
+
+    fig, (a, b) = plt.subplots(1, 2, figsize=(12, 4.6))
+    t = np.linspace(0, fw / 2, n)
+    dx, _, sx, _ = delta(t, np.zeros(n))
+    a.plot(t, dx, color="#1f4e9c", label="Δx along +x")
+    a.fill_between(t, dx - sx, dx + sx, color="#1f4e9c", alpha=0.2)
+    t2 = np.linspace(0, fh / 2, n)
+    _, dy, _, sy = delta(np.zeros(n), t2)
+    a.plot(t2, dy, color="#d35400", label="Δy along +y")
+    a.fill_between(t2, dy - sy, dy + sy, color="#d35400", alpha=0.2)
+    a.axhline(0, color="k", lw=0.6)
+    a.set_xlabel("distance from the principal point (mm)")
+    a.set_ylabel(f"distortion ({unit})")
+    a.set_title(f"camera {cams.ids[j]} ({cams.ap_model[j]}): profiles, ±1σ bands", fontsize=10)
+    a.legend(fontsize=8)
+    g = 13
+    X, Y = np.meshgrid(np.linspace(-fw / 2, fw / 2, g), np.linspace(-fh / 2, fh / 2, g))
+    dx, dy, sx, sy = delta(X.ravel(), Y.ravel())
+    mag = np.hypot(dx, dy)
+    k = 0.06 * max(fw, fh) / (mag.max() or 1.0)
+    b.quiver(X.ravel(), Y.ravel(), k * dx, k * dy, angles="xy", scale_units="xy", scale=1, color="#1f4e9c", width=0.004)
+    cs = b.contourf(X, Y, np.hypot(sx, sy).reshape(X.shape), levels=10, cmap="Oranges", alpha=0.5)
+    fig.colorbar(cs, ax=b, label=f"σ of the distortion ({unit})")
+    b.set_aspect("equal")
+    b.set_title(f"field over the format (mm); longest arrow {mag.max():.3g} {unit}", fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+def bundle_figures(res, decision=None) -> dict:
+    """Every figure of a bundle result: name → (figure, caption)."""
+    out = {}
+    out["residuals"] = (residual_vectors(res, decision), "Residual vectors per photo over the format")
+    snap = res.snapshot
+    if snap is not None:
+        ok = stats.controlled(snap)
+        ds = stats.data_snooping(snap)
+        out["w"] = (w_distribution(ds.w[ok], ds.critical), "w against N(0, 1): histogram and QQ plot")
+        out["redundancy"] = (redundancy_numbers(np.asarray(snap.r)[np.asarray(snap.active, bool)]),
+                             "Redundancy numbers of the observation rows")
+    cams = res.block_in.cameras
+    for j in range(len(cams)):
+        if res.camera_used[j] and len(res.cam_param_names[j]) > 3 and str(cams.ap_model[j]) != "none":
+            fig = distortion(res, j)
+            if fig is not None:
+                out[f"distortion_{cams.ids[j]}"] = (fig, f"Distortion of camera {cams.ids[j]} with ±1σ")
+    out["network"] = (network(res), "Network: plan and elevation with standard error ellipses")
+    if res.check.get("n"):
+        out["checkpoints"] = (checkpoint_errors(res), "Check-point error vectors")
+    out["convergence"] = (convergence(res.history), "Convergence of vᵀPv")
+    return out

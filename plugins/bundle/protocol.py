@@ -1,0 +1,255 @@
+"""The bundle's protocol summary — the numbers a photogrammetrist reads first (pure numerics).
+
+Everything comes from the :class:`~baarda.pipeline.adjustment.BundleResult`: its snapshot
+(σ̂0, the global test, redundancy numbers, MDBs), residuals, point covariances, camera
+covariances, scale bars, check points and warnings.  The stage puts the dict under
+``summary["protocol"]``; ``report.html`` prints it first (``docs/report.md``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from baarda.pipeline.adjustment import adjust
+from baarda.pipeline.errors import AdjustmentError
+from baarda.pipeline.camera.convert import opencv_rms, opencv_style, pixel_source
+from baarda.pipeline.protocol import MOST_LABELS, rms, snapshot_protocol
+
+HIGH_CORRELATION = 0.9
+"""|ρ| above which a pair of camera parameters is listed."""
+EFFECT_MAX_UNKNOWNS = 20_000
+"""The effect of the largest MDB on the points takes one more adjustment; above this many
+unknowns it is left out (``reliability.effect_max`` is then null)."""
+EFFECT_ITERATIONS = 2
+"""Iterations of the adjustment with the MDB added (from the solution; the effect is linear)."""
+PER_PHOTO_MOST = 30
+"""Photos listed in ``rms_per_photo`` (largest RMS first); ``n_photos`` counts them all."""
+
+
+def image_units(block) -> tuple[str, float, str | None]:
+    """``(unit, scale from mm, pixel source)``: px for a pixel source with one pixel pitch, else µm."""
+    src = pixel_source(block.meta)
+    pitch = np.asarray(block.cameras.pixel_mm, float)
+    if src and pitch.size and np.all(np.isfinite(pitch)) and np.all(pitch == pitch[0]) and pitch[0] > 0:
+        return "px", 1.0 / float(pitch[0]), src
+    return "µm", 1000.0, None
+
+
+def _rms_rows(v, act, keys, ids) -> list[dict]:
+    out = []
+    for k in np.unique(keys):
+        m = keys == k
+        vx, vy = v[m & act[:, 0], 0], v[m & act[:, 1], 1]
+        n = int(act[m].any(axis=1).sum())
+        if n == 0:
+            continue
+        out.append({"id": str(ids[k]), "n": n, "x": rms(vx), "y": rms(vy), "all": rms(np.concatenate([vx, vy]))})
+    return out
+
+
+def bundle_protocol(res, extras: dict, *, alpha0: float, beta0: float) -> dict:
+    """The protocol dict of a bundle result (see :mod:`baarda.pipeline.protocol` for the keys)."""
+    block = res.block_in
+    unit, scale, src = image_units(block)
+    snap = res.snapshot
+    orows = res.obs_rows()
+    if snap is not None:
+        out = snapshot_protocol(snap, name="bundle", alpha0=alpha0, beta0=beta0, unit=unit, scale=scale,
+                                coordinate_rows=orows[:, 1] if len(orows) == snap.n else None)
+    else:
+        out = {"adjustment": "bundle", "sigma0": float(res.sigma0), "sigma0_hat": float(res.sigma0_hat),
+               "dof": int(res.dof), "unit": unit}
+    out["kind"] = "bundle"
+    out["source_units"] = "px" if src else "mm"
+    if src:
+        out["pixel_source"] = src
+    obs = block.observations
+    act = np.asarray(res.row_active, bool) & np.asarray(res.obs_active, bool)[:, None]
+    v = np.asarray(res.residuals, float) * scale
+    out["rms"] = {"x": rms(v[act[:, 0], 0]), "y": rms(v[act[:, 1], 1]), "all": rms(v[act]),
+                  "n": int(act.any(axis=1).sum())}
+    if src:
+        out["opencv_rms_px"] = opencv_rms(v[act.all(axis=1)])
+    cam_of_obs = block.photos.camera[obs.photo]
+    out["rms_per_camera"] = _rms_rows(v, act, cam_of_obs, block.cameras.ids)
+    per_photo = _rms_rows(v, act, obs.photo, block.photos.ids)
+    per_photo.sort(key=lambda r: -r["all"])
+    out["n_photos"] = len(per_photo)
+    out["rms_per_photo"] = per_photo[:PER_PHOTO_MOST]
+
+    # object points: a-posteriori precision
+    pts = block.points
+    sp = res.point_sigmas()
+    ou = block.object_unit
+    est = res.point_used & np.all(np.isfinite(sp), axis=1) & (sp.sum(axis=1) > 0)
+    if est.any():
+        s = sp[est]
+        ids = pts.ids[est]
+        imax = np.argmax(s, axis=0)
+        out["point_precision"] = {"n": int(est.sum()), "unit": ou,
+                                  "rms": [rms(s[:, t]) for t in range(3)],
+                                  "max": [float(s[imax[t], t]) for t in range(3)],
+                                  "max_ids": [str(ids[imax[t]]) for t in range(3)]}
+
+    # scale bars: adjusted − measured
+    bars = []
+    a_idx, b_idx = res.distance_points
+    XYZ = res.state.XYZ
+    for d, a, b in zip(res.distances, a_idx, b_idx):
+        adj = float(np.linalg.norm(XYZ[a] - XYZ[b]))
+        bars.append({"from": str(d.a), "to": str(d.b), "measured": float(d.distance), "adjusted": adj,
+                     "residual": adj - float(d.distance), "sigma": float(d.sigma)})
+    if bars:
+        out["scale_bars"] = {"unit": ou, "bars": bars, "rms": rms([b["residual"] for b in bars])}
+
+    # control points: adjusted − given on the constrained coordinates
+    given = np.isfinite(pts.sigma) & (pts.sigma > 0) & res.point_used[:, None] & np.isfinite(pts.XYZ)
+    given &= (pts.role != "check")[:, None]
+    if given.any():
+        d = np.where(given, XYZ - pts.XYZ, np.nan)
+        rows = np.flatnonzero(given.any(axis=1))
+        k = rows[np.argmax(np.nanmax(np.abs(d[rows]), axis=1))]
+        out["control"] = {"n": int(rows.size), "unit": ou, "rms": [rms(d[:, t]) for t in range(3)],
+                          "max_abs": float(np.nanmax(np.abs(d[k]))), "max_id": str(pts.ids[k])}
+    n_fixed = int(((pts.sigma == 0).all(axis=1) & res.point_used).sum())
+    if n_fixed:
+        out.setdefault("control", {"unit": ou})["n_fixed"] = n_fixed
+    if res.check.get("n"):
+        out["check"] = {k: res.check.get(k) for k in ("n", "Sx", "Sy", "Sxy", "Sz")}
+        out["check"]["unit"] = ou
+
+    # reliability: the largest MDB of an image coordinate and its effect on the points
+    if snap is not None:
+        rel = out["reliability"]
+        k = rel.pop("mdb_max_row", None)
+        if k is not None and len(orows) == snap.n and np.isfinite(rel["mdb_max"]):
+            rel["mdb_unit"] = unit
+            rel.update(_mdb_effect(res, int(orows[k, 0]), int(orows[k, 1]), rel["mdb_max"] / scale))
+        ids = extras.get("ids")
+        if ids is not None:
+            out["tests"]["n_rejected"] = len(ids.removed)
+            out["tests"]["rejected"] = [str(x) for x in ids.removed_labels[:MOST_LABELS]]
+
+    out["cameras"] = [_camera(res, j, src, scale) for j in range(len(block.cameras)) if res.camera_used[j]]
+    out["warnings"] = [str(w) for w in res.warnings]
+    return out
+
+
+def _mdb_effect(res, o: int, coord: int, mdb_mm: float) -> dict:
+    """Adjust again with the MDB added to coordinate ``coord`` of observation ``o``: the largest
+    shift of an object point (external reliability of the weakest observation)."""
+    if res.n_unknowns > EFFECT_MAX_UNKNOWNS or o < 0:
+        return {"effect_max": None, "effect_point": ""}
+    block = res.block_in
+    xy = np.array(block.observations.xy, float)
+    xy[o, coord] += mdb_mm
+    shifted = block.replace(observations=block.observations.replace(xy=xy))
+    # Two Gauss–Newton steps from the solution: the effect is that of the linear model (the first
+    # step), the second only confirms it; a step that does not converge still carries the state.
+    settings = dataclasses.replace(res.settings, max_iter=EFFECT_ITERATIONS)
+    try:
+        state = adjust(shifted, settings, row_active=res.row_active, obs_active=res.obs_active, start=res.state,
+                       compute_initial=False, covariance=False).state
+    except AdjustmentError as e:
+        state = getattr(e, "state", None)
+        if state is None:
+            return {"effect_max": None, "effect_point": "", "effect_note": f"not computed: {str(e)[:120]}"}
+    d = np.linalg.norm(state.XYZ - res.state.XYZ, axis=1)
+    d[~res.point_used] = 0.0
+    k = int(np.argmax(d))
+    return {"effect_max": float(d[k]), "effect_point": str(block.points.ids[k]),
+            "effect_observation": f"photo {block.photos.ids[block.observations.photo[o]]} point "
+                                  f"{block.points.ids[block.observations.point[o]]} {'xy'[coord]}"}
+
+
+def _camera(res, j: int, src: str | None, scale: float) -> dict:
+    cams = res.block_in.cameras
+    rows = res.camera_table(j)
+    names = res.cam_param_names[j]
+    R = res.correlation_camera(j)
+    free = [t for t in range(len(names)) if res.camera_free[j, t]]
+    high = [{"p1": names[a], "p2": names[b], "rho": float(R[a, b])}
+            for i, a in enumerate(free) for b in free[i + 1:] if abs(R[a, b]) > HIGH_CORRELATION]
+    cam = {"camera": str(cams.ids[j]), "model": str(cams.ap_model[j]),
+           "parameters": [{"name": r["parameter"], "value": r["value"], "sigma": r["sigma"],
+                           "status": r["status"]} for r in rows],
+           "high_correlations": high}
+    if src:
+        st = res.state.cam_params[j]
+        conv = "colmap" if src == "COLMAP" else "opencv"
+        cv = opencv_style(st[0], st[1], st[2], str(cams.ap_model[j]), st[3:3 + len(names) - 3],
+                          res.cov_cameras[j], cams.resolution[j], cams.pixel_mm[j], conv)
+        cam["pixels"] = {"c": float(st[0]) * scale, "xp": float(st[1]) * scale, "yp": float(st[2]) * scale,
+                         "sigma_c": float(rows[0]["sigma"]) * scale}
+        if cv is not None:
+            cam["opencv"] = cv
+    return cam
+
+
+def _f(x, nd=4) -> str:
+    return "–" if x is None or not np.isfinite(x) else f"{x:.{nd}g}"
+
+
+def protocol_lines(p: dict) -> list[str]:
+    """The protocol as Markdown lines for ``report.md`` (the HTML page prints the same dict)."""
+    u, ou = p.get("unit", ""), None
+    L = ["", "### Protocol summary", ""]
+    r = p.get("rms")
+    if r:
+        L.append(f"- RMS image residuals ({r['n']} image points): x {_f(r['x'])} {u}, y {_f(r['y'])} {u}, "
+                 f"all coordinates {_f(r['all'])} {u}"
+                 + (f"; OpenCV's RMS re-projection error (√(Σ|v|²/points)) {_f(p['opencv_rms_px'])} px"
+                    if "opencv_rms_px" in p else ""))
+        for c in p.get("rms_per_camera", []):
+            L.append(f"  - camera {c['id']}: {_f(c['all'])} {u} ({c['n']} image points)")
+        worst = p.get("rms_per_photo", [])[:3]
+        if worst:
+            L.append(f"  - largest per photo (of {p['n_photos']}): "
+                     + ", ".join(f"{w['id']} {_f(w['all'])} {u}" for w in worst))
+    pp = p.get("point_precision")
+    if pp:
+        ou = pp["unit"]
+        L.append(f"- point precision ({pp['n']} points, {ou}): RMS σX σY σZ = "
+                 + " / ".join(_f(x) for x in pp["rms"]) + "; max " + " / ".join(
+                     f"{_f(x)} ({i})" for x, i in zip(pp["max"], pp["max_ids"])))
+    sb = p.get("scale_bars")
+    if sb:
+        L.append(f"- scale bars ({len(sb['bars'])}): RMS of adjusted − measured {_f(sb['rms'])} {sb['unit']}; "
+                 + ", ".join(f"{b['from']}–{b['to']} {_f(b['residual'], 3)}" for b in sb["bars"][:6]))
+    c = p.get("control")
+    if c and c.get("n"):
+        L.append(f"- control ({c['n']} weighted points, adjusted − given, {c['unit']}): RMS "
+                 + " / ".join(_f(x) for x in c["rms"]) + f"; largest {_f(c['max_abs'])} at {c['max_id']}")
+    if c and c.get("n_fixed"):
+        L.append(f"- fixed control points: {c['n_fixed']}")
+    ch = p.get("check")
+    if ch:
+        L.append(f"- check points ({ch['n']}): RMSE Sx {_f(ch['Sx'])}, Sy {_f(ch['Sy'])}, Sz {_f(ch['Sz'])} {ch['unit']}")
+    rel = p.get("reliability")
+    if rel:
+        L.append(f"- reliability: smallest redundancy number {_f(rel['r_min'], 3)} ({rel['r_min_label']}), mean "
+                 f"{_f(rel['r_mean'], 3)}; {rel['n_uncontrolled']} uncontrolled coordinate(s); largest MDB "
+                 f"{_f(rel['mdb_max'])} {u} ({rel['mdb_max_label']})"
+                 + (f", moving point {rel['effect_point']} by {_f(rel['effect_max'])} {ou or ''}"
+                    if rel.get("effect_max") is not None else ""))
+    t = p.get("tests")
+    if t:
+        L.append(f"- w-test |w| > {_f(t['critical_w'])}: {t['n_flagged']} flagged"
+                 + (f" ({', '.join(t['flagged'])}{' …' if t['n_flagged'] > len(t['flagged']) else ''})" if t["flagged"] else "")
+                 + (f"; rejected {t['n_rejected']}" if t.get("n_rejected") else ""))
+    for cam in p.get("cameras", []):
+        px = cam.get("pixels")
+        if px:
+            L.append(f"- camera {cam['camera']} in pixels ({p.get('pixel_source')}): c = {_f(px['c'], 7)} ± "
+                     f"{_f(px['sigma_c'], 3)} px, principal point offset ({_f(px['xp'], 5)}, {_f(px['yp'], 5)}) px")
+        if cam.get("opencv"):
+            L += ["", f"  OpenCV-style camera {cam['camera']} (px; k, p dimensionless):", "",
+                  "  | " + " | ".join(x["name"] for x in cam["opencv"]) + " |",
+                  "  |" + "---|" * len(cam["opencv"]),
+                  "  | " + " | ".join(_f(x["value"], 7) for x in cam["opencv"]) + " |",
+                  "  | " + " | ".join("± " + _f(x["sigma"], 3) for x in cam["opencv"]) + " |", ""]
+        for h in cam.get("high_correlations", []):
+            L.append(f"- camera {cam['camera']}: ρ({h['p1']}, {h['p2']}) = {h['rho']:+.3f}")
+    return L

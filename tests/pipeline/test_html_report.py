@@ -1,0 +1,151 @@
+"""report.html: written by every run, parses, self-contained, prints the protocol numbers that
+results.json holds, one image per expected figure; no absolute path of the machine in the reports."""
+
+from __future__ import annotations
+
+import base64
+import json
+import os
+from html.parser import HTMLParser
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from baarda.pipeline.html import fmt
+from baarda.pipeline.runner import run_project
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+class Page(HTMLParser):
+    """Collects tags, <img> sources and attributes that point outside the page."""
+
+    def __init__(self):
+        super().__init__()
+        self.imgs, self.external, self.figures, self.stack = [], [], [], []
+        self.text = []
+
+    def handle_starttag(self, tag, attrs):
+        a = dict(attrs)
+        if tag not in ("img", "br", "meta", "input", "hr", "link"):
+            self.stack.append(tag)
+        for key in ("src", "href"):
+            v = a.get(key)
+            if v is not None and not (v.startswith("#") or v.startswith("data:") or "://" not in v and not v.startswith("//")
+                                      and not v.startswith("/")):
+                self.external.append(v)
+        if tag == "link":
+            self.external.append(a.get("href", ""))
+        if tag == "img":
+            self.imgs.append(a.get("src", ""))
+        if tag == "figure":
+            self.figures.append(a.get("id", ""))
+
+    def handle_endtag(self, tag):
+        if tag in self.stack:
+            while self.stack and self.stack.pop() != tag:
+                pass
+
+    def handle_data(self, data):
+        self.text.append(data)
+
+
+def _run(tmp_path, project):
+    out = run_project(REPO / "fixtures" / project, tmp_path / "run", verbose=False)
+    assert out.ok, out.message
+    page_text = (out.run_dir / "report.html").read_text(encoding="utf-8")
+    page = Page()
+    page.feed(page_text)
+    page.close()
+    results = json.loads((out.run_dir / "results.json").read_text(encoding="utf-8"))
+    return out, page_text, page, results
+
+
+def _no_machine_paths(run_dir: Path):
+    forbidden = {str(REPO), str(run_dir), str(run_dir.resolve()), str(Path.home()), os.path.realpath("/tmp")}
+    for name in ("report.html", "report.md"):
+        text = (run_dir / name).read_text(encoding="utf-8")
+        for p in forbidden:
+            assert p not in text, f"{name} names {p}"
+
+
+def _pngs(page) -> list[bytes]:
+    out = []
+    for src in page.imgs:
+        assert src.startswith("data:image/png;base64,"), src[:40]
+        png = base64.b64decode(src.split(",", 1)[1])
+        assert png[:8] == b"\x89PNG\r\n\x1a\n"
+        out.append(png)
+    return out
+
+
+def test_paper000_report_html(tmp_path):
+    out, text, page, results = _run(tmp_path, "paper000/data1.toml")
+    assert not page.external, page.external
+    assert not page.stack, f"unclosed tags {page.stack}"
+    _pngs(page)
+    assert set(page.figures) >= {"fig-screening-residuals_L-R", "fig-blunders-w", "fig-blunders-redundancy"}
+    blunders = next(s for s in results["stages"] if s["id"] == "blunders")
+    p = blunders["summary"]["protocol"]
+    # the numbers printed are results.json's, formatted once
+    for value in (p["sigma0_hat"], p["global_test"]["T"], p["rms"]["all"], p["reliability"]["r_min"],
+                  p["reliability"]["mdb_max"]):
+        assert fmt(value) in text or fmt(value, 3) in text, value
+    # and results.json's are right: σ̂0 of paper 000's Data 1 Helmert fit from the screening stage
+    screening = next(s for s in results["stages"] if s["id"] == "screening")
+    assert p["sigma0_hat"] == pytest.approx(screening["summary"]["pairs"][0]["sigma0_hat"], abs=6e-4)
+    assert p["tests"]["n_rejected"] == len(blunders["summary"]["methods"]["rrr"]["rejected"])
+    # the RMS is the RMS of the residual column of the observations table
+    v = np.loadtxt(out.run_dir / "blunders_observations.csv", delimiter=",", skiprows=1, usecols=_col(
+        out.run_dir / "blunders_observations.csv", "v"))
+    assert p["rms"]["all"] == pytest.approx(np.sqrt(np.mean(v ** 2)), rel=1e-4)
+    _no_machine_paths(out.run_dir)
+
+
+def _col(path: Path, name: str) -> int:
+    return path.read_text(encoding="utf-8").splitlines()[0].split(",").index(name)
+
+
+def test_bundle_report_html(tmp_path):
+    out, text, page, results = _run(tmp_path, "testfield/block.toml")
+    assert not page.external and not page.stack
+    pngs = _pngs(page)
+    expected = {"residuals", "w", "redundancy", "distortion_P31", "network", "checkpoints", "convergence"}
+    assert {f"fig-bundle-{n}" for n in expected} <= set(page.figures)
+    assert len(pngs) >= len(expected)
+    p = next(s for s in results["stages"] if s["id"] == "bundle")["summary"]["protocol"]
+    printed = [p["sigma0_hat"], p["global_test"]["T"], p["rms"]["x"], p["rms"]["y"], p["rms"]["all"],
+               *p["point_precision"]["rms"], *p["point_precision"]["max"], p["check"]["Sx"], p["check"]["Sz"],
+               p["reliability"]["r_min"], p["reliability"]["mdb_max"], p["reliability"]["effect_max"],
+               *p["control"]["rms"]]
+    for value in printed:
+        assert fmt(value) in text or fmt(value, 3) in text, value
+    # independent references for the protocol's numbers: the run's own CSV tables
+    obs = _table(out.run_dir / "bundle_observations.csv")
+    um = 1000.0 * np.concatenate([obs["vx"], obs["vy"]])
+    assert p["rms"]["all"] == pytest.approx(np.sqrt(np.mean(um ** 2)), rel=1e-9)
+    assert p["reliability"]["r_min"] == pytest.approx(min(obs["rx"].min(), obs["ry"].min()), rel=1e-9)
+    assert p["reliability"]["mdb_max"] == pytest.approx(1000 * max(obs["mdb_x"].max(), obs["mdb_y"].max()), rel=1e-9)
+    pts = _table(out.run_dir / "bundle_points.csv")
+    ok = np.isfinite(pts["sX"]) & (pts["sX"] + pts["sY"] + pts["sZ"] > 0)
+    assert p["point_precision"]["rms"][2] == pytest.approx(np.sqrt(np.mean(pts["sZ"][ok] ** 2)), rel=1e-9)
+    assert p["point_precision"]["max"][0] == pytest.approx(pts["sX"][ok].max(), rel=1e-12)
+    # the MDB's effect on the points is of the order of the MDB projected into object space
+    assert 0 < p["reliability"]["effect_max"] < 0.01
+    _no_machine_paths(out.run_dir)
+    md = (out.run_dir / "report.md").read_text(encoding="utf-8")
+    assert "### Protocol summary" in md and fmt(p["rms"]["all"]) in md
+
+
+def _table(path: Path) -> dict:
+    lines = path.read_text(encoding="utf-8").splitlines()
+    head = lines[0].split(",")
+    rows = [ln.split(",") for ln in lines[1:]]
+    out = {}
+    for k, name in enumerate(head):
+        try:
+            out[name] = np.array([float(r[k]) if r[k] != "" else np.nan for r in rows])
+        except ValueError:
+            out[name] = [r[k] for r in rows]
+    return out
