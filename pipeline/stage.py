@@ -10,6 +10,9 @@ A stage is a class with
   it returns new artefacts, never modifies what it was given;
 * ``log(result, rec, ctx)`` (optional) — writes the stage's rerun recording.  Logging lives here,
   never in ``run`` and never in numerical code;
+* ``plots(result, ctx)`` (optional) — ``{name: matplotlib figure | (figure, caption)}`` for
+  ``report.html``; the engine draws them (Agg) into ``<stage id>_<name>.png`` and embeds them
+  (``docs/report.md``).  Plotting lives here, never in ``run`` and never in numerical code;
 * ``validate(options, ctx)`` (optional) — what ``baarda validate`` checks beyond the options:
   a source stage reads and checks its input files here (raising :class:`InputError`) with the
   code and messages of ``run``, without adjusting anything, and returns the block it read.
@@ -195,6 +198,10 @@ class Stage:
 
     def log(self, result: StageResult, rec: Any, ctx: Context) -> None:
         """Write the stage's recording (default: nothing beyond the runner's summary)."""
+
+    def plots(self, result: StageResult, ctx: Context) -> dict:
+        """Figures for ``report.html``: ``{name: figure | (figure, caption)}`` (default: none)."""
+        return {}
 
     def validate(self, options: Any, ctx: Context) -> Any:
         """Check the stage's inputs without running it (``baarda validate``); default: nothing.
