@@ -18,7 +18,9 @@ only on the observation's own photo (its camera, orientation, scale-bar point) a
 * :func:`effect_vectors` — the full effect on **every** parameter for chosen rows (one solve of the
   whole system per row);
 * :func:`parameter_covariance` — the joint covariance of any named parameters (``"photo 3"``,
-  ``"point 17"``, ``"camera cam"``, or one component ``"point 17 Z"``), from the same solves.
+  ``"point 17"``, ``"camera cam"``, or one component ``"point 17 Z"``), from the same solves;
+* :func:`linearised_model` — the bundle linearised at its solution as a dense
+  :class:`~baarda.pipeline.stats.linear.LinearModel` (small and medium blocks), for RRR.
 
 Baarda's scalar ``δ̄0_i = √(∇xᵀ N ∇x)/σ0 = ∇_i √(P − P Qvv P)_ii / σ0`` bounds the effect on any
 function ``f`` of the unknowns: ``|∇f| ≤ δ̄0_i σ_f`` (a-priori ``σ_f``).  Effects "in σ" below use the
@@ -35,7 +37,7 @@ import numpy as np
 from .collinearity import EO_NAMES
 
 __all__ = ["OwnEffects", "own_effects", "effect_vectors", "parameter_covariance", "parameter_names_of",
-           "row_mdb", "bar_delta0"]
+           "row_mdb", "bar_delta0", "linearised_model"]
 
 
 # --------------------------------------------------------------------------------------------------
@@ -508,3 +510,133 @@ def parameter_covariance(res, specs) -> tuple[list[str], np.ndarray]:
             C[:, j] = out["points"][:, i, t]
     C = np.nan_to_num(0.5 * (C + C.T)) * res.variance_factor
     return names, C
+
+
+# --------------------------------------------------------------------------------------------------
+DENSE_LIMIT = 2.0e7          # entries of the dense design matrix of :func:`linearised_model` (160 MB)
+
+
+def linearised_model(res, max_entries: float = DENSE_LIMIT):
+    """The bundle linearised at its solution as a dense
+    :class:`~baarda.pipeline.stats.linear.LinearModel` ``l = A Δx + e`` (for RRR and other
+    methods that need the design): rows ``2 i + c`` are image coordinate ``c`` of block observation
+    ``i`` (the snapshot's rows: ``l`` = the residual at the solution, inactive rows zero with unit
+    weight), followed by the weighted constraints (camera/orientation priors, control coordinates,
+    scale bars; ``l`` = their residuals).  Unknowns: the free global parameters and the free
+    coordinates of the eliminated points; a free network's datum is held by the minimal datum of
+    the sparse route (``n_c`` photo parameters), which changes no residual, redundancy or test.
+    Its least-squares solution is ``Δx = 0`` with the bundle's ``v``, ``vᵀPv``, dof and redundancy
+    numbers.  Returns ``(model, n_image_rows)``; ``ValueError`` above ``max_entries``."""
+    from baarda.pipeline.stats.linear import LinearModel
+
+    from .factor import minimal_datum
+    from .lm import final_system
+
+    prob, st = res.problem, res.state
+    k_all = len(res.residuals)
+    n_img = 2 * k_all
+    n_pri = len(prob.prior_g_idx) + len(prob.prior_p_idx) + len(prob.dist_l)
+    n_rows = n_img + n_pri
+    held = np.zeros(0, int)
+    if prob.n_c:
+        held = minimal_datum(prob, st)
+        if held is None:
+            raise ValueError("the free network's datum cannot be held by photo parameters; no linearised model")
+    free_pt = prob.elim_free.reshape(-1)
+    u_full = prob.n_g + int(free_pt.sum())
+    u = u_full - len(held)
+    if float(n_rows) * u > max_entries:
+        raise ValueError(f"the linearised bundle would be a dense {n_rows} × {u} design matrix, more than "
+                         f"{max_entries:.3g} entries; RRR and other design-based methods are for small and medium "
+                         "blocks (use data-snooping, ids or pope, which work on any size)")
+    lin, _ = final_system(prob, st)
+    # column of every global unknown / eliminated point coordinate (−1: fixed or held)
+    gcol = np.full(prob.n_g + 1, -1)
+    keep_g = np.ones(prob.n_g, bool)
+    keep_g[held] = False
+    gcol[:prob.n_g][keep_g] = np.arange(int(keep_g.sum()))
+    ncg = int(keep_g.sum())
+    pcol = np.full(3 * prob.n_e, -1)
+    pcol[free_pt] = ncg + np.arange(int(free_pt.sum()))
+    pcol = pcol.reshape(-1, 3)
+    A = np.zeros((n_rows, u))
+    l = np.zeros(n_rows)
+    # image rows: unwhiten J̃ = L J (inactive rows of a half-active point: unit L)
+    L = prob.L.copy()
+    ra = prob.row_active[prob.oi]
+    for c in (0, 1):
+        L[~ra[:, c], c, c] = 1.0
+    Linv = np.linalg.inv(L)
+    Jc = np.einsum("kij,kjq->kiq", Linv, lin["Jc"])
+    Jp = np.einsum("kij,kja->kia", Linv, lin["Jp"])
+    rows = 2 * prob.oi[:, None] + np.arange(2)[None, :]                       # (k, 2)
+    cc = gcol[prob.cidx]                                                      # (k, q)
+    for c in (0, 1):
+        r = np.broadcast_to(rows[:, c, None], cc.shape)
+        ok = cc >= 0
+        np.add.at(A, (r[ok], cc[ok]), Jc[:, c, :][ok])
+        ep = prob.pidx < prob.n_e
+        pc = pcol[prob.pidx[ep]]                                              # (k', 3)
+        rp = np.broadcast_to(rows[ep, c, None], pc.shape)
+        okp = pc >= 0
+        np.add.at(A, (rp[okp], pc[okp]), Jp[ep, c, :][okp])
+    l[:n_img] = np.where(res.row_active, np.nan_to_num(res.residuals), 0.0).reshape(-1)
+    # weights
+    Pblk = np.einsum("kji,kjl->kil", L, L)                                    # LᵀL (unit on inactive rows)
+    w_pri = []
+    v, e, dg, dpv, dd, _ = lin["parts"]
+    r0 = n_img
+    for g, w, d in zip(prob.prior_g_idx, prob.prior_g_w, dg):
+        if gcol[g] >= 0:
+            A[r0, gcol[g]] = 1.0
+        l[r0], r0 = d, r0 + 1
+        w_pri.append(w)
+    for p, c, w, d in zip(prob.prior_p_idx, prob.prior_p_coord, prob.prior_p_w, dpv):
+        A[r0, pcol[p, c]] = 1.0
+        l[r0], r0 = d, r0 + 1
+        w_pri.append(w)
+    if len(prob.dist_l):
+        wd = prob.settings.sigma0 / prob.dist_s
+        for j in range(len(prob.dist_l)):
+            for t in range(6):
+                col = gcol[lin["dcols"][j, t]]
+                if col >= 0:
+                    A[r0, col] += lin["Jd"][j, t] / wd[j]
+            l[r0], r0 = dd[j], r0 + 1
+            w_pri.append(wd[j] ** 2)
+    labels = list(np.asarray(res.snapshot.labels)) if res.snapshot is not None else [str(i) for i in range(n_img)]
+    labels += _prior_labels(res)
+    group = np.r_[np.repeat(np.arange(k_all), 2), np.full(n_pri, -1)]
+    if prob.L_diag:
+        P = np.ones(n_rows)
+        Pd = np.ones((k_all, 2))
+        Pd[prob.oi] = np.einsum("kii->ki", Pblk)
+        P[:n_img] = Pd.reshape(-1)
+        P[n_img:] = w_pri
+    else:
+        P = np.eye(n_rows)
+        for kk, o in enumerate(prob.oi):
+            P[2 * o:2 * o + 2, 2 * o:2 * o + 2] = Pblk[kk]
+        P[np.arange(n_img, n_rows), np.arange(n_img, n_rows)] = w_pri
+    return LinearModel(A, l, P, sigma0=prob.settings.sigma0, labels=labels, group=group), n_img
+
+
+def _prior_labels(res) -> list[str]:
+    """Labels of the weighted-constraint rows of :func:`linearised_model`."""
+    prob, blk = res.problem, res.block_in
+    names = {}
+    for j, m in enumerate(prob.models):
+        for t in range(3 + m.n_params):
+            if prob.g_cam[j, t] >= 0:
+                names[int(prob.g_cam[j, t])] = f"camera {blk.cameras.ids[j]} {res.cam_param_names[j][t]}"
+    gi = np.argwhere(prob.g_eo >= 0)
+    for i, t in gi:
+        names[int(prob.g_eo[i, t])] = f"photo {blk.photos.ids[i]} {EO_NAMES[t]}"
+    gi = np.argwhere(prob.g_pt >= 0)
+    for i, t in gi:
+        names[int(prob.g_pt[i, t])] = f"point {blk.points.ids[i]} {'XYZ'[t]}"
+    out = [f"prior {names.get(int(g), g)}" for g in prob.prior_g_idx]
+    out += [f"control point {blk.points.ids[prob.elim_points[p]]} {'XYZ'[c]}"
+            for p, c in zip(prob.prior_p_idx, prob.prior_p_coord)]
+    out += [f"distance {d.a}–{d.b}" for d in prob.distances]
+    return out

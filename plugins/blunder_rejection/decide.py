@@ -113,8 +113,12 @@ def run_rrr(art: AdjustmentArtefact, s: BlunderSettings, rng) -> MethodResult:
         return MethodResult("rrr", [], [], [], {}, None,
                             skipped=f"the adjustment '{art.name}' offers no linear model (A, l, P)")
     snap = art.snapshot
+    try:
+        model, active = art.linear_model()
+    except ValueError as e:
+        return MethodResult("rrr", [], [], [], {}, None, skipped=str(e))
     rho = s.rho or auto_rho(snap.dof)
-    res = rrr(art.model, rho, s.alpha_rrr, s.n_sim, rng=rng, active=snap.active, critical=s.rrr_critical)
+    res = rrr(model, rho, s.alpha_rrr, s.n_sim, rng=rng, active=active, critical=s.rrr_critical)
     dec = [Decision("rrr", row, lab, "H_exp", float(h), res.H, j)
            for j, (row, lab, h, rej) in enumerate(zip(res.suspects, res.suspect_labels, res.H_exp, res.rejected))
            if rej]

@@ -172,3 +172,13 @@ def report_entries(extras, block) -> list[str]:
 
 def tables(extras) -> dict:
     return {"covariance": extras["covariance_of"][0]} if extras.get("covariance_of") is not None else {}
+
+
+def linearisation(res):
+    """The ``linearise`` callable of the bundle's :class:`AdjustmentArtefact` (RRR in
+    ``blunder-rejection``): the dense linearised model, built only when asked for."""
+    from functools import partial
+
+    from baarda.pipeline.adjustment.reliability import linearised_model
+
+    return partial(linearised_model, res)

@@ -193,3 +193,91 @@ def test_bundle_stage_tables_report_and_summary(tmp_path):
     assert "### Covariance of the requested parameters" in res.report
     with pytest.raises(InputError, match="covariance_of"):
         run_stage(BundleAdjustment, {"block": blk}, {"covariance_of": ["point nope"]}, tmp_path=tmp_path)
+
+
+def _weighted_block():
+    """Weighted control, EO priors and a scale bar: every kind of constraint row."""
+    from baarda.pipeline.adjustment import Distance
+
+    blk, _ = make_block(model="none", n_photos=5, n_points=16, noise_mm=0.002, rng=np.random.default_rng(8),
+                        n_control=6)
+    pts = blk.points
+    sigma = np.array(pts.sigma)
+    sigma[:6] = 0.002
+    blk = blk.replace(points=pts.replace(sigma=sigma))
+    ph = blk.photos
+    blk = blk.replace(photos=ph.replace(X0=ph.X0 + 0.003, sigma_eo=np.tile([0.01, 0.01, 0.01, 0.002, 0.002, 0.002],
+                                                                           (len(ph), 1))))
+    a, b = str(pts.ids[8]), str(pts.ids[9])
+    d = float(np.linalg.norm(pts.XYZ[8] - pts.XYZ[9])) + 0.001
+    return blk, BundleSettings(distances=(Distance(a, b, d, 0.002),))
+
+
+@pytest.mark.parametrize("case", ["weighted", "free", "correlated"])
+def test_linearised_model_reproduces_the_bundle(case):
+    from baarda.pipeline import stats
+    from baarda.pipeline.adjustment.reliability import linearised_model
+    from baarda.pipeline.synthetic.closerange import with_correlated_noise
+
+    if case == "weighted":
+        blk, st = _weighted_block()
+    elif case == "free":
+        blk, _ = make_block(model="none", n_photos=6, n_points=24, noise_mm=0.002, rng=np.random.default_rng(5))
+        pts = blk.points
+        blk = blk.replace(points=pts.replace(role=np.array(["tie"] * len(pts)), sigma=np.full((len(pts), 3), FREE)))
+        st = BundleSettings(datum="free")
+    else:
+        blk, _ = make_block(model="none", n_photos=5, n_points=14, noise_mm=0.0, n_control=5)
+        blk = with_correlated_noise(blk, np.random.default_rng(4))
+        st = BundleSettings()
+    res = adjust(blk, st)
+    model, n_img = linearised_model(res)
+    assert n_img == res.snapshot.n and model.n > n_img or case != "weighted"
+    act = np.r_[res.snapshot.active, np.ones(model.n - n_img, bool)]
+    a = model.adjust(act)
+    assert a.snapshot.dof == res.dof
+    assert a.snapshot.vtpv == pytest.approx(res.vtpv, rel=1e-8)
+    assert np.allclose(a.snapshot.r[:n_img], res.snapshot.r, atol=1e-8)
+    assert np.allclose(stats.w_test(a.snapshot)[:n_img], stats.w_test(res.snapshot), atol=1e-5)
+    assert np.abs(a.x).max() < 1e-6 * max(1.0, np.abs(res.state.XYZ[np.isfinite(res.state.XYZ)]).max())
+    with pytest.raises(ValueError, match="dense .* design matrix"):
+        linearised_model(res, max_entries=100)
+
+
+def test_rrr_and_pope_on_the_bundle_through_blunder_rejection(tmp_path):
+    """RRR on the bundle (linearised at the solution, H from the Monte Carlo of this design) finds a
+    planted 15 σ blunder; Pope's τ of the bundle equals τ of the linearised model."""
+    from baarda.pipeline import stats
+    from baarda.pipeline.adjustment.reliability import linearised_model
+    from baarda.pipeline.testing import run_stage
+    from baarda.plugins.blunder_rejection.stage import BlunderRejection
+    from baarda.plugins.bundle.stage import BundleAdjustment
+
+    blk, st = _weighted_block()
+    obs = blk.observations
+    xy = obs.xy.copy()
+    k = 23
+    xy[k, 0] += 0.03                                   # 15 σ
+    blk = blk.replace(observations=obs.replace(xy=xy))
+    a, b = st.distances[0].a, st.distances[0].b
+    bres = run_stage(BundleAdjustment, {"block": blk},
+                     {"distances": [{"from": a, "to": b, "distance": st.distances[0].distance, "sigma": 0.002}]},
+                     tmp_path=tmp_path)
+    art = bres.artefacts["adjustment"]
+    assert art.supports_rrr
+    out = run_stage(BlunderRejection, {"adjustment": art, "block": bres.artefacts["block"]},
+                    {"method": "all", "decide_by": "rrr", "n_sim": 2000, "rho": 3}, tmp_path=tmp_path)
+    rep = out.artefacts["blunders"]
+    r = rep.methods["rrr"]
+    assert r.skipped is None
+    assert 2 * k in r.rejected and 2 * k in rep.methods["pope"].rejected
+    assert list(rep.acted_observations) == [k]
+    assert r.summary["n_sim"] == 2000 and 0.0 < r.summary["H"] < 1.0     # H of this design (Monte Carlo)
+    # Pope's τ (σ̂0 of the adjustment) of the bundle snapshot and of the linearised model
+    res = bres.artefacts["bundle"]
+    model, n_img = linearised_model(res)
+    lin_snap = model.adjust(np.r_[res.snapshot.active, np.ones(model.n - n_img, bool)]).snapshot
+    t_b = stats.pope_test(res.snapshot).tau
+    t_l = stats.pope_test(lin_snap).tau[:n_img]
+    assert np.allclose(t_b, t_l, atol=1e-5)
+    assert np.argmax(np.abs(t_b)) == 2 * k
