@@ -149,3 +149,36 @@ def _table(path: Path) -> dict:
         except ValueError:
             out[name] = [r[k] for r in rows]
     return out
+
+
+def test_opencv_style_values_and_sigmas():
+    """Values equal OpenCV's (brown_from_opencv inverted); σ equal a finite-difference propagation."""
+    from baarda.pipeline.camera.convert import brown_from_opencv, opencv_rms, opencv_style, pixel_source
+    from baarda.pipeline.geometry.image import pixels_from_mm
+
+    p, size = 0.0042, (4000, 3000)
+    c, ap = brown_from_opencv(3100.0, 3102.0, p, k1=-0.12, k2=0.05, p1=1e-3, p2=-2e-3, k3=0.01)
+    ap[5] = 0.0            # fx = fy: brown is exact
+    x = np.array([c, 0.03, -0.02, *ap])
+    rng = np.random.default_rng(3)
+    L = rng.normal(size=(10, 10)) * np.r_[1e-3, 1e-3, 1e-3, 1e-6, 1e-8, 1e-10, 1e-6, 1e-6, 1e-6, 0.0][:, None]
+    cov = L @ L.T
+    got = opencv_style(x[0], x[1], x[2], "brown", x[3:], cov, size, p)
+    assert [g["name"] for g in got] == ["fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"]
+    vals = {g["name"]: g["value"] for g in got}
+    assert vals["fy"] == pytest.approx(3102.0) and vals["fx"] == pytest.approx(3102.0)
+    assert (vals["k1"], vals["k2"], vals["p1"], vals["p2"], vals["k3"]) == pytest.approx((-0.12, 0.05, 1e-3, -2e-3, 0.01))
+    assert (vals["cx"], vals["cy"]) == pytest.approx(tuple(pixels_from_mm([0.03, -0.02], size, p)))
+
+    def f(z):
+        r = opencv_style(z[0], z[1], z[2], "brown", z[3:], np.zeros((10, 10)), size, p)
+        return np.array([g["value"] for g in r])
+
+    steps = np.diag(np.maximum(np.abs(x), 1e-3) * 1e-6)[:9]       # B2 (shear) stays 0: no OpenCV form
+    J = np.column_stack([(f(x + h) - f(x - h)) / (2 * h[k]) for k, h in enumerate(steps)] + [np.zeros(9)])
+    want = np.sqrt(np.diag(J @ cov @ J.T))
+    assert np.array([g["sigma"] for g in got]) == pytest.approx(want, rel=1e-5)
+    assert opencv_style(c, 0, 0, "ebner12", np.zeros(12), np.eye(15), size, p) is None
+    # OpenCV's RMS is per image point: √2 × the RMS per coordinate for equal components
+    assert opencv_rms(np.full((5, 2), 0.3)) == pytest.approx(0.3 * np.sqrt(2))
+    assert pixel_source({"colmap": {}}) == "COLMAP" and pixel_source({"source": "x"}) is None
