@@ -28,6 +28,8 @@ from baarda.pipeline.adjustment import (EO_NAMES, BundleResult, BundleSettings, 
 from baarda.pipeline.camera import ap_model_names, get_ap_model
 from baarda.plugins.bundle import external as bundle_external
 
+from .protocol import bundle_protocol, protocol_lines
+
 
 
 @dataclasses.dataclass(frozen=True)
@@ -103,13 +105,14 @@ class BundleOptions:
         "none", "variance components per observation group (Förstner, iterated; docs/bundle.md): none, estimate "
                 "and report them (the adjustment keeps the a-priori σ), or apply them (the adjustment, its tests "
                 "and data snooping use the re-weighted σ)")
-    vc_groups: Literal["camera", "photo", "all"] = option(
-        "camera", "variance components: image coordinates grouped per camera, per photo, or one group; control, "
+    vc_groups: Literal["camera", "photo", "source", "all"] = option(
+        "camera", "variance components: image coordinates grouped per camera, per photo, per source file, or one "
+                  "group; control, "
                   "EO priors, weighted camera parameters and scale bars are groups of their own")
     vc_photo_groups: dict[str, list[str]] = option(
         {}, "variance components: user-defined image groups, name -> photo ids (override vc_groups for those photos)")
     vc_alpha: float = option(0.05, "variance components: significance level of each group's test of f = 1 (two-sided)")
-    vc_max_iter: int = option(20, "variance components: at most this many re-adjustments")
+    vc_iterations: int = option(20, "variance components: at most this many re-adjustments")
     external_reliability: bool = option(
         True, "effect of every coordinate's MDB on its own point and its own photo's orientation (bundle_observations.csv "
               "ext_*, report, results.json; docs/statistics.md)")
@@ -154,8 +157,8 @@ class BundleOptions:
             raise ValueError("sigma_image_scale must be positive")
         if not 0 < self.vc_alpha < 1:
             raise ValueError("vc_alpha must lie strictly between 0 and 1")
-        if self.vc_max_iter < 1:
-            raise ValueError("vc_max_iter must be at least 1")
+        if self.vc_iterations < 1:
+            raise ValueError("vc_iterations must be at least 1")
 
 
 def configure_block(block: Block, o: BundleOptions) -> Block:
@@ -305,11 +308,17 @@ class BundleAdjustment:
             artefacts["adjustment"] = None
         return StageResult(
             artefacts=artefacts,
-            summary=_summary(res, extras, options),
-            report=_report(res, extras, options, block),
+            summary=(summary := _summary(res, extras, options)),
+            report=_report(res, extras, options, block, summary.get("protocol")),
             tables=_tables(res, extras, decision, block),
             data={"result": res, "decision": decision, "options": options, "extras": extras},
         )
+
+    def plots(self, result: StageResult, ctx: Context) -> dict:
+        """Figures for report.html (drawn by the engine; see plugins/bundle/figures.py)."""
+        from .figures import bundle_figures
+
+        return bundle_figures(result.data["result"], result.data["decision"])
 
     def log(self, result: StageResult, rec, ctx: Context) -> None:
         from .rrlog import log_bundle
@@ -384,6 +393,7 @@ def _summary(res: BundleResult, extras, o) -> dict:
         out["ap_selection"] = extras["selection"].summary()
     out["cameras"] = [r for j in range(len(res.block_in.cameras)) for r in res.camera_table(j)]
     out["sigma0_um_equivalent"] = _sigma0_um(res)
+    out["protocol"] = bundle_protocol(res, extras, alpha0=o.alpha0, beta0=o.beta0)
     if isinstance(out.get("check_points"), dict) and out["check_points"].get("n"):
         out["check_points"]["unit"] = res.block_in.object_unit
     flagged = out.get("data_snooping", {}).get("n_flagged")
@@ -406,7 +416,7 @@ def _sigma0_um(res: BundleResult) -> float:
     return float(res.sigma0_hat * s * 1000.0 / res.sigma0)
 
 
-def _report(res: BundleResult, extras, o, block) -> str:
+def _report(res: BundleResult, extras, o, block, protocol=None) -> str:
     L = []
     L.append(f"Bundle adjustment of {int(res.photo_used.sum())} photos, {int(res.point_used.sum())} points, "
              f"{int(res.obs_active.sum())} image points ({res.n_observation_rows} coordinates); "
@@ -416,7 +426,7 @@ def _report(res: BundleResult, extras, o, block) -> str:
                 f"{res.n_datum_constraints} constraints)" if o.datum == "free" else "") + ".")
     L.append("")
     L.append(f"- iterations: {res.iterations}; vᵀPv = {res.vtpv:.6g}; dof = {res.dof}; "
-             f"σ̂0 = {_f(res.sigma0_hat)} (≈ {_f(_sigma0_um(res), 3)} µm)")
+             f"σ̂0 = {_f(res.sigma0_hat)} (≈ {_sigma0_equivalent(res, protocol)})")
     gt = extras.get("global_test")
     if gt is not None:
         L.append(f"- global test: T = σ̂0²/σ0² = {_f(gt.T)} vs F-critical {_f(gt.critical)} "
@@ -458,6 +468,8 @@ def _report(res: BundleResult, extras, o, block) -> str:
              f"{res.solver_route} reduced system)")
     for w in res.warnings:
         L.append(f"- warning: {w}")
+    if protocol:
+        L += protocol_lines(protocol)
     L.append("")
     L.append("### Camera parameters")
     L.append("")
@@ -491,7 +503,7 @@ def _variance_components(block, settings, res, o, ctx):
     ctx.progress.message("variance components")
     try:
         return estimate_components(block, settings, image_groups=o.vc_groups, photo_groups=o.vc_photo_groups,
-                                   first=res, max_iter=o.vc_max_iter, alpha=o.vc_alpha, covariance=True)
+                                   first=res, max_iter=o.vc_iterations, alpha=o.vc_alpha, covariance=True)
     except KeyError as e:
         raise InputError(f"vc_photo_groups: unknown photo {e}", field="vc_photo_groups") from None
 
@@ -505,6 +517,8 @@ def _vc_lines(vc, o) -> list[str]:
          + ("The adjustment above and its tests use the a-priori σ × f." if o.variance_components == "apply"
             else "Estimated only: the adjustment above keeps the a-priori σ "
                  f"(σ̂0 = {_f(first.sigma0_hat)}) — variance_components = \"apply\" re-weights it."), "",
+         f"First adjustment, on the a-priori σ: {first.iterations} iterations, σ̂0 = {_f(first.sigma0_hat)}, "
+         f"dof {first.dof}.", "",
          "| group | rows | r | f | σ(f) | T | p | H0: f = 1 |", "|---|---|---|---|---|---|---|---|"]
     for g in vc.groups:
         if g.estimable:
@@ -513,6 +527,14 @@ def _vc_lines(vc, o) -> list[str]:
         else:
             L.append(f"| {g.name} | {g.n} | {g.redundancy:.3g} | 1 (not estimable: r < 1) | – | – | – | – |")
     return L
+
+
+def _sigma0_equivalent(res: BundleResult, protocol) -> str:
+    """σ̂0 × the median a-priori image σ in the unit of the source (µm, or px for a pixel source)."""
+    um = _sigma0_um(res)
+    if protocol and protocol.get("unit") == "px":
+        return f"{_f(um / 1000.0 / float(res.block_in.cameras.pixel_mm[0]), 3)} px"
+    return f"{_f(um, 3)} µm"
 
 
 def _sigma0_equivalent(res: BundleResult, protocol) -> str:
