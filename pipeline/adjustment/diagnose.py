@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from baarda.pipeline.errors import AdjustmentError
-from baarda.pipeline.geometry import opk_from_rotation_many, rotation_from_opk_many
+from baarda.pipeline.geometry import opk_from_rotation_many, rotation_from_opk_many, similarity_motions
 
 from .collinearity import EO_NAMES
 
@@ -53,14 +53,10 @@ def _centre_and_radius(prob, st) -> tuple[np.ndarray, float]:
 
 
 def _pos_motion(X, ctr, scale):
-    """(len, 3, 7) change of positions X under the 7 motions (rotations ΔX = ε × (X − ctr))."""
-    Xc = X - ctr
-    out = np.zeros((len(X), 3, 7))
-    out[:, [0, 1, 2], [0, 1, 2]] = 1.0
-    out[:, 1, 3], out[:, 2, 3] = -Xc[:, 2], Xc[:, 1]
-    out[:, 0, 4], out[:, 2, 4] = Xc[:, 2], -Xc[:, 0]
-    out[:, 0, 5], out[:, 1, 5] = -Xc[:, 1], Xc[:, 0]
-    out[:, :, 6] = Xc / scale
+    """(len, 3, 7) change of positions X under the 7 motions (rotations ΔX = ε × (X − ctr), scale
+    (X − ctr) / scale)."""
+    out = similarity_motions(X - ctr)
+    out[:, :, 6] /= scale
     return out
 
 

@@ -12,7 +12,8 @@ import time
 import numpy as np
 
 from baarda.pipeline.errors import AdjustmentError
-from baarda.pipeline.geometry import opk_from_rotation_many, rotation_and_derivatives, rotation_from_rotvec
+from baarda.pipeline.geometry import (opk_from_rotation_many, rotation_and_derivatives, rotation_from_rotvec,
+                                      similarity_motions)
 from baarda.pipeline.model import Block
 
 from .factor import solve_reduced
@@ -181,7 +182,7 @@ class SimilarityGauge:
         pos = np.concatenate([X0, XYZ])
         c = pos.mean(axis=0)
         scale = float(np.sqrt(np.mean(np.sum((pos - c) ** 2, axis=1)))) or 1.0
-        A = _motions((pos - c) / scale, self.n_motions)                    # (N, 3, k)
+        A = similarity_motions((pos - c) / scale, self.n_motions)                    # (N, 3, k)
         k = self.n_motions
         theta = np.linalg.lstsq(A.reshape(-1, k), np.concatenate([d_X0, d_XYZ]).ravel(), rcond=1e-12)[0]
         motion = A @ theta                                                 # (N, 3)
@@ -233,19 +234,6 @@ def _trial(prob: BundleProblem, new: BundleState):
 def _gain_ratio(cost: float, new_cost: float, gain: float) -> float:
     """Actual over predicted decrease of vᵀPv (±1 when the linear model predicts none)."""
     return (cost - new_cost) / gain if gain > 0 else (1.0 if new_cost <= cost else -1.0)
-
-
-def _motions(Xr: np.ndarray, k: int) -> np.ndarray:
-    """Linearised similarity motions of positions ``Xr`` (centred, scaled): (N, 3, k) —
-    translations, rotations ``ε × Xr``, scale ``Xr``."""
-    out = np.zeros((len(Xr), 3, k))
-    out[:, [0, 1, 2], [0, 1, 2]] = 1.0
-    out[:, 1, 3], out[:, 2, 3] = -Xr[:, 2], Xr[:, 1]
-    out[:, 0, 4], out[:, 2, 4] = Xr[:, 2], -Xr[:, 0]
-    out[:, 0, 5], out[:, 1, 5] = -Xr[:, 1], Xr[:, 0]
-    if k == 7:
-        out[:, :, 6] = Xr
-    return out
 
 
 def _wrap(a):

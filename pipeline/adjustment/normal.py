@@ -14,6 +14,7 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 
 from baarda.pipeline.errors import AdjustmentError
+from baarda.pipeline.geometry import similarity_motions
 
 from .collinearity import bmm, bmv
 from .settings import BundleState
@@ -252,16 +253,7 @@ class NormalEquations:
         scale = np.sqrt(np.mean(np.sum((allpos - ctr) ** 2, axis=1))) or 1.0
 
         def G(X):
-            Xr = (X - ctr) / scale
-            out = np.zeros((len(X), 3, n_c))
-            out[:, [0, 1, 2], [0, 1, 2]] = 1.0
-            # rotation: ΔX = ε × X → columns of −[X]×
-            out[:, 1, 3], out[:, 2, 3] = -Xr[:, 2], Xr[:, 1]
-            out[:, 0, 4], out[:, 2, 4] = Xr[:, 2], -Xr[:, 0]
-            out[:, 0, 5], out[:, 1, 5] = -Xr[:, 1], Xr[:, 0]
-            if n_c == 7:
-                out[:, :, 6] = Xr
-            return out
+            return similarity_motions((X - ctr) / scale, n_c)
 
         if len(self.datum_photos):
             Gx = G(st.X0[self.datum_photos])

@@ -12,8 +12,9 @@ from .image import PIXEL_CONVENTIONS, mm_from_pixels, pixels_from_mm
 from .pose import D_FLIP, cv_from_pose, pose_from_cv
 from .rotations import (nearest_rotation, opk_from_rotation, opk_from_rotation_many, rotation_and_derivatives,
                         rotation_angle, rotation_from_opk, rotation_from_opk_many, rotation_from_rotvec)
+from .transforms import similarity_motions
 
 __all__ = ["rotation_from_opk", "rotation_from_opk_many", "opk_from_rotation", "opk_from_rotation_many",
            "rotation_and_derivatives", "rotation_from_rotvec", "nearest_rotation", "rotation_angle",
            "pose_from_cv", "cv_from_pose", "D_FLIP", "mm_from_pixels", "pixels_from_mm",
-           "PIXEL_CONVENTIONS"]
+           "PIXEL_CONVENTIONS", "similarity_motions"]

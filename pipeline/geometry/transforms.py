@@ -22,7 +22,22 @@ from baarda.pipeline.errors import AdjustmentError
 from .rotations import opk_from_rotation, rotation_and_derivatives
 
 __all__ = ["helmert_design", "affine_design", "PARAMETER_NAMES", "rotation_and_derivatives_one",
-           "similarity_closed_form", "apply_similarity", "similarity_jacobian"]
+           "similarity_closed_form", "apply_similarity", "similarity_jacobian", "similarity_motions"]
+
+
+def similarity_motions(D: np.ndarray, k: int = 7) -> np.ndarray:
+    """Change of positions ``D`` (N, 3; relative to the motions' centre, in any scaling) under the
+    first ``k`` infinitesimal similarity motions: (N, 3, k) — translations X, Y, Z, rotations
+    ``ε × D`` about X, Y, Z, scale ``D``.  The datum's inner constraints, its diagnosis and the
+    free network's exact-similarity step all use these columns."""
+    D = np.asarray(D, float).reshape(-1, 3)
+    out = np.zeros((len(D), 3, 7))
+    out[:, [0, 1, 2], [0, 1, 2]] = 1.0
+    out[:, 1, 3], out[:, 2, 3] = -D[:, 2], D[:, 1]
+    out[:, 0, 4], out[:, 2, 4] = D[:, 2], -D[:, 0]
+    out[:, 0, 5], out[:, 1, 5] = -D[:, 1], D[:, 0]
+    out[:, :, 6] = D
+    return out[:, :, :k]
 
 
 def helmert_design(xy_left: np.ndarray) -> np.ndarray:
