@@ -19,7 +19,7 @@ from baarda.pipeline.stats.pope import (PopeIteratedResult, PopeResult, PopeStep
                                  pope_test)
 from baarda.pipeline.stats.robust import (DEFAULT_C, ROBUST_METHODS, RobustResult, irls,
                                           robust_rho, robust_weights, scale_covariance,
-                                          weighted_linear_refit)
+                                          weighted_linear_refit, weighted_refit)
 from baarda.pipeline.stats.rrr import RRRResult, recursive_residuals, rrr
 from baarda.pipeline.stats.snapshot import Refittable, Snapshot
 from baarda.pipeline.stats.tau_distribution import critical_max as tau_critical_max
@@ -37,5 +37,5 @@ __all__ = [
     "RRRResult", "rrr", "recursive_residuals",
     "JointTestResult", "joint_test_2d",
     "ROBUST_METHODS", "DEFAULT_C", "RobustResult", "irls", "robust_weights", "robust_rho",
-    "weighted_linear_refit", "scale_covariance",
+    "weighted_linear_refit", "scale_covariance", "weighted_refit",
 ]

@@ -23,6 +23,12 @@ redescending: a residual of 2c keeps a weight of 0.05, one of 3c 3·10⁻⁴.
   ``r_i < r_min`` cannot be judged and keep weight 1.
 - ``standardise = "apriori"``: ``s_i = σ_l,i`` — the textbook M-estimator ``min Σ ρ(v_i/σ_i)``
   (for Huber identical to ``scipy.optimize.least_squares(loss="huber")`` on ``v/σ``).
+- ``standardise = "current"``: ``s_i = σ_l,i √r_i(ω)`` with the redundancy numbers of the latest
+  *weighted* adjustment (``refit`` must return them, ``.r``).  A down-weighted row's redundancy
+  tends to 1 and its residual to the whole error, so ``u`` tends to ``∇/σ``; with the fixed
+  ``σ √r⁰`` it tends to ``∇/(σ √r⁰)``, which inflates poorly-controlled rows (more false alarms,
+  docs/statistics.md).  The scale then changes with the weights: a fixed point, not the minimum
+  of a fixed objective.
 
 The fixed point minimises ``Σ (s_i/σ_i)² ρ(u_i)`` (diagonal weights): the adjustment's weights
 ``p_i ω(u_i)`` are its stationarity condition.  σ0 is the a-priori value (no scale estimate from
@@ -46,7 +52,7 @@ from typing import Any, Callable, Literal
 import numpy as np
 
 __all__ = ["ROBUST_METHODS", "DEFAULT_C", "robust_weights", "robust_rho", "irls", "RobustResult",
-           "weighted_linear_refit", "scale_covariance"]
+           "weighted_linear_refit", "scale_covariance", "weighted_refit"]
 
 ROBUST_METHODS = ("huber", "danish", "l1")
 #: default tuning constants (standardised residuals): Huber's 1.5 (≈ 95 % efficiency at the normal,
@@ -142,7 +148,7 @@ class RobustResult:
 
 
 def irls(refit: Callable[[np.ndarray], Any], snap, method: str = "huber", c: float | None = None, *,
-         standardise: Literal["redundancy", "apriori"] = "redundancy", max_iter: int = 50,
+         standardise: Literal["redundancy", "apriori", "current"] = "redundancy", max_iter: int = 50,
          tol: float = 1e-4, w_min: float = 1e-8, r_min: float = 1e-6,
          threshold: float = 0.5) -> RobustResult:
     """Iteratively reweighted least squares from the unweighted adjustment ``snap`` (a Snapshot).
@@ -154,7 +160,8 @@ def irls(refit: Callable[[np.ndarray], Any], snap, method: str = "huber", c: flo
     snap : :class:`Snapshot` of the adjustment with unit robust weights; supplies the scale
         (``sigma_l``, ``r``), the active rows and the labels.
     method, c : weight function and tuning constant (``None``/0: :data:`DEFAULT_C`).
-    standardise : ``"redundancy"`` (``s = σ_l √r``) or ``"apriori"`` (``s = σ_l``).
+    standardise : ``"redundancy"`` (``s = σ_l √r``, r of ``snap``), ``"apriori"`` (``s = σ_l``) or
+        ``"current"`` (``s = σ_l √r`` with r of the latest weighted adjustment, ``refit(w).r``).
     max_iter : at most this many weighted adjustments.
     tol : converged when no weight changes by more than ``tol``.
     w_min : smallest weight handed to ``refit`` (Danish weights underflow; 0 would make the
@@ -163,15 +170,15 @@ def irls(refit: Callable[[np.ndarray], Any], snap, method: str = "huber", c: flo
     threshold : ω below this counts as down-weighted in the report.
     """
     c = _check(method, c)
-    if standardise not in ("redundancy", "apriori"):
-        raise ValueError(f"standardise must be 'redundancy' or 'apriori', got {standardise!r}")
+    if standardise not in ("redundancy", "apriori", "current"):
+        raise ValueError(f"standardise must be 'redundancy', 'apriori' or 'current', got {standardise!r}")
     if max_iter < 1 or not tol > 0 or not 0 < w_min < 1 or not 0 < threshold <= 1:
         raise ValueError("irls: need max_iter >= 1, tol > 0, 0 < w_min < 1, 0 < threshold <= 1")
     n = snap.n
     active = np.asarray(snap.active, bool)
     sig = np.asarray(snap.sigma_l, float)
     judged = active & (sig > 0) & np.isfinite(sig)
-    if standardise == "redundancy":
+    if standardise in ("redundancy", "current"):
         r = np.asarray(snap.r, float)
         judged &= r >= r_min
         s = sig * np.sqrt(np.where(judged, r, 1.0))
@@ -197,6 +204,10 @@ def irls(refit: Callable[[np.ndarray], Any], snap, method: str = "huber", c: flo
     while not converged and it < max_iter:
         it += 1
         fit = refit(np.maximum(w, w_min))
+        if standardise == "current":
+            rw = np.asarray(fit.r, float).reshape(-1)
+            scale = np.where(judged, sig * np.sqrt(np.clip(np.where(judged, rw, 1.0), r_min, None)), np.nan)
+            ratio2 = np.where(judged, (np.nan_to_num(scale) / np.where(sig > 0, sig, 1.0)) ** 2, 0.0)
         u = standardised(fit.v)
         w_new = weights_of(u)
         dw = float(np.max(np.abs(w_new - w))) if n else 0.0
@@ -243,3 +254,49 @@ def scale_covariance(cov, weights) -> np.ndarray:
         raise ValueError(f"weights: need {2 * cov.shape[0]} positive values")
     s = 1.0 / np.sqrt(w)
     return cov * s[:, :, None] * s[:, None, :]
+
+
+def weighted_refit(model, active=None, *, redundancy: bool = False):
+    """``(refit(weights), how)`` for the adjustments baarda knows, or ``(None, why)``.
+
+    - a model with ``refit_weighted(weights)`` (a third party's adjustment): that method;
+    - a :class:`LinearModel` (helmert-screening, a linear user model): :func:`weighted_linear_refit`;
+    - a bundle result (``block_in``, ``settings``, ``state``, as ``adjust`` returns): adjusted again
+      from its solution with each image point's covariance scaled by :func:`scale_covariance`
+      (covariances not computed; ``refit(w).result`` is the new bundle result);
+    - a model with ``linear_model()`` (the independent-model block): its linearisation at the
+      solution, a :class:`LinearModel` with the snapshot's rows.
+    ``active`` (n,) are the rows in use (default: all).  ``redundancy=True``: the bundle's refits
+    compute the redundancy numbers too (``.r``, for ``standardise = "current"``; slower).
+    """
+    if hasattr(model, "refit_weighted"):
+        return model.refit_weighted, "the adjustment's own weighted refit"
+    if all(hasattr(model, k) for k in ("A", "l", "P", "adjust")):
+        return weighted_linear_refit(model, active), "linear model, adjusted again"
+    if all(hasattr(model, k) for k in ("block_in", "settings", "state", "row_active")):
+        return _bundle_refit(model, redundancy), "bundle, adjusted again from its solution"
+    if hasattr(model, "linear_model"):
+        return weighted_linear_refit(model.linear_model(), active), "linearised at the solution"
+    return None, f"a {type(model).__name__} offers no weighted refit (refit_weighted, A/l/P or linear_model)"
+
+
+def _bundle_refit(result, redundancy: bool = False):
+    """``refit(weights)`` of a bundle result: image-point covariances scaled, adjusted again from the
+    solution (no covariances); returns an object with ``v`` (2k,) and ``result``."""
+    from types import SimpleNamespace
+
+    from baarda.pipeline.adjustment import adjust
+
+    block = result.block_in
+    obs = block.observations
+    row_active = np.asarray(result.row_active, bool)
+
+    def refit(weights):
+        cov = scale_covariance(obs.cov, weights)
+        b = block.replace(observations=obs.replace(cov=cov))
+        res = adjust(b, result.settings, row_active=row_active, start=result.state, compute_initial=False,
+                     covariance=redundancy)
+        v = np.where(row_active, np.nan_to_num(res.residuals), 0.0).reshape(-1)
+        return SimpleNamespace(v=v, r=res.redundancy.reshape(-1), result=res, block=b)
+
+    return refit
