@@ -7,7 +7,8 @@ solution), :mod:`.lm` (the Levenberg–Marquardt iteration), :mod:`.precision` (
 redundancy numbers), :mod:`.diagnose` (a singular system named), :mod:`.initial` (resection,
 intersection, initial values), :mod:`.apselect` (additional-parameter selection), :mod:`.adjust`
 (the entry point and its result), :mod:`.reproject` (a block's reprojection errors),
-:mod:`.variance` (variance components per observation group).
+:mod:`.variance` (variance components per observation group), :mod:`.reliability` (external
+reliability, covariances of chosen parameters, the linearised model for RRR).
 
 Everything other code needs is imported from this package::
 
@@ -26,6 +27,8 @@ from .diagnose import parameter_names
 from .initial import ResectionResult, initial_values, intersection, resection
 from .lm import solve_bundle
 from .problem import BundleProblem
+from .reliability import (OwnEffects, effect_vectors, linearised_model, own_effects, parameter_covariance,
+                          row_mdb)
 from .reproject import project_block, reprojection_px, reprojection_summary
 from .settings import BundleSettings, BundleState, Distance, camera_meta
 from .variance import (LinearComponents, VarianceComponents, VarianceGroup, estimate_components, group_parts,
@@ -38,4 +41,5 @@ __all__ = [
     "project_block", "reprojection_px", "reprojection_summary",
     "estimate_components", "VarianceComponents", "VarianceGroup", "linear_components", "LinearComponents",
     "group_parts", "image_group_labels",
+    "own_effects", "OwnEffects", "effect_vectors", "parameter_covariance", "linearised_model", "row_mdb",
 ]

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from baarda.pipeline import montecarlo
 from baarda.pipeline.stats import (data_snooping, estimated_errors, iterated_data_snooping, mdb,
                             pope_iterated, pope_test, rrr, w_test)
 from baarda.pipeline.stats.critical import delta0 as _delta0
@@ -118,7 +119,8 @@ def run_rrr(art: AdjustmentArtefact, s: BlunderSettings, rng) -> MethodResult:
     except ValueError as e:
         return MethodResult("rrr", [], [], [], {}, None, skipped=str(e))
     rho = s.rho or auto_rho(snap.dof)
-    res = rrr(model, rho, s.alpha_rrr, s.n_sim, rng=rng, active=active, critical=s.rrr_critical)
+    res = rrr(model, rho, s.alpha_rrr, s.n_sim, rng=rng, active=active, critical=s.rrr_critical,
+              mapper=montecarlo.mapper())                 # realisations as tasks on the run's Dask engine
     dec = [Decision("rrr", row, lab, "H_exp", float(h), res.H, j)
            for j, (row, lab, h, rej) in enumerate(zip(res.suspects, res.suspect_labels, res.H_exp, res.rejected))
            if rej]
