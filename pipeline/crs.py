@@ -1,0 +1,248 @@
+"""Coordinate reference systems: the user's CRS ↔ the local Cartesian frame the adjustment runs in.
+
+A bundle adjustment needs a Cartesian object system.  Projected coordinates (UTM, …) are not one:
+the grid scale factor (0.9996 … 1.0004 in UTM) changes every distance, and the map plane ignores
+the earth's curvature (a point 1 km away lies 8 cm below the tangent plane).  Geographic
+coordinates (lon, lat in degrees) are not even lengths.  So object coordinates given in such a
+CRS are converted to a **local topocentric frame** (east, north, up; metres; origin on the
+ellipsoid near the data), adjusted there, and converted back for reports and exports:
+
+    user CRS ──pyproj──► lon, lat, h (the CRS's own datum) ──numpy──► ECEF ──numpy──► E, N, U
+
+Heights: a 2-D CRS (e.g. ``EPSG:32722``) carries the third coordinate through as the
+**ellipsoidal height** h of its datum (GNSS heights; ``docs/crs.md``).  A 3-D CRS (``EPSG:4979``,
+a geocentric CRS) is transformed by pyproj with its heights.  A compound CRS with a geoid needs
+PROJ's geoid grid; when PROJ cannot transform, an :class:`InputError` says so.
+
+pyproj is used only here (an engine module); the frame numerics (:func:`ecef_from_geodetic`,
+:func:`geodetic_from_ecef`, :func:`R_enu_from_ecef`) are plain numpy.  Axes and units:
+``docs/conventions.md`` (*Object system*), ``docs/crs.md``.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+from baarda.pipeline.errors import InputError
+
+__all__ = ["ecef_from_geodetic", "geodetic_from_ecef", "R_enu_from_ecef", "parse_crs", "LocalFrame",
+           "local_frame", "frame_of_block"]
+
+WGS84_A = 6378137.0
+WGS84_F = 1.0 / 298.257223563
+
+
+# --------------------------------------------------------------------------------------------
+# pure numerics (numpy only)
+
+
+def ecef_from_geodetic(lon_deg, lat_deg, h, a: float = WGS84_A, f: float = WGS84_F) -> np.ndarray:
+    """Earth-centred, earth-fixed X, Y, Z (n, 3) of geodetic lon, lat (degrees) and ellipsoidal h."""
+    lon, lat = np.radians(np.asarray(lon_deg, float)), np.radians(np.asarray(lat_deg, float))
+    h = np.asarray(h, float)
+    e2 = f * (2.0 - f)
+    N = a / np.sqrt(1.0 - e2 * np.sin(lat) ** 2)
+    return np.stack([(N + h) * np.cos(lat) * np.cos(lon), (N + h) * np.cos(lat) * np.sin(lon),
+                     (N * (1.0 - e2) + h) * np.sin(lat)], axis=-1)
+
+
+def geodetic_from_ecef(xyz, a: float = WGS84_A, f: float = WGS84_F) -> np.ndarray:
+    """lon, lat (degrees), h (n, 3) of ECEF coordinates (Bowring's start, then fixed-point
+    iteration on the latitude to 1e-14 rad; valid everywhere except within metres of the centre)."""
+    xyz = np.asarray(xyz, float)
+    X, Y, Z = xyz[..., 0], xyz[..., 1], xyz[..., 2]
+    e2 = f * (2.0 - f)
+    b = a * (1.0 - f)
+    ep2 = (a * a - b * b) / (b * b)
+    p = np.hypot(X, Y)
+    th = np.arctan2(Z * a, p * b)
+    lat = np.arctan2(Z + ep2 * b * np.sin(th) ** 3, p - e2 * a * np.cos(th) ** 3)
+    for _ in range(5):
+        N = a / np.sqrt(1.0 - e2 * np.sin(lat) ** 2)
+        h = np.where(np.abs(np.cos(lat)) > 1e-12, p / np.cos(lat) - N, np.abs(Z) - b)
+        lat_new = np.arctan2(Z, p * (1.0 - e2 * N / (N + h)))
+        if np.all(np.abs(lat_new - lat) < 1e-14):
+            lat = lat_new
+            break
+        lat = lat_new
+    N = a / np.sqrt(1.0 - e2 * np.sin(lat) ** 2)
+    h = np.where(np.abs(np.cos(lat)) > 1e-12, p / np.cos(lat) - N, np.abs(Z) - b)
+    return np.stack([np.degrees(np.arctan2(Y, X)), np.degrees(lat), h], axis=-1)
+
+
+def R_enu_from_ecef(lon_deg: float, lat_deg: float) -> np.ndarray:
+    """(3, 3) rotation of ECEF directions into east, north, up at (lon, lat)."""
+    lo, la = np.radians(lon_deg), np.radians(lat_deg)
+    sl, cl, sp, cp = np.sin(lo), np.cos(lo), np.sin(la), np.cos(la)
+    return np.array([[-sl, cl, 0.0],
+                     [-sp * cl, -sp * sl, cp],
+                     [cp * cl, cp * sl, sp]])
+
+
+# --------------------------------------------------------------------------------------------
+# CRS parsing (pyproj)
+
+_ODM_UTM = re.compile(r"^\s*WGS\s*-?\s*84\s+UTM\s+(\d{1,2})\s*([NS])\s*$", re.IGNORECASE)
+
+
+def parse_crs(text: str, *, path=None, line: int | None = None, field: str | None = "crs"):
+    """A :class:`pyproj.CRS` from what users write: ``EPSG:32722``, a PROJ string
+    (``+proj=utm +zone=22 +south +datum=WGS84``), WKT, or ODM's ``WGS84 UTM 22S``.
+    ``InputError`` naming ``path``, ``line`` and ``field`` when PROJ does not know it."""
+    import pyproj
+
+    s = str(text).strip()
+    m = _ODM_UTM.match(s)
+    if m:
+        zone, hemi = int(m.group(1)), m.group(2).upper()
+        if not 1 <= zone <= 60:
+            raise InputError(f"UTM zone must be 1 … 60, got {zone}", path=path, line=line, field=field)
+        s = f"EPSG:{32600 + zone if hemi == 'N' else 32700 + zone}"
+    if not s:
+        raise InputError("empty CRS (expected e.g. EPSG:32722 or a PROJ string)", path=path, line=line, field=field)
+    try:
+        crs = pyproj.CRS.from_user_input(s)
+    except pyproj.exceptions.CRSError as e:
+        short = str(e).splitlines()[0][:160]
+        raise InputError(f"unknown coordinate reference system {s[:60]!r} ({short})", path=path, line=line,
+                         field=field) from None
+    return crs
+
+
+# --------------------------------------------------------------------------------------------
+# the local frame
+
+
+@dataclass(frozen=True)
+class LocalFrame:
+    """East-north-up frame (metres) with its origin at geodetic ``origin = (lon°, lat°, h)`` of
+    the user's CRS's datum; ``crs`` the user's CRS as text (``None``: the coordinates already are
+    a local Cartesian system and the frame is the identity)."""
+
+    crs: str | None
+    origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    a: float = WGS84_A
+    f: float = WGS84_F
+
+    @property
+    def is_identity(self) -> bool:
+        return self.crs is None
+
+    def _transformers(self):
+        import pyproj
+
+        crs = pyproj.CRS.from_user_input(self.crs)
+        if crs.is_geocentric:
+            return crs, None
+        geo = crs.geodetic_crs
+        if geo is None:
+            raise InputError(f"the CRS {self.crs[:60]!r} has no geodetic datum: give coordinates in a projected, "
+                             "geographic or geocentric CRS, or none for a local system", field="crs")
+        geo3 = geo.to_3d() if len(crs.axis_info) == 2 or crs.is_projected else geo
+        fwd = pyproj.Transformer.from_crs(crs, geo3, always_xy=True)
+        return crs, fwd
+
+    def geodetic(self, xyz) -> np.ndarray:
+        """lon°, lat°, h (n, 3) of coordinates in the user's CRS (h: ellipsoidal)."""
+        xyz = np.atleast_2d(np.asarray(xyz, float))
+        crs, fwd = self._transformers()
+        if fwd is None:
+            return geodetic_from_ecef(xyz, self.a, self.f)
+        lon, lat, h = fwd.transform(xyz[:, 0], xyz[:, 1], xyz[:, 2])
+        out = np.column_stack([lon, lat, h])
+        if not np.isfinite(out).all():
+            raise InputError(f"PROJ cannot transform coordinates of {self.crs[:60]!r} to geographic ones "
+                             "(outside the CRS's area, or a geoid grid PROJ does not have)", field="crs")
+        return out
+
+    def to_local(self, xyz) -> np.ndarray:
+        """E, N, U (n, 3) in metres of coordinates ``xyz (n, 3)`` in the user's CRS."""
+        xyz = np.atleast_2d(np.asarray(xyz, float))
+        if self.is_identity:
+            return xyz.copy()
+        g = self.geodetic(xyz)
+        ecef = ecef_from_geodetic(g[:, 0], g[:, 1], g[:, 2], self.a, self.f)
+        o = ecef_from_geodetic(*self.origin, self.a, self.f)
+        return (ecef - o) @ R_enu_from_ecef(self.origin[0], self.origin[1]).T
+
+    def from_local(self, enu) -> np.ndarray:
+        """Coordinates in the user's CRS of local E, N, U ``(n, 3)``."""
+        enu = np.atleast_2d(np.asarray(enu, float))
+        if self.is_identity:
+            return enu.copy()
+        o = ecef_from_geodetic(*self.origin, self.a, self.f)
+        ecef = enu @ R_enu_from_ecef(self.origin[0], self.origin[1]) + o
+        crs, fwd = self._transformers()
+        if fwd is None:
+            return ecef
+        g = geodetic_from_ecef(ecef, self.a, self.f)
+        x, y, z = fwd.transform(g[:, 0], g[:, 1], g[:, 2], direction="INVERSE")
+        return np.column_stack([x, y, z])
+
+    def jacobian(self, enu, step: float = 0.01) -> np.ndarray:
+        """(n, 3, 3) ∂(user CRS coordinates)/∂(E, N, U) at ``enu`` by central differences (``step`` m).
+        Covariances go to the user's CRS as ``J C Jᵀ``; for UTM J is the grid scale factor times the
+        rotation by the meridian convergence (and 1 for the height)."""
+        enu = np.atleast_2d(np.asarray(enu, float))
+        J = np.zeros((len(enu), 3, 3))
+        for k in range(3):
+            d = np.zeros(3)
+            d[k] = step
+            J[:, :, k] = (self.from_local(enu + d) - self.from_local(enu - d)) / (2 * step)
+        return J
+
+    def to_meta(self) -> dict:
+        return {"crs": self.crs, "origin": list(self.origin), "a": self.a, "f": self.f, "frame": "enu"}
+
+    @classmethod
+    def from_meta(cls, meta: dict | None) -> "LocalFrame":
+        if not meta or meta.get("crs") is None:
+            return cls(None)
+        return cls(meta["crs"], tuple(float(v) for v in meta["origin"]), float(meta.get("a", WGS84_A)),
+                   float(meta.get("f", WGS84_F)))
+
+    def axis_names(self) -> tuple[str, str, str]:
+        """Column names of coordinates in the user's CRS (``E N h``, ``lon lat h``, ``X Y Z``)."""
+        if self.is_identity:
+            return ("X", "Y", "Z")
+        import pyproj
+
+        crs = pyproj.CRS.from_user_input(self.crs)
+        if crs.is_geographic:
+            return ("lon", "lat", "h")
+        if crs.is_projected:
+            return ("E", "N", "h")
+        return ("X", "Y", "Z")
+
+
+def local_frame(crs_text: str | None, xyz, *, path=None, line=None, field="crs") -> LocalFrame:
+    """The frame for coordinates ``xyz (n, 3)`` given in ``crs_text`` (``None`` or ``"local"``: the
+    identity): origin on the ellipsoid (h = 0 is *not* used: the mean height of the points, so
+    the local U is close to the height above the ground of the block) at the points' centroid."""
+    if crs_text is None or str(crs_text).strip().lower() in ("", "local", "none"):
+        return LocalFrame(None)
+    crs = parse_crs(crs_text, path=path, line=line, field=field)
+    ell = crs.ellipsoid
+    a = float(ell.semi_major_metre) if ell is not None else WGS84_A
+    inv_f = float(ell.inverse_flattening) if ell is not None else 1.0 / WGS84_F
+    f = 1.0 / inv_f if inv_f else 0.0
+    text = crs.to_wkt()
+    tmp = LocalFrame(text, (0.0, 0.0, 0.0), a, f)
+    xyz = np.atleast_2d(np.asarray(xyz, float))
+    ok = np.isfinite(xyz).all(axis=1)
+    if not ok.any():
+        raise InputError("no finite coordinates to place the local frame", path=path, field=field)
+    g = tmp.geodetic(xyz[ok])
+    if tmp._transformers()[0].is_geographic and (np.abs(g[:, 1]) > 90).any():
+        raise InputError("latitude outside ±90° (are longitude and latitude swapped?)", path=path, field=field)
+    origin = ecef_from_geodetic(g[:, 0], g[:, 1], g[:, 2], a, f).mean(axis=0)
+    lon, lat, h = geodetic_from_ecef(origin, a, f)
+    return LocalFrame(text, (float(lon), float(lat), float(np.mean(g[:, 2]))), a, f)
+
+
+def frame_of_block(block) -> LocalFrame:
+    """The block's frame (``block.meta["crs"]``, written by source stages that read a CRS)."""
+    return LocalFrame.from_meta(block.meta.get("crs"))

@@ -1,0 +1,1 @@
+"""ODM/OpenSfM GCP lists and GNSS projection centres (stages gcp-list, gnss-centres)."""
