@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from baarda.pipeline.adjustment.reliability import own_effects, parameter_covariance
+from baarda.pipeline.adjustment import own_effects, parameter_covariance
 from baarda.pipeline.errors import InputError
 from baarda.pipeline.stage import TableData
 from baarda.pipeline.stats.critical import delta0 as _delta0
@@ -179,6 +179,6 @@ def linearisation(res):
     ``blunder-rejection``): the dense linearised model, built only when asked for."""
     from functools import partial
 
-    from baarda.pipeline.adjustment.reliability import linearised_model
+    from baarda.pipeline.adjustment import linearised_model
 
     return partial(linearised_model, res)
