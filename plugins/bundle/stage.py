@@ -159,6 +159,8 @@ class BundleOptions:
             raise ValueError("vc_alpha must lie strictly between 0 and 1")
         if self.vc_iterations < 1:
             raise ValueError("vc_iterations must be at least 1")
+        if self.variance_components != "none" and not self.covariance:
+            raise ValueError("variance_components needs the redundancy numbers: set covariance = true")
 
 
 def configure_block(block: Block, o: BundleOptions) -> Block:
@@ -252,7 +254,8 @@ class BundleAdjustment:
                 res = selection.result
             vc = None
             if options.variance_components != "none":
-                vc = _variance_components(block, settings, res, options, ctx)
+                # from the adjustment as it stands (after AP selection: its block and settings)
+                vc = _variance_components(res.block_in, res.settings, res, options, ctx)
                 if options.variance_components == "apply":
                     res, block = vc.result, vc.block
         except AdjustmentError as e:

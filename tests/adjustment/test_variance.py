@@ -236,3 +236,22 @@ def test_image_groups_by_source_photo_and_user():
     a, b = g["image source left.txt"], g["image source right.txt"]
     assert abs(a.factor - b.factor) < 4 * np.hypot(a.sigma_factor, b.sigma_factor)
     assert not a.rejected or not b.rejected
+
+
+def test_bundle_stage_option_errors_and_ap_selection(tmp_path):
+    """variance components without covariances is refused as an option error; after AP selection the
+    components start from the selected model (the removed parameters stay removed)."""
+    from baarda.pipeline.options import parse_options
+    from baarda.pipeline.testing import run_stage
+    from baarda.plugins.bundle.stage import BundleAdjustment, BundleOptions
+
+    with pytest.raises(Exception, match="covariance = true"):
+        parse_options(BundleOptions, {"variance_components": "apply", "covariance": False})
+    blk = _two_camera_block(21, 0.001, 0.002, 0.001)
+    out = run_stage(BundleAdjustment, {"block": blk}, {"variance_components": "apply", "ap_selection": True},
+                    tmp_path=tmp_path)
+    res = out.artefacts["bundle"]
+    sel = out.data["extras"]["selection"].result
+    assert sel.camera_free.sum() < (blk.cameras.sigma_ap != 0).sum() + 6     # the selection removed some
+    np.testing.assert_array_equal(res.camera_free, sel.camera_free)
+    assert res.sigma0_hat == pytest.approx(1.0, abs=1e-3)
