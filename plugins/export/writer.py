@@ -77,7 +77,9 @@ def write_ply(path: str | Path, ex: PointExport, *, binary: bool = True) -> Path
     if ex.crs is not None:
         import pyproj
 
-        comments.append("crs " + pyproj.CRS.from_user_input(ex.crs).to_proj4().replace("\n", " "))
+        crs = pyproj.CRS.from_user_input(ex.crs)
+        auth = crs.to_authority()
+        comments.append("crs " + (":".join(auth) if auth else crs.to_proj4().replace("\n", " ")))
     path = Path(path)
     PlyData([PlyElement.describe(v, "vertex")], text=not binary, byte_order="<",
             comments=comments).write(str(path))
