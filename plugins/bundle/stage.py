@@ -96,6 +96,16 @@ class BundleOptions:
         "global-test", "iterated data snooping stops when the global test accepts (Kok), or goes on while "
                        "any |w| exceeds the critical value (for a-priori σ scaled from these data, where "
                        "the global test accepts by construction)")
+    robust: Literal["none", "huber", "danish", "l1"] = option(
+        "none", "robust estimation by IRLS (docs/statistics.md): none, or Huber, Danish or L1 weights on the image "
+                "coordinates; the adjusted values, σ̂0 and the tests are those of the final weighted adjustment, the "
+                "down-weighted coordinates are listed (report, results.json, robust_wx/robust_wy in "
+                "bundle_observations.csv)")
+    robust_c: float = option(0.0, "robust estimation: tuning constant in standardised residuals; 0 = Huber 1.5, "
+                                  "Danish 2.5 (L1: the floor of |u|, 0.001)", ge=0.0)
+    robust_standardise: Literal["redundancy", "apriori", "current"] = option(
+        "redundancy", "robust estimation: residuals divided by σ √r of the unweighted adjustment, by the a-priori σ, "
+                      "or by σ √r of the current weighted adjustment (a covariance computation per iteration)")
     covariance: bool = option(True, "compute covariances, redundancy numbers and w-tests")
     solver: Literal["auto", "dense", "sparse"] = option(
         "auto", "reduced camera system: dense Cholesky, or sparse (METIS ordering, supernodal Cholesky, selected "
@@ -155,10 +165,15 @@ class BundleOptions:
                              f"got {self.sigma_eo!r}")
         if not self.sigma_image_scale > 0:
             raise ValueError("sigma_image_scale must be positive")
+        if self.robust != "none" and (self.blunders == "ids" or not self.covariance):
+            raise ValueError(f"robust = {self.robust!r} needs covariance = true and excludes blunders = 'ids' "
+                             "(robust weights and rejections are two answers to the same question)")
         if not 0 < self.vc_alpha < 1:
             raise ValueError("vc_alpha must lie strictly between 0 and 1")
         if self.vc_iterations < 1:
             raise ValueError("vc_iterations must be at least 1")
+        if self.variance_components != "none" and not self.covariance:
+            raise ValueError("variance_components needs the redundancy numbers: set covariance = true")
         if self.variance_components != "none" and not self.covariance:
             raise ValueError("variance_components needs the redundancy numbers: set covariance = true")
 
@@ -258,6 +273,9 @@ class BundleAdjustment:
                 vc = _variance_components(res.block_in, res.settings, res, options, ctx)
                 if options.variance_components == "apply":
                     res, block = vc.result, vc.block
+            robust = _robust(block, res, options, ctx) if options.robust != "none" else None
+            if robust is not None:
+                res = robust.final
         except AdjustmentError as e:
             _save_state(e, block, ctx)
             raise
@@ -268,6 +286,9 @@ class BundleAdjustment:
                   "vc": vc}
         decision = np.array(["ok"] * len(block.observations), dtype=object)
         decision[~block.observations.active] = "inactive"
+        extras["robust"] = robust
+        if robust is not None:
+            decision[np.unique(robust.downweighted // 2)] = "downweighted"
         rejected_rows = np.zeros(2 * len(block.observations), bool)
         if snap is not None:
             extras["global_test"] = stats.global_test(snap, alpha0=options.alpha0, beta0=options.beta0)
@@ -299,6 +320,8 @@ class BundleAdjustment:
         extras.update(bundle_external.compute(res, options))
         res.extras = extras
         out_block = res.block
+        if robust is not None:   # the robust weights are the estimator's, not the block's a-priori σ
+            out_block = out_block.replace(observations=out_block.observations.replace(cov=block.observations.cov))
         if rejected_rows.any():
             act = out_block.observations.active.copy()
             act[np.unique(np.flatnonzero(rejected_rows) // 2)] = False
@@ -404,6 +427,8 @@ def _summary(res: BundleResult, extras, o) -> dict:
         out["variance_components"] = {"mode": o.variance_components, "groups_by": o.vc_groups,
                                       **extras["vc"].summary()}
     out.update(bundle_external.summary_entries(extras, res.block_in))
+    if extras.get("robust") is not None:
+        out["robust"] = extras["robust"].summary()
     out["headline"] = (f"σ̂0 = {res.sigma0_hat:.3g} (dof {res.dof}, {res.iterations} iterations)"
                        + (f"; {flagged} coordinate(s) flagged by data snooping" if flagged else "")
                        + (f"; IDS removed {len(extras['ids'].removed_labels)}" if extras.get("ids") is not None else ""))
@@ -461,6 +486,7 @@ def _report(res: BundleResult, extras, o, block, protocol=None) -> str:
             L.append("  " + _tail_line(ds0, r0.snapshot))
             L.append("  " + _radius_line(res, ids))
         L.extend(_rejected_lines(res, ids))
+    L.extend(_robust_lines(extras.get("robust")))
     if res.check.get("n"):
         c = res.check
         L.append(f"- check points ({c['n']}, adjusted − surveyed): Sx = {_f(c['Sx'])}, Sy = {_f(c['Sy'])}, "
@@ -478,15 +504,25 @@ def _report(res: BundleResult, extras, o, block, protocol=None) -> str:
     L.append("")
     L.append("| camera | parameter | value | σ | status |")
     L.append("|---|---|---|---|---|")
+    zero_fixed = {}                          # camera -> parameters held fixed at 0 (one line, not rows)
     for j in range(len(block.cameras)):
         if not res.camera_used[j]:
             continue
         for r in res.camera_table(j):
+            if r["status"] == "fixed" and r["value"] == 0.0:
+                zero_fixed.setdefault(r["camera"], []).append(r["parameter"])
+                continue
             L.append(f"| {r['camera']} | {r['parameter']} | {r['value']:.8g} | {_f(r['sigma'], 3)} | {r['status']} |")
+    L += _zero_fixed_lines(zero_fixed)
+    shown = 0
     for j in range(len(block.cameras)):
         free = [t for t in range(len(res.cam_param_names[j])) if res.camera_free[j, t]]
         if len(free) < 2:
             continue
+        shown += 1
+        if shown > MAX_CORRELATION_TABLES:
+            L += ["", f"Correlations of the other cameras: bundle_correlations.csv."]
+            break
         R = res.correlation_camera(j)[np.ix_(free, free)]
         nm = [res.cam_param_names[j][t] for t in free]
         L += ["", f"Correlations of camera {str(block.cameras.ids[j])!r}:", "",
@@ -500,6 +536,66 @@ def _report(res: BundleResult, extras, o, block, protocol=None) -> str:
         L += ["", "### Variance components", ""] + _vc_lines(extras["vc"], o)
     L += bundle_external.report_entries(extras, block)
     return "\n".join(L)
+
+
+class _Robust:
+    """The robust estimate of the bundle: the IRLS result and the final weighted adjustment."""
+
+    def __init__(self, irls, final, how):
+        self.irls, self.final, self.how = irls, final, how
+        self.downweighted = irls.downweighted
+
+    def summary(self) -> dict:
+        return {"how": self.how, **self.irls.summary()}
+
+
+def _robust(block, res, o, ctx) -> _Robust:
+    """IRLS on the bundle (stats.irls); the final adjustment with the final weights and covariances."""
+    ctx.progress.message(f"robust estimation ({o.robust})")
+    refit, how = stats.weighted_refit(res, redundancy=o.robust_standardise == "current")
+    rob = stats.irls(refit, res.snapshot, o.robust, o.robust_c or None, standardise=o.robust_standardise)
+    if not rob.converged:
+        ctx.warn(f"robust estimation ({o.robust}) did not converge in {rob.iterations} iterations "
+                 f"(largest weight change {rob.history[-1]['max_dw']:.3g})")
+    if rob.iterations == 0:
+        return _Robust(rob, res, how)
+    obs = block.observations
+    b = block.replace(observations=obs.replace(cov=stats.scale_covariance(obs.cov, np.maximum(rob.weights, 1e-8))))
+    final = adjust(b, res.settings, row_active=res.row_active, start=rob.fit.result.state, compute_initial=False,
+                   covariance=True)
+    return _Robust(rob, final, how)
+
+
+def _robust_lines(rob, most: int = 30) -> list[str]:
+    """The robust estimate in the report: estimator, convergence, the down-weighted coordinates."""
+    if rob is None:
+        return []
+    r = rob.irls
+    d = r.downweighted
+    L = [f"- robust estimation: {r.method} (c = {r.c:g}, residuals / {_ROBUST_SCALE[r.standardise]}), "
+         f"{r.iterations} weighted adjustment(s), {'converged' if r.converged else 'NOT converged'}; "
+         f"{d.size} coordinate(s) down-weighted (ω < {r.threshold:g}); the values above are the final weighted "
+         "adjustment's (a-priori σ / √ω)"]
+    if d.size:
+        L += ["", f"  Down-weighted (smallest ω first; all in bundle_observations.csv, robust_wx / robust_wy):", "",
+              "  | observation | ω | u |", "  |---|---|---|"]
+        L += [f"  | {r.labels[i]} | {r.weights[i]:.3g} | {r.u[i]:+.2f} |" for i in d[:most]]
+        if d.size > most:
+            L.append(f"  | … | {d.size - most} more | |")
+        L.append("")
+    return L
+
+
+_ROBUST_SCALE = {"redundancy": "σ √r of the unweighted adjustment", "apriori": "a-priori σ",
+                 "current": "σ √r of the current weighted adjustment"}
+
+
+def _robust_columns(rob, k: int) -> dict:
+    """Per observation: the final robust weight of x and y (only with robust estimation)."""
+    if rob is None:
+        return {}
+    w = np.asarray(rob.irls.weights).reshape(k, 2)
+    return {"robust_wx": w[:, 0], "robust_wy": w[:, 1]}
 
 
 def _variance_components(block, settings, res, o, ctx):
@@ -530,6 +626,24 @@ def _vc_lines(vc, o) -> list[str]:
         else:
             L.append(f"| {g.name} | {g.n} | {g.redundancy:.3g} | 1 (not estimable: r < 1) | – | – | – | – |")
     return L
+
+
+MAX_CORRELATION_TABLES = 4
+"""Cameras whose correlation matrix report.md prints (all are in bundle_correlations.csv)."""
+
+
+def _zero_fixed_lines(zero_fixed: dict) -> list[str]:
+    """'held fixed at 0' per group of cameras with the same parameters (every row is in
+    bundle_cameras.csv); a COLMAP block of 23 cameras gets one line instead of 138 rows."""
+    groups: dict[tuple, list[str]] = {}
+    for cam, names in zero_fixed.items():
+        groups.setdefault(tuple(names), []).append(cam)
+    out = []
+    for names, cams in groups.items():
+        who = f"camera {cams[0]}" if len(cams) == 1 else (
+            f"cameras {', '.join(cams)}" if len(cams) <= 6 else f"{len(cams)} cameras ({cams[0]} … {cams[-1]})")
+        out.append(f"- {who}: {', '.join(names)} held fixed at 0")
+    return ([""] + out) if out else []
 
 
 def _sigma0_equivalent(res: BundleResult, protocol) -> str:
@@ -637,6 +751,7 @@ def _tables(res: BundleResult, extras, decision, block) -> dict:
         "nabla_x": nab[:, 0], "nabla_y": nab[:, 1], "mdb_x": mdbs[:, 0], "mdb_y": mdbs[:, 1],
         **_joint_columns(extras.get("joint"), len(obs)),
         **bundle_external.observation_columns(extras.get("external"), len(obs)),
+        **_robust_columns(extras.get("robust"), len(obs)),
         "decision": decision.tolist()},
         "every image observation: residual (mm), redundancy, w-test, MDB (mm), 2-D test of the point (χ²(2)), "
         "largest effect of each MDB on its own point / photo (ext_*: object units, degrees, in σ), δ̄0")
