@@ -79,3 +79,22 @@ def test_variance_component_of_the_file_sigmas(export):
     assert 3.6 < img.factor < 3.8 and img.sigma_factor == pytest.approx(img.factor / np.sqrt(2 * 18802), rel=1e-3)
     assert img.rejected                                  # the file's σ are not the image σ
     assert vc.result.sigma0_hat == pytest.approx(1.0, abs=1e-3)
+
+
+def test_per_photo_components_on_the_vendor_setup(export):
+    """One factor per photo on AICON's set-up: the photos' image precision differs far more than the
+    estimates' own spread (the spread of f about its median is ≈ 4 σ(f)); photo 48, the largest RMS
+    in AICON's protocol, has the largest factor; re-weighted, the camera stays within 2 of AICON's σ."""
+    vc = estimate_components(aicon_block(export, sigma_image_um=0.5), BundleSettings(datum="free"),
+                             image_groups="photo")
+    assert vc.converged
+    g = [x for x in vc.groups if x.kind == "image"]
+    assert len(g) == 115
+    f = np.array([x.factor for x in g])
+    sf = np.array([x.sigma_factor for x in g])
+    z = (f - np.median(f)) / sf
+    assert z.std() > 2.5                                       # measured 4.0: real differences
+    assert g[int(np.argmax(f))].name == "image photo 48" and f.max() > 1.8         # 2.09
+    assert f.min() < 0.55 and 0.75 < np.median(f) < 0.9                              # 0.48, 0.83
+    off = _offsets(vc.result)
+    assert max(abs(v) for v in off.values()) < 2.5, off                               # 1.8 (A1)
