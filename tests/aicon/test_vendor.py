@@ -83,8 +83,8 @@ def test_variance_component_of_the_file_sigmas(export):
 
 def test_per_photo_components_on_the_vendor_setup(export):
     """One factor per photo on AICON's set-up: the photos' image precision differs far more than the
-    estimates' own spread (the spread of f about its median is ≈ 4 σ(f)); photo 48, the largest RMS
-    in AICON's protocol, has the largest factor; re-weighted, the camera stays within 2 of AICON's σ."""
+    estimates' own spread (the spread of f about its median is ≈ 4 σ(f)); photo 48 (one of the three
+    photos with the largest RMS residual) has the largest factor; re-weighted, the camera stays within 2 of AICON's σ."""
     vc = estimate_components(aicon_block(export, sigma_image_um=0.5), BundleSettings(datum="free"),
                              image_groups="photo")
     assert vc.converged
