@@ -115,14 +115,14 @@ def read_gcp_list(path: str | Path, skip_lines=()) -> GcpList:
         img.append(image)
         name.append(gname)
         lines.append(i)
-    if set(skip) - set(skipped):
-        ln = min(set(skip) - set(skipped))
-        raise InputError(f"skip_lines: line {ln} is not a measurement line of the file", path=path, line=ln,
-                         field="skip_lines")
     if crs is None:
         raise InputError("empty GCP list: expected the CRS on the first line, then measurements", path=path)
     if not geo:
         raise InputError("no measurement lines after the CRS line", path=path, line=crs_line, field="geo_x")
+    if set(skip) - set(skipped):
+        ln = min(set(skip) - set(skipped))
+        raise InputError(f"skip_lines: line {ln} is not a measurement line of the file", path=path, line=ln,
+                         field="skip_lines")
     return GcpList(path=path, crs=crs, crs_line=crs_line, geo=np.array(geo, float), pixel=np.array(pix, float),
                    image=img, name=name, line=np.array(lines, int))
 
@@ -231,6 +231,7 @@ class GnssCentres:
     sigma: np.ndarray
     line: np.ndarray
     columns: tuple
+    crs_line: int | None = None
 
 
 _COORDS = (("e", "n", "h"), ("x", "y", "z"), ("lon", "lat", "h"), ("easting", "northing", "height"))
@@ -243,14 +244,14 @@ def read_gnss_csv(path: str | Path) -> GnssCentres:
     (horizontal, vertical) or ``sx,sy,sz`` (metres)."""
     path = Path(path)
     text = _text(path, "GNSS file")
-    crs = None
+    crs, crs_line = None, None
     body = []
     for i, raw in enumerate(text.splitlines(), start=1):
         s = raw.strip()
         if s.startswith("#"):
             key, _, val = s[1:].partition(":")
             if key.strip().lower() == "crs" and val.strip():
-                crs = val.strip()
+                crs, crs_line = val.strip(), i
             continue
         if s:
             body.append((i, raw))
@@ -304,4 +305,4 @@ def read_gnss_csv(path: str | Path) -> GnssCentres:
     if not photo:
         raise InputError("no data line after the header", path=path, line=hline, field="photo")
     return GnssCentres(path=path, crs=crs, photo=photo, xyz=np.array(xyz, float), sigma=np.array(sigma, float),
-                       line=np.array(lines, int), columns=triple)
+                       line=np.array(lines, int), columns=triple, crs_line=crs_line)

@@ -211,7 +211,8 @@ class GnssCentres:
         else:
             from baarda.pipeline.crs import parse_crs
 
-            src = parse_crs(crs, path=g.path, field="crs")
+            src = parse_crs(crs, path=g.path if g.crs else ctx.project_file, line=g.crs_line if g.crs else None,
+                            field="crs")
             user = LocalFrame(src.to_wkt(), frame.origin, frame.a, frame.f)
             X = user.to_local(g.xyz)
         sig = np.where(np.isnan(g.sigma), np.asarray(options.sigma_mm) / 1000.0, g.sigma)

@@ -428,6 +428,62 @@ def dbat_cases() -> list[Case]:
     return c
 
 
+# -- ODM gcp_list.txt and GNSS centres (gcp-list, gnss-centres) -----------------------------------
+
+ODM_GCP = SHARED / "odm-br-gcp"
+
+
+def gcp_cases() -> list[Case]:
+    text = (ODM_GCP / "gcp_list_floatxy_raw.txt").read_text(encoding="utf-8")
+    lines = text.splitlines()
+    camera = ('camera = { width = 4000, height = 3000, focal_px = 2904.0, sensor_width_mm = 6.17 }\n'
+              'skip_lines = [19, 51, 52, 55, 70]\n')
+
+    def with_line(k, new):
+        out = list(lines)
+        out[k - 1] = new
+        return "\n".join(out) + "\n"
+
+    l2 = lines[1].split()
+    broken = {
+        "letter": with_line(2, " ".join(l2[:3] + ["24x0.6"] + l2[4:])),
+        "nan": with_line(2, " ".join(l2[:4] + ["nan"] + l2[5:])),
+        "short": with_line(2, " ".join(l2[:5])),
+        "conflicting-target": with_line(3, " ".join(["658528.5"] + lines[2].split()[1:])),
+        "no-crs": "\n".join(lines[1:]) + "\n",
+        "unknown-crs": with_line(1, "+proj=nowhere +zone=99"),
+        "bad-utm-zone": with_line(1, "WGS84 UTM 75S"),
+        "outside-image": with_line(2, " ".join(l2[:3] + ["4100.0"] + l2[4:])),
+        "only-crs": lines[0] + "\n",
+        "binary": "\x00\xff\xfe" * 40,
+    }
+    c = [Case(f"gcp/{n}", {"gcp_list.txt": t}, source_project("gcp-list", "gcp_list.txt", camera),
+              names="gcp_list.txt") for n, t in broken.items()]
+    c.append(Case("gcp/missing", {}, source_project("gcp-list", "nowhere.txt", camera), names="nowhere.txt"))
+    c.append(Case("gcp/no-camera", {"gcp_list.txt": text},
+                  source_project("gcp-list", "gcp_list.txt", "skip_lines = [19, 51, 52, 55, 70]"), names="project.toml"))
+    c.append(Case("gcp/skip-not-a-line", {"gcp_list.txt": text},
+                  source_project("gcp-list", "gcp_list.txt", camera.replace("70]", "700]")), names="gcp_list.txt"))
+    c.append(Case("gcp/validate-letter", {"gcp_list.txt": broken["letter"]},
+                  source_project("gcp-list", "gcp_list.txt", camera), command="validate", names="gcp_list.txt"))
+    gnss_stage = '[[stage]]\nuse = "gnss-centres"\nid = "gnss"\n[stage.options]\npath = "gnss.csv"\n'
+    good = "# crs: EPSG:32722\nphoto,E,N,h,sigma\nIMG_5350.JPG,658530.0,7167000.0,965.0,0.05\n"
+    gnss = {
+        "gnss-letter": good.replace("965.0", "96x"),
+        "gnss-no-photo-column": good.replace("photo,", "image,"),
+        "gnss-no-coordinates": good.replace("E,N,h", "a,b,c"),
+        "gnss-unknown-photo": good.replace("IMG_5350", "IMG_9999"),
+        "gnss-zero-sigma": good.replace(",0.05", ",0"),
+        "gnss-twice": good + "IMG_5350.JPG,658530.0,7167000.0,965.0,0.05\n",
+        "gnss-bad-crs": good.replace("EPSG:32722", "EPSG:0"),
+        "gnss-short": good.replace(",965.0,0.05", ""),
+    }
+    c += [Case(f"gcp/{n}", {"gcp_list.txt": text, "gnss.csv": t},
+               source_project("gcp-list", "gcp_list.txt", camera) + gnss_stage, names="gnss.csv",
+               earlier=["source_targets.csv"]) for n, t in gnss.items()]
+    return c
+
+
 # -- options (types and ranges) -------------------------------------------------------------------
 
 def option_cases() -> list[Case]:
@@ -581,7 +637,7 @@ def run_cases() -> list[Case]:
 
 def all_cases() -> list[Case]:
     return (comparator_cases() + bal_cases() + aicon_cases() + colmap_cases() + targets_cases()
-            + dbat_cases() + option_cases() + project_cases() + run_cases())
+            + dbat_cases() + gcp_cases() + option_cases() + project_cases() + run_cases())
 
 
 # -- running a case -------------------------------------------------------------------------------
