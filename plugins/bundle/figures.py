@@ -15,6 +15,8 @@ from baarda.pipeline.plots import redundancy_numbers, w_distribution
 
 from .protocol import image_units
 
+MAX_DISTORTION_CAMERAS = 4
+"""Cameras whose distortion is drawn (most image points first; a COLMAP block may have dozens)."""
 MAX_PHOTOS = 12
 """Photos drawn in the residual figure (the largest RMS first)."""
 
@@ -224,8 +226,13 @@ def bundle_figures(res, decision=None) -> dict:
         out["redundancy"] = (redundancy_numbers(np.asarray(snap.r)[np.asarray(snap.active, bool)]),
                              "Redundancy numbers of the observation rows")
     cams = res.block_in.cameras
-    for j in range(len(cams)):
-        if res.camera_used[j] and len(res.cam_param_names[j]) > 3 and str(cams.ap_model[j]) != "none":
+    obs = res.block_in.observations
+    n_obs = np.bincount(res.block_in.photos.camera[obs.photo[res.obs_active]], minlength=len(cams))
+    drawn = [j for j in np.argsort(-n_obs, kind="stable")
+             if res.camera_used[j] and str(cams.ap_model[j]) != "none"
+             and (np.any(res.camera_free[j, 3:]) or np.any(res.state.cam_params[j, 3:] != 0))][:MAX_DISTORTION_CAMERAS]
+    for j in drawn:
+        if True:
             fig = distortion(res, j)
             if fig is not None:
                 out[f"distortion_{cams.ids[j]}"] = (fig, f"Distortion of camera {cams.ids[j]} with ±1σ")

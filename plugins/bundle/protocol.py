@@ -24,6 +24,8 @@ EFFECT_MAX_UNKNOWNS = 20_000
 unknowns it is left out (``reliability.effect_max`` is then null)."""
 EFFECT_ITERATIONS = 2
 """Iterations of the adjustment with the MDB added (from the solution; the effect is linear)."""
+MOST_CAMERA_LINES = 8
+"""Cameras named in report.md's RMS line (largest RMS first; all are in the protocol)."""
 PER_PHOTO_MOST = 30
 """Photos listed in ``rms_per_photo`` (largest RMS first); ``n_photos`` counts them all."""
 
@@ -181,7 +183,7 @@ def _camera(res, j: int, src: str | None, scale: float) -> dict:
         conv = "colmap" if src == "COLMAP" else "opencv"
         cv = opencv_style(st[0], st[1], st[2], str(cams.ap_model[j]), st[3:3 + len(names) - 3],
                           res.cov_cameras[j], cams.resolution[j], cams.pixel_mm[j], conv)
-        cam["pixels"] = {"c": float(st[0]) * scale, "xp": float(st[1]) * scale, "yp": float(st[2]) * scale,
+        cam["pixels"] = {"c": float(st[0]) * scale, "xp": float(st[1]) * scale + 0.0, "yp": float(st[2]) * scale + 0.0,
                          "sigma_c": float(rows[0]["sigma"]) * scale}
         if cv is not None:
             cam["opencv"] = cv
@@ -202,8 +204,11 @@ def protocol_lines(p: dict) -> list[str]:
                  f"all coordinates {_f(r['all'])} {u}"
                  + (f"; OpenCV's RMS re-projection error (√(Σ|v|²/points)) {_f(p['opencv_rms_px'])} px"
                     if "opencv_rms_px" in p else ""))
-        for c in p.get("rms_per_camera", []):
-            L.append(f"  - camera {c['id']}: {_f(c['all'])} {u} ({c['n']} image points)")
+        cams = p.get("rms_per_camera", [])
+        if len(cams) > 1:
+            worst = sorted(cams, key=lambda c: -c["all"])[:MOST_CAMERA_LINES]
+            L.append(f"  - per camera{' (largest ' + str(len(worst)) + ' of ' + str(len(cams)) + ')' if len(cams) > len(worst) else ''}: "
+                     + ", ".join(f"{c['id']} {_f(c['all'])} {u} ({c['n']})" for c in worst))
         worst = p.get("rms_per_photo", [])[:3]
         if worst:
             L.append(f"  - largest per photo (of {p['n_photos']}): "
@@ -239,17 +244,21 @@ def protocol_lines(p: dict) -> list[str]:
         L.append(f"- w-test |w| > {_f(t['critical_w'])}: {t['n_flagged']} flagged"
                  + (f" ({', '.join(t['flagged'])}{' …' if t['n_flagged'] > len(t['flagged']) else ''})" if t["flagged"] else "")
                  + (f"; rejected {t['n_rejected']}" if t.get("n_rejected") else ""))
+    cv = [c for c in p.get("cameras", []) if c.get("opencv")]
+    if cv:
+        names = [x["name"] for x in cv[0]["opencv"]]
+        L += ["", f"Cameras as OpenCV writes them ({p.get('pixel_source')} source; fx fy cx cy in px, k and p "
+                  "dimensionless; value (σ)):", "",
+              "| camera | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|"]
+        L += ["| " + c["camera"] + " | " + " | ".join(f"{_f(x['value'], 7)} ({_f(x['sigma'], 2)})" for x in c["opencv"])
+              + " |" for c in cv]
+        L.append("")
     for cam in p.get("cameras", []):
         px = cam.get("pixels")
-        if px:
+        if px and not cam.get("opencv"):
             L.append(f"- camera {cam['camera']} in pixels ({p.get('pixel_source')}): c = {_f(px['c'], 7)} ± "
-                     f"{_f(px['sigma_c'], 3)} px, principal point offset ({_f(px['xp'], 5)}, {_f(px['yp'], 5)}) px")
-        if cam.get("opencv"):
-            L += ["", f"  OpenCV-style camera {cam['camera']} (px; k, p dimensionless):", "",
-                  "  | " + " | ".join(x["name"] for x in cam["opencv"]) + " |",
-                  "  |" + "---|" * len(cam["opencv"]),
-                  "  | " + " | ".join(_f(x["value"], 7) for x in cam["opencv"]) + " |",
-                  "  | " + " | ".join("± " + _f(x["sigma"], 3) for x in cam["opencv"]) + " |", ""]
+                     f"{_f(px['sigma_c'], 3)} px, principal point offset ({_f(px['xp'] + 0.0, 5)}, "
+                     f"{_f(px['yp'] + 0.0, 5)}) px")
         for h in cam.get("high_correlations", []):
             L.append(f"- camera {cam['camera']}: ρ({h['p1']}, {h['p2']}) = {h['rho']:+.3f}")
     return L
