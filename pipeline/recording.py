@@ -1,9 +1,18 @@
 """Rerun recordings: one ``.rrd`` per stage, all of a run sharing one recording id.
 
-Writing: :func:`open_recording` returns a :class:`rerun.RecordingStream` that saves to a file
-(no viewer), with the automatic log-time timeline off so files are reproducible.  Stages log
-into it in their ``log`` method; the runner adds ``/stage/summary`` (the report section) and
-``/stage/results`` (the summary values) and closes it.
+Writing: :func:`open_recording` returns a :class:`StageRecording` — a :class:`rerun.RecordingStream`
+that saves to a file (no viewer), with the automatic log-time timeline off so files are
+reproducible.  Stages log into it in their ``log`` method; the runner adds ``<stage>/summary``
+(the report section) and ``<stage>/results`` (the summary values) and closes it.
+
+Every entity of a stage's file lies under ``<stage id>/``: a path a stage logs that does not
+already start there is put there (``world/points`` of stage ``bundle`` becomes
+``bundle/world/points``), so the files of one run never overwrite each other when the viewer
+merges them.  When the stream closes, the file gets a blueprint (:func:`stage_blueprint`): one
+3-D view of the network, one 2-D view per photo or camera, time series per group of scalars,
+and the stage's summary as text — unless the stage sent its own with ``rec.send_blueprint``.
+Text goes through :func:`viewer_text` (no combining marks: the viewer panics on ``∇̂``).  See
+``docs/recordings.md``.
 
 Reading: :func:`read_recording` opens a file with ``rerun.chunk.RrdReader`` and returns what it
 holds — entity paths, archetype columns, row counts, timelines, the stage's summary text — for
@@ -13,6 +22,7 @@ together in the viewer (``rerun run_dir/*.rrd``) merges them into one recording.
 
 from __future__ import annotations
 
+import unicodedata
 import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,23 +36,156 @@ def new_recording_id() -> str:
     return str(uuid.uuid4())
 
 
-def open_recording(path: Path, recording_id: str, app_id: str = APP_ID):
-    """A recording stream that writes ``path``; close it with ``rec.disconnect()``."""
+def open_recording(path: Path, recording_id: str, app_id: str = APP_ID, stage_id: str | None = None):
+    """A :class:`StageRecording` that writes ``path`` with every entity under ``stage_id``
+    (default: the file's stem, ``bundle`` for ``bundle.rrd``); close it with ``rec.disconnect()``,
+    which writes the blueprint."""
     import rerun as rr
 
-    rec = rr.RecordingStream(app_id, recording_id=recording_id)
-    rec.save(str(path))
+    stream = rr.RecordingStream(app_id, recording_id=recording_id)
+    stream.save(str(path))
     try:
-        rr.set_log_time_enabled(False, recording=rec)
+        rr.set_log_time_enabled(False, recording=stream)
     except Exception:  # older/newer SDKs: the timeline is harmless, only less reproducible
         pass
-    return rec
+    return StageRecording(stream, stage_id or Path(path).stem)
+
+
+SPATIAL_3D = frozenset({"Points3D", "Transform3D", "Pinhole", "Ellipsoids3D", "LineStrips3D", "Arrows3D",
+                        "Boxes3D", "Mesh3D"})
+SPATIAL_2D = frozenset({"Points2D", "Arrows2D", "LineStrips2D", "Image", "EncodedImage", "Boxes2D"})
+PHOTO_GROUPS = ("photos", "images", "cameras")
+"""A 2-D entity below ``…/<group>/<id>/`` (group one of these) belongs to the view of ``<id>``."""
+
+
+class StageRecording:
+    """A stage's recording: a :class:`rerun.RecordingStream` whose entities lie under the stage id.
+
+    ``log`` roots the path (see the module docstring) and notes which archetypes each entity
+    holds; ``disconnect`` sends :func:`stage_blueprint` of what was logged unless a blueprint was
+    sent already, then closes the file.  Everything else is the stream's (``set_time``, …);
+    ``stream`` is the stream itself for ``recording=`` arguments.
+    """
+
+    def __init__(self, stream, stage_id: str):
+        self.stream = stream
+        self.stage_id = str(stage_id).strip("/")
+        self.logged: dict[str, set[str]] = {}
+        self.notes: list[str] = []
+        self._blueprint_sent = False
+
+    def path(self, entity: str) -> str:
+        """``entity`` rooted at the stage id."""
+        p = str(entity).strip("/")
+        if p == self.stage_id or p.startswith(self.stage_id + "/"):
+            return p
+        return f"{self.stage_id}/{p}" if p else self.stage_id
+
+    def log(self, entity: str, *entities, **kwargs) -> None:
+        p = self.path(entity)
+        kinds = self.logged.setdefault(p, set())
+        for e in entities:
+            kinds.add(type(e).__name__)
+        self.stream.log(p, *entities, **kwargs)
+
+    def note(self, text: str) -> None:
+        """Say in the recording (``<stage>/notes``) that something was thinned or left out."""
+        self.notes.append(text)
+
+    def send_blueprint(self, blueprint, **kwargs) -> None:
+        self._blueprint_sent = True
+        self.stream.send_blueprint(blueprint, **kwargs)
+
+    def disconnect(self) -> None:
+        try:
+            if self.notes:
+                log_text(self, "notes", "\n".join(f"- {n}" for n in self.notes))
+            if not self._blueprint_sent:
+                self.send_blueprint(stage_blueprint(self.stage_id, self.logged), make_active=True,
+                                    make_default=True)
+        finally:
+            self.stream.disconnect()
+
+    def __getattr__(self, name):
+        return getattr(self.stream, name)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.disconnect()
+
+
+def photo_root(entity: str) -> str:
+    """The view a 2-D entity belongs to: ``a/photos/L/points`` → ``a/photos/L``; otherwise itself
+    (``comparison/checkpoints_chart``)."""
+    parts = entity.strip("/").split("/")
+    for k in range(len(parts) - 2, -1, -1):
+        if parts[k] in PHOTO_GROUPS:
+            return "/".join(parts[:k + 2])
+    return "/".join(parts)
+
+
+def stage_blueprint(stage_id: str, logged: dict[str, set[str]]):
+    """The layout of a stage's recording from what it logged (entity path → archetype names).
+
+    Left: the 3-D network (one view rooted at the stage, of the 3-D entities) above the photos
+    (one 2-D view per photo or camera: side by side up to four, tabs beyond).  Right: one time
+    series per group of ``Scalars`` (their parent entity), the bar charts, then the text documents (the summary
+    first).  Static ``AnyValues`` are left to the selection panel.
+    """
+    import rerun.blueprint as rrb
+
+    root = "/" + stage_id.strip("/")
+    three = sorted(p for p, k in logged.items() if k & SPATIAL_3D)
+    two = sorted(p for p, k in logged.items() if k & SPATIAL_2D)
+    photos: dict[str, list[str]] = {}
+    for p in two:
+        photos.setdefault(photo_root(p), []).append(p)
+    series: dict[str, list[str]] = {}
+    for p in sorted(p for p, k in logged.items() if "Scalars" in k):
+        series.setdefault("/".join(p.split("/")[:-1]) or p, []).append(p)
+    bars = sorted(p for p, k in logged.items() if "BarChart" in k)
+    texts = sorted((p for p, k in logged.items() if "TextDocument" in k),
+                   key=lambda p: (not p.endswith("/summary"), p))
+
+    left = []
+    if three:
+        tops = [p for p in three if not any(p.startswith(q + "/") for q in three)]
+        left.append(rrb.Spatial3DView(origin=root, contents=[f"/{p}/**" for p in tops], name=f"{stage_id}: 3-D"))
+    if photos:
+        views = [rrb.Spatial2DView(origin=f"/{ph}", contents=["$origin/**"], name=ph.split("/")[-1])
+                 for ph in sorted(photos)]
+        left.append(rrb.Grid(*views) if len(views) <= 4 else rrb.Tabs(*views, name="photos"))
+    right = [rrb.TimeSeriesView(origin=f"/{g}", contents=["$origin/**"], name=g.removeprefix(stage_id + "/"))
+             for g in sorted(series)]
+    right += [rrb.BarChartView(origin=f"/{p}", contents=["$origin"], name=p.removeprefix(stage_id + "/"))
+              for p in bars]
+    right += [rrb.TextDocumentView(origin=f"/{p}", contents=["$origin"], name=p.removeprefix(stage_id + "/"))
+              for p in texts]
+    cols = [rrb.Vertical(*c) if len(c) > 1 else c[0] for c in (left, right) if c]
+    layout = cols[0] if len(cols) == 1 else rrb.Horizontal(*cols, column_shares=[3, 2])
+    return rrb.Blueprint(layout, rrb.BlueprintPanel(state="collapsed"), rrb.SelectionPanel(state="collapsed"),
+                         auto_views=False, auto_layout=False)
+
+
+def viewer_text(text: str) -> str:
+    """``text`` with only glyphs the viewer renders: composed (NFC), and a combining mark left
+    over (``∇̂``, ``σ̂``: the viewer panics on them) written after its letter as ``^`` (hat),
+    ``~`` (tilde), ``-`` (bar) or dropped."""
+    out = []
+    for ch in unicodedata.normalize("NFC", str(text)):
+        if unicodedata.combining(ch):
+            out.append({"\u0302": "^", "\u0303": "~", "\u0304": "-", "\u0305": "-"}.get(ch, ""))
+        else:
+            out.append(ch)
+    return "".join(out)
 
 
 def log_text(rec, entity: str, markdown: str) -> None:
     import rerun as rr
 
-    rec.log(entity, rr.TextDocument(markdown, media_type=rr.MediaType.MARKDOWN), static=True)
+    rec.log(entity, rr.TextDocument(viewer_text(markdown), media_type=rr.MediaType.MARKDOWN), static=True)
 
 
 def log_values(rec, entity: str, values: dict) -> None:
@@ -58,7 +201,7 @@ def log_values(rec, entity: str, values: dict) -> None:
         elif isinstance(v, (float, np.floating)) and np.isfinite(v):
             flat[k] = [float(v)]
         elif isinstance(v, str):
-            flat[k] = [v]
+            flat[k] = [viewer_text(v)]
     if flat:
         rec.log(entity, rr.AnyValues(**flat), static=True)
 
@@ -84,12 +227,53 @@ class EntitySummary:
 
 
 @dataclass
+class ViewSummary:
+    kind: str
+    """rerun's view class: ``3D``, ``2D``, ``TimeSeries``, ``TextDocument``, …"""
+    origin: str
+    name: str | None
+    contents: list[str]
+
+
+def _first(val):
+    while isinstance(val, list) and val:
+        val = val[0]
+    return val
+
+
+def read_blueprint(reader) -> list[ViewSummary]:
+    """The views of the blueprint stored in a file (``RrdReader``), in no particular order."""
+    entries = reader.blueprints() if callable(getattr(reader, "blueprints", None)) else []
+    if not entries:
+        return []
+    views: dict[str, dict] = {}
+    for chunk in reader.store(store=entries[-1]).stream().to_chunks():
+        ep = str(chunk.entity_path).strip("/")
+        if not ep.startswith("view/"):
+            continue
+        batch = chunk.to_record_batch()
+        cols = {n: batch.column(i).to_pylist() for i, n in enumerate(batch.schema.names) if ":" in n}
+        v = views.setdefault(ep.split("/")[1], {})
+        for key, col in (("kind", "ViewBlueprint:class_identifier"), ("origin", "ViewBlueprint:space_origin"),
+                         ("name", "ViewBlueprint:display_name")):
+            if col in cols:
+                v[key] = _first(cols[col])
+        if "ViewContents:query" in cols:
+            q = cols["ViewContents:query"][0]
+            v["contents"] = [x for x in (q[0] if q and isinstance(q[0], list) else q or [])]
+    return [ViewSummary(v.get("kind", "?"), v.get("origin", "/"), v.get("name"), v.get("contents", []))
+            for v in views.values()]
+
+
+@dataclass
 class RecordingSummary:
     file: Path
     application_id: str
     recording_id: str
     entities: list[EntitySummary] = field(default_factory=list)
     summary_text: str | None = None
+    views: list["ViewSummary"] = field(default_factory=list)
+    """The views of the file's blueprint (empty when it has none)."""
 
     @property
     def archetypes(self) -> list[str]:
@@ -137,6 +321,7 @@ def read_recording(path: Path) -> RecordingSummary:
                 val = val[0]
             out.summary_text = val if isinstance(val, str) else None
     out.entities = sorted((e for e in by_path.values() if e.path != "/__properties"), key=lambda e: e.path)
+    out.views = read_blueprint(reader)
     return out
 
 
@@ -156,12 +341,15 @@ def role_colors(roles) -> np.ndarray:
     return np.array([ROLE_COLORS.get(str(r), UNKNOWN_ROLE_COLOR) for r in roles], dtype=np.uint8).reshape(-1, 3)
 
 
-def view_from_photo(xy_mm, format_mm) -> np.ndarray:
+def view_from_photo(xy_mm, format_mm=None) -> np.ndarray:
     """2-D view coordinates of image coordinates ``xy_mm (n, 2)`` (x right, y up, origin at the format
     centre; ``docs/conventions.md``): mm from the format's top-left corner, y down, as rerun's 2-D
-    views draw them.  ``format_mm = (width, height)``."""
+    views draw them.  ``format_mm = (width, height)``; without one (or with a non-finite one) the
+    origin stays at the centre and only y turns down.  Every photo of every recording goes through
+    this one conversion (``tests/pipeline/test_recordings.py`` checks the orientation)."""
     xy = np.asarray(xy_mm, float).reshape(-1, 2)
-    w, h = np.asarray(format_mm, float)
+    fmt = np.zeros(2) if format_mm is None else np.asarray(format_mm, float).reshape(2)
+    w, h = np.where(np.isfinite(fmt), fmt, 0.0)
     return np.column_stack([xy[:, 0] + w / 2.0, h / 2.0 - xy[:, 1]])
 
 
@@ -178,8 +366,9 @@ def entity_part(text: str) -> str:
     return rr.escape_entity_path_part(str(text))
 
 
-def log_block(rec, block, root: str = "block", max_photos: int = 500) -> None:
-    """Log points and oriented photos of ``block`` (at most ``max_photos`` photos).
+def log_block(rec, block, root: str = "block", max_photos: int | None = None) -> None:
+    """Log points and oriented photos of ``block`` (every photo; with ``max_photos``, every k-th so
+    that at most that many are logged, and the recording says so).
 
     Photos are logged as ``Transform3D`` (baarda's ``R_cam_from_world``, relation child-from-parent)
     plus ``Pinhole`` with ``camera_xyz = RUB`` (x right, y up, z back: baarda's image-space frame)
@@ -196,7 +385,7 @@ def log_block(rec, block, root: str = "block", max_photos: int = 500) -> None:
         rec.log(f"{root}/points", rr.Points3D(pts.XYZ[ok], colors=colors, radii=rr.Radius.ui_points(2.0)),
                 static=True)
     ph, cams = block.photos, block.cameras
-    oriented = np.flatnonzero(ph.has_orientation)[:max_photos]
+    oriented = thin(rec, np.flatnonzero(ph.has_orientation), max_photos, "oriented photos")
     if oriented.size == 0:
         return
     R = rotation_from_opk_many(ph.opk[oriented])
@@ -214,3 +403,40 @@ def log_block(rec, block, root: str = "block", max_photos: int = 500) -> None:
             cy = (h - 1) / 2 - cams.yp[cam] / pitch
             rec.log(path, rr.Pinhole(image_from_camera=[[f, 0, cx], [0, f, cy], [0, 0, 1]], resolution=[w, h],
                                      camera_xyz=rr.ViewCoordinates.RUB, image_plane_distance=None), static=True)
+
+
+def thin(rec, index, most: int | None, what: str) -> np.ndarray:
+    """``index`` itself, or every k-th of it when there are more than ``most``; the recording's
+    notes say what was left out (:meth:`StageRecording.note`)."""
+    index = np.asarray(index)
+    if most is None or index.size <= most:
+        return index
+    step = int(np.ceil(index.size / most))
+    kept = index[::step]
+    msg = f"{what}: {kept.size} of {index.size} logged (every {step}th)"
+    if hasattr(rec, "note"):
+        rec.note(msg)
+    return kept
+
+
+def point_ellipsoids(XYZ, cov, confidence: float | None = None, extent: float | None = None):
+    """Error ellipsoids of points for :class:`rerun.Ellipsoids3D`: ``(centers, half_sizes,
+    quaternions xyzw, scale)``.  Semi-axes from :func:`baarda.pipeline.stats.ellipses.error_ellipsoids`
+    (1 σ by default) multiplied by ``scale``, chosen so that the median largest semi-axis is 1 % of
+    ``extent`` (the network's size; default the points' bounding-box diagonal) — the factor is
+    returned so a recording can state it.  Points without a finite covariance are left out."""
+    from scipy.spatial.transform import Rotation
+
+    from .stats.ellipses import error_ellipsoids
+
+    XYZ = np.asarray(XYZ, float).reshape(-1, 3)
+    semi, axes = error_ellipsoids(cov, confidence)
+    ok = np.isfinite(semi).all(axis=1) & np.isfinite(XYZ).all(axis=1)
+    if not ok.any():
+        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 4)), 1.0
+    if extent is None:
+        extent = float(np.linalg.norm(np.ptp(XYZ[ok], axis=0))) if ok.sum() > 1 else 1.0
+    big = float(np.median(semi[ok, 0]))
+    scale = 0.01 * extent / big if big > 0 and extent > 0 else 1.0
+    q = Rotation.from_matrix(axes[ok]).as_quat()
+    return XYZ[ok], semi[ok] * scale, q, scale

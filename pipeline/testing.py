@@ -60,13 +60,20 @@ def run_stage(cls: type, inputs: Mapping[str, Any] | None = None, options: Any =
     return result
 
 
-def log_stage(cls: type, result: StageResult, path: Path) -> Path:
-    """Write ``result`` with the stage's ``log`` into ``path`` (an .rrd) and return the path."""
-    from .recording import new_recording_id, open_recording
+def log_stage(cls: type, result: StageResult, path: Path, stage_id: str | None = None) -> Path:
+    """Write ``result`` into ``path`` (an .rrd) as the runner does — the stage's summary and
+    results, then the stage's ``log`` — under ``stage_id`` (default: the file's stem), and return
+    the path.  Read it back with :func:`check_recording` or
+    :func:`baarda.pipeline.recording.read_recording`."""
+    from .recording import log_text, log_values, new_recording_id, open_recording
 
-    rec = open_recording(path, new_recording_id())
+    sid = stage_id or Path(path).stem
+    rec = open_recording(path, new_recording_id(), stage_id=sid)
     try:
-        cls().log(result, rec, Context(stage_id="test", project_dir=path.parent))
+        log_text(rec, f"{sid}/summary", f"## {sid} ({getattr(cls, '__name__', 'stage')})\n\n{result.report}")
+        log_values(rec, f"{sid}/results", result.summary)
+        if hasattr(cls, "log"):
+            cls().log(result, rec, Context(stage_id=sid, project_dir=Path(path).parent))
     finally:
         rec.disconnect()
     return path

@@ -148,7 +148,6 @@ class BlunderRejection:
             rec.reset_time()
             rec.log(f"{base}/rejected", rr.AnyValues(labels=[d.label for d in res.decisions] or [""],
                                                      skipped=res.skipped or ""))
-        rec.log("blunders/report", rr.TextDocument(result.report, media_type=rr.MediaType.MARKDOWN))
 
 
 def _protocol_entry(report, art, options) -> dict:

@@ -1,14 +1,16 @@
 """The bundle stage's rerun recording (called only from ``BundleAdjustment.log``).
 
-Entities
+Entities (under the stage id: the recording roots every path there)
     ``world/points``                object points, coloured by role (labels = ids)
+    ``world/points/precision``      their error ellipsoids (1 σ, enlarged: ``precision_scale``)
     ``world/photos/<id>``           Transform3D (world_from_cam) + Pinhole (c, format in mm, RUB)
     ``world/rejected_rays``         rays of rejected / flagged observations (red)
     ``images/<id>/observed``        image points (u = x + w/2, v = h/2 − y: mm, y down as in 2-D views)
     ``images/<id>/residuals``       residual vectors from computed to observed, × arrow scale
     ``cameras/<id>/distortion``     distortion field of the estimated APs on a grid, × scale
     ``convergence/*``               vᵀPv, σ̂0, damping per ``iteration``
-    ``bundle/report``               the Markdown report
+    ``bundle/summary``              σ̂0, dof, vᵀPv, arrow and ellipsoid scales (the report is the
+                                    runner's ``<stage>/summary``)
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ import numpy as np
 from baarda.pipeline.geometry import rotation_from_opk_many
 
 from baarda.pipeline.camera import get_ap_model
-from baarda.pipeline.recording import role_colors, view_from_photo, view_vectors
+from baarda.pipeline.recording import point_ellipsoids, role_colors, thin, view_from_photo, view_vectors
 
 RED, GREY, BLUE = [230, 40, 40], [150, 150, 150], [40, 90, 230]
 
@@ -35,7 +37,9 @@ def _format(block, j, xy):
     return f
 
 
-def log_bundle(rec, res, decision, options, report: str, max_photos: int = 300) -> None:
+def log_bundle(rec, res, decision, options, report: str, max_photos: int | None = None) -> None:
+    """Every used photo is logged unless ``max_photos`` is given (then every k-th, and the
+    recording's notes say so)."""
     import rerun as rr
 
     block = res.block_in
@@ -45,6 +49,7 @@ def log_bundle(rec, res, decision, options, report: str, max_photos: int = 300) 
     rec.log("world/points", rr.Points3D(st.XYZ[used], labels=pts.ids[used].tolist(),
                                         colors=role_colors(pts.role[used]),
                                         radii=rr.Radius.ui_points(4.0)), static=True)
+    pscale = _log_precision(rec, res, used)
     R = rotation_from_opk_many(np.nan_to_num(st.opk))
     v = res.residuals
     fin = np.isfinite(v).all(axis=1)
@@ -57,7 +62,7 @@ def log_bundle(rec, res, decision, options, report: str, max_photos: int = 300) 
         scale = 0.03 * ext / rms if rms > 0 else 1.0
     computed = obs.xy - np.nan_to_num(v)
     bad = np.isin(decision, ("rejected", "flagged"))
-    for i in np.flatnonzero(res.photo_used)[:max_photos]:
+    for i in thin(rec, np.flatnonzero(res.photo_used), max_photos, "photos"):
         pid = _safe(photos.ids[i])
         j = photos.camera[i]
         sel = np.flatnonzero(obs.photo == i)
@@ -105,9 +110,9 @@ def log_bundle(rec, res, decision, options, report: str, max_photos: int = 300) 
                             labels=[f"{m * 1000:.1f} µm" for m in mag]), static=True)
         rec.log(f"cameras/{_safe(block.cameras.ids[j])}/distortion_scale", rr.AnyValues(arrow_scale=dscale),
                 static=True)
-    rec.log("bundle/report", rr.TextDocument(report, media_type=rr.MediaType.MARKDOWN), static=True)
     rec.log("bundle/summary", rr.AnyValues(sigma0_hat=res.sigma0_hat, dof=res.dof, vtpv=res.vtpv,
-                                           arrow_scale=scale, iterations=res.iterations), static=True)
+                                           arrow_scale=scale, precision_scale=pscale,
+                                           iterations=res.iterations), static=True)
     dof = max(res.dof, 1)
     for h in res.history:
         rec.set_time("iteration", sequence=int(h["iteration"]))
@@ -116,6 +121,24 @@ def log_bundle(rec, res, decision, options, report: str, max_photos: int = 300) 
         rec.log("convergence/lambda", rr.Scalars([float(h["lambda"])]))
         if np.isfinite(h["max_step_sigma"]):
             rec.log("convergence/max_step_sigma", rr.Scalars([float(h["max_step_sigma"])]))
+
+
+def _log_precision(rec, res, used) -> float:
+    """The adjusted points' 1-σ error ellipsoids, enlarged to 1 % of the network's size (the factor
+    is returned and logged); nothing when the bundle computed no point covariances."""
+    import rerun as rr
+
+    cov = getattr(res, "cov_points", None)
+    if cov is None:
+        return float("nan")
+    idx = np.flatnonzero(used)
+    c, half, q, scale = point_ellipsoids(res.state.XYZ[idx], np.asarray(cov)[idx])
+    if not len(c):
+        return float("nan")
+    rec.log("world/points/precision", rr.Ellipsoids3D(centers=c, half_sizes=half, quaternions=q,
+                                                      colors=[40, 170, 170], fill_mode="MajorWireframe"),
+            static=True)
+    return float(scale)
 
 
 def _depth(st, i, obs, sel):

@@ -101,27 +101,32 @@ class ComparatorSource(Stage):
     def log(self, result: StageResult, rec, ctx: Context) -> None:
         import rerun as rr
 
+        from baarda.pipeline.recording import entity_part, view_from_photo, view_vectors
+
         block = result.data["block"]
         obs = block.observations
         for i, pid in enumerate(block.photos.ids):
+            path = f"photos/{entity_part(pid)}"
             sel = obs.photo == i
-            if sel.any():
-                rec.log(f"photos/{pid}/points",
-                        rr.Points2D(obs.xy[sel], labels=block.points.ids[obs.point[sel]].tolist(), radii=0.5))
             fmt = block.cameras.format_mm[block.photos.camera[i]]
-            if np.isfinite(fmt).all():
+            fmt = fmt if np.isfinite(fmt).all() else None
+            if sel.any():
+                rec.log(f"{path}/points", rr.Points2D(view_from_photo(obs.xy[sel], fmt),
+                                                      labels=block.points.ids[obs.point[sel]].tolist(), radii=0.5))
+            if fmt is not None:
                 w, h = fmt / 2
-                rec.log(f"photos/{pid}/format", rr.LineStrips2D([[[-w, -h], [w, -h], [w, h], [-w, h], [-w, -h]]]))
+                corners = np.array([[-w, -h], [w, -h], [w, h], [-w, h], [-w, -h]])
+                rec.log(f"{path}/format", rr.LineStrips2D([view_from_photo(corners, fmt)]))
             res = result.data["interior"].get(pid)
             if res is not None:
                 scale = 1000.0  # residual arrows drawn 1000× (1 µm shown as 1 mm)
                 colors = [[220, 40, 40] if n > result.data["tolerance_mm"] else [40, 160, 40]
                           for n in res.fit.residual_norm]
-                rec.log(f"photos/{pid}/fiducials",
-                        rr.Arrows2D(origins=res.calibrated - res.fit.residuals,
-                                    vectors=res.fit.residuals * scale, labels=list(res.fiducials),
+                rec.log(f"{path}/fiducials",
+                        rr.Arrows2D(origins=view_from_photo(res.calibrated - res.fit.residuals, fmt),
+                                    vectors=view_vectors(res.fit.residuals * scale), labels=list(res.fiducials),
                                     colors=colors))
-                rec.log(f"photos/{pid}/interior_orientation",
+                rec.log(f"{path}/interior_orientation",
                         rr.AnyValues(sigma0_hat_um=float(res.fit.sigma0_hat * 1000), dof=res.fit.dof,
                                      arrow_scale=scale))
 

@@ -178,6 +178,8 @@ class HelmertScreening:
     def log(self, result: StageResult, rec, ctx: Context) -> None:
         import rerun as rr
 
+        from baarda.pipeline.recording import entity_part, view_from_photo, view_vectors
+
         art: ScreeningArtefact = result.data["artefact"]
         scale = result.data["arrow_scale"]
         red, grey, blue = [230, 40, 40], [150, 150, 150], [40, 90, 230]
@@ -186,16 +188,20 @@ class HelmertScreening:
             ids = s.point_ids
             flagged_pt = s.flagged.reshape(-1, 2).any(axis=1)
             colors = [red if f else blue for f in flagged_pt]
-            rec.log(f"photos/{p.left}/points", rr.Points2D(s.xy_left, labels=ids, colors=colors, radii=0.6))
-            rec.log(f"photos/{p.right}/points", rr.Points2D(s.xy_right, labels=ids, colors=colors, radii=0.6))
+            left, right = entity_part(p.left), entity_part(p.right)
+            rec.log(f"photos/{left}/points", rr.Points2D(view_from_photo(s.xy_left), labels=ids, colors=colors,
+                                                         radii=0.6))
+            rec.log(f"photos/{right}/points", rr.Points2D(view_from_photo(s.xy_right), labels=ids, colors=colors,
+                                                          radii=0.6))
             v = s.adjustment.v.reshape(-1, 2)
-            rec.log(f"photos/{p.right}/residuals",
-                    rr.Arrows2D(origins=s.xy_right - v, vectors=v * scale,
+            rec.log(f"photos/{right}/residuals",
+                    rr.Arrows2D(origins=view_from_photo(s.xy_right - v), vectors=view_vectors(v * scale),
                                 labels=[f"{i}: v = ({a:+.3f}, {b:+.3f}) mm" for i, (a, b) in zip(ids, v)],
                                 colors=[red if f else grey for f in flagged_pt]))
             if flagged_pt.any():
-                rec.log(f"photos/{p.right}/flagged",
-                        rr.Points2D(s.xy_right[flagged_pt], labels=[ids[i] for i in np.flatnonzero(flagged_pt)],
+                rec.log(f"photos/{right}/flagged",
+                        rr.Points2D(view_from_photo(s.xy_right[flagged_pt]),
+                                    labels=[ids[i] for i in np.flatnonzero(flagged_pt)],
                                     colors=red, radii=2.0))
             w = s.snooping.w.reshape(-1, 2)
             tau = s.pope.tau.reshape(-1, 2)
@@ -207,7 +213,6 @@ class HelmertScreening:
                 sigma0=s.settings.sigma0, sigma0_hat=s.adjustment.sigma0_hat, dof=s.adjustment.dof,
                 global_T=s.global_.T, global_critical=s.global_.critical, K=s.snooping.critical,
                 tau_critical=s.pope.critical, arrow_scale=scale))
-        rec.log("screening/report", rr.TextDocument(result.report, media_type=rr.MediaType.MARKDOWN))
 
 
 def _narrow_by_swaps(pair: PairResult, settings: ScreeningSettings, kw: dict) -> PairResult:

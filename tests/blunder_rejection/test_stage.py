@@ -98,11 +98,11 @@ def test_recording_has_iteration_history(tmp_path):
     res = run_stage(BlunderRejection, adjust("data1", tmp_path), {"rho": 4, "n_sim": 2000}, tmp_path=tmp_path)
     summary = read_recording(log_stage(BlunderRejection, res, tmp_path / "b.rrd"))
     by_path = {e.path: e for e in summary.entities}
-    ids = by_path["/blunders/ids/T"]
+    ids = by_path["/b/blunders/ids/T"]
     assert "iteration" in ids.timelines and ids.rows == 4  # 3 removals + the accepting step
-    assert by_path["/blunders/rrr/H_exp"].rows == 4         # ρ = 4 suspects
-    assert by_path["/blunders/pope/tau_max"].rows == 2
-    assert "/blunders/report" in by_path
+    assert by_path["/b/blunders/rrr/H_exp"].rows == 4         # ρ = 4 suspects
+    assert by_path["/b/blunders/pope/tau_max"].rows == 2
+    assert "/b/summary" in by_path
 
 
 def test_default_rho_that_rejects_nothing_says_a_larger_rho_may_be_needed(tmp_path):
@@ -145,8 +145,8 @@ def test_recording_names_rejected_labels(tmp_path):
     res = run_stage(BlunderRejection, adjust("data1", tmp_path), {"rho": 4, "n_sim": 2000}, tmp_path=tmp_path)
     summary = read_recording(log_stage(BlunderRejection, res, tmp_path / "b.rrd"))
     cols = {e.path: e.columns for e in summary.entities}
-    assert any("labels" in c for c in cols["/blunders/rrr/rejected"])
-    assert not any(c.split(":")[-1] == "rows" for c in cols["/blunders/rrr/rejected"])
+    assert any("labels" in c for c in cols["/b/blunders/rrr/rejected"])
+    assert not any(c.split(":")[-1] == "rows" for c in cols["/b/blunders/rrr/rejected"])
 
 
 def test_ids_stop_w_test_reaches_the_library(tmp_path):

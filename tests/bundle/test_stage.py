@@ -30,12 +30,12 @@ def test_stage_runs_and_logs(tmp_path):
 
     rec = read_recording(path)
     ents = {e.path: e for e in rec.entities}
-    for p in ("/world/points", "/world/photos/P1", "/images/P1/residuals", "/cameras/cam/distortion",
-              "/convergence/vtpv", "/bundle/report"):
+    for p in ("/bundle/world/points", "/bundle/world/photos/P1", "/bundle/images/P1/residuals",
+              "/bundle/cameras/cam/distortion", "/bundle/convergence/vtpv", "/bundle/summary"):
         assert p in ents, p
-    assert "iteration" in ents["/convergence/vtpv"].timelines
-    assert ents["/convergence/vtpv"].rows == b.iterations + 1
-    assert {"Transform3D", "Pinhole"} <= {c.split(":")[0] for c in ents["/world/photos/P1"].columns}
+    assert "iteration" in ents["/bundle/convergence/vtpv"].timelines
+    assert ents["/bundle/convergence/vtpv"].rows == b.iterations + 1
+    assert {"Transform3D", "Pinhole"} <= {c.split(":")[0] for c in ents["/bundle/world/photos/P1"].columns}
 
 
 def test_ids_rejects_a_planted_blunder(tmp_path):

@@ -188,4 +188,4 @@ def test_recording(tmp_path):
     res = run_stage(ComparatorSource, {}, {"path": str(FIX / "fiducial.cmp")}, tmp_path=tmp_path)
     summary = read_recording(log_stage(ComparatorSource, res, tmp_path / "c.rrd"))
     paths = {e.path for e in summary.entities}
-    assert {"/photos/L/points", "/photos/R/points", "/photos/L/fiducials", "/photos/L/format"} <= paths
+    assert {"/c/photos/L/points", "/c/photos/R/points", "/c/photos/L/fiducials", "/c/photos/L/format"} <= paths

@@ -61,11 +61,11 @@ def test_run_and_log(tmp_path):
 
     rec = read_recording(log_stage(IndependentModels, res, tmp_path / "im.rrd"))
     paths = {e.path for e in rec.entities}
-    for p in ("/independent-models/models/11-12/points", "/independent-models/models/11-12/y_parallax",
-              "/independent-models/models/11-12/projection_centres", "/independent-models/block/points",
-              "/independent-models/block/models/23-24", "/independent-models/block/tie_discrepancies",
-              "/independent-models/block/control_residuals", "/independent-models/block/check_errors",
-              "/independent-models/block/sigma0_hat", "/independent-models/legend"):
+    for p in ("/im/independent-models/models/11-12/points", "/im/independent-models/models/11-12/y_parallax",
+              "/im/independent-models/models/11-12/projection_centres", "/im/independent-models/block/points",
+              "/im/independent-models/block/models/23-24", "/im/independent-models/block/tie_discrepancies",
+              "/im/independent-models/block/control_residuals", "/im/independent-models/block/check_errors",
+              "/im/independent-models/block/sigma0_hat", "/im/independent-models/legend"):
         assert p in paths, p
 
 

@@ -200,6 +200,6 @@ def test_recording(tmp_path):
     res = screen_text(tmp_path, fix.read_text())
     summary = read_recording(log_stage(HelmertScreening, res, tmp_path / "s.rrd"))
     paths = {e.path for e in summary.entities}
-    assert {"/photos/L/points", "/photos/R/points", "/photos/R/residuals", "/photos/R/flagged",
-            "/pairs/L-R/tests", "/screening/report"} <= paths
+    assert {"/s/photos/L/points", "/s/photos/R/points", "/s/photos/R/residuals", "/s/photos/R/flagged",
+            "/s/pairs/L-R/tests", "/s/summary"} <= paths
     assert "Arrows2D" in summary.archetypes

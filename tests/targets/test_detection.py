@@ -321,7 +321,7 @@ def test_log_images_to_rerun(charuco, tmp_path):
     rec.disconnect()
     summary = read_recording(tmp_path / "t.rrd")
     paths = {e.path for e in summary.entities}
-    assert "/targets/images/img_00" in paths and "/targets/images/chocclusion_original/points" in paths
+    assert "/t/targets/images/img_00" in paths and "/t/targets/images/chocclusion_original/points" in paths
     assert "Image" in " ".join(summary.archetypes) and "Points2D" in " ".join(summary.archetypes)
 
 

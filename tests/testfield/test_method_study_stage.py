@@ -67,7 +67,7 @@ def test_run_report_tables_and_comparison_convention(tmp_path):
         assert text in res.report, text
     rec = read_recording(log_stage(MethodStudy, res, tmp_path / "ms.rrd"))
     paths = {e.path for e in rec.entities}
-    assert {"/test/Sz_cm/single_model_4_0_m", "/test/pooled/Sz_cm"} <= paths
+    assert {"/ms/Sz_cm/single_model_4_0_m", "/ms/pooled/Sz_cm"} <= paths
 
 
 def test_without_single_model_and_kept_out_of_the_comparison(tmp_path):

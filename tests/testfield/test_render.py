@@ -151,9 +151,9 @@ def test_recording(rendered, tmp_path):
     res, _ = rendered
     rec = read_recording(log_stage(TestFieldRender, res, tmp_path / "render.rrd"))
     cols = {e.path: e.columns for e in rec.entities}
-    assert any("Image:" in c for c in cols["/world/cameras/13/image"])
-    assert any("Points2D:positions" in c for c in cols["/world/cameras/13/image/true_targets"])
-    assert any("Points3D:positions" in c for c in cols["/world/targets"])
+    assert any("Image:" in c for c in cols["/render/world/cameras/13/image"])
+    assert any("Points2D:positions" in c for c in cols["/render/world/cameras/13/image/true_targets"])
+    assert any("Points3D:positions" in c for c in cols["/render/world/targets"])
 
 
 def test_pairs_of_layout():

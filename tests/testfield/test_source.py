@@ -27,7 +27,7 @@ def test_run_and_log(tmp_path):
     np.testing.assert_array_equal(again.artefacts["block"].observations.xy, block.observations.xy)
     rec = read_recording(log_stage(TestFieldSource, r, tmp_path / "tf.rrd"))
     paths = {e.path for e in rec.entities}
-    assert "/world/targets" in paths and "/world/cameras/11" in paths and "/world/cameras/25/image/targets" in paths
+    assert "/tf/world/targets" in paths and "/tf/world/cameras/11" in paths and "/tf/world/cameras/25/image/targets" in paths
     assert {"Points3D", "Transform3D", "Pinhole", "Points2D"} <= set(rec.archetypes)
 
 
