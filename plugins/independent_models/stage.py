@@ -19,6 +19,7 @@ from baarda.pipeline.recording import role_colors
 from baarda.pipeline.stage import Context, Stage, StageResult, TableData
 from baarda.pipeline.stats import data_snooping, global_test, iterated_data_snooping
 from baarda.pipeline.contracts import AdjustmentArtefact
+from . import reliability as im_reliability
 
 from .workflow import IndependentModelResult, independent_model_block
 
@@ -110,17 +111,23 @@ class IndependentModels(Stage):
                          "a critical surface")
         stats = _statistics(result, o)
         stats["ro_removed"] = ids_removed
+        ext = im_reliability.block_external(result.block, o.alpha0, o.beta0)
         summary = _summary(result, stats, block)
+        summary["external_reliability"] = im_reliability.summary(ext)
         tables = _tables(result, stats, block)
+        if ext is not None:
+            tables["external"] = im_reliability.table(ext)
         # the block's rows are model coordinates and control, not image observations: (-1, -1)
         obs_rows = np.full((result.block.snapshot.n, 2), -1, int)
         artefacts = {
             "independent-models": result,
             "adjustment": AdjustmentArtefact("independent-models", result.block.snapshot,
-                                             result.block, obs_rows),
+                                             result.block, obs_rows,
+                                             linearise=lambda b=result.block: (b.linear_model(), b.snapshot.n)),
         }
         return StageResult(artefacts=artefacts, summary=summary,
-                           report=_report(result, stats, summary, block), tables=tables,
+                           report=_report(result, stats, summary, block)
+                           + "\n".join(im_reliability.report_lines(ext, block.object_unit)), tables=tables,
                            data={"result": result, "stats": stats, "block": block,
                                  "arrow_scale": o.arrow_scale})
 
@@ -256,8 +263,10 @@ def _tables(result: IndependentModelResult, stats: dict, block) -> dict:
     points = TableData({"point": blk.point_ids.tolist(), "role": blk.role.tolist(),
                         "models": blk.n_models, "in_adjustment": blk.in_adjustment,
                         "X": blk.XYZ[:, 0], "Y": blk.XYZ[:, 1], "Z": blk.XYZ[:, 2],
-                        "sX": sx[:, 0], "sY": sx[:, 1], "sZ": sx[:, 2]},
-                       f"adjusted object points ({unit}); σ a posteriori; projection centres 'pc:<photo>'")
+                        "sX": sx[:, 0], "sY": sx[:, 1], "sZ": sx[:, 2],
+                        **im_reliability.point_columns(blk.cov_XYZ, (s0 / result.options["sigma0"]) ** 2)},
+                       f"adjusted object points ({unit}); σ a posteriori; projection centres 'pc:<photo>'; "
+                       "1-σ error ellipsoid (semi-axes, direction of the largest), plan ellipse, height σ")
     ds = stats["block"]["snooping"]
     s = blk.snapshot
     G = blk.obs_model.size
