@@ -182,3 +182,33 @@ def test_opencv_style_values_and_sigmas():
     # OpenCV's RMS is per image point: √2 × the RMS per coordinate for equal components
     assert opencv_rms(np.full((5, 2), 0.3)) == pytest.approx(0.3 * np.sqrt(2))
     assert pixel_source({"colmap": {}}) == "COLMAP" and pixel_source({"source": "x"}) is None
+
+
+def test_pixel_source_is_reported_in_pixels(tmp_path):
+    """The same bundle result, its block marked as from COLMAP (pixel source, pitch p): every image
+    quantity of the protocol is the µm value / (1000 p), OpenCV's RMS is per image point, and the
+    camera gets its pixel values."""
+    import dataclasses
+
+    from baarda.plugins.bundle.protocol import bundle_protocol, protocol_lines
+
+    out = run_project(REPO / "fixtures" / "testfield" / "block.toml", tmp_path / "run", verbose=False)
+    res = out.artefacts["bundle"]
+    extras = res.extras
+    mm = bundle_protocol(res, extras, alpha0=0.001, beta0=0.8)
+    cams = res.block_in.cameras
+    p = 0.005
+    block = res.block_in.replace(meta={**res.block_in.meta, "colmap": {}},
+                                 cameras=cams.replace(pixel_mm=np.full(len(cams), p)))
+    px = bundle_protocol(dataclasses.replace(res, block_in=block), extras, alpha0=0.001, beta0=0.8)
+    assert mm["unit"] == "µm" and px["unit"] == "px" and px["pixel_source"] == "COLMAP"
+    for k in ("x", "y", "all"):
+        assert px["rms"][k] == pytest.approx(mm["rms"][k] / (1000 * p), rel=1e-12)
+    assert px["reliability"]["mdb_max"] == pytest.approx(mm["reliability"]["mdb_max"] / (1000 * p), rel=1e-12)
+    v = res.residuals[res.obs_active] / p
+    assert px["opencv_rms_px"] == pytest.approx(np.sqrt(np.sum(v ** 2) / len(v)), rel=1e-12)
+    cam = px["cameras"][0]
+    assert cam["pixels"]["c"] == pytest.approx(res.state.cam_params[0, 0] / p)
+    assert "opencv" not in cam          # ebner12 has no OpenCV form; baarda's parameters stay
+    text = "\n".join(protocol_lines(px))
+    assert "px" in text and "µm" not in text
