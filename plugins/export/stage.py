@@ -81,8 +81,9 @@ class PointExport:
                    "crs": "local" if ex.crs is None else (options.crs or block.meta.get("crs", {}).get("crs", "")[:80]),
                    "axes": list(ex.names), "with_sigma": int(fin.sum())}
         med = np.median(ex.sigma[fin], axis=0) if fin.any() else [np.nan] * 3
+        to_mm = 1000.0 if ex.unit == "m" else 1.0
         report = (f"Wrote {len(ex.ids)} points ({', '.join(p.name for p in written)}) with axes "
                   f"{' '.join(ex.names)} and σ {' '.join(ex.sigma_names)} (median "
-                  + " / ".join(f"{v * 1000:.1f}" for v in med) + " mm"
+                  + " / ".join(f"{v * to_mm:.1f}" for v in med) + " mm"
                   + (", in the block's local system" if ex.crs is None else "") + ").")
         return StageResult(summary=summary, report=report)

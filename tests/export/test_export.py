@@ -117,3 +117,18 @@ def test_aicon_writer_refuses_what_aicon_cannot_hold(tmp_path):
     bad = noisy.replace(points=noisy.points.replace(ids=np.array(["P" + i for i in noisy.points.ids])))
     with pytest.raises(InputError, match="whole-number point ids"):
         write_aicon(bad, tmp_path / "bad")
+
+
+def test_aicon_export_stage_writes_the_bundles_residuals(shared_data, tmp_path):
+    from baarda.plugins.aicon.writer import AiconExportStage
+
+    block = aicon_block(read_aicon(shared_data / "aicon-closerange" / "example"), sigma_image_um=0.5)
+    res = adjust(block, BundleSettings(datum="free"))
+    out = run_stage(AiconExportStage, {"block": res.block, "bundle": res}, {"path": "out/adj"}, tmp_path=tmp_path)
+    assert out.summary["measurements"] == len(block.observations)
+    back = read_aicon(tmp_path / "out" / "adj")
+    # AICON's residual sign: computed − observed = −v
+    assert np.allclose(back.measurements["vxy"], -res.residuals, rtol=0, atol=1e-15)
+    sig = np.sqrt(np.einsum("kii->ki", res.cov_points))
+    assert np.allclose(back.points["sigma"], sig, rtol=1e-15)
+    assert np.allclose(back.images["X0"], res.block.photos.X0, rtol=0, atol=0)

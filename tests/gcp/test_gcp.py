@@ -89,3 +89,24 @@ def test_odm_fixture(repo_root, shared_data, tmp_path):
     # the control targets come back near their surveyed UTM coordinates (σ 2-3 cm, residuals ≤ 11 cm)
     hv01 = next(l for l in csv_lines if l.startswith("HV01,")).split(",")
     assert abs(float(hv01[2]) - 658528.361) < 0.1 and abs(float(hv01[3]) - 7167002.098) < 0.1
+
+
+def test_gcp_stage_with_cameras_json(shared_data, tmp_path):
+    """The camera from an OpenSfM cameras.json (brown, principal point off centre, k1): c, xp, yp, K1."""
+    from baarda.pipeline.testing import run_stage
+    from baarda.plugins.gcp.stage import GcpListSource
+
+    cam = {"v2 canon": {"projection_type": "brown", "width": 4000, "height": 3000, "focal_x": 0.726,
+                        "focal_y": 0.726, "c_x": 0.002, "c_y": -0.001, "k1": -0.05, "k2": 0.0}}
+    (tmp_path / "cameras.json").write_text(json.dumps(cam))
+    opts = {"path": str(shared_data / "odm-br-gcp" / "gcp_list_floatxy_raw.txt"), "cameras_json": "cameras.json",
+            "camera": {"sensor_width_mm": 6.17}, "skip_lines": [19, 51, 52, 55, 70], "check": ["HV16"]}
+    out = run_stage(GcpListSource, {}, opts, tmp_path=tmp_path)
+    cams = out.artefacts["block"].cameras
+    p = 6.17 / 4000
+    c = 0.726 * 4000 * p
+    assert cams.c[0] == pytest.approx(c)
+    assert cams.xp[0] == pytest.approx(0.002 * 4000 * p) and cams.yp[0] == pytest.approx(0.001 * 4000 * p)
+    assert cams.ap_model[0] == "brown" and cams.ap[0, 0] == pytest.approx(-0.05 / c ** 2)
+    assert sorted(out.summary["dropped_photos"]) == ["IMG_5349.JPG", "IMG_5354.JPG"]
+    assert out.summary["check"] == 1 and len(out.warnings) == 2
