@@ -119,14 +119,14 @@ def _apply_Q(prob, red, Qx, st, a_g: np.ndarray, a_p: np.ndarray):
 
 # --------------------------------------------------------------------------------------------------
 def row_mdb(res, delta0: float) -> np.ndarray:
-    """(k_all, 2) minimal detectable bias of every image row (mm): ``δ0 σ0 / √(P Qvv P)_ii``
-    (nan inactive, inf uncontrolled)."""
-    PQ = np.einsum("kii->ki", res.PQvvP)
-    act = res.row_active
-    with np.errstate(divide="ignore", invalid="ignore"):
-        out = np.where(PQ > 1e-14 * np.maximum(_p_diag(res), 1e-300), delta0 * res.sigma0 / np.sqrt(PQ), np.inf)
-    out[~act] = np.nan
-    return out
+    """(k_all, 2) minimal detectable bias of every image row (mm): ``δ0 σ0 / √(P Qvv P)_ii``, the
+    statistics library's :func:`~baarda.pipeline.stats.mdb` on the snapshot (nan inactive, inf
+    uncontrolled: r ≤ 1e-10)."""
+    from baarda.pipeline.stats import mdb
+
+    if res.snapshot is None:
+        raise ValueError("MDBs need the precision: adjust with covariance = true")
+    return mdb(res.snapshot, delta0).reshape(-1, 2)
 
 
 def _p_diag(res) -> np.ndarray:

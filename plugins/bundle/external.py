@@ -23,7 +23,8 @@ def external_reliability(res, alpha0: float, beta0: float) -> dict | None:
     jp, vp, sp, je, ve, se = eff.largest()
     # angles to degrees for tables and reports
     ve = np.where(je >= 3, np.degrees(ve), ve)
-    return {"effects": eff, "point": (jp, vp, sp), "eo": (je, ve, se), "delta0": _delta0(alpha0, beta0)}
+    return {"effects": eff, "point": (jp, vp, sp), "eo": (je, ve, se), "delta0": _delta0(alpha0, beta0),
+            "r": np.asarray(res.redundancy)}
 
 
 def observation_columns(ext: dict | None, k: int) -> dict:
@@ -58,7 +59,7 @@ def _largest(ext, block, which: str) -> dict | None:
     obs = block.observations
     ph, pt = str(block.photos.ids[obs.photo[k]]), str(block.points.ids[obs.point[k]])
     out = {"observation": f"photo {ph} point {pt} {'xy'[c]}", "mdb_mm": float(ext["effects"].bias[k, c]),
-           "in_sigma": float(s[k, c]), "effect": float(v[k, c])}
+           "r": float(ext["r"][k, c]), "in_sigma": float(s[k, c]), "effect": float(v[k, c])}
     if which == "point":
         out.update(point=pt, coordinate="XYZ"[j[k, c]])
     else:
@@ -86,14 +87,16 @@ def report_lines(ext: dict | None, block, most: int = 5) -> list[str]:
          f"Effect of each coordinate's minimal detectable bias (δ0 = {ext['delta0']:.2f}) on its own point "
          "and its own photo's orientation (in σ: a-priori σ of that parameter; per coordinate in "
          "bundle_observations.csv, ext_*). Baarda's δ̄0 bounds the effect on any function of the unknowns: "
-         f"largest {s['bar_delta0_max']:.2f} σ, median {s['bar_delta0_median']:.2f} σ.", ""]
+         f"largest {s['bar_delta0_max']:.2f} σ, median {s['bar_delta0_median']:.2f} σ. Rows with small "
+         "redundancy numbers (weakly controlled, e.g. points in two photos) have large MDBs and so the "
+         "largest effects; rows with r ≤ 1e-10 are uncontrolled (no MDB, no effect).", ""]
     p, e = s["largest_on_point"], s["largest_on_orientation"]
     if p:
-        L.append(f"- largest on a point: {p['observation']} (MDB {p['mdb_mm'] * 1000:.2f} µm) moves point "
+        L.append(f"- largest on a point: {p['observation']} (r = {p['r']:.3g}, MDB {p['mdb_mm'] * 1000:.4g} µm) moves point "
                  f"{p['point']} {p['coordinate']} by {p['effect']:+.4g} {unit} = {p['in_sigma']:.2f} σ")
     if e:
         u = "°" if e["unit"] == "deg" else f" {unit}"
-        L.append(f"- largest on an orientation: {e['observation']} (MDB {e['mdb_mm'] * 1000:.2f} µm) moves photo "
+        L.append(f"- largest on an orientation: {e['observation']} (r = {e['r']:.3g}, MDB {e['mdb_mm'] * 1000:.4g} µm) moves photo "
                  f"{e['photo']} {e['parameter']} by {e['effect']:+.4g}{u} = {e['in_sigma']:.2f} σ")
     j, v, sg = ext["point"]
     sv = np.where(j >= 0, np.nan_to_num(sg, nan=-1.0), -1.0).reshape(-1)
