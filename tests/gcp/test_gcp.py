@@ -110,3 +110,13 @@ def test_gcp_stage_with_cameras_json(shared_data, tmp_path):
     assert cams.ap_model[0] == "brown" and cams.ap[0, 0] == pytest.approx(-0.05 / c ** 2)
     assert sorted(out.summary["dropped_photos"]) == ["IMG_5349.JPG", "IMG_5354.JPG"]
     assert out.summary["check"] == 1 and len(out.warnings) == 2
+
+
+def test_stage_protocol():
+    from baarda.pipeline.testing import check_stage
+    from baarda.plugins.aicon.writer import AiconExportStage
+    from baarda.plugins.export.stage import PointExport
+    from baarda.plugins.gcp.stage import GcpListSource, GnssCentres
+
+    for cls in (GcpListSource, GnssCentres, PointExport, AiconExportStage):
+        check_stage(cls)
