@@ -13,13 +13,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from baarda.pipeline import montecarlo
-from baarda.pipeline.stats import (data_snooping, estimated_errors, iterated_data_snooping, mdb,
-                            pope_iterated, pope_test, rrr, w_test)
+from baarda.pipeline.stats import (data_snooping, estimated_errors, irls, iterated_data_snooping, mdb,
+                            pope_iterated, pope_test, rrr, w_test, weighted_refit)
 from baarda.pipeline.stats.critical import delta0 as _delta0
 
 from baarda.pipeline.contracts import AdjustmentArtefact
 
 METHODS = ("data-snooping", "ids", "pope", "rrr")
+#: robust estimators (IRLS, baarda.pipeline.stats.robust): run on request, not by method = "all"
+ROBUST_METHODS = ("robust-huber", "robust-danish", "robust-l1")
 
 
 @dataclass(frozen=True)
@@ -34,6 +36,8 @@ class BlunderSettings:
     rrr_critical: float | None = None
     max_rejections: int = 50
     ids_stop: str = "global-test"
+    robust_c: float = 0.0
+    robust_standardise: str = "redundancy"
 
 
 @dataclass(frozen=True)
@@ -131,6 +135,19 @@ def run_rrr(art: AdjustmentArtefact, s: BlunderSettings, rng) -> MethodResult:
     return MethodResult("rrr", [d.row for d in dec], dec, hist, summary, res)
 
 
+def run_robust(art: AdjustmentArtefact, method: str, s: BlunderSettings) -> MethodResult:
+    """IRLS with the weight function of ``method`` (``robust-huber`` …); the rows ending with a weight
+    below 0.5 are its rejections (statistic ``weight``, critical value 0.5, step = IRLS iterations)."""
+    snap = art.snapshot
+    refit, how = weighted_refit(art.model, snap.active, redundancy=s.robust_standardise == "current")
+    if refit is None:
+        return MethodResult(method, [], [], [], {}, None, skipped=how)
+    res = irls(refit, snap, method.split("-", 1)[1], s.robust_c or None, standardise=s.robust_standardise)
+    dec = [Decision(method, int(i), str(snap.labels[i]), "weight", float(res.weights[i]), res.threshold,
+                    res.iterations) for i in res.downweighted]
+    return MethodResult(method, [d.row for d in dec], dec, list(res.history), {"how": how, **res.summary()}, res)
+
+
 def run_methods(art: AdjustmentArtefact, methods, s: BlunderSettings, rng) -> dict[str, MethodResult]:
     """Run each method in ``methods`` (names from :data:`METHODS`) on the adjustment."""
     out = {}
@@ -143,8 +160,10 @@ def run_methods(art: AdjustmentArtefact, methods, s: BlunderSettings, rng) -> di
             out[m] = run_pope(art, s)
         elif m == "rrr":
             out[m] = run_rrr(art, s, rng)
+        elif m in ROBUST_METHODS:
+            out[m] = run_robust(art, m, s)
         else:
-            raise ValueError(f"unknown method {m!r}; expected one of {METHODS}")
+            raise ValueError(f"unknown method {m!r}; expected one of {METHODS + ROBUST_METHODS}")
     return out
 
 

@@ -20,15 +20,17 @@ from baarda.pipeline.report import TABLE_DECIMALS
 from baarda.pipeline.stage import Context, StageResult, TableData
 
 from baarda.pipeline.contracts import AdjustmentArtefact
-from .decide import METHODS, BlunderSettings, MethodResult, row_statistics, run_methods
+from .decide import METHODS, ROBUST_METHODS, BlunderSettings, MethodResult, row_statistics, run_methods
 
 
 @dataclasses.dataclass(frozen=True)
 class BlunderOptions:
     RENAMED: ClassVar[dict[str, str]] = {"max_iter": "max_rejections"}
-    method: Literal["data-snooping", "ids", "pope", "rrr", "all"] = option(
+    method: Literal["data-snooping", "ids", "pope", "rrr", "all", "robust-huber", "robust-danish", "robust-l1"] = option(
         "all", "method: data-snooping (one pass, σ0 a priori), ids (Kok's iterated data snooping), "
-               "pope (iterated τ test, σ̂0), rrr (recursive residual rejection), or all of them side by side")
+               "pope (iterated τ test, σ̂0), rrr (recursive residual rejection), or all of them side by side; "
+               "robust-huber / robust-danish / robust-l1: robust estimation by IRLS, the rows ending with a "
+               "weight below 0.5 are rejected (docs/statistics.md)")
     decide_by: Literal["data-snooping", "ids", "pope", "rrr"] = option(
         "rrr", "with method = all: the method whose rejections act on the block")
     action: Literal["flag", "remove"] = option(
@@ -49,6 +51,11 @@ class BlunderOptions:
     ids_stop: Literal["global-test", "w-test"] = option(
         "global-test", "IDS: stop when the global test accepts (Kok), or go on while any |w| exceeds K "
                        "(for a-priori σ scaled from these residuals, where the global test accepts by construction)")
+    robust_c: float = option(0.0, "robust methods: tuning constant in standardised residuals; 0 = Huber 1.5, "
+                                  "Danish 2.5 (L1: the floor of |u|, 0.001)", ge=0.0)
+    robust_standardise: Literal["redundancy", "apriori", "current"] = option(
+        "redundancy", "robust methods: residuals divided by σ √r of the given adjustment, by the a-priori σ, or by "
+                      "σ √r of the current weighted adjustment")
 
     def __post_init__(self):
         for name in ("alpha0", "beta0", "alpha_pope", "alpha_rrr"):
@@ -62,7 +69,7 @@ class BlunderOptions:
     def settings(self) -> BlunderSettings:
         return BlunderSettings(self.alpha0, self.beta0, self.critical_w or None, self.alpha_pope,
                                self.alpha_rrr, self.rho, self.n_sim, self.rrr_critical or None, self.max_rejections,
-                               self.ids_stop)
+                               self.ids_stop, self.robust_c, self.robust_standardise)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -95,6 +102,12 @@ class BlunderRejection:
             raise InputError(f"method 'rrr' needs a linear model; the adjustment '{art.name}' offers only "
                              "refit() — use data-snooping, ids or pope", None, None, "method")
         results = run_methods(art, methods, settings, ctx.rng)
+        if options.method in ROBUST_METHODS and results[options.method].skipped:
+            raise InputError(f"method '{options.method}' cannot run: {results[options.method].skipped}",
+                             None, None, "method")
+        for m in set(results) & set(ROBUST_METHODS):
+            if not results[m].summary["converged"]:
+                ctx.warn(f"{m}: IRLS did not converge in {results[m].summary['iterations']} weighted adjustments")
         for r in results.values():
             if r.skipped:
                 ctx.warn(f"{r.method} skipped: {r.skipped}")
@@ -213,6 +226,15 @@ def _report(report: BlunderReport, block, art: AdjustmentArtefact, options) -> s
             continue
         if m == "ids":
             out.append(f"- IDS (K = {r.summary['K']:.3f}) stopped: {r.summary['stop']}.")
+        elif m in ROBUST_METHODS:
+            s = r.summary
+            out.append(f"- {m}: IRLS ({s['how']}), c = {s['c']:g}, residuals standardised by "
+                       + {"redundancy": "σ √r of the given adjustment", "apriori": "the a-priori σ",
+                          "current": "σ √r of the current weighted adjustment"}[s["standardise"]]
+                       + f"; {s['iterations']} weighted adjustment(s), "
+                       + ("converged" if s["converged"] else "NOT converged")
+                       + f"; {s['n_downweighted']} row(s) end with weight < {s['threshold']:g} (their weights are "
+                         f"in column {m.replace('-', '_')}_weight).")
         elif m == "pope":
             h = r.history[-1]
             out.append(f"- Pope (α = {r.summary['alpha']:g}) stopped at dof {h['dof']}, σ̂0 = {h['sigma0_hat']:.4g}: "
@@ -262,7 +284,10 @@ def _table(report: BlunderReport, art: AdjustmentArtefact, block, stats) -> Tabl
         key = m.replace("-", "_")
         by_row = {d.row: d for d in r.decisions}
         cols[key] = ["skipped" if r.skipped else ("reject" if i in by_row else "accept") for i in range(n)]
-        cols[f"{key}_statistic"] = [f"{by_row[i].statistic}={by_row[i].value:.4g}>{by_row[i].critical:.4g}"
+        cols[f"{key}_statistic"] = [f"{by_row[i].statistic}={by_row[i].value:.4g}"
+                                    f"{'<' if by_row[i].statistic == 'weight' else '>'}{by_row[i].critical:.4g}"
                                     f"@{by_row[i].step}" if i in by_row else "" for i in range(n)]
+        if m in ROBUST_METHODS and not r.skipped:
+            cols[f"{key}_weight"] = [round(float(x), 6) for x in r.raw.weights]
     return TableData(cols, "every scalar observation of the adjustment with v, r, w, τ, ∇̂, MDB and the "
                            "decision of each method (statistic > critical @ step)")

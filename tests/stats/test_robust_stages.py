@@ -42,3 +42,51 @@ def test_bundle_robust_downweights_the_blunder(tmp_path, bad_block, method):
 def test_bundle_robust_excludes_ids(tmp_path, bad_block):
     with pytest.raises((ValueError, InputError), match="excludes blunders = 'ids'"):
         run_stage(BundleAdjustment, {"block": bad_block}, {"robust": "huber", "blunders": "ids"}, tmp_path=tmp_path)
+
+
+# ------------------------------------------------------------------ blunder-rejection robust-*
+from baarda.pipeline.contracts import AdjustmentArtefact
+from baarda.plugins.blunder_rejection.stage import BlunderRejection
+from tests.blunder_rejection.test_table4 import adjust as paper000
+
+
+def test_blunder_rejection_robust_on_paper000_data1(tmp_path):
+    """Paper 000's Data 1 (Helmert screening of a stereo pair): IDS rejects X9, X5, Y5; the Danish
+    weights of exactly those rows vanish, Huber down-weights them most (and X3 just below 0.5)."""
+    inputs = paper000("data1", tmp_path)
+    out = {}
+    for m in ("robust-danish", "robust-huber"):
+        res = run_stage(BlunderRejection, inputs, {"method": m, "action": "remove"}, tmp_path=tmp_path)
+        out[m] = res.artefacts["blunders"].methods[m]
+        cols = res.tables["observations"].columns
+        assert f"{m.replace('-', '_')}_weight" in cols and m + ": IRLS" in res.report
+        ids = res.artefacts["block"].observation_ids()
+        assert {("R", "5"), ("R", "9")} <= {ids[i] for i in np.flatnonzero(~res.artefacts["block"].observations.active)}
+    assert out["robust-danish"].rejected_labels == ["X9", "X5", "Y5"]
+    assert all(d.value < 1e-6 for d in out["robust-danish"].decisions)
+    assert out["robust-huber"].rejected_labels[:3] == ["X9", "X5", "Y5"]
+    assert inputs["block"].observations.active.all()
+
+
+def test_blunder_rejection_robust_on_the_bundle_artefact(tmp_path, bad_block):
+    b = run_stage(BundleAdjustment, {"block": bad_block}, {}, tmp_path=tmp_path)
+    res = run_stage(BlunderRejection, {"adjustment": b.artefacts["adjustment"], "block": b.artefacts["block"]},
+                    {"method": "robust-danish"}, tmp_path=tmp_path)
+    r = res.artefacts["blunders"].methods["robust-danish"]
+    assert r.rejected[0] == 75 and r.summary["how"].startswith("bundle")
+
+
+class _OnlyRefit:
+    def __init__(self, m):
+        self.m = m
+
+    def refit(self, active):
+        return self.m.refit(active)
+
+
+def test_blunder_rejection_robust_needs_a_weighted_refit(tmp_path):
+    inputs = paper000("data1", tmp_path)
+    art = inputs["adjustment"]
+    other = AdjustmentArtefact("other", art.snapshot, _OnlyRefit(art.model), art.obs_rows)
+    with pytest.raises(InputError, match="method 'robust-huber' cannot run: a _OnlyRefit offers no weighted refit"):
+        run_stage(BlunderRejection, {**inputs, "adjustment": other}, {"method": "robust-huber"}, tmp_path=tmp_path)
