@@ -149,7 +149,7 @@ class RobustResult:
 
 def irls(refit: Callable[[np.ndarray], Any], snap, method: str = "huber", c: float | None = None, *,
          standardise: Literal["redundancy", "apriori", "current"] = "redundancy", max_iter: int = 50,
-         tol: float = 1e-4, w_min: float = 1e-8, r_min: float = 1e-6,
+         tol: float = 1e-3, w_min: float = 1e-8, r_min: float = 1e-6,
          threshold: float = 0.5) -> RobustResult:
     """Iteratively reweighted least squares from the unweighted adjustment ``snap`` (a Snapshot).
 
