@@ -171,13 +171,15 @@ def pixel_source(meta) -> str | None:
 OPENCV_NAMES = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
 
 
-def opencv_style(c, xp, yp, ap_model: str, ap, cov, size, pixel_mm, convention: str = "opencv") -> list[dict] | None:
+def opencv_style(c, xp, yp, ap_model: str, ap, cov, size, pixel_mm, convention: str = "opencv",
+                 drop_shear: bool = False) -> list[dict] | None:
     """A camera as OpenCV writes it — ``fx, fy, cx, cy`` (px) and ``k1, k2, p1, p2, k3`` — with σ.
 
     ``cov`` is the covariance of ``(c, xp, yp, *ap)`` (mm; the AP model's units), propagated
     linearly (every relation is polynomial; the Jacobian is exact at the estimate).  Returns
     ``[{"name", "value", "sigma"}]`` in :data:`OPENCV_NAMES` order, or None when the camera has no
-    OpenCV form (an AP model other than ``none``/``brown``, or a brown shear ``B2 ≠ 0``).
+    OpenCV form (an AP model other than ``none``/``brown``, or a brown shear ``B2 ≠ 0`` unless
+    ``drop_shear``: then the other coefficients are given and B2 is left out — the caller says so).
     """
     if ap_model not in ("none", "brown"):
         return None
@@ -188,8 +190,9 @@ def opencv_style(c, xp, yp, ap_model: str, ap, cov, size, pixel_mm, convention: 
         a = np.asarray(ap, float).reshape(-1)[:7]
         apv[:a.size] = a
     K1, K2, K3, P1, P2, B1, B2 = apv
-    if B2 != 0.0:
+    if B2 != 0.0 and not drop_shear:
         return None
+    apv[6] = B2 = 0.0
     v = opencv_from_brown(c, apv, p)
     cx, cy = pixels_from_mm([xp, yp], size, p, convention)
     values = {"fx": v["fx"], "fy": v["fy"], "cx": float(cx), "cy": float(cy),

@@ -27,9 +27,23 @@ def _plt():
     return plt
 
 
-def residual_vectors(res, decision=None):
+def _backdrop(path: str, longest: int = 1200):
+    """The photo as a grey image (downsampled; None when it cannot be read)."""
+    import cv2
+
+    img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if img is None:
+        return None
+    f = max(img.shape) / longest
+    if f > 1:
+        img = cv2.resize(img, (int(img.shape[1] / f), int(img.shape[0] / f)), interpolation=cv2.INTER_AREA)
+    return img
+
+
+def residual_vectors(res, decision=None, images: dict | None = None):
     """Residual vectors (observed − computed) per photo over the format, the photos with the
-    largest RMS first; one arrow scale for all panels."""
+    largest RMS first; one arrow scale for all panels.  ``images``: photo id → image file, drawn
+    behind the arrows (the pixel grid mapped onto the format: the sensor centre is the origin)."""
     plt = _plt()
     block = res.block_in
     obs, cams = block.observations, block.cameras
@@ -58,6 +72,11 @@ def residual_vectors(res, decision=None):
             ax.quiver(xy[flag, 0], xy[flag, 1], k * v[m][flag, 0], k * v[m][flag, 1], angles="xy", scale_units="xy",
                       scale=1, color="#c0392b", width=0.008)
         ax.plot(xy[:, 0], xy[:, 1], ".", ms=2, color="#555")
+        src = (images or {}).get(str(block.photos.ids[p]))
+        back = _backdrop(src) if src else None
+        if back is not None and fw > 0:
+            ax.imshow(back, cmap="gray", extent=(-fw / 2, fw / 2, -fh / 2, fh / 2), origin="upper", alpha=0.8,
+                      zorder=0)
         if fw > 0:
             ax.add_patch(plt.Rectangle((-fw / 2, -fh / 2), fw, fh, fill=False, ec="#999", lw=0.8))
         rm = np.sqrt(np.mean(v[m] ** 2)) * scale
@@ -214,10 +233,26 @@ def distortion(res, j: int, n: int = 60):
     return fig
 
 
-def bundle_figures(res, decision=None) -> dict:
+def photo_images(block, previous=()) -> dict:
+    """Photo id → image file: from the block (``meta["targets"]["images"]``, opencv-targets) or from
+    an earlier stage's ``images`` artefact with ``paths`` and ``photo_ids`` (testfield-render)."""
+    out = {}
+    t = block.meta.get("targets") if isinstance(block.meta, dict) else None
+    if isinstance(t, dict) and isinstance(t.get("images"), dict):
+        out.update({str(k): v for k, v in t["images"].items() if v})
+    for st in previous:
+        art = getattr(st.result, "artefacts", {}).get("images")
+        if art is not None and hasattr(art, "paths") and hasattr(art, "photo_ids"):
+            out.update({str(pid): path for pid, path in zip(art.photo_ids, art.paths) if str(pid) not in out})
+    return out
+
+
+def bundle_figures(res, decision=None, previous=()) -> dict:
     """Every figure of a bundle result: name → (figure, caption)."""
     out = {}
-    out["residuals"] = (residual_vectors(res, decision), "Residual vectors per photo over the format")
+    images = photo_images(res.block_in, previous)
+    out["residuals"] = (residual_vectors(res, decision, images),
+                        "Residual vectors per photo over the format" + (" and the photo" if images else ""))
     snap = res.snapshot
     if snap is not None:
         ok = stats.controlled(snap)

@@ -182,11 +182,14 @@ def _camera(res, j: int, src: str | None, scale: float) -> dict:
         st = res.state.cam_params[j]
         conv = "colmap" if src == "COLMAP" else "opencv"
         cv = opencv_style(st[0], st[1], st[2], str(cams.ap_model[j]), st[3:3 + len(names) - 3],
-                          res.cov_cameras[j], cams.resolution[j], cams.pixel_mm[j], conv)
+                          res.cov_cameras[j], cams.resolution[j], cams.pixel_mm[j], conv, drop_shear=True)
         cam["pixels"] = {"c": float(st[0]) * scale, "xp": float(st[1]) * scale + 0.0, "yp": float(st[2]) * scale + 0.0,
                          "sigma_c": float(rows[0]["sigma"]) * scale}
         if cv is not None:
             cam["opencv"] = cv
+            if "B2" in names and st[names.index("B2")] != 0.0:
+                cam["opencv_note"] = (f"baarda's B2 = {st[names.index('B2')]:.3g} (shear) has no OpenCV "
+                                      "counterpart and is left out of the OpenCV values")
     return cam
 
 
@@ -252,6 +255,7 @@ def protocol_lines(p: dict) -> list[str]:
               "| camera | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|"]
         L += ["| " + c["camera"] + " | " + " | ".join(f"{_f(x['value'], 7)} ({_f(x['sigma'], 2)})" for x in c["opencv"])
               + " |" for c in cv]
+        L += [f"- camera {c['camera']}: {c['opencv_note']}" for c in cv if c.get("opencv_note")]
         L.append("")
     for cam in p.get("cameras", []):
         px = cam.get("pixels")

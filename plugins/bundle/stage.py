@@ -344,7 +344,7 @@ class BundleAdjustment:
         """Figures for report.html (drawn by the engine; see plugins/bundle/figures.py)."""
         from .figures import bundle_figures
 
-        return bundle_figures(result.data["result"], result.data["decision"])
+        return bundle_figures(result.data["result"], result.data["decision"], ctx.previous)
 
     def log(self, result: StageResult, rec, ctx: Context) -> None:
         from .rrlog import log_bundle
