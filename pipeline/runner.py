@@ -21,6 +21,8 @@ returns a :class:`RunOutcome` with ``ok = False``, the message and the kind of f
 from __future__ import annotations
 
 import datetime as _dt
+import os
+import re
 import shutil
 import sys
 import time
@@ -286,6 +288,10 @@ def _write_results(run_dir, project, records, recording_id, started):
     })
 
 
+_ABSOLUTE = re.compile(r"(?<![\w.~/])/(?:[\w.\-]+/)+[\w.\-]*")
+"""An absolute POSIX path in a report's text (at least one folder deep)."""
+
+
 def _scrubber(project, run_dir, shown):
     """Reports name no absolute path of this machine: the run directory becomes ``.``, the
     project's folder its relative name, the home folder ``~``."""
@@ -305,11 +311,20 @@ def _scrubber(project, run_dir, shown):
     pairs.append((str(Path.home()), "~"))
     pairs.sort(key=lambda p: -len(p[0]))
 
+    def relative(m) -> str:          # any other path of this machine: relative to the project file
+        path = m.group(0)
+        try:
+            if Path(path).parent.exists():
+                return os.path.relpath(path, proj)
+        except (OSError, ValueError):
+            pass
+        return path
+
     def scrub(text: str) -> str:
         for a, b in pairs:
             if a and a not in ("/", "./"):
                 text = text.replace(a, b)
-        return text
+        return _ABSOLUTE.sub(relative, text)
 
     return scrub
 

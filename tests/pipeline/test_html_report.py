@@ -212,3 +212,16 @@ def test_pixel_source_is_reported_in_pixels(tmp_path):
     assert "opencv" not in cam          # ebner12 has no OpenCV form; baarda's parameters stay
     text = "\n".join(protocol_lines(px))
     assert "px" in text and "µm" not in text
+
+
+def test_reports_name_paths_relative_to_the_project(tmp_path):
+    """A path outside the project and the run directory is written relative to the project file."""
+    from types import SimpleNamespace
+
+    from baarda.pipeline.runner import _scrubber
+
+    (tmp_path / "project").mkdir()
+    (tmp_path / "data" / "deep").mkdir(parents=True)
+    scrub = _scrubber(SimpleNamespace(path=tmp_path / "project" / "p.toml"), tmp_path / "run", tmp_path / "run")
+    text = scrub(f"read {tmp_path}/data/deep/model; wrote {tmp_path}/run/bundle_points.csv; 3 km/h")
+    assert text == "read ../data/deep/model; wrote bundle_points.csv; 3 km/h"
