@@ -9,7 +9,7 @@ selected inversion / cofactors, redundancy numbers); then ``own_effects`` (the M
 its own point and photo) is timed and the ratio printed, with the peak resident memory before and
 after.  As a check, the full effect vectors of three rows (``effect_vectors``: one solve of the
 whole system each) must agree with ``own_effects`` on the own point and photo.  Numbers in
-``docs/benchmarks.md`` ("External reliability").
+``docs/statistics.md`` ("External reliability, error ellipses and covariances of the bundle").
 """
 
 from __future__ import annotations
