@@ -17,6 +17,7 @@ from baarda.pipeline.options import option
 from baarda.pipeline.report import TABLE_DECIMALS
 from baarda.pipeline.stage import Context, Stage, StageResult, TableData
 from baarda.pipeline.contracts import AdjustmentArtefact
+from baarda.pipeline import stats
 
 from .helmert import stack_models
 from .screen import FLAG_METHODS, PairScreening, ScreeningSettings, screen_pair
@@ -48,6 +49,11 @@ class ScreeningOptions:
     on_too_few: Literal["error", "skip"] = option(
         "error", "a pair with fewer than 3 common points: stop with an error, or skip the pair")
     arrow_scale: float = option(10.0, "scale of the residual arrows in the recording")
+    robust: Literal["none", "huber", "danish", "l1"] = option(
+        "none", "also estimate the Helmert transformations robustly (IRLS, docs/statistics.md) and report the "
+                "down-weighted coordinates (weight < 0.5) with their weights; report only, flags are unchanged")
+    robust_c: float = option(0.0, "robust estimation: tuning constant in standardised residuals; 0 = Huber 1.5, "
+                                  "Danish 2.5 (L1: the floor of |u|, 0.001)", ge=0.0)
 
     def __post_init__(self):
         bad = [m for m in self.flag_by if m not in FLAG_METHODS]
@@ -160,12 +166,13 @@ class HelmertScreening:
                                                     np.tile([0, 1], len(p.obs_right))]) for p in results])
         row_active = out_block.observations.active[obs_rows[:, 0]]
         adjustment = AdjustmentArtefact("helmert-screening", model.refit(row_active), model, obs_rows)
+        robust = _robust(adjustment, options)
 
         return StageResult(
             artefacts={"screening": artefact, "block": out_block, "adjustment": adjustment},
-            summary=_summary(artefact, flagged_obs, block, options),
-            report=_report(artefact, block, options, flagged_obs),
-            tables=_tables(artefact),
+            summary=_summary(artefact, flagged_obs, block, options) | _robust_summary(robust),
+            report=_report(artefact, block, options, flagged_obs) + _robust_report(robust, adjustment, block),
+            tables=_tables(artefact) | _robust_tables(robust, adjustment, block),
             data={"artefact": artefact, "block": block, "arrow_scale": options.arrow_scale},
         )
 
@@ -253,6 +260,54 @@ def _common(block, li: int, ri: int):
 
 def _f(x, nd=3):
     return None if x is None or (isinstance(x, float) and math.isnan(x)) else round(float(x), nd)
+
+
+def _robust(adj: AdjustmentArtefact, options):
+    """IRLS on the stacked pair models (report only)."""
+    if options.robust == "none":
+        return None
+    refit, _ = stats.weighted_refit(adj.model, adj.snapshot.active)
+    return stats.irls(refit, adj.snapshot, options.robust, options.robust_c or None)
+
+
+def _robust_rows(rob, adj: AdjustmentArtefact, block) -> list[tuple]:
+    ids = block.observation_ids()
+    return [(str(rob.labels[i]), "/".join(map(str, ids[adj.obs_rows[i, 0]])) + " " + "xy"[adj.obs_rows[i, 1]],
+             float(rob.weights[i]), float(rob.u[i])) for i in rob.downweighted]
+
+
+def _robust_summary(rob) -> dict:
+    return {} if rob is None else {"robust": rob.summary()}
+
+
+def _robust_report(rob, adj: AdjustmentArtefact, block) -> str:
+    if rob is None:
+        return ""
+    rows = _robust_rows(rob, adj, block)
+    out = ["", "", f"### Robust estimation ({rob.method}, c = {rob.c:g})", "",
+           f"IRLS on every pair's Helmert transformation, residuals standardised by σ √r of the least-squares "
+           f"adjustment; {rob.iterations} weighted adjustment(s), {'converged' if rob.converged else 'NOT converged'}; "
+           f"{len(rows)} coordinate(s) end with weight < {rob.threshold:g} (screening_robust.csv). Report only: the "
+           "flags above are the screening's."]
+    if rows:
+        out += ["", "| row | observation | weight | u |", "|---|---|---|---|"]
+        out += [f"| {a} | {b} | {w:.3g} | {u:+.2f} |" for a, b, w, u in rows[:40]]
+    return "\n".join(out)
+
+
+def _robust_tables(rob, adj: AdjustmentArtefact, block) -> dict:
+    if rob is None:
+        return {}
+    ids = block.observation_ids()
+    n = adj.snapshot.n
+    return {"robust": TableData({
+        "row": [str(x) for x in rob.labels],
+        "observation": ["/".join(map(str, ids[adj.obs_rows[i, 0]])) + " " + "xy"[adj.obs_rows[i, 1]] for i in range(n)],
+        "weight": [round(float(x), 6) for x in rob.weights],
+        "u": [None if not math.isfinite(x) else round(float(x), 4) for x in rob.u],
+        "downweighted": [bool(x) for x in np.isin(np.arange(n), rob.downweighted)]},
+        f"robust estimation ({rob.method}, c = {rob.c:g}): every right-image coordinate's final IRLS weight and "
+        "standardised residual u")}
 
 
 def _summary(art: ScreeningArtefact, flagged_obs, block, options) -> dict:

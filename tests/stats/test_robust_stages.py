@@ -90,3 +90,21 @@ def test_blunder_rejection_robust_needs_a_weighted_refit(tmp_path):
     other = AdjustmentArtefact("other", art.snapshot, _OnlyRefit(art.model), art.obs_rows)
     with pytest.raises(InputError, match="method 'robust-huber' cannot run: a _OnlyRefit offers no weighted refit"):
         run_stage(BlunderRejection, {**inputs, "adjustment": other}, {"method": "robust-huber"}, tmp_path=tmp_path)
+
+
+# ------------------------------------------------------------------ helmert-screening robust
+from tests.screening.test_paper000 import screen as paper000_screen
+
+
+@pytest.mark.parametrize("method", ["danish", "huber"])
+def test_screening_reports_robust_weights(tmp_path, method):
+    plain = paper000_screen("data1", tmp_path)
+    res = paper000_screen("data1", tmp_path, robust=method)
+    t = res.tables["robust"].columns
+    down = [r for r, d in zip(t["row"], t["downweighted"]) if d]
+    assert {"X9", "X5", "Y5"} <= set(down)
+    assert "### Robust estimation (" + method in res.report and res.summary["robust"]["method"] == method
+    # report only: the screening's own flags and block are unchanged
+    np.testing.assert_array_equal(res.artefacts["block"].observations.active,
+                                  plain.artefacts["block"].observations.active)
+    assert "robust" not in plain.tables and "robust" not in plain.summary
