@@ -1,12 +1,13 @@
 """The ``baarda`` command.
 
-    baarda run PROJECT.toml [--out DIR] [--quiet] [--threads N] [--scheduler S] [--workers N]
+    baarda [--quiet | --verbose] COMMAND …          (``baarda`` alone prints the help)
+    baarda run PROJECT.toml [--out DIR] [--set STAGE.OPTION=VALUE …] [--threads N] [--scheduler S] [--workers N]
                                                     run a project, write a run directory
     baarda batch PROJECT… [--sweep TABLE] --out DIR [--scheduler S] [--workers N]
                                                     many runs through Dask, one summary
-    baarda validate PROJECT.toml                    check a project and every input file without running it
-    baarda stages [--verbose]                       list installed stages (and their options)
-    baarda review RUN_DIR                           what each recording holds, read back from the files
+    baarda validate PROJECT.toml [--set …]          check a project and every input file without running it
+    baarda stages [NAME …] [--verbose]              list installed stages; with names, each one in full
+    baarda review RUN_DIR [--entities]              what was flagged, where to look; the recordings' layout
 
 Exit status (:data:`EXIT_STATUS`): 0 success; 1 an adjustment cannot be solved (singular, no datum,
 no convergence; earlier stages' results kept); 2 an input or project error (one line naming the
@@ -20,7 +21,9 @@ import argparse
 import json
 import os
 import sys
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 from . import __version__
 from .errors import AdjustmentError, BaardaError, InputError
@@ -74,14 +77,91 @@ def _engine(args):
     return Engine(Scheduler.parse(args.scheduler, args.workers), log=log)
 
 
+def parse_sets(sets: list[str], project) -> dict[str, Any]:
+    """``--set STAGE.OPTION=VALUE`` arguments as ``{"stage.option": value}`` (values read as TOML,
+    a bare word as a string), every stage id and option name checked against ``project`` ("did you
+    mean …?") and every value against the option's type and range."""
+    import difflib
+
+    from .batch import _toml_value
+    from .options import describe, parse_options
+
+    stages = {st.id: st for st in project.stages}
+    over: dict[str, Any] = {}
+    for item in sets:
+        key, eq, value = item.partition("=")
+        key = key.strip()
+        sid, dot, opt = key.rpartition(".")
+        if not eq or not dot or not sid or not opt:
+            raise InputError(f"expected STAGE.OPTION=VALUE, got {item!r}", field="--set")
+        if sid not in stages:
+            close = difflib.get_close_matches(sid, list(stages), n=1, cutoff=0.6)
+            did = f"did you mean '{close[0]}'? " if close else ""
+            raise InputError(f"no stage '{sid}' in {project.path.name}; {did}its stages: {', '.join(stages)}",
+                             field=f"--set {key}")
+        known = [o["name"] for o in describe(stages[sid].cls.Options)]
+        if opt not in known:
+            close = difflib.get_close_matches(opt, known, n=2, cutoff=0.6)
+            did = f"did you mean {' or '.join(repr(sid + '.' + c) for c in close)}? " if close else ""
+            raise InputError(f"unknown option '{key}'; {did}stage '{sid}' accepts: {', '.join(known)}",
+                             field=f"--set {key}")
+        over[key] = _toml_value(value)
+    for sid in {k.rpartition(".")[0] for k in over}:
+        spec = stages[sid]
+        mine = {k.rpartition(".")[2]: v for k, v in over.items() if k.rpartition(".")[0] == sid}
+        parse_options(spec.cls.Options, {**spec.raw_options, **mine}, path="--set", prefix=f"{sid}.")
+    return over
+
+
+@contextmanager
+def _project_with_sets(project_path, sets):
+    """The project file to load: ``project_path`` itself, or with ``--set`` a copy in a temporary
+    folder holding the new values (input paths made absolute, everything else as written)."""
+    if not sets:
+        yield Path(project_path)
+        return
+    import tempfile
+    import tomllib
+
+    from .batch import _absolute
+    from .plugins import PluginManager
+    from .project import load_project, path_roles
+    from .report import write_toml
+
+    project = load_project(project_path, PluginManager())
+    over = parse_sets(sets, project)
+    data = tomllib.loads(project.text)
+    by_id = {st.id: st for st in project.stages}
+    for st in data.get("stage", []):
+        spec = by_id.get(st.get("id", st.get("use")))
+        if spec is None:
+            continue
+        opts = st.setdefault("options", {})
+        for key, value in over.items():
+            sid, _, opt = key.rpartition(".")
+            if sid == spec.id:
+                opts[opt] = value
+        for opt, role in path_roles(spec.cls).items():
+            if role != "output" and opt in opts:
+                opts[opt] = _absolute(opts[opt], project.directory)
+    proj = data.setdefault("project", {})
+    proj["description"] = (str(proj.get("description", "")).strip()
+                           + f"\n\n(run with --set {' --set '.join(sets)})").strip()
+    with tempfile.TemporaryDirectory(prefix="baarda-set-") as tmp:
+        path = Path(tmp) / Path(project_path).name
+        write_toml(path, data)
+        yield path
+
+
 def _cmd_run(args) -> int:
     from .montecarlo import using
-    from .runner import RunInterrupted, run_project
+    from .runner import RunInterrupted, default_run_dir, run_project
 
     threads = _set_threads(args.threads)
-    with _engine(args) as engine, using(engine):
+    out = args.out if args.out is not None else default_run_dir(Path(args.project))
+    with _engine(args) as engine, using(engine), _project_with_sets(args.project, args.set) as path:
         try:
-            outcome = run_project(args.project, args.out, verbose=not args.quiet, threads=threads)
+            outcome = run_project(path, out, verbose=not args.quiet, threads=threads)
         except RunInterrupted as e:
             _print_outcome(e.outcome)
             raise KeyboardInterrupt from None
@@ -109,11 +189,14 @@ def _cmd_validate(args) -> int:
     from .plugins import PluginManager
     from .project import load_project, validate_inputs
 
-    project = load_project(args.project, PluginManager())
-    for w in validate_inputs(project):
+    with _project_with_sets(args.project, args.set) as path:
+        project = load_project(path, PluginManager())
+        warnings = validate_inputs(project)
+    for w in warnings:
         print(f"warning {w}", file=sys.stderr)
     print(f"{args.project}: valid — {len(project.stages)} stage(s): "
-          + " → ".join(f"{s.id} ({s.use})" for s in project.stages))
+          + " → ".join(f"{s.id} ({s.use})" for s in project.stages)
+          + (f"; with {', '.join(args.set)}" if args.set else ""))
     return 0
 
 
@@ -122,6 +205,11 @@ def _cmd_stages(args) -> int:
     from .plugins import PluginManager
 
     pm = PluginManager()
+    if args.names:
+        for k, name in enumerate(args.names):
+            info = pm.get(name)            # an unknown name: InputError with "did you mean"
+            _print_stage(info, describe, first=(k == 0))
+        return 0
     infos = list(pm)
     width = max((len(i.name) for i in infos), default=4)
     pwidth = max((len(i.package) for i in infos), default=7)
@@ -138,9 +226,32 @@ def _cmd_stages(args) -> int:
     return 0
 
 
+def _print_stage(info, describe, first: bool = True) -> None:
+    import inspect
+
+    cls = info.cls
+    if not first:
+        print()
+    print(f"{info.name}  ({info.package})")
+    print(f"  {info.summary}")
+    doc = inspect.getdoc(cls)
+    if doc and doc.strip() != str(info.summary).strip():
+        print("\n".join("  " + ln for ln in doc.splitlines()))
+    print(f"  reads: {', '.join(cls.reads) or '—'}; writes: {', '.join(cls.writes) or '—'}")
+    formerly = getattr(cls, "formerly", ())
+    if formerly:
+        print(f"  formerly: {', '.join(formerly)}")
+    opts = describe(cls.Options)
+    print("  options:" if opts else "  options: none")
+    for o in opts:
+        dflt = "required" if o["required"] else f"default {o['default']!r}"
+        print(f"    {o['name']} ({o['type']}, {dflt})")
+        print(f"        {o['doc']}")
+
+
 def _cmd_review(args) -> int:
     from .recording import read_recording
-    from .runner import viewer_command
+    from .review import print_review
 
     run_dir = Path(args.run_dir)
     if not run_dir.is_dir():
@@ -156,40 +267,13 @@ def _cmd_review(args) -> int:
     files = sorted(run_dir.glob("*.rrd"))
     if not files:
         raise InputError("no .rrd recordings in this directory (is it a baarda run directory?)", path=run_dir)
-    order = {s["id"]: k for k, s in enumerate(results.get("stages", []))}
-    files.sort(key=lambda p: order.get(p.stem, len(order)))
-    status = {s["id"]: s for s in results.get("stages", [])}
-    ids = set()
-    if results:
-        print(f"project: {results['project']['name']}  (baarda {results.get('baarda_version')}, "
-              f"started {results.get('started')})")
+    recordings = {}
     for f in files:
         try:
-            s = read_recording(f)
+            recordings[f.stem] = read_recording(f)
         except Exception as e:  # rerun's reader on a damaged file
             raise InputError(f"cannot read the recording ({_one_line(e)})", path=f) from None
-        ids.add(s.recording_id)
-        st = status.get(f.stem, {})
-        head = f"{f.name}: stage '{f.stem}'"
-        if st:
-            head += f" ({st.get('use')}, {st.get('status')}, {st.get('seconds', 0):.2f} s)"
-        print("\n" + head)
-        print(f"  recording id {s.recording_id}; archetypes: {', '.join(s.archetypes) or '—'}")
-        for e in s.entities:
-            tl = f" over {', '.join(e.timelines)}" if e.timelines else (" static" if e.static else "")
-            cols = ", ".join(c.split(":")[0] + ":" + c.split(":")[1] if ":" in c else c for c in e.columns[:6])
-            more = f" (+{len(e.columns) - 6})" if len(e.columns) > 6 else ""
-            print(f"  {e.path}  rows={e.rows}{tl}  [{cols}{more}]")
-        if s.summary_text:
-            first = [ln for ln in s.summary_text.splitlines() if ln.strip() and not ln.startswith("#")]
-            if first:
-                print(f"  summary: {first[0][:160]}")
-    print()
-    if len(ids) == 1:
-        print(f"All {len(files)} recordings share recording id {ids.pop()}; they open as one recording.")
-    else:
-        print(f"warning: recordings carry {len(ids)} different recording ids")
-    print(f"Open them in the viewer:  {viewer_command()} {run_dir}/*.rrd")
+    print_review(run_dir, results, recordings, entities=args.entities)
     return 0
 
 
@@ -199,7 +283,8 @@ def build_parser() -> argparse.ArgumentParser:
         "self-calibrating bundle, independent models."), epilog=EXIT_HELP,
         formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--version", action="version", version=f"baarda {__version__}")
-    sub = p.add_subparsers(dest="command", required=True)
+    _noise_args(p, top=True)
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
     r = sub.add_parser("run", help="run a project and write a run directory", epilog=EXIT_HELP,
                        formatter_class=argparse.RawDescriptionHelpFormatter, description=(
                            "Run a project. The run is written to a staging directory and moved to --out when it "
@@ -208,7 +293,8 @@ def build_parser() -> argparse.ArgumentParser:
                            "refused."))
     r.add_argument("project", help="project file (TOML)")
     r.add_argument("--out", help="run directory (default: runs/<project>-<timestamp>)")
-    r.add_argument("--quiet", action="store_true", help="no progress output")
+    _noise_args(r)
+    _set_arg(r)
     r.add_argument("--threads", type=_positive_int, default=None, metavar="N",
                    help="threads for the work that pays, e.g. the bundle's sparse route (default: every core; "
                         "BLAS itself stays single-threaded, faster for the many small dense solves)")
@@ -226,7 +312,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a CSV (or TOML [[run]] tables) whose columns are stage_id.option values: one run "
                         "of the one PROJECT per row")
     b.add_argument("--out", required=True, help="batch directory (new, empty, or an earlier batch's)")
-    b.add_argument("--quiet", action="store_true", help="no progress output")
+    _noise_args(b)
     b.add_argument("--threads", type=_positive_int, default=None, metavar="N",
                    help="BLAS/OpenMP threads of this process (workers use 1)")
     _scheduler_args(b)
@@ -236,14 +322,40 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Check the project, every option, and every input file with the "
                                    "checks and messages of `run`, without adjusting anything.")
     v.add_argument("project")
+    _set_arg(v)
+    _noise_args(v)
     v.set_defaults(func=_cmd_validate)
-    s = sub.add_parser("stages", help="list installed stages")
-    s.add_argument("--verbose", "-v", action="store_true", help="also show reads/writes and options")
+    s = sub.add_parser("stages", help="list installed stages, or describe the named ones",
+                       epilog=EXIT_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
+    s.add_argument("names", nargs="*", metavar="NAME",
+                   help="stages to describe in full (what they read and write, every option)")
+    _noise_args(s, verbose_help="with no NAME: also show reads/writes and options of every stage")
     s.set_defaults(func=_cmd_stages)
-    rv = sub.add_parser("review", help="summarise the recordings of a run directory")
+    rv = sub.add_parser("review", help="what a run flagged and where to look; the recordings' layout",
+                        epilog=EXIT_HELP, formatter_class=argparse.RawDescriptionHelpFormatter,
+                        description="Summarise a run directory: each stage's status, time and finding, "
+                                    "its warnings, what was flagged or rejected and in which file and view "
+                                    "to look, and what each recording shows (read back from the files).")
     rv.add_argument("run_dir")
+    rv.add_argument("--entities", action="store_true", help="also list every entity of every recording")
+    _noise_args(rv)
     rv.set_defaults(func=_cmd_review)
     return p
+
+
+def _noise_args(p: argparse.ArgumentParser, top: bool = False, verbose_help: str | None = None) -> None:
+    """``--quiet`` / ``--verbose``, before the command (``baarda -v run …``) or after it."""
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--quiet", "-q", action="store_true", dest="top_quiet" if top else "quiet",
+                   help="no progress output (results and errors only)")
+    g.add_argument("--verbose", "-v", action="store_true", dest="top_verbose" if top else "verbose",
+                   help=verbose_help or "more detail: every bundle iteration as a line (Ceres-style)")
+
+
+def _set_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--set", action="append", default=[], metavar="STAGE.OPTION=VALUE",
+                   help="override an option of the project for this run, e.g. --set bundle.max_iter=50 "
+                        "(repeatable; the value is TOML: 0.5, true, \"text\", [1, 2]; checked as in the file)")
 
 
 BATCH_HELP = """exit status:
@@ -280,7 +392,11 @@ def _one_line(e: BaseException) -> str:
 def main(argv: list[str] | None = None) -> int:
     import signal
 
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:          # `baarda` alone: the help
+        parser.print_help()
+        return 0
     try:   # a kill (SIGTERM) ends a run as Ctrl-C does: what was done is kept and marked
         before = signal.signal(signal.SIGTERM, signal.default_int_handler)
     except ValueError:          # not the main thread (called from a test harness)
@@ -292,8 +408,22 @@ def main(argv: list[str] | None = None) -> int:
             signal.signal(signal.SIGTERM, before)
 
 
+def _merge_noise(args) -> None:
+    """``--quiet``/``--verbose`` given before the command count as given after it."""
+    for name in ("quiet", "verbose"):
+        top = getattr(args, f"top_{name}", None)
+        if top:
+            setattr(args, name, True)
+    if getattr(args, "quiet", False) and getattr(args, "verbose", False):
+        raise InputError("--quiet and --verbose exclude each other", field="--quiet")
+
+
 def _dispatch(args) -> int:
+    from .stage import set_verbose
+
     try:
+        _merge_noise(args)
+        set_verbose(bool(getattr(args, "verbose", False)) and not getattr(args, "quiet", False))
         return args.func(args)
     except AdjustmentError as e:
         print(f"baarda: error: {e}", file=sys.stderr)

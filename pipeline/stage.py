@@ -30,6 +30,7 @@ generator, progress reporting and a place for warnings.
 
 from __future__ import annotations
 
+import shutil
 import sys
 import time
 from dataclasses import dataclass, field
@@ -83,31 +84,151 @@ class StageResult:
     data: Any = None
 
 
-class Progress:
-    """Progress on long work, printed to stderr (quiet when not a terminal unless forced)."""
+VERBOSE = {"detail": False}
+"""Process-wide progress detail: ``baarda --verbose`` sets ``detail`` (every bundle iteration as a
+line, Ceres-style, instead of only the bar)."""
 
-    def __init__(self, stage_id: str, stream=None, enabled: bool | None = None):
+
+def set_verbose(detail: bool) -> None:
+    VERBOSE["detail"] = bool(detail)
+
+
+def _hms(seconds: float) -> str:
+    if not np.isfinite(seconds):
+        return "?"
+    seconds = int(round(seconds))
+    return f"{seconds // 3600}:{seconds // 60 % 60:02d}:{seconds % 60:02d}" if seconds >= 3600 \
+        else f"{seconds // 60}:{seconds % 60:02d}"
+
+
+class ProgressBar:
+    """One piece of long work with a known (or unknown) number of steps.
+
+    On a terminal a :mod:`tqdm` bar (rate, elapsed, ETA); elsewhere (logs, CI) plain lines: one
+    at most every ``interval`` seconds with ``i/total``, elapsed time and ETA, and one at the end.
+    ``update(n, **postfix)`` advances it; ``line(text)`` prints a line above the bar; ``close()``
+    (or the ``with`` block) ends it.  Disabled, it does nothing.
+    """
+
+    def __init__(self, progress: "Progress", total: int | None, what: str, unit: str = "it"):
+        self.progress, self.total, self.what, self.unit = progress, total, what, unit
+        self.n = 0
+        self.t0 = time.monotonic()
+        self._last = self.t0
+        self._bar = None
+        self.postfix: dict = {}
+        if progress.enabled and progress.live:
+            from tqdm import tqdm
+
+            self._bar = tqdm(total=total, desc=f"  [{progress.stage_id}] {what}", unit=unit, file=progress.stream,
+                             leave=False, mininterval=0.2,
+                             ncols=None if shutil.get_terminal_size((0, 0)).columns else 100)
+
+    def eta(self) -> float:
+        """Seconds left at the mean rate so far (nan without a total or a step)."""
+        if not self.total or not self.n:
+            return float("nan")
+        return (time.monotonic() - self.t0) / self.n * max(self.total - self.n, 0)
+
+    def describe(self) -> str:
+        el = time.monotonic() - self.t0
+        frac = f"{self.n}/{self.total} ({100 * self.n / self.total:.0f} %)" if self.total else f"{self.n}"
+        post = "".join(f", {k} {v}" for k, v in self.postfix.items())
+        eta = f", ETA {_hms(self.eta())}" if self.total and self.n < self.total else ""
+        return f"{self.what} {frac}{post}, {_hms(el)} elapsed{eta}"
+
+    def update(self, n: int = 1, **postfix) -> None:
+        self.n += n
+        self.postfix.update(postfix)
+        if not self.progress.enabled:
+            return
+        if self._bar is not None:
+            if postfix:
+                self._bar.set_postfix({k: v for k, v in self.postfix.items()}, refresh=False)
+            self._bar.update(n)
+            return
+        now = time.monotonic()
+        if now - self._last >= self.progress.interval:
+            self._last = now
+            self.progress.message(self.describe())
+
+    def reset(self, total: int | None = None, what: str | None = None) -> None:
+        """Start counting again (the next adjustment of a series), keeping the elapsed time."""
+        self.n = 0
+        self.total = total if total is not None else self.total
+        self.what = what or self.what
+        self.t0 = time.monotonic()
+        if self._bar is not None:
+            self._bar.reset(total=self.total)
+            self._bar.set_description(f"  [{self.progress.stage_id}] {self.what}", refresh=False)
+
+    def line(self, text: str) -> None:
+        if not self.progress.enabled:
+            return
+        self.progress.message(text)
+
+    def close(self) -> None:
+        if self.progress._active is self:
+            self.progress._active = None
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None
+            if self.progress.enabled:
+                self.progress.message(self.describe())
+        elif self.progress.enabled and self.n and time.monotonic() - self.t0 >= 1.0:
+            self.progress.message(self.describe())
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+class Progress:
+    """Progress on long work, printed to stderr.
+
+    ``enabled`` (default: the stream is a terminal) switches it on; ``live`` (default: the stream
+    is a terminal) chooses tqdm bars over plain lines, so a log file or CI gets readable lines
+    every ``interval`` seconds instead of carriage returns.  :meth:`bar` for work with steps,
+    :meth:`track` to iterate with a bar, :meth:`message` for one line.
+    """
+
+    def __init__(self, stage_id: str, stream=None, enabled: bool | None = None, live: bool | None = None,
+                 interval: float = 10.0):
         self.stage_id = stage_id
         self.stream = stream or sys.stderr
-        self.enabled = self.stream.isatty() if enabled is None else enabled
-        self._last = 0.0
+        tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.enabled = tty if enabled is None else enabled
+        self.live = tty if live is None else live
+        self.interval = interval
+        self._active: ProgressBar | None = None
+
+    @property
+    def detail(self) -> bool:
+        """Whether to print every step as a line (``baarda --verbose``)."""
+        return VERBOSE["detail"]
 
     def message(self, text: str) -> None:
-        if self.enabled:
+        if not self.enabled:
+            return
+        if self._active is not None and self._active._bar is not None:   # above the bar, not through it
+            self._active._bar.write(f"  [{self.stage_id}] {text}", file=self.stream)
+        else:
             print(f"  [{self.stage_id}] {text}", file=self.stream, flush=True)
 
+    def bar(self, total: int | None, what: str = "", unit: str = "it") -> ProgressBar:
+        b = ProgressBar(self, total, what, unit)
+        self._active = b
+        return b
+
     def track(self, iterable: Iterable, total: int | None = None, what: str = "") -> Iterator:
-        """Yield from ``iterable`` while printing ``what i/total`` at most every 0.5 s."""
+        """Yield from ``iterable`` with a bar (``what i/total``, rate and ETA)."""
         total = total if total is not None else (len(iterable) if hasattr(iterable, "__len__") else None)
-        for i, item in enumerate(iterable):
-            now = time.monotonic()
-            if self.enabled and (now - self._last > 0.5 or (total and i + 1 == total)):
-                self._last = now
-                frac = f"{i + 1}/{total}" if total else f"{i + 1}"
-                print(f"\r  [{self.stage_id}] {what} {frac}", end="", file=self.stream, flush=True)
-            yield item
-        if self.enabled:
-            print(file=self.stream, flush=True)
+        with self.bar(total, what) as b:
+            for item in iterable:
+                yield item
+                b.update()
 
 
 @dataclass(frozen=True)

@@ -25,7 +25,7 @@ from .apselect import APSelection, select_aps
 from .collinearity import EO_NAMES, IOP_NAMES, project_observations
 from .diagnose import parameter_names
 from .initial import ResectionResult, initial_values, intersection, resection
-from .lm import solve_bundle
+from .lm import ITERATION_CALLBACK, solve_bundle
 from .problem import BundleProblem
 from .reliability import (OwnEffects, effect_vectors, linearised_model, own_effects, parameter_covariance,
                           row_mdb)
@@ -37,7 +37,8 @@ from .variance import (LinearComponents, VarianceComponents, VarianceGroup, esti
 __all__ = [
     "adjust", "BundleResult", "result_of", "BundleSettings", "BundleState", "Distance", "padded_ap", "camera_meta",
     "select_aps", "APSelection", "project_observations", "EO_NAMES", "IOP_NAMES", "parameter_names",
-    "resection", "ResectionResult", "intersection", "initial_values", "solve_bundle", "BundleProblem",
+    "resection", "ResectionResult", "intersection", "initial_values", "solve_bundle", "ITERATION_CALLBACK",
+    "BundleProblem",
     "project_block", "reprojection_px", "reprojection_summary",
     "estimate_components", "VarianceComponents", "VarianceGroup", "linear_components", "LinearComponents",
     "group_parts", "image_group_labels",

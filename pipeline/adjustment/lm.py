@@ -7,6 +7,7 @@ predicts no further decrease (``docs/bundle.md``, "Iteration and stopping rule")
 
 from __future__ import annotations
 
+import contextvars
 import time
 
 import numpy as np
@@ -20,7 +21,11 @@ from .factor import solve_reduced
 from .problem import BundleProblem
 from .settings import BundleSettings, BundleState
 
-__all__ = ["solve_bundle", "final_system", "SimilarityGauge"]
+__all__ = ["solve_bundle", "final_system", "SimilarityGauge", "ITERATION_CALLBACK"]
+
+ITERATION_CALLBACK = contextvars.ContextVar("iteration_callback", default=None)
+"""An optional observer ``callback(info)`` of each iteration (its history entry, ``max_iter``, ``seconds``
+since the start), set by a stage for its progress display; it never changes the iteration."""
 
 
 def solve_bundle(block: Block, settings: BundleSettings | None = None, *, obs_active=None, row_active=None,
@@ -96,6 +101,8 @@ def solve_bundle(block: Block, settings: BundleSettings | None = None, *, obs_ac
         st, parts, cost = new, new_parts, new_cost
         history.append({"iteration": it, "vtpv": cost, "lambda": lam, "max_step_sigma": max_step,
                         "exact_similarity": exact})
+        if (callback := ITERATION_CALLBACK.get()) is not None:
+            callback({**history[-1], "max_iter": settings.max_iter, "seconds": time.perf_counter() - t0})
         if (lam == 0.0 and max_step < settings.tol_obs) or rel < settings.tol_rel or gain <= eps_cost \
                 or abs(cost - history[-2]["vtpv"]) <= eps_cost:
             converged = True

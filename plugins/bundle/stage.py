@@ -255,6 +255,12 @@ class BundleAdjustment:
     Options = BundleOptions
 
     def run(self, inputs, options: BundleOptions, ctx: Context) -> StageResult:
+        from .progress import iteration_progress
+
+        with iteration_progress(ctx, options.max_iter):
+            return self._run(inputs, options, ctx)
+
+    def _run(self, inputs, options: BundleOptions, ctx: Context) -> StageResult:
         block_in = inputs["block"]
         block = configure_block(block_in, options)
         settings = settings_from(options, block, threads=ctx.threads)
@@ -283,7 +289,7 @@ class BundleAdjustment:
             ctx.warn(w)
         snap = res.snapshot
         extras = {"selection": selection, "global_test": None, "snooping": None, "ids": None, "joint": None,
-                  "vc": vc}
+                  "vc": vc, "work": _current_work()}
         decision = np.array(["ok"] * len(block.observations), dtype=object)
         decision[~block.observations.active] = "inactive"
         extras["robust"] = robust
@@ -444,6 +450,12 @@ def _sigma0_um(res: BundleResult) -> float:
     return float(res.sigma0_hat * s * 1000.0 / res.sigma0)
 
 
+def _current_work():
+    from .progress import current_work
+
+    return current_work()
+
+
 def _report(res: BundleResult, extras, o, block, protocol=None) -> str:
     L = []
     L.append(f"Bundle adjustment of {int(res.photo_used.sum())} photos, {int(res.point_used.sum())} points, "
@@ -492,6 +504,12 @@ def _report(res: BundleResult, extras, o, block, protocol=None) -> str:
         L.append(f"- check points ({c['n']}, adjusted − surveyed): Sx = {_f(c['Sx'])}, Sy = {_f(c['Sy'])}, "
                  f"Sxy = {_f(c['Sxy'])}, Sz = {_f(c['Sz'])} ({block.object_unit})")
     t = res.timings
+    w = extras.get("work")
+    if w is not None and w.adjustments > 1:
+        L.append(f"- stage time: {w.seconds:.3f} s for {w.adjustments} adjustments ({w.iterations} iterations "
+                 "in all: every re-adjustment of the stage, and the statistics); the last adjustment:")
+    elif w is not None:
+        L.append(f"- stage time: {w.seconds:.3f} s (the adjustment and its statistics); the adjustment:")
     L.append(f"- time: {t.get('total', 0):.3f} s (initial values {t.get('initial_values', 0):.3f}, linearise "
              f"{t.get('linearize', 0):.3f}, solve {t.get('solve', 0):.3f}, covariance {t.get('covariance', 0):.3f}; "
              f"{res.solver_route} reduced system)")

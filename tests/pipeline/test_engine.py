@@ -179,9 +179,9 @@ def test_cli_exit_codes(tmp_path, capsys):
 
 def test_review_reads_recordings_back(tmp_path, pm, capsys):
     out = run_project_text(PROJECT, tmp_path, plugins=pm)
-    assert main(["review", str(out.run_dir)]) == 0
+    assert main(["review", str(out.run_dir), "--entities"]) == 0
     text = capsys.readouterr().out
-    assert "numbers.rrd: stage 'numbers'" in text and "mean.rrd: stage 'mean'" in text
+    assert "numbers.rrd: " in text and "entities under /numbers" in text and "mean.rrd: " in text
     assert "/numbers/value  rows=4 over iteration" in text
     assert "share recording id" in text and "*.rrd" in text
 
