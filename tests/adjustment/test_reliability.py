@@ -281,3 +281,63 @@ def test_rrr_and_pope_on_the_bundle_through_blunder_rejection(tmp_path):
     t_l = stats.pope_test(lin_snap).tau[:n_img]
     assert np.allclose(t_b, t_l, atol=1e-5)
     assert np.argmax(np.abs(t_b)) == 2 * k
+
+
+@pytest.mark.parametrize("solver", ["dense", "sparse"])
+def test_own_effects_with_priors_and_a_scale_bar_dense_reference(solver):
+    """Weighted control, orientation priors and a scale bar (its points are global unknowns, not
+    eliminated): the dense reference appends the prior rows (unit rows, weights 1/σ²) and the
+    distance's finite-difference row to the image rows."""
+    blk, st = _weighted_block()
+    res = adjust(blk, BundleSettings(distances=st.distances, solver=solver))
+    assert res.solver_route == solver
+    unknowns, A, P, N = _dense_reference(res)
+    pos = _position(unknowns)
+    prob = res.problem
+    sig_eo = blk.photos.sigma_eo
+    rows, w = [], []
+    for u, (kind, i, t) in enumerate(unknowns):
+        s = sig_eo[i, t] if kind == "eo" else blk.points.sigma[i, t] if kind == "pt" else np.inf
+        if np.isfinite(s) and s > 0:
+            e = np.zeros(len(unknowns))
+            e[u] = 1.0
+            rows.append(e)
+            w.append(1.0 / s ** 2)
+    d = st.distances[0]
+    ia, ib = blk.points.index_of([d.a, d.b])
+    diff = res.state.XYZ[ia] - res.state.XYZ[ib]
+    unit = diff / np.linalg.norm(diff)
+    e = np.zeros(len(unknowns))
+    for t in range(3):
+        e[pos[("pt", ia, t)]] += unit[t]
+        e[pos[("pt", ib, t)]] -= unit[t]
+    rows.append(e)
+    w.append(1.0 / d.sigma ** 2)
+    n_img = A.shape[0]
+    A = np.vstack([A, np.array(rows)])
+    Pf = np.zeros((A.shape[0], A.shape[0]))
+    Pf[:n_img, :n_img] = P
+    Pf[np.arange(n_img, A.shape[0]), np.arange(n_img, A.shape[0])] = w
+    Q = np.linalg.inv(A.T @ Pf @ A)
+    assert res.cov_points[ia] == pytest.approx(res.variance_factor * Q[np.ix_(*[[pos[("pt", ia, t)]
+                                                                                  for t in range(3)]] * 2)], rel=1e-5)
+    PQP = Pf - Pf @ A @ Q @ A.T @ Pf
+    eff = own_effects(res, D0)
+    mdb = row_mdb(res, D0)
+    oi = np.flatnonzero(res.obs_active)
+    obs = blk.observations
+    seen_global = False
+    worst = 0.0
+    for r_loc, k in enumerate(oi):
+        for c in (0, 1):
+            i = 2 * r_loc + c
+            assert mdb[k, c] == pytest.approx(D0 * res.sigma0 / np.sqrt(PQP[i, i]), rel=1e-4)
+            dx = Q @ A.T @ Pf[:, i] * mdb[k, c]
+            ph, pt = obs.photo[k], obs.point[k]
+            ref = np.r_[[dx[pos[("pt", pt, t)]] if ("pt", pt, t) in pos else 0.0 for t in range(3)],
+                        [dx[pos[("eo", ph, t)]] if ("eo", ph, t) in pos else 0.0 for t in range(6)]]
+            got = np.r_[eff.point[k, c], eff.eo[k, c]]
+            worst = max(worst, np.abs(got - ref).max() / np.abs(ref).max())
+            seen_global |= pt in (ia, ib)
+    assert seen_global and (prob.g_pt[ia] >= 0).all()
+    assert worst < 2e-4, worst
