@@ -16,7 +16,7 @@ from .test_precision import _dense_reference
 D0 = 4.13
 
 
-def _reference(res, free=False):
+def _reference(res, free=False, on="pt"):
     """Dense Q, A, P, unknowns.  A free network: the inner constraints on the points' coordinates,
     ``Cᵀ x = 0`` with ``C`` the null space of N (the similarity motions) restricted to the point
     rows, through the bordered matrix ``[[N, C], [Cᵀ, 0]]⁻¹``."""
@@ -27,7 +27,7 @@ def _reference(res, free=False):
     w, V = np.linalg.eigh(N / np.abs(N).max())
     G = V[:, :d]
     assert w[d] > 1e3 * abs(w[d - 1])                       # a d-dimensional null space
-    C = G * np.array([kind == "pt" for kind, _, _ in unknowns])[:, None]
+    C = G * np.array([kind == "pt" if on == "pt" else (kind == "eo" and t < 3) for kind, _, t in unknowns])[:, None]
     u = len(unknowns)
     M = np.zeros((u + d, u + d))
     M[:u, :u], M[:u, u:], M[u:, :u] = N, C, C.T
@@ -43,8 +43,8 @@ def _position(unknowns):
     return {u: j for j, u in enumerate(unknowns)}
 
 
-def _check_own(res, free=False, rtol=2e-4):
-    unknowns, A, P, Q = _reference(res, free)
+def _check_own(res, free=False, rtol=2e-4, on="pt"):
+    unknowns, A, P, Q = _reference(res, free, on)
     pos = _position(unknowns)
     PQP = P - P @ A @ Q @ A.T @ P
     oi = np.flatnonzero(res.obs_active)
@@ -115,15 +115,16 @@ def test_effect_vectors_full_and_on_both_routes():
 
 
 @pytest.mark.parametrize("solver", ["dense", "sparse"])
-def test_free_network_effects_on_inner_constraints(solver):
-    """Free network on all points: effects on the inner-constraint datum (the pseudo-inverse), the
-    sparse route via minimal constraints + S-transformation."""
+@pytest.mark.parametrize("on", ["pt", "centres"])
+def test_free_network_effects_on_inner_constraints(solver, on):
+    """Free network, inner constraints on all points or on the projection centres: effects on that
+    datum, the sparse route via minimal constraints + S-transformation."""
     blk, _ = make_block(model="none", n_photos=6, n_points=24, noise_mm=0.002, rng=np.random.default_rng(5))
     pts = blk.points
     blk = blk.replace(points=pts.replace(role=np.array(["tie"] * len(pts)), sigma=np.full((len(pts), 3), FREE)))
-    res = adjust(blk, BundleSettings(datum="free", solver=solver))
+    res = adjust(blk, BundleSettings(datum="free", solver=solver, datum_centres=on == "centres"))
     assert res.n_datum_constraints > 0 and res.solver_route == solver
-    _check_own(res, free=True, rtol=5e-4)
+    _check_own(res, free=True, rtol=5e-4, on=on)
 
 
 def test_parameter_covariance_against_dense_inverse():
