@@ -40,14 +40,10 @@ def shared_data() -> Path:
 
 def load_problem(path: Path):
     """The BAL file as a block (1 px = 1 µm, σ = 1 px), observations behind the camera switched off."""
-    from scipy.spatial.transform import Rotation
-
-    from baarda.plugins.bal.bal import block_from_bal, read_bal
+    from baarda.plugins.bal.bal import behind_camera, block_from_bal, read_bal
 
     problem = read_bal(path)
-    P = problem.cameras[problem.cam]
-    depth = np.einsum("kij,kj->ki", Rotation.from_rotvec(P[:, :3]).as_matrix(), problem.points[problem.pt])[:, 2]
-    front = depth + P[:, 5] < 0            # BAL's camera looks down −Z
+    front = ~behind_camera(problem)            # BAL's camera looks down −Z
     block = block_from_bal(problem, pixel_mm=0.001, sigma_px=1.0)
     return block.replace(observations=block.observations.replace(active=front)), int((~front).sum())
 

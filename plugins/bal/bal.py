@@ -150,6 +150,17 @@ def read_bal(path: str | Path) -> BalProblem:
                       points=values[9 * n_cams:].reshape(n_pts, 3), path=str(path))
 
 
+def behind_camera(problem: BalProblem) -> np.ndarray:
+    """Per observation: is the point behind its camera?  BAL's cameras look down −Z, so a point is
+    in front when its camera-frame Z is negative.  Ceres (and COLMAP) give such an observation no
+    residual; a collinearity adjustment fits it as measured."""
+    from scipy.spatial.transform import Rotation
+
+    P = problem.cameras[problem.cam]
+    depth = np.einsum("kij,kj->ki", Rotation.from_rotvec(P[:, :3]).as_matrix(), problem.points[problem.pt])[:, 2]
+    return depth + P[:, 5] >= 0
+
+
 def block_from_bal(problem: BalProblem, *, pixel_mm: float = 0.001, sigma_px: float = 1.0,
                    intrinsics: str = "free", object_unit: str = "m") -> Block:
     """One baarda camera and one photo per BAL camera; brown ``K1 = k1/c²``, ``K2 = k2/c⁴``.

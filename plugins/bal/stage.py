@@ -13,7 +13,7 @@ from baarda.pipeline.stage import Context, SourceStage, Stage, StageResult
 from baarda.pipeline.adjustment import reprojection_summary
 from baarda.pipeline.recording import log_block
 
-from .bal import block_from_bal, read_bal
+from .bal import behind_camera, block_from_bal, read_bal
 from .libmv import block_from_libmv, read_libmv
 
 _PITCH_DOC = ("pixel pitch, mm (the files have none): c = f_px · pixel_mm; the default 1 µm makes µm in "
@@ -49,6 +49,9 @@ class BalOptions:
     intrinsics: Literal["free", "fixed"] = option("free", "'free': c, K1, K2 of every camera are unknowns (as BAL "
                                                           "solves them); 'fixed': held")
     object_unit: Literal["m", "mm", "cm", "ft"] = option("m", "unit of the problem's coordinates")
+    on_behind: Literal["warn", "skip"] = option(
+        "warn", "observations of points behind their camera: 'warn' keeps them (fitted as measured) with a warning; "
+                "'skip' switches them off, as Ceres and COLMAP give them no residual (for a like-for-like cross-check)")
 
     __post_init__ = _check
 
@@ -63,9 +66,20 @@ class BalSource(SourceStage):
 
     def run(self, inputs, options: BalOptions, ctx: Context) -> StageResult:
         path = _path(options, ctx)
-        block = block_from_bal(read_bal(path), pixel_mm=options.pixel_mm, sigma_px=options.sigma_px,
+        problem = read_bal(path)
+        block = block_from_bal(problem, pixel_mm=options.pixel_mm, sigma_px=options.sigma_px,
                                intrinsics=options.intrinsics, object_unit=options.object_unit)
-        return _result(block, path, "BAL")
+        behind = behind_camera(problem)
+        extra = ""
+        if behind.any():
+            n = int(behind.sum())
+            if options.on_behind == "skip":
+                block = block.replace(observations=block.observations.replace(active=~behind))
+                extra = f"  {n} observation(s) of points behind their camera switched off (on_behind = 'skip')."
+            else:
+                ctx.warnings.append(f"{n} observation(s) of points behind their camera are kept and fitted; Ceres and "
+                                    "COLMAP give them no residual (on_behind = 'skip' switches them off)")
+        return _result(block, path, "BAL", extra, behind_camera=int(behind.sum()))
 
     def log(self, result, rec, ctx) -> None:
         log_block(rec, result.data, root=f"{ctx.stage_id}/block")

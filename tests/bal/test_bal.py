@@ -231,3 +231,26 @@ def test_stages(bal_dir, libmv_dir, tmp_path):
     check_stage(LibmvSource, "libmv")
     with pytest.raises(ValueError):
         LibmvOptions(path=Path("x"), resolution=[1])
+
+
+def test_points_behind_their_camera(bal_dir, tmp_path):
+    """on_behind: the observations whose point is behind the camera (by BAL's projection written
+    out independently: p = R X + t, in front when p_z < 0) are kept with a warning, or switched off."""
+    import cv2
+
+    from baarda.plugins.bal.bal import behind_camera
+
+    problem = read_bal(bal_dir / BAL_SMALL)
+    behind = behind_camera(problem)
+    cams, pts = problem.cameras, problem.points
+    pz = np.array([(cv2.Rodrigues(cams[c, :3])[0] @ pts[p] + cams[c, 3:6])[2] for c, p in zip(problem.cam, problem.pt)])
+    assert np.array_equal(behind, pz >= 0) and behind.sum() == 31
+    for mode in ("warn", "skip"):
+        ctx = Context(stage_id="source", project_dir=bal_dir, run_dir=tmp_path)
+        res = BalSource().run({}, BalOptions(path=bal_dir / BAL_SMALL, on_behind=mode), ctx)
+        active = res.artefacts["block"].observations.active
+        assert res.summary["behind_camera"] == 31
+        if mode == "skip":
+            assert np.array_equal(active, ~behind) and not ctx.warnings
+        else:
+            assert active.all() and "31 observation(s) of points behind their camera" in ctx.warnings[0]
