@@ -571,7 +571,8 @@ def _robust(block, res, o, ctx) -> _Robust:
     """IRLS on the bundle (stats.irls); the final adjustment with the final weights and covariances."""
     ctx.progress.message(f"robust estimation ({o.robust})")
     refit, how = stats.weighted_refit(res, redundancy=o.robust_standardise == "current")
-    rob = stats.irls(refit, res.snapshot, o.robust, o.robust_c or None, standardise=o.robust_standardise)
+    rob = stats.irls(refit, res.snapshot, o.robust, o.robust_c or None, standardise=o.robust_standardise,
+                     max_iter=100)
     if not rob.converged:
         ctx.warn(f"robust estimation ({o.robust}) did not converge in {rob.iterations} iterations "
                  f"(largest weight change {rob.history[-1]['max_dw']:.3g})")

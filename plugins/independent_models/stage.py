@@ -66,6 +66,11 @@ class IndependentModelsOptions:
                                              "instead of stopping")
     arrow_scale: float | None = option(None, "scale of residual arrows in the recording (default: the "
                                              "largest arrow is 5 % of the block's extent)")
+    robust: Literal["none", "huber", "danish", "l1"] = option(
+        "none", "also estimate the model block robustly (IRLS on its linearisation at the solution, "
+                "docs/statistics.md) and report the down-weighted model coordinates (weight < 0.5); report only")
+    robust_c: float = option(0.0, "robust estimation: tuning constant in standardised residuals; 0 = Huber 1.5, "
+                                  "Danish 2.5 (L1: the floor of |u|, 0.001)", ge=0.0)
 
     def __post_init__(self):
         if not (0.0 < self.alpha0 < 1.0 and 0.0 < self.beta0 < 1.0):
@@ -117,6 +122,10 @@ class IndependentModels(Stage):
         tables = _tables(result, stats, block)
         if ext is not None:
             tables["external"] = im_reliability.table(ext)
+        robust = _robust(result.block, o)
+        if robust is not None:
+            summary["robust"] = robust.summary()
+            tables["robust"] = _robust_table(robust)
         # the block's rows are model coordinates and control, not image observations: (-1, -1)
         obs_rows = np.full((result.block.snapshot.n, 2), -1, int)
         artefacts = {
@@ -127,7 +136,8 @@ class IndependentModels(Stage):
         }
         return StageResult(artefacts=artefacts, summary=summary,
                            report=_report(result, stats, summary, block)
-                           + "\n".join(im_reliability.report_lines(ext, block.object_unit)), tables=tables,
+                           + "\n".join(im_reliability.report_lines(ext, block.object_unit))
+                           + _robust_report(robust), tables=tables,
                            data={"result": result, "stats": stats, "block": block,
                                  "arrow_scale": o.arrow_scale})
 
@@ -419,3 +429,36 @@ def log_independent_models(rec, result: IndependentModelResult, stats: dict, roo
         rec.set_time("iteration", sequence=i)
         rec.log(f"{root}/block/sigma0_hat", rr.Scalars([float(np.sqrt(vtpv / dof))]))
     rec.log(f"{root}/legend", rr.TextDocument("\n".join(lines), media_type=rr.MediaType.MARKDOWN), static=True)
+
+
+def _robust(model_block, o):
+    """IRLS on the model block's linearisation at its solution (report only)."""
+    if o.robust == "none":
+        return None
+    from baarda.pipeline.stats import irls, weighted_refit
+
+    refit, _ = weighted_refit(model_block, model_block.snapshot.active)
+    return irls(refit, model_block.snapshot, o.robust, o.robust_c or None, max_iter=200)
+
+
+def _robust_report(rob) -> str:
+    if rob is None:
+        return ""
+    d = rob.downweighted
+    out = ["", "", f"### Robust estimation ({rob.method}, c = {rob.c:g})", "",
+           "IRLS on the model block linearised at its solution, residuals standardised by σ √r of the adjustment; "
+           f"{rob.iterations} weighted adjustment(s), {'converged' if rob.converged else 'NOT converged'}; "
+           f"{d.size} row(s) end with weight < {rob.threshold:g} (independent-models_robust.csv). Report only."]
+    if d.size:
+        out += ["", "| row | weight | u |", "|---|---|---|"]
+        out += [f"| {rob.labels[i]} | {rob.weights[i]:.3g} | {rob.u[i]:+.2f} |" for i in d[:40]]
+    return "\n".join(out)
+
+
+def _robust_table(rob) -> TableData:
+    n = len(rob.weights)
+    return TableData({"row": [str(x) for x in rob.labels], "weight": [round(float(x), 6) for x in rob.weights],
+                      "u": [None if not np.isfinite(x) else round(float(x), 4) for x in rob.u],
+                      "downweighted": [bool(x) for x in np.isin(np.arange(n), rob.downweighted)]},
+                     f"robust estimation ({rob.method}, c = {rob.c:g}): every row's final IRLS weight and "
+                     "standardised residual u")

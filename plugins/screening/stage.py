@@ -267,7 +267,7 @@ def _robust(adj: AdjustmentArtefact, options):
     if options.robust == "none":
         return None
     refit, _ = stats.weighted_refit(adj.model, adj.snapshot.active)
-    return stats.irls(refit, adj.snapshot, options.robust, options.robust_c or None)
+    return stats.irls(refit, adj.snapshot, options.robust, options.robust_c or None, max_iter=200)
 
 
 def _robust_rows(rob, adj: AdjustmentArtefact, block) -> list[tuple]:
