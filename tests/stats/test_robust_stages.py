@@ -108,3 +108,30 @@ def test_screening_reports_robust_weights(tmp_path, method):
     np.testing.assert_array_equal(res.artefacts["block"].observations.active,
                                   plain.artefacts["block"].observations.active)
     assert "robust" not in plain.tables and "robust" not in plain.summary
+
+
+# ------------------------------------------------------------------ independent-models robust
+from baarda.pipeline.synthetic.normalcase import make_block as normal_case
+from baarda.plugins.independent_models.stage import IndependentModels
+from tests.independent_models.test_stage import _weighted
+
+
+@pytest.mark.parametrize("method", ["danish", "huber"])
+def test_independent_models_reports_robust_weights(tmp_path, method):
+    """An x-parallax blunder of 0.08 mm (20 σ) on point 105 in photo 12 (the y-parallax check cannot
+    see it): the robust model block down-weights point 105's coordinates in model 12-13 first."""
+    block, _ = normal_case(n_strips=2, n_photos=4, noise_mm=0.004, rng=np.random.default_rng(9))
+    block = _weighted(block)
+    obs = block.observations
+    xy = obs.xy.copy()
+    k = np.flatnonzero((obs.photo == 1) & (obs.point == obs.point[obs.photo == 1][5]))[0]
+    xy[k, 0] += 0.08
+    res = run_stage(IndependentModels, {"block": block.replace(observations=obs.replace(xy=xy))},
+                    {"robust": method}, tmp_path=tmp_path)
+    s = res.summary["robust"]
+    assert s["converged"] and s["method"] == method
+    assert "point 105" in s["downweighted"][0]["label"] and "12-13" in " ".join(
+        d["label"] for d in s["downweighted"][:3])
+    assert "### Robust estimation (" + method in res.report
+    t = res.tables["robust"].columns
+    assert sum(t["downweighted"]) == s["n_downweighted"]
