@@ -14,8 +14,15 @@ Typical plugin test::
         outcome = run_project_text(PROJECT_TOML, tmp_path, plugins=baarda_plugins)
         assert outcome.ok
 
-Fixtures: ``baarda_plugins`` — a :class:`~baarda.pipeline.plugins.PluginManager` with entry-point
-discovery blocked, so a test sees exactly the stages it registers.
+Inputs: :func:`make_block` (a simulated close-range block with control, optionally with gross
+errors) and :func:`make_adjustment` (the bundle's ``adjustment`` artefact of a block, what
+``blunder-rejection`` and any stage reading ``adjustment`` take).  Recordings:
+:func:`log_stage` writes one as the runner does, :func:`check_recording` reads it back and checks
+it (blueprint, paths under the stage id, glyphs the viewer renders).
+
+Fixtures: ``baarda_plugins`` — a :class:`TestPlugins` manager with entry-point discovery blocked,
+so a test sees exactly the stages it registers; ``baarda_plugins.include_builtins()`` adds
+baarda's own stages (all, or the ones named).
 """
 
 from __future__ import annotations
@@ -31,12 +38,77 @@ from .plugins import PluginManager
 from .stage import Context, StageResult, check_stage_class
 
 
-def make_plugin_manager(stages: Mapping[str, type] | None = None, discover: bool = False) -> PluginManager:
-    """A plugin manager with only ``stages`` (and, if ``discover``, the installed ones)."""
-    pm = PluginManager(discover=discover)
+class TestPlugins(PluginManager):
+    """A plugin manager for tests: only what is registered, plus baarda's stages on request."""
+
+    __test__ = False   # not a pytest test class
+
+    def include_builtins(self, *names: str) -> "TestPlugins":
+        """Add baarda's own stages (the ``baarda.stages`` entry points of the baarda package), all of
+        them or the ones ``names`` lists; third-party plugins stay out.  Returns the manager."""
+        from importlib.metadata import entry_points
+
+        eps = [ep for ep in entry_points(group=self.group) if ep.value.startswith("baarda.plugins")]
+        known = {ep.name for ep in eps}
+        for name in names:
+            if name not in known:
+                import difflib
+
+                close = difflib.get_close_matches(name, sorted(known), n=2)
+                raise KeyError(f"no built-in stage '{name}'" + (f"; did you mean {close}?" if close else ""))
+        for ep in eps:
+            if not names or ep.name in names:
+                self._register(ep.name, ep.load(), "baarda", ep.value)
+        return self
+
+
+def make_plugin_manager(stages: Mapping[str, type] | None = None, discover: bool = False,
+                        builtins: bool = False) -> TestPlugins:
+    """A plugin manager with only ``stages`` (and, if ``discover``, every installed one; if
+    ``builtins``, baarda's own)."""
+    pm = TestPlugins(discover=discover)
+    if builtins and not discover:
+        pm.include_builtins()
     for name, cls in (stages or {}).items():
         pm.register(name, cls, package="(test)")
     return pm
+
+
+def make_block(n_photos: int = 8, n_points: int = 40, *, noise_mm: float = 0.001, gross: Mapping | None = None,
+               seed: int = 1, model: str = "brown"):
+    """A simulated convergent close-range block (mm image coordinates, m object space): photos
+    around a 3-D field of points, six full control points, the rest tie points, one camera with
+    ``model`` distortion; image noise ``noise_mm`` (σ in the block: 0.001 mm).  ``gross`` adds
+    gross errors ``{(photo index, point index): (dx, dy) in mm}`` to those image points.  Returns
+    the block; its true values are in ``block.meta["truth"]``."""
+    import numpy as np
+
+    from .synthetic.closerange import make_block as _make
+
+    block, truth = _make(n_photos=n_photos, n_points=n_points, model=model, noise_mm=noise_mm,
+                         rng=np.random.default_rng(seed + 100), seed=seed)
+    if gross:
+        obs = block.observations
+        xy = obs.xy.copy()
+        for (ph, pt), dxy in gross.items():
+            k = np.flatnonzero((obs.photo == ph) & (obs.point == pt))
+            if not k.size:
+                raise ValueError(f"make_block: photo {ph} does not observe point {pt}")
+            xy[k[0]] += np.asarray(dxy, float)
+        block = block.replace(observations=obs.replace(xy=xy))
+    return block.replace(meta={**dict(block.meta), "truth": truth})
+
+
+def make_adjustment(block=None, **settings):
+    """The ``adjustment`` artefact of the bundle adjustment of ``block`` (default :func:`make_block`)
+    with :class:`~baarda.pipeline.adjustment.BundleSettings` ``settings`` — what the bundle stage
+    hands to ``blunder-rejection``."""
+    from .adjustment import BundleSettings, adjust
+    from .contracts import AdjustmentArtefact
+
+    block = make_block() if block is None else block
+    res = adjust(block, BundleSettings(**settings), covariance=True)
+    return AdjustmentArtefact("bundle", res.snapshot, res, res.obs_rows())
 
 
 def run_stage(cls: type, inputs: Mapping[str, Any] | None = None, options: Any = None, *,
@@ -79,6 +151,42 @@ def log_stage(cls: type, result: StageResult, path: Path, stage_id: str | None =
     return path
 
 
+def check_recording(path: Path, stage_id: str | None = None):
+    """Read the recording ``path`` back with rerun's reader and assert what every baarda recording
+    must be: a blueprint with at least the stage summary's text view, every entity and view under
+    ``/<stage id>`` (default: the file's stem), no text the viewer cannot draw (combining marks).
+    Returns the :class:`~baarda.pipeline.recording.RecordingSummary` for further checks."""
+    import unicodedata
+
+    from rerun.chunk import RrdReader
+
+    from .recording import read_recording
+
+    sid = stage_id or Path(path).stem
+    s = read_recording(path)
+    assert s.views, f"{path}: no blueprint"
+    root = f"/{sid}"
+    for e in s.entities:
+        assert e.path == root or e.path.startswith(root + "/"), f"{path}: entity {e.path} not under {root}"
+    for v in s.views:
+        assert v.origin == root or v.origin.startswith(root + "/"), f"{path}: view {v.kind} at {v.origin}"
+    assert any(v.kind == "TextDocument" and v.origin == f"{root}/summary" for v in s.views) or \
+        not any(e.path == f"{root}/summary" for e in s.entities), f"{path}: no view of the summary"
+    for chunk in RrdReader(str(path)).stream().to_chunks():
+        batch = chunk.to_record_batch()
+        for i, name in enumerate(batch.schema.names):
+            if ":" in name and ("string" in str(batch.column(i).type) or "utf8" in str(batch.column(i).type)):
+                stack = batch.column(i).to_pylist()
+                while stack:
+                    x = stack.pop()
+                    if isinstance(x, list):
+                        stack.extend(x)
+                    elif isinstance(x, str):
+                        bad = [c for c in x if unicodedata.combining(c)]
+                        assert not bad, f"{path}: text with combining marks at {chunk.entity_path}: {x[:60]!r}"
+    return s
+
+
 def check_stage(cls: type, name: str | None = None) -> None:
     """Assert ``cls`` follows the stage protocol and documents every option."""
     name = name or cls.__name__
@@ -107,6 +215,6 @@ def run_project_text(text: str, tmp_path: Path, *, plugins: PluginManager | None
 
 
 @pytest.fixture
-def baarda_plugins() -> PluginManager:
-    """A plugin manager with entry-point discovery blocked."""
+def baarda_plugins() -> TestPlugins:
+    """A plugin manager with entry-point discovery blocked (``.include_builtins()`` adds baarda's stages)."""
     return make_plugin_manager()

@@ -1,0 +1,36 @@
+"""Everything a stage (a plugin) needs, from one module.
+
+::
+
+    from baarda.pipeline.api import Stage, StageResult, TableData, option, InputError
+
+The stage protocol and its context, typed options, the errors, the data model and the contracts
+stages exchange (``Block``, ``AdjustmentArtefact``, ``Snapshot``), the statistics library, and the
+recording helpers a ``log`` method uses (one role palette, one photo→view conversion, point
+ellipsoids).  ``docs/plugins.md`` shows a whole stage built on it; ``baarda.pipeline.testing``
+holds the test helpers.  The names here stay; the modules behind them may move.
+"""
+
+from __future__ import annotations
+
+from . import stats
+from .contracts import AdjustmentArtefact
+from .errors import AdjustmentError, BaardaError, InputError
+from .model import Block
+from .options import NoOptions, option
+from .recording import (ROLE_COLORS, entity_part, log_block, log_text, log_values, point_ellipsoids,
+                        role_colors, thin, view_from_photo, view_vectors, viewer_text)
+from .stage import Context, Progress, SourceStage, Stage, StageResult, TableData
+from .stats.snapshot import Snapshot
+
+__all__ = [
+    # the protocol
+    "Stage", "SourceStage", "StageResult", "TableData", "Context", "Progress", "option", "NoOptions",
+    # errors
+    "InputError", "AdjustmentError", "BaardaError",
+    # data and contracts
+    "Block", "AdjustmentArtefact", "Snapshot", "stats",
+    # recordings
+    "ROLE_COLORS", "role_colors", "view_from_photo", "view_vectors", "entity_part", "log_block", "log_text",
+    "log_values", "point_ellipsoids", "thin", "viewer_text",
+]
