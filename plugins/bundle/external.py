@@ -118,12 +118,37 @@ def point_columns(res, confidence: float) -> dict:
     return cols
 
 
-def covariance_of(res, specs, option: str = "covariance_of"):
+def check_requests(block, specs, ctx=None, option: str = "covariance_of") -> None:
+    """Before adjusting: every ``covariance_of`` entry names a photo, point or camera of the block
+    (and a known component of a photo or point); an :class:`InputError` naming the option if not."""
+    tables = {"photo": block.photos, "point": block.points, "camera": block.cameras}
+    comps = {"photo": EO_LABELS, "point": ("X", "Y", "Z")}
+    for spec in specs:
+        parts = str(spec).split()
+        msg = None
+        if len(parts) < 2 or parts[0] not in tables:
+            msg = f"{spec!r}: expected 'photo <id>', 'point <id>' or 'camera <id>' (optionally + a component)"
+        else:
+            ids = {str(i) for i in tables[parts[0]].ids}
+            ident = " ".join(parts[1:])
+            if ident not in ids:
+                head = " ".join(parts[1:-1])
+                if len(parts) > 2 and head in ids:
+                    if parts[0] in comps and parts[-1] not in comps[parts[0]]:
+                        msg = f"{spec!r}: {parts[0]} components are {', '.join(comps[parts[0]])}"
+                else:
+                    msg = f"{spec!r}: no {parts[0]} with id {ident!r}"
+        if msg:
+            raise ctx.option_error(msg, option) if ctx is not None else InputError(msg, None, None, option)
+
+
+def covariance_of(res, specs, option: str = "covariance_of", ctx=None):
     """``(TableData, summary dict, report lines)`` of the joint covariance of ``specs``."""
     try:
         names, C = parameter_covariance(res, specs)
     except KeyError as e:
-        raise InputError(str(e.args[0]), None, None, option) from None
+        msg = str(e.args[0])
+        raise ctx.option_error(msg, option) if ctx is not None else InputError(msg, None, None, option) from None
     d = np.sqrt(np.clip(np.diag(C), 0, None))
     with np.errstate(invalid="ignore", divide="ignore"):
         R = np.where(np.outer(d, d) > 0, C / np.outer(d, d), 0.0)
@@ -144,7 +169,7 @@ def covariance_of(res, specs, option: str = "covariance_of"):
 
 
 # -- the stage's hooks (extras keys "external", "covariance_of", "confidence") -----------------------
-def compute(res, o) -> dict:
+def compute(res, o, ctx=None) -> dict:
     """What the stage adds to its extras for options ``o`` (``external_reliability``,
     ``confidence``, ``covariance_of``)."""
     out = {"external": None, "covariance_of": None, "confidence": o.confidence}
@@ -153,7 +178,7 @@ def compute(res, o) -> dict:
     if o.external_reliability:
         out["external"] = external_reliability(res, o.alpha0, o.beta0)
     if o.covariance_of:
-        out["covariance_of"] = covariance_of(res, o.covariance_of)
+        out["covariance_of"] = covariance_of(res, o.covariance_of, ctx=ctx)
     return out
 
 

@@ -263,6 +263,7 @@ class BundleAdjustment:
     def _run(self, inputs, options: BundleOptions, ctx: Context) -> StageResult:
         block_in = inputs["block"]
         block = configure_block(block_in, options)
+        bundle_external.check_requests(block, options.covariance_of, ctx)
         settings = settings_from(options, block, threads=ctx.threads)
         ctx.progress.message(f"adjusting {len(block.photos)} photos, {len(block.points)} points, "
                              f"{int(block.observations.active.sum())} observations")
@@ -323,7 +324,7 @@ class BundleAdjustment:
             if options.blunders != "none":
                 decision[flagged_obs] = "flagged"
             decision[np.unique(np.flatnonzero(rejected_rows) // 2)] = "rejected"
-        extras.update(bundle_external.compute(res, options))
+        extras.update(bundle_external.compute(res, options, ctx))
         res.extras = extras
         out_block = res.block
         if robust is not None:   # the robust weights are the estimator's, not the block's a-priori σ

@@ -192,8 +192,12 @@ def test_bundle_stage_tables_report_and_summary(tmp_path):
     assert np.allclose(np.column_stack([cov[n] for n in names]), C)
     assert np.allclose(C[6:, 6:], b.cov_points[12], rtol=1e-6)
     assert "### Covariance of the requested parameters" in res.report
-    with pytest.raises(InputError, match="covariance_of"):
-        run_stage(BundleAdjustment, {"block": blk}, {"covariance_of": ["point nope"]}, tmp_path=tmp_path)
+    for bad, msg in ((["point nope"], "no point with id 'nope'"), (["photo"], "expected 'photo <id>'"),
+                     ([f"point {pt} W"], "point components are X, Y, Z"),
+                     ([f"camera {blk.cameras.ids[0]} K9"], "camera components are")):
+        with pytest.raises(InputError, match="covariance_of") as e:
+            run_stage(BundleAdjustment, {"block": blk}, {"covariance_of": bad}, tmp_path=tmp_path)
+        assert msg in str(e.value)
 
 
 def _weighted_block():
