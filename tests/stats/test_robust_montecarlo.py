@@ -99,7 +99,7 @@ def test_false_alarms_without_blunders():
 @pytest.mark.slow
 @pytest.mark.parametrize("k", [0.0, 3.0, 4.0, 5.0, 6.0, 10.0])
 def test_rates_slow(k):
-    N = 3000
+    N = 2000
     det, fa, rows = simulate(N, k, seed=100 + int(k))
     _print(k, det, fa, N)
     if k == 10.0:

@@ -116,7 +116,7 @@ from baarda.plugins.independent_models.stage import IndependentModels
 from tests.independent_models.test_stage import _weighted
 
 
-@pytest.mark.parametrize("method", ["danish", "huber"])
+@pytest.mark.parametrize("method", ["danish", pytest.param("huber", marks=pytest.mark.slow)])   # Huber: ~130 iterations, 15 s
 def test_independent_models_reports_robust_weights(tmp_path, method):
     """An x-parallax blunder of 0.08 mm (20 σ) on point 105 in photo 12 (the y-parallax check cannot
     see it): the robust model block down-weights point 105's coordinates in model 12-13 first."""
