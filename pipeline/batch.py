@@ -387,6 +387,7 @@ def write_summary(out: Path, rows: list[dict], *, started: str = "", scheduler: 
         w.writerow({k: json.dumps(v) if isinstance(v, (list, dict)) else v for k, v in d.items()})
     _atomic(out / "summary.csv", buf.getvalue())
     _atomic(out / "summary.md", _markdown(rows, started, scheduler, seconds, total))
+    _atomic(out / "summary.html", _html(rows, started, scheduler, seconds, total))
     _atomic(out / BATCH_MARKER, json.dumps({
         "baarda_version": __version__, "kind": "batch", "started": started, "scheduler": scheduler,
         "seconds": round(seconds, 3), "runs": total if total is not None else len(rows),
@@ -400,7 +401,21 @@ def _atomic(path: Path, text: str) -> None:
     tmp.replace(path)
 
 
-def _markdown(rows: list[dict], started: str, scheduler: str, seconds: float, total: int | None) -> str:
+def _html(rows: list[dict], started: str, scheduler: str, seconds: float, total: int | None) -> str:
+    """The summary as one self-contained page: the same table, each run's name a link to its own
+    ``report.html`` (relative, inside the batch directory)."""
+    from .html import escape, markdown_html
+
+    body = markdown_html(_markdown(rows, started, scheduler, seconds, total, links=True))
+    return ("<!doctype html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>baarda batch summary</title>"
+            "<style>body{font-family:system-ui,sans-serif;margin:2em;max-width:110em}"
+            "table{border-collapse:collapse;font-size:90%}th,td{border:1px solid #bbb;padding:.25em .5em;"
+            "text-align:left}th{background:#eee}</style></head><body>\n" + body +
+            f"\n<p>baarda {escape(__version__)}; every figure of every run: summary.csv.</p></body></html>\n")
+
+
+def _markdown(rows: list[dict], started: str, scheduler: str, seconds: float, total: int | None,
+              links: bool = False) -> str:
     from .report import markdown_table
 
     ok = sum(r["status"] == "ok" for r in rows)
@@ -414,7 +429,8 @@ def _markdown(rows: list[dict], started: str, scheduler: str, seconds: float, to
     head = ["run", "status", "seconds", "stages ok", *sweep, *varying, "message"]
     body = []
     for r in rows:
-        body.append([r["name"], r["status"] + (f" ({r['failure']})" if r["failure"] else ""), f"{r['seconds']:.1f}",
+        name = f"[{_cell(r['name'])}](runs/{r['name']}/report.html)" if links and r["status"] == "ok" else r["name"]
+        body.append([name, r["status"] + (f" ({r['failure']})" if r["failure"] else ""), f"{r['seconds']:.1f}",
                      f"{r['stages_ok']}/{r['stages']}", *(_cell(r["overrides"].get(c, "")) for c in sweep),
                      *(_cell(r["figures"].get(c, "")) for c in varying), _cell(r["message"])])
     lines += [markdown_table(head, body), ""]

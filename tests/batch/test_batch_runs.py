@@ -66,6 +66,22 @@ def test_cli_batch_of_three_projects_one_broken(tmp_path, capsys):
     assert table[0]["source.observations"] == "18"          # a stage's summary figure as a column
     md = (out / "summary.md").read_text(encoding="utf-8")
     assert "3 of 3 run(s) done, 2 ok, 1 failed" in md and "| bad | failed (input) |" in md
+    # the same summary as a self-contained page, each complete run linked to its own report.html
+    from html.parser import HTMLParser
+
+    from baarda.pipeline.html import external_references
+
+    page = (out / "summary.html").read_text(encoding="utf-8")
+    links: list[str] = []
+
+    class _Links(HTMLParser):
+        def handle_starttag(self, tag, attrs):
+            links.extend(v for k, v in attrs if tag == "a" and k == "href")
+
+    _Links().feed(page)
+    assert links == ["runs/data1/report.html", "runs/data2/report.html"] and not external_references(page)
+    assert all((out / link).is_file() for link in links)
+    assert "3 of 3 run(s) done, 2 ok, 1 failed" in page and "failed (input)" in page
     # a second batch into the same directory replaces the complete runs
     assert main(["batch", str(FIX / "data1.toml"), "--out", str(out), "--scheduler", "sync", "--quiet"]) == 0
     assert [r["name"] for r in summary_rows(out)] == ["data1"]
