@@ -8,6 +8,7 @@
     baarda validate PROJECT.toml [--set …]          check a project and every input file without running it
     baarda stages [NAME …] [--verbose]              list installed stages; with names, each one in full
     baarda review RUN_DIR [--entities]              what was flagged, where to look; the recordings' layout
+    baarda view RUN_DIR [--print]                   open the run's recordings in the viewer, in run order
 
 Exit status (:data:`EXIT_STATUS`): 0 success; 1 an adjustment cannot be solved (singular, no datum,
 no convergence; earlier stages' results kept); 2 an input or project error (one line naming the
@@ -264,9 +265,7 @@ def _cmd_review(args) -> int:
                 raise ValueError("not a JSON object")
         except (ValueError, UnicodeDecodeError) as e:
             raise InputError(f"not a baarda results file ({_one_line(e)})", path=run_dir / "results.json") from None
-    files = sorted(run_dir.glob("*.rrd"))
-    if not files:
-        raise InputError("no .rrd recordings in this directory (is it a baarda run directory?)", path=run_dir)
+    files = run_order(run_dir)
     recordings = {}
     for f in files:
         try:
@@ -275,6 +274,38 @@ def _cmd_review(args) -> int:
             raise InputError(f"cannot read the recording ({_one_line(e)})", path=f) from None
     print_review(run_dir, results, recordings, entities=args.entities)
     return 0
+
+
+def run_order(run_dir: Path) -> list[Path]:
+    """The run's recordings in the order its stages ran (``results.json``; files it does not list
+    last, by name).  The last stage's file carries the layout of the whole run, and the viewer
+    keeps the layout of the file it loads last."""
+    files = sorted(Path(run_dir).glob("*.rrd"))
+    if not files:
+        raise InputError("no .rrd recordings in this directory (is it a baarda run directory?)", path=run_dir)
+    order: dict[str, int] = {}
+    try:
+        results = json.loads((Path(run_dir) / "results.json").read_text(encoding="utf-8"))
+        order = {st["id"]: k for k, st in enumerate(results.get("stages", []))}
+    except (OSError, ValueError, AttributeError, KeyError, TypeError):
+        pass
+    return sorted(files, key=lambda f: (order.get(f.stem, len(order)), f.name))
+
+
+def _cmd_view(args) -> int:
+    import shlex
+    import subprocess
+
+    from .runner import viewer_command
+
+    run_dir = Path(args.run_dir)
+    if not run_dir.is_dir():
+        raise InputError("run directory not found", path=run_dir)
+    cmd = [viewer_command(), *map(str, run_order(run_dir))]
+    if args.print:
+        print(shlex.join(cmd))
+        return 0
+    return subprocess.call(cmd)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -340,6 +371,14 @@ def build_parser() -> argparse.ArgumentParser:
     rv.add_argument("--entities", action="store_true", help="also list every entity of every recording")
     _noise_args(rv)
     rv.set_defaults(func=_cmd_review)
+    vw = sub.add_parser("view", help="open a run's recordings in the rerun viewer, in run order",
+                        description="Open every recording of a run directory in the rerun viewer that matches "
+                                    "this SDK, in the order the stages ran: the files merge into one recording "
+                                    "and the last stage's layout (one tab per stage) is the one shown. Needs a "
+                                    "display (see docs/recordings.md for a headless screenshot).")
+    vw.add_argument("run_dir")
+    vw.add_argument("--print", action="store_true", help="print the viewer command instead of running it")
+    vw.set_defaults(func=_cmd_view)
     return p
 
 

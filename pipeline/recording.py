@@ -48,7 +48,7 @@ def open_recording(path: Path, recording_id: str, app_id: str = APP_ID, stage_id
         rr.set_log_time_enabled(False, recording=stream)
     except Exception:  # older/newer SDKs: the timeline is harmless, only less reproducible
         pass
-    return StageRecording(stream, stage_id or Path(path).stem)
+    return StageRecording(stream, stage_id or Path(path).stem, path=Path(path), recording_id=recording_id)
 
 
 SPATIAL_3D = frozenset({"Points3D", "Transform3D", "Pinhole", "Ellipsoids3D", "LineStrips3D", "Arrows3D",
@@ -67,8 +67,10 @@ class StageRecording:
     ``stream`` is the stream itself for ``recording=`` arguments.
     """
 
-    def __init__(self, stream, stage_id: str):
+    def __init__(self, stream, stage_id: str, path: Path | None = None, recording_id: str | None = None):
         self.stream = stream
+        self.path_on_disk = path
+        self.recording_id = recording_id
         self.stage_id = str(stage_id).strip("/")
         self.logged: dict[str, set[str]] = {}
         self.notes: list[str] = []
@@ -101,7 +103,8 @@ class StageRecording:
             if self.notes:
                 log_text(self, "notes", "\n".join(f"- {n}" for n in self.notes))
             if not self._blueprint_sent:
-                self.send_blueprint(stage_blueprint(self.stage_id, self.logged), make_active=True,
+                earlier = earlier_stages(self.path_on_disk, self.recording_id) if self.path_on_disk else []
+                self.send_blueprint(run_blueprint(earlier + [(self.stage_id, self.logged)]), make_active=True,
                                     make_default=True)
         finally:
             self.stream.disconnect()
@@ -126,13 +129,70 @@ def photo_root(entity: str) -> str:
     return "/".join(parts)
 
 
+def earlier_stages(path: Path, recording_id: str | None) -> list[tuple[str, dict[str, set[str]]]]:
+    """The stages recorded before ``path`` in its folder with the same recording id (the run's
+    earlier stages, in the order they were written): ``(stage id, entity path → archetype names)``
+    from each file's manifest (no data is read).  Files that cannot be read are left out."""
+    from rerun.chunk import RrdReader
+
+    out = []
+    path = Path(path)
+    try:
+        siblings = sorted((f for f in path.parent.glob("*.rrd") if f.resolve() != path.resolve()),
+                          key=lambda f: (f.stat().st_mtime_ns, f.name))
+    except OSError:
+        return out
+    for f in siblings:
+        try:
+            reader = RrdReader(str(f))
+            recs = reader.recordings()
+            if not recs or (recording_id is not None and recs[0].recording_id != recording_id):
+                continue
+            logged: dict[str, set[str]] = {}
+            for c in reader.store().schema().component_columns():
+                ep = str(c.entity_path).strip("/")
+                arch = str(c.archetype or "").rsplit(".", 1)[-1]
+                if ep and not ep.startswith("__") and arch:
+                    logged.setdefault(ep, set()).add(arch)
+        except Exception:  # a damaged or foreign file: its layout is simply not included
+            continue
+        out.append((f.stem, logged))
+    return out
+
+
+def run_blueprint(stages: list[tuple[str, dict[str, set[str]]]]):
+    """The layout of a run's recordings: the last stage's layout (:func:`stage_layout`) when it is
+    alone, otherwise one tab per stage in run order, the last one shown.  Every stage's file gets
+    the layout of the stages up to it, so the file of the last stage holds the whole run's — open
+    the files in run order (``baarda view RUN_DIR`` does) and the viewer uses it."""
+    import rerun.blueprint as rrb
+
+    if len(stages) == 1:
+        return _blueprint(stage_layout(*stages[0]))
+    tabs = [stage_layout(sid, logged, name=sid) for sid, logged in stages]
+    return _blueprint(rrb.Tabs(*tabs, active_tab=len(tabs) - 1))
+
+
+def _blueprint(layout):
+    import rerun.blueprint as rrb
+
+    return rrb.Blueprint(layout, rrb.BlueprintPanel(state="collapsed"), rrb.SelectionPanel(state="collapsed"),
+                         auto_views=False, auto_layout=False)
+
+
 def stage_blueprint(stage_id: str, logged: dict[str, set[str]]):
+    """The blueprint of one stage's recording alone (:func:`stage_layout`)."""
+    return _blueprint(stage_layout(stage_id, logged))
+
+
+def stage_layout(stage_id: str, logged: dict[str, set[str]], name: str | None = None):
     """The layout of a stage's recording from what it logged (entity path → archetype names).
 
     Left: the 3-D network (one view rooted at the stage, of the 3-D entities) above the photos
     (one 2-D view per photo or camera: side by side up to four, tabs beyond).  Right: one time
-    series per group of ``Scalars`` (their parent entity), the bar charts, then the text documents (the summary
-    first).  Static ``AnyValues`` are left to the selection panel.
+    series per group of ``Scalars`` (their parent entity), the bar charts, then the text
+    documents (the summary first).  Static ``AnyValues`` are left to the selection panel.
+    ``name`` names the container (a stage's tab in :func:`run_blueprint`).
     """
     import rerun.blueprint as rrb
 
@@ -164,9 +224,9 @@ def stage_blueprint(stage_id: str, logged: dict[str, set[str]]):
     right += [rrb.TextDocumentView(origin=f"/{p}", contents=["$origin"], name=p.removeprefix(stage_id + "/"))
               for p in texts]
     cols = [rrb.Vertical(*c) if len(c) > 1 else c[0] for c in (left, right) if c]
-    layout = cols[0] if len(cols) == 1 else rrb.Horizontal(*cols, column_shares=[3, 2])
-    return rrb.Blueprint(layout, rrb.BlueprintPanel(state="collapsed"), rrb.SelectionPanel(state="collapsed"),
-                         auto_views=False, auto_layout=False)
+    if len(cols) == 1 and name is None:
+        return cols[0]
+    return rrb.Horizontal(*cols, column_shares=[3, 2] if len(cols) == 2 else None, name=name)
 
 
 def viewer_text(text: str) -> str:

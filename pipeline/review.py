@@ -55,15 +55,16 @@ def flagged_rows(path: Path, most: int = 5) -> list[Flagged]:
     return [f for f in found.values() if f.rows]
 
 
-def _views(summary) -> str:
-    kinds = Counter(v.kind for v in summary.views)
+def _views(summary, stage: str) -> str:
+    kinds = Counter(v.kind for v in summary.views if v.origin == f"/{stage}" or v.origin.startswith(f"/{stage}/"))
     names = {"3D": "3-D", "2D": "2-D", "TimeSeries": "time series", "TextDocument": "text", "BarChart": "bar chart"}
     parts = [f"{n} {names.get(k, k)}" for k, n in sorted(kinds.items(), key=lambda kv: -kv[1])]
     return ", ".join(parts) if parts else "no blueprint (the viewer lays it out itself)"
 
 
 def _photo_views(summary, stage: str) -> list[str]:
-    return [v.origin.removeprefix(f"/{stage}/") for v in summary.views if v.kind == "2D"]
+    return [v.origin.removeprefix(f"/{stage}/") for v in summary.views
+            if v.kind == "2D" and v.origin.startswith(f"/{stage}/")]
 
 
 def _finding(st: dict) -> str:
@@ -80,8 +81,6 @@ def _finding(st: dict) -> str:
 def print_review(run_dir: Path, results: dict, recordings: dict, *, entities: bool = False, out=None) -> None:
     """Print the review of ``run_dir`` (``results.json`` as a dict, recordings by stage id)."""
     import sys
-
-    from .runner import viewer_command
 
     out = out or sys.stdout
 
@@ -139,7 +138,7 @@ def print_review(run_dir: Path, results: dict, recordings: dict, *, entities: bo
     ids = set()
     for sid, rec in recordings.items():
         ids.add(rec.recording_id)
-        say(f"  {sid}.rrd: {len(rec.entities)} entities under /{sid}; views: {_views(rec)}")
+        say(f"  {sid}.rrd: {len(rec.entities)} entities under /{sid}; views: {_views(rec, sid)}")
         if entities:
             for e in rec.entities:
                 tl = f" over {', '.join(e.timelines)}" if e.timelines else (" static" if e.static else "")
@@ -152,4 +151,4 @@ def print_review(run_dir: Path, results: dict, recordings: dict, *, entities: bo
         say(f"warning: the recordings carry {len(ids)} different recording ids")
     if not entities:
         say("Every entity: baarda review --entities " + str(run_dir))
-    say(f"Open them, in the run directory:  {viewer_command()} *.rrd")
+    say(f"Open them (in run order: the last stage's file holds the whole run's layout):  baarda view {run_dir}")

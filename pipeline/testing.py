@@ -168,8 +168,11 @@ def check_recording(path: Path, stage_id: str | None = None):
     root = f"/{sid}"
     for e in s.entities:
         assert e.path == root or e.path.startswith(root + "/"), f"{path}: entity {e.path} not under {root}"
+    # the layout also shows the run's earlier stages (recordings beside it with the same id)
+    stages = {sid} | {f.stem for f in Path(path).parent.glob("*.rrd")}
     for v in s.views:
-        assert v.origin == root or v.origin.startswith(root + "/"), f"{path}: view {v.kind} at {v.origin}"
+        assert v.origin.strip("/").split("/")[0] in stages, f"{path}: view {v.kind} at {v.origin}"
+    assert any(v.origin == root or v.origin.startswith(root + "/") for v in s.views), f"{path}: no view of {root}"
     assert any(v.kind == "TextDocument" and v.origin == f"{root}/summary" for v in s.views) or \
         not any(e.path == f"{root}/summary" for e in s.entities), f"{path}: no view of the summary"
     for chunk in RrdReader(str(path)).stream().to_chunks():

@@ -203,8 +203,7 @@ class HelmertScreening:
             v = s.adjustment.v.reshape(-1, 2)
             rec.log(f"photos/{right}/residuals",
                     rr.Arrows2D(origins=view_from_photo(s.xy_right - v), vectors=view_vectors(v * scale),
-                                labels=[f"{i}: v = ({a:+.3f}, {b:+.3f}) mm" for i, (a, b) in zip(ids, v)],
-                                colors=[red if f else grey for f in flagged_pt]))
+                                colors=[red if f else grey for f in flagged_pt]))   # v per point: pairs/…/tests
             if flagged_pt.any():
                 rec.log(f"photos/{right}/flagged",
                         rr.Points2D(view_from_photo(s.xy_right[flagged_pt]),

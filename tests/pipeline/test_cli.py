@@ -199,3 +199,14 @@ def test_bundle_stage_prints_ceres_lines_with_verbose_and_times_all_its_work(tmp
     results = json.loads((tmp_path / "r" / "results.json").read_text())
     runner_seconds = next(st["seconds"] for st in results["stages"] if st["id"] == "bundle")
     assert float(m.group(1)) <= runner_seconds + 1e-3
+
+
+def test_view_opens_the_recordings_in_run_order(tmp_path, capsys):
+    run = tmp_path / "demo"
+    assert main(["-q", "run", str(DEMO), "--out", str(run)]) == 0
+    capsys.readouterr()
+    assert main(["view", str(run), "--print"]) == 0
+    cmd = capsys.readouterr().out.split()
+    assert Path(cmd[0]).name == "rerun"
+    assert [Path(c).name for c in cmd[1:]] == ["source.rrd", "screening.rrd", "blunders.rrd"]
+    assert main(["view", str(tmp_path / "nowhere")]) == EXIT_STATUS["input"]

@@ -183,7 +183,7 @@ def test_review_reads_recordings_back(tmp_path, pm, capsys):
     text = capsys.readouterr().out
     assert "numbers.rrd: " in text and "entities under /numbers" in text and "mean.rrd: " in text
     assert "/numbers/value  rows=4 over iteration" in text
-    assert "share recording id" in text and "*.rrd" in text
+    assert "share recording id" in text and "baarda view" in text
 
 
 def test_review_of_a_directory_without_recordings(tmp_path, capsys):

@@ -65,14 +65,14 @@ def test_every_recording_has_a_blueprint_and_rooted_paths(runs, project):
         assert s.views, f"{f.name}: no blueprint"
         for e in s.entities:
             assert e.path == f"/{stage}" or e.path.startswith(f"/{stage}/"), (f.name, e.path)
-        for v in s.views:
-            assert v.origin == f"/{stage}" or v.origin.startswith(f"/{stage}/"), (f.name, v)
-        text = [v for v in s.views if v.kind == "TextDocument"]
-        assert text and text[0].origin == f"/{stage}/summary", (f.name, s.views)
+        stages = {g.stem for g in files}
+        for v in s.views:   # this stage's views and the earlier stages' (the run's layout so far)
+            assert v.origin.strip("/").split("/")[0] in stages, (f.name, v)
+        assert any(v.kind == "TextDocument" and v.origin == f"/{stage}/summary" for v in s.views), (f.name, s.views)
         kinds = {e.path: e.columns for e in s.entities}
         # every entity with a 2-D archetype is inside a 2-D view of its own photo, and that view
         # is one photo: no two photos' entities share a view
-        for path, cols in kinds.items():
+        for path, cols in kinds.items():   # (own views only below: origins under /<stage>)
             if any(c.split(":")[0] in ("Points2D", "Arrows2D", "LineStrips2D") for c in cols):
                 views = [v for v in s.views if v.kind == "2D" and (path + "/").startswith(v.origin + "/")]
                 assert len(views) == 1, (f.name, path, views)
@@ -90,10 +90,10 @@ def test_every_recording_has_a_blueprint_and_rooted_paths(runs, project):
 def test_the_paper000_pair_gets_one_view_per_photo_and_time_series(runs):
     run_dir = runs["paper000/data1.toml"]
     screening = read_recording(run_dir / "screening.rrd")
-    assert sorted(v.origin for v in screening.views if v.kind == "2D") == ["/screening/photos/L",
-                                                                         "/screening/photos/R"]
+    assert sorted(v.origin for v in screening.views if v.kind == "2D") == [
+        "/screening/photos/L", "/screening/photos/R", "/source/photos/L", "/source/photos/R"]
     blunders = read_recording(run_dir / "blunders.rrd")
-    series = sorted(v.origin for v in blunders.views if v.kind == "TimeSeries")
+    series = sorted(v.origin for v in blunders.views if v.kind == "TimeSeries" and v.origin.startswith("/blunders"))
     assert {"/blunders/ids", "/blunders/pope", "/blunders/rrr"} <= set(series), series
 
 
@@ -112,6 +112,24 @@ def test_bundle_logs_every_photo_and_point_ellipsoids(runs):
     assert "Ellipsoids3D:half_sizes" in ell.columns
     assert any(v.kind == "2D" for v in s.views) and any(v.kind == "3D" for v in s.views)
     assert any(v.kind == "TimeSeries" and v.origin.endswith("/convergence") for v in s.views)
+
+
+def test_the_last_stage_holds_the_whole_runs_layout(runs):
+    """Each file's layout has one tab per stage up to it; the last stage's file has every stage's views,
+    so opening the files in run order (baarda view) shows the whole run laid out."""
+    import json
+
+    for run_dir in runs.values():
+        order = [s["id"] for s in json.loads((run_dir / "results.json").read_text())["stages"]]
+        for k, sid in enumerate(order):
+            views = read_recording(run_dir / f"{sid}.rrd").views
+            shown = {v.origin.strip("/").split("/")[0] for v in views}
+            assert shown == set(order[:k + 1]), (run_dir, sid, shown)
+        last = read_recording(run_dir / f"{order[-1]}.rrd").views
+        for sid in order:   # the same views as the stage's own file has for itself
+            own = {(v.kind, v.origin) for v in read_recording(run_dir / f"{sid}.rrd").views
+                   if v.origin.strip("/").split("/")[0] == sid}
+            assert own <= {(v.kind, v.origin) for v in last}, sid
 
 
 def test_merged_stages_never_share_an_entity(runs):
