@@ -359,7 +359,10 @@ def _write_report(run_dir, project, records, recording_id, started, shown=None):
         if r.files:
             lines += ["Files: " + ", ".join(f"[{f}]({f})" for f in r.files), ""]
     (run_dir / "report.md").write_text("\n".join(lines), encoding="utf-8")
-    _write_html(run_dir, project, records, recording_id, started, scrub)
+    try:
+        _write_html(run_dir, project, records, recording_id, started, scrub)
+    except Exception:  # a broken page must not lose the run: report.md and results.json stand
+        (run_dir / "report.html.error.txt").write_text(traceback.format_exc(), encoding="utf-8")
 
 
 def _write_html(run_dir, project, records, recording_id, started, scrub) -> None:

@@ -17,6 +17,8 @@ from .protocol import image_units
 
 MAX_DISTORTION_CAMERAS = 4
 """Cameras whose distortion is drawn (most image points first; a COLMAP block may have dozens)."""
+MAX_ELLIPSES = 3000
+"""Points whose error ellipse is drawn (the first ones; the rest would be ink, not information)."""
 MAX_PHOTOS = 12
 """Photos drawn in the residual figure (the largest RMS first)."""
 
@@ -50,9 +52,11 @@ def residual_vectors(res, decision=None, images: dict | None = None):
     unit, scale, _ = image_units(block)
     act = np.asarray(res.obs_active, bool)
     v = np.asarray(res.residuals, float)
-    photos = np.unique(obs.photo[act])
-    r = np.array([np.sqrt(np.mean(v[act & (obs.photo == p)] ** 2)) for p in photos])
-    photos = photos[np.argsort(-r)][:MAX_PHOTOS]
+    ss = np.bincount(obs.photo[act], weights=(v[act] ** 2).sum(axis=1), minlength=len(block.photos))
+    cnt = np.bincount(obs.photo[act], minlength=len(block.photos))
+    photos = np.flatnonzero(cnt)
+    r = np.sqrt(ss[photos] / cnt[photos])
+    photos = photos[np.argsort(-r, kind="stable")][:MAX_PHOTOS]
     n = len(photos)
     ncol = min(4, n)
     nrow = int(np.ceil(n / ncol))
@@ -103,6 +107,8 @@ def network(res):
     """Plan (X, Y) and elevation (X, Z) of projection centres and points, with the points'
     standard error ellipses exaggerated by one common factor."""
     plt = _plt()
+    from matplotlib.collections import LineCollection
+
     block = res.block_in
     pts, used = block.points, res.point_used
     XYZ, X0 = res.state.XYZ, res.state.X0[res.photo_used]
@@ -120,9 +126,10 @@ def network(res):
             ax.plot(XYZ[m, i], XYZ[m, j], "^" if role in ("full", "xy", "z") else "o", ms=4,
                     color=colours.get(role, "#27ae60"), label=f"{role} ({int(m.sum())})", ls="none")
         ax.plot(X0[:, i], X0[:, j], "s", ms=5, color="k", label=f"projection centres ({len(X0)})")
-        for p in np.flatnonzero(ok)[:3000]:
-            e = _ellipse(C[p][np.ix_([i, j], [i, j])]) * k
-            ax.plot(XYZ[p, i] + e[0], XYZ[p, j] + e[1], color="#c0392b", lw=0.6)
+        sel = np.flatnonzero(ok)[:MAX_ELLIPSES]
+        segs = [np.column_stack([XYZ[p, i] + e[0], XYZ[p, j] + e[1]])
+                for p in sel for e in [_ellipse(C[p][np.ix_([i, j], [i, j])]) * k]]
+        ax.add_collection(LineCollection(segs, colors="#c0392b", linewidths=0.6))
         ax.set_aspect("equal", adjustable="datalim")
         ax.set_title(name, fontsize=10)
         ax.set_xlabel(f"{'XYZ'[i]} ({block.object_unit})")

@@ -40,15 +40,19 @@ def image_units(block) -> tuple[str, float, str | None]:
 
 
 def _rms_rows(v, act, keys, ids) -> list[dict]:
-    out = []
-    for k in np.unique(keys):
-        m = keys == k
-        vx, vy = v[m & act[:, 0], 0], v[m & act[:, 1], 1]
-        n = int(act[m].any(axis=1).sum())
-        if n == 0:
-            continue
-        out.append({"id": str(ids[k]), "n": n, "x": rms(vx), "y": rms(vy), "all": rms(np.concatenate([vx, vy]))})
-    return out
+    """RMS of x, y and all coordinates per key (photo or camera), by bincount: O(observations)."""
+    keys = np.asarray(keys, int)
+    m = len(ids)
+    ax, ay = act[:, 0], act[:, 1]
+    sx = np.bincount(keys[ax], weights=v[ax, 0] ** 2, minlength=m)
+    sy = np.bincount(keys[ay], weights=v[ay, 1] ** 2, minlength=m)
+    nx = np.bincount(keys[ax], minlength=m)
+    ny = np.bincount(keys[ay], minlength=m)
+    npt = np.bincount(keys[act.any(axis=1)], minlength=m)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rx, ry, ra = np.sqrt(sx / nx), np.sqrt(sy / ny), np.sqrt((sx + sy) / (nx + ny))
+    return [{"id": str(ids[k]), "n": int(npt[k]), "x": float(rx[k]), "y": float(ry[k]), "all": float(ra[k])}
+            for k in np.flatnonzero(npt)]
 
 
 def bundle_protocol(res, extras: dict, *, alpha0: float, beta0: float) -> dict:
