@@ -214,7 +214,7 @@ def stage_layout(stage_id: str, logged: dict[str, set[str]], name: str | None = 
         tops = [p for p in three if not any(p.startswith(q + "/") for q in three)]
         left.append(rrb.Spatial3DView(origin=root, contents=[f"/{p}/**" for p in tops], name=f"{stage_id}: 3-D"))
     if photos:
-        views = [rrb.Spatial2DView(origin=f"/{ph}", contents=["$origin/**"], name=ph.split("/")[-1])
+        views = [rrb.Spatial2DView(origin=f"/{ph}", contents=["$origin/**"], name=_view_name(ph, stage_id))
                  for ph in sorted(photos)]
         left.append(rrb.Grid(*views) if len(views) <= 4 else rrb.Tabs(*views, name="photos"))
     right = [rrb.TimeSeriesView(origin=f"/{g}", contents=["$origin/**"], name=g.removeprefix(stage_id + "/"))
@@ -227,6 +227,14 @@ def stage_layout(stage_id: str, logged: dict[str, set[str]], name: str | None = 
     if len(cols) == 1 and name is None:
         return cols[0]
     return rrb.Horizontal(*cols, column_shares=[3, 2] if len(cols) == 2 else None, name=name)
+
+
+def _view_name(entity: str, stage_id: str) -> str:
+    """``L`` for ``screening/photos/L``; ``images/1`` and ``cameras/1`` when a stage has both groups."""
+    parts = entity.split("/")
+    if len(parts) >= 2 and parts[-2] in PHOTO_GROUPS and parts[-2] != "photos":
+        return "/".join(parts[-2:])
+    return parts[-1] if len(parts) > 1 else entity.removeprefix(stage_id + "/")
 
 
 def viewer_text(text: str) -> str:

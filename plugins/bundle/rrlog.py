@@ -8,7 +8,7 @@ Entities (under the stage id: the recording roots every path there)
     ``images/<id>/observed``        image points (u = x + w/2, v = h/2 − y: mm, y down as in 2-D views)
     ``images/<id>/residuals``       residual vectors from computed to observed, × arrow scale
     ``cameras/<id>/distortion``     distortion field of the estimated APs on a grid, × scale
-    ``convergence/*``               vᵀPv, σ̂0, damping per ``iteration``
+    ``convergence/{cost,sigma0,damping,step}/*``  vᵀPv, σ̂0, λ, largest step per ``iteration``
     ``bundle/summary``              σ̂0, dof, vᵀPv, arrow and ellipsoid scales (the report is the
                                     runner's ``<stage>/summary``)
 """
@@ -116,11 +116,13 @@ def log_bundle(rec, res, decision, options, report: str, max_photos: int | None 
     dof = max(res.dof, 1)
     for h in res.history:
         rec.set_time("iteration", sequence=int(h["iteration"]))
-        rec.log("convergence/vtpv", rr.Scalars([float(h["vtpv"])]))
-        rec.log("convergence/sigma0_hat", rr.Scalars([float(np.sqrt(h["vtpv"] / dof))]))
-        rec.log("convergence/lambda", rr.Scalars([float(h["lambda"])]))
+        # one plot each (their scales differ by orders of magnitude): the layout plots the
+        # scalars under one parent entity together
+        rec.log("convergence/cost/vtpv", rr.Scalars([float(h["vtpv"])]))
+        rec.log("convergence/sigma0/sigma0_hat", rr.Scalars([float(np.sqrt(h["vtpv"] / dof))]))
+        rec.log("convergence/damping/lambda", rr.Scalars([float(h["lambda"])]))
         if np.isfinite(h["max_step_sigma"]):
-            rec.log("convergence/max_step_sigma", rr.Scalars([float(h["max_step_sigma"])]))
+            rec.log("convergence/step/max_step_sigma", rr.Scalars([float(h["max_step_sigma"])]))
 
 
 def _log_precision(rec, res, used) -> float:

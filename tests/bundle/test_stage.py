@@ -31,10 +31,10 @@ def test_stage_runs_and_logs(tmp_path):
     rec = read_recording(path)
     ents = {e.path: e for e in rec.entities}
     for p in ("/bundle/world/points", "/bundle/world/photos/P1", "/bundle/images/P1/residuals",
-              "/bundle/cameras/cam/distortion", "/bundle/convergence/vtpv", "/bundle/summary"):
+              "/bundle/cameras/cam/distortion", "/bundle/convergence/cost/vtpv", "/bundle/summary"):
         assert p in ents, p
-    assert "iteration" in ents["/bundle/convergence/vtpv"].timelines
-    assert ents["/bundle/convergence/vtpv"].rows == b.iterations + 1
+    assert "iteration" in ents["/bundle/convergence/cost/vtpv"].timelines
+    assert ents["/bundle/convergence/cost/vtpv"].rows == b.iterations + 1
     assert {"Transform3D", "Pinhole"} <= {c.split(":")[0] for c in ents["/bundle/world/photos/P1"].columns}
 
 

@@ -111,7 +111,8 @@ def test_bundle_logs_every_photo_and_point_ellipsoids(runs):
     ell = next(e for e in s.entities if e.path.endswith("/world/points/precision"))
     assert "Ellipsoids3D:half_sizes" in ell.columns
     assert any(v.kind == "2D" for v in s.views) and any(v.kind == "3D" for v in s.views)
-    assert any(v.kind == "TimeSeries" and v.origin.endswith("/convergence") for v in s.views)
+    series = {v.origin for v in s.views if v.kind == "TimeSeries"}
+    assert {f"/{bundle_id}/convergence/{g}" for g in ("cost", "sigma0", "damping", "step")} <= series
 
 
 def test_the_last_stage_holds_the_whole_runs_layout(runs):
