@@ -43,7 +43,7 @@ def png_of(fig: Any) -> bytes:
 
     buf = io.BytesIO()
     try:
-        fig.savefig(buf, format="png", dpi=FIGURE_DPI, bbox_inches="tight")
+        fig.savefig(buf, format="png", dpi=FIGURE_DPI)     # the figures lay themselves out (tight_layout)
     finally:
         plt.close(fig)
     return buf.getvalue()

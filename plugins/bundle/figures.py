@@ -155,6 +155,8 @@ def checkpoint_errors(res):
     a.plot(res.state.XYZ[res.point_used, 0], res.state.XYZ[res.point_used, 1], ".", color="#bbb", ms=3)
     a.quiver(pts.XYZ[chk, 0], pts.XYZ[chk, 1], k * d[:, 0], k * d[:, 1], angles="xy", scale_units="xy", scale=1,
              color="#d35400", width=0.005)
+    a.update_datalim(pts.XYZ[chk, :2] + k * d[:, :2])      # the arrow heads inside the axes
+    a.autoscale_view()
     for p, x, y in zip(pts.ids[chk], pts.XYZ[chk, 0], pts.XYZ[chk, 1]):
         a.annotate(str(p), (x, y), fontsize=7, xytext=(3, 3), textcoords="offset points")
     a.set_aspect("equal", adjustable="datalim")

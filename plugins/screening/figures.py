@@ -25,6 +25,8 @@ def helmert_residuals(art) -> dict:
                 a.quiver(xy[m, 0], xy[m, 1], k * v[m, 0], k * v[m, 1], angles="xy", scale_units="xy", scale=1,
                          color=col, width=0.005, label=lab)
         a.plot(xy[:, 0], xy[:, 1], ".", color="#555", ms=3)
+        a.update_datalim(xy + k * v)         # quiver does not count the arrow heads in the limits
+        a.autoscale_view()
         for i, (x, y) in zip(s.point_ids, xy):
             a.annotate(str(i), (x, y), fontsize=8, xytext=(3, 3), textcoords="offset points")
         a.set_aspect("equal", adjustable="datalim")
