@@ -47,7 +47,8 @@ class BundleResult:
     """Everything a converged bundle adjustment produced (pure data + :meth:`refit`).
 
     Parameters are in the block's units (image mm, object ``object_unit``, angles rad).
-    Covariances are a-posteriori (``σ̂0² Q``) unless ``dof == 0`` (then ``σ0² Q``).
+    Covariances are a-posteriori (``σ̂0² Q``) unless ``dof == 0`` or ``settings.variance ==
+    "a-priori"`` (then ``σ0² Q``).
     """
 
     block_in: Block
@@ -83,7 +84,7 @@ class BundleResult:
 
     @property
     def variance_factor(self) -> float:
-        return self.sigma0_hat ** 2 if self.dof > 0 else self.sigma0 ** 2
+        return variance_factor(self.vtpv, self.dof, self.settings)
 
     @property
     def block(self) -> Block:
@@ -290,7 +291,7 @@ def adjust(block: Block, settings: BundleSettings | None = None, *, row_active=N
     v_all = block.observations.xy - _project_all(prob, st)
     dof = prob.dof
     vtpv = info["vtpv"]
-    var = vtpv / dof if dof > 0 else settings.sigma0 ** 2
+    var = variance_factor(vtpv, dof, settings)
     P = 3 + prob.pmax
     names = [["c", "xp", "yp"] + list(m.params) for m in prob.models]
     cov_cams = [np.zeros((len(nm), len(nm))) for nm in names]
@@ -355,6 +356,14 @@ def _project_all(prob: BundleProblem, st: BundleState) -> np.ndarray:
                                   st.cam_params, prob.block.cameras.ap_model, prob.meta, jacobians=False)
         out[ok] = pr.xy
     return out
+
+
+def variance_factor(vtpv: float, dof: int, settings: BundleSettings) -> float:
+    """The factor on the cofactors: ``σ̂0² = vᵀPv / dof``, or ``σ0²`` without redundancy or when
+    ``settings.variance == "a-priori"`` (the precision of a planned network)."""
+    if dof > 0 and settings.variance != "a-priori":
+        return vtpv / dof
+    return settings.sigma0 ** 2
 
 
 def _snapshot(block, prob, v_all, r_all, PQ_all, vtpv, dof, sigma0, sv_pred=None) -> Snapshot:

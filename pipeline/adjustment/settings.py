@@ -34,6 +34,9 @@ class BundleSettings:
     datum_centres: bool = False
     """free network: put the inner constraints on the projection centres instead of points."""
     sigma0: float = 1.0
+    variance: Literal["a-posteriori", "a-priori"] = "a-posteriori"
+    """covariances as ``σ̂0² Q`` (a-posteriori, the default) or ``σ0² Q`` (a-priori: network design at
+    error-free observations, where σ̂0 = 0; ``docs/design.md``)."""
     max_iter: int = 30
     tol_obs: float = 1e-5
     """converged when the last correction moves no observation by more than tol_obs × its σ."""

@@ -73,6 +73,8 @@ class BundleOptions:
     distances: list[ScaleBarOptions] = option(
         [], "extra scale bars: tables {from, to, distance, sigma} (object units); block scale bars are used too")
     sigma0: float = option(1.0, "a-priori standard deviation of unit weight")
+    variance: Literal["a-posteriori", "a-priori"] = option(
+        "a-posteriori", "covariances from σ̂0 (a-posteriori) or σ0 (a-priori: network design, docs/design.md)")
     sigma_image_scale: float = option(
         1.0, "multiply the a-priori σ of every image coordinate by this factor (a variance component, e.g. "
              "σ̂0 of an earlier run on the same weights)")
@@ -243,7 +245,8 @@ def settings_from(o: BundleOptions, block: Block, threads: int = 1) -> BundleSet
         ap_meta = {cid: {"b": o.ebner_b} for cid in block.cameras.ids.tolist()}
     return BundleSettings(
         datum=o.datum, datum_points=tuple(o.datum_points) or None, datum_centres=o.datum_on == "centres",
-        sigma0=o.sigma0, max_iter=o.max_iter, tol_obs=o.tol_obs, tol_rel=o.tol_rel, damping=o.damping,
+        sigma0=o.sigma0, variance=o.variance,
+        max_iter=o.max_iter, tol_obs=o.tol_obs, tol_rel=o.tol_rel, damping=o.damping,
         distances=tuple(Distance(str(d.from_), str(d.to), d.distance, d.sigma) for d in o.distances),
         on_weak=o.on_weak, ap_meta=ap_meta, covariance=o.covariance, solver=o.solver, threads=threads)
 

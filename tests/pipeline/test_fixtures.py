@@ -37,6 +37,7 @@ SECONDS = {
     "dbat/camcal-detect.toml": 5.2,
     "dbat/camcal.toml": 0.4,
     "dbat/sxb.toml": 0.3,
+    "design/design.toml": 4.2,
     "odm/odm-br-gcp.toml": 5.6,
     "paper000/data1.toml": 0.6,
     "paper000/data2.toml": 0.6,
