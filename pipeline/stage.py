@@ -222,6 +222,23 @@ class Progress:
         self._active = b
         return b
 
+    def mapper(self, base=None, what: str = "task"):
+        """A ``map``-like callable for a numerics routine's ``mapper`` argument: ``base`` (e.g. the
+        run's Dask engine, :func:`baarda.pipeline.montecarlo.mapper`; default the built-in ``map``)
+        with a bar over its tasks.  Results come back in order, as a list."""
+        run_base = base or map
+
+        def run(fn, items):
+            items = list(items)
+            out = []
+            with self.bar(len(items), what) as b:
+                for r in run_base(fn, items):
+                    out.append(r)
+                    b.update()
+            return out
+
+        return run
+
     def track(self, iterable: Iterable, total: int | None = None, what: str = "") -> Iterator:
         """Yield from ``iterable`` with a bar (``what i/total``, rate and ETA)."""
         total = total if total is not None else (len(iterable) if hasattr(iterable, "__len__") else None)

@@ -113,7 +113,8 @@ def _signed_tau(art, res, step) -> float:
     return float(sign * step.tau_max)
 
 
-def run_rrr(art: AdjustmentArtefact, s: BlunderSettings, rng) -> MethodResult:
+def run_rrr(art: AdjustmentArtefact, s: BlunderSettings, rng, progress=None) -> MethodResult:
+    """RRR; ``progress`` (a :class:`~baarda.pipeline.stage.Progress`) shows a bar over the Monte Carlo's tasks."""
     if not art.supports_rrr:
         return MethodResult("rrr", [], [], [], {}, None,
                             skipped=f"the adjustment '{art.name}' offers no linear model (A, l, P)")
@@ -123,8 +124,11 @@ def run_rrr(art: AdjustmentArtefact, s: BlunderSettings, rng) -> MethodResult:
     except ValueError as e:
         return MethodResult("rrr", [], [], [], {}, None, skipped=str(e))
     rho = s.rho or auto_rho(snap.dof)
+    mapper = montecarlo.mapper()                           # realisations as tasks on the run's Dask engine
+    if progress is not None:
+        mapper = progress.mapper(mapper, "RRR Monte Carlo task")
     res = rrr(model, rho, s.alpha_rrr, s.n_sim, rng=rng, active=active, critical=s.rrr_critical,
-              mapper=montecarlo.mapper())                 # realisations as tasks on the run's Dask engine
+              mapper=mapper)
     dec = [Decision("rrr", row, lab, "H_exp", float(h), res.H, j)
            for j, (row, lab, h, rej) in enumerate(zip(res.suspects, res.suspect_labels, res.H_exp, res.rejected))
            if rej]
@@ -148,7 +152,7 @@ def run_robust(art: AdjustmentArtefact, method: str, s: BlunderSettings) -> Meth
     return MethodResult(method, [d.row for d in dec], dec, list(res.history), {"how": how, **res.summary()}, res)
 
 
-def run_methods(art: AdjustmentArtefact, methods, s: BlunderSettings, rng) -> dict[str, MethodResult]:
+def run_methods(art: AdjustmentArtefact, methods, s: BlunderSettings, rng, progress=None) -> dict[str, MethodResult]:
     """Run each method in ``methods`` (names from :data:`METHODS`) on the adjustment."""
     out = {}
     for m in methods:
@@ -159,7 +163,7 @@ def run_methods(art: AdjustmentArtefact, methods, s: BlunderSettings, rng) -> di
         elif m == "pope":
             out[m] = run_pope(art, s)
         elif m == "rrr":
-            out[m] = run_rrr(art, s, rng)
+            out[m] = run_rrr(art, s, rng, progress)
         elif m in ROBUST_METHODS:
             out[m] = run_robust(art, m, s)
         else:

@@ -101,7 +101,7 @@ class BlunderRejection:
         if options.method == "rrr" and not art.supports_rrr:
             raise InputError(f"method 'rrr' needs a linear model; the adjustment '{art.name}' offers only "
                              "refit() — use data-snooping, ids or pope", None, None, "method")
-        results = run_methods(art, methods, settings, ctx.rng)
+        results = run_methods(art, methods, settings, ctx.rng, progress=ctx.progress)
         if options.method in ROBUST_METHODS and results[options.method].skipped:
             raise InputError(f"method '{options.method}' cannot run: {results[options.method].skipped}",
                              None, None, "method")

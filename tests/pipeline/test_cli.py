@@ -210,3 +210,21 @@ def test_view_opens_the_recordings_in_run_order(tmp_path, capsys):
     assert Path(cmd[0]).name == "rerun"
     assert [Path(c).name for c in cmd[1:]] == ["source.rrd", "screening.rrd", "blunders.rrd"]
     assert main(["view", str(tmp_path / "nowhere")]) == EXIT_STATUS["input"]
+
+
+def test_rrr_monte_carlo_progress_changes_nothing(tmp_path):
+    """A bar over RRR's Monte Carlo tasks (Progress.mapper) gives the very critical value."""
+    from baarda.pipeline.runner import run_project
+    from baarda.plugins.blunder_rejection.decide import BlunderSettings, run_rrr
+
+    out = run_project(DEMO, tmp_path / "r", verbose=False)
+    art = next(a for a in [out.artefacts.get("adjustment")] if a is not None)
+    s = BlunderSettings(n_sim=2000)
+    plain = run_rrr(art, s, np.random.default_rng(5))
+    stream = io.StringIO()
+    shown = run_rrr(art, s, np.random.default_rng(5),
+                    progress=Progress("blunders", stream=stream, enabled=True, live=False, interval=0.0))
+    assert shown.summary["H"] == plain.summary["H"] and shown.rejected == plain.rejected
+    last = stream.getvalue().splitlines()[-1]
+    m = re.search(r"RRR Monte Carlo task (\d+)/(\d+) \(100 %\)", last)
+    assert m and m.group(1) == m.group(2), stream.getvalue()

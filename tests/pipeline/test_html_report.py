@@ -6,6 +6,7 @@ from __future__ import annotations
 import base64
 import json
 import os
+import re
 from html.parser import HTMLParser
 from pathlib import Path
 
@@ -66,6 +67,7 @@ def _no_machine_paths(run_dir: Path):
     forbidden = {str(REPO), str(run_dir), str(run_dir.resolve()), str(Path.home()), os.path.realpath("/tmp")}
     for name in ("report.html", "report.md"):
         text = (run_dir / name).read_text(encoding="utf-8")
+        text = re.sub(r"data:image/png;base64,[A-Za-z0-9+/=]+", "", text)   # base64 may spell anything
         for p in forbidden:
             assert p not in text, f"{name} names {p}"
 
