@@ -74,7 +74,8 @@ def _finding(st: dict) -> str:
     if isinstance(s, dict) and s.get("headline"):
         return str(s["headline"])
     if isinstance(s, dict) and "photos" in s and "observations" in s:
-        return f"read {s.get('photos')} photo(s), {s.get('points', '?')} point(s), {s.get('observations')} observation(s)"
+        return (f"read {s.get('photos')} photo(s), {s.get('points', '?')} point(s), "
+                f"{s.get('observations')} observation(s)")
     return ""
 
 

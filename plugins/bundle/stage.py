@@ -28,7 +28,7 @@ from baarda.pipeline.adjustment import (EO_NAMES, BundleResult, BundleSettings, 
 from baarda.pipeline.camera import ap_model_names, get_ap_model
 from baarda.plugins.bundle import external as bundle_external
 
-from .protocol import bundle_protocol, protocol_lines
+from .protocol import bundle_protocol, image_units, protocol_lines
 
 
 
@@ -690,13 +690,14 @@ def _flagged_lines(res: BundleResult, ds, most: int = 15) -> list[str]:
     idx = np.flatnonzero(ds.flagged)
     if not len(idx):
         return []
+    u, k, _ = image_units(res.block_in)
     idx = idx[np.argsort(-np.abs(ds.w[idx]))]
     rows = ["", f"  Largest flagged (of {len(idx)}; all in bundle_observations.csv, column `decision`):", "",
-            "  | observation | v (µm) | r | w | ∇̂ (µm) | MDB (µm) |", "  |---|---|---|---|---|---|"]
+            f"  | observation | v ({u}) | r | w | ∇̂ ({u}) | MDB ({u}) |", "  |---|---|---|---|---|---|"]
     snap = res.snapshot
     for i in idx[:most]:
-        rows.append(f"  | {snap.labels[i]} | {1000 * snap.v[i]:+.3f} | {snap.r[i]:.3f} | {ds.w[i]:+.2f} | "
-                    f"{1000 * ds.nabla_hat[i]:+.3f} | {1000 * ds.mdb[i]:.3f} |")
+        rows.append(f"  | {snap.labels[i]} | {k * snap.v[i]:+.3f} | {snap.r[i]:.3f} | {ds.w[i]:+.2f} | "
+                    f"{k * ds.nabla_hat[i]:+.3f} | {k * ds.mdb[i]:.3f} |")
     return rows + [""]
 
 
@@ -718,8 +719,10 @@ def _radius_line(res: BundleResult, ids) -> str:
     act = np.asarray(res.snapshot.active, bool).reshape(-1, 2).any(axis=1) | (np.bincount(
         np.asarray(ids.removed, int) // 2, minlength=len(obs)) > 0)
     rej = np.unique(np.asarray(ids.removed, int) // 2)
-    return (f"- distance from the principal point: median {np.median(rad[rej]):.2f} mm for the rejected "
-            f"image points, {np.median(rad[act]):.2f} mm for all")
+    u, k, _ = image_units(res.block_in)
+    u, k = ("px", k) if u == "px" else ("mm", 1.0)
+    return (f"- distance from the principal point: median {k * np.median(rad[rej]):.2f} {u} for the rejected "
+            f"image points, {k * np.median(rad[act]):.2f} {u} for all")
 
 
 def _rejected_lines(res: BundleResult, ids, most: int = 30) -> list[str]:
@@ -728,13 +731,14 @@ def _rejected_lines(res: BundleResult, ids, most: int = 30) -> list[str]:
     if not ids.removed:
         return []
     snap = ids.snapshot
+    u, scale, _ = image_units(res.block_in)
     steps = [h for h in ids.history if h.removed]
     rows = ["", f"  Rejected (in order; all in bundle_observations.csv, decision = rejected):", "",
-            "  | # | observation | w when rejected | v_pred now (µm) | v_pred/σ now |", "  |---|---|---|---|---|"]
+            f"  | # | observation | w when rejected | v_pred now ({u}) | v_pred/σ now |", "  |---|---|---|---|---|"]
     for k, (i, h) in enumerate(zip(ids.removed[:most], steps)):
         vp = snap.v_pred[i] if snap.v_pred is not None else np.nan
         sp = snap.sigma_v_pred[i] if snap.sigma_v_pred is not None else np.nan
-        rows.append(f"  | {k + 1} | {snap.labels[i]} | {h.w_max:+.2f} | {1000 * vp:+.3f} | {vp / sp:+.2f} |")
+        rows.append(f"  | {k + 1} | {snap.labels[i]} | {h.w_max:+.2f} | {scale * vp:+.3f} | {vp / sp:+.2f} |")
     if len(ids.removed) > most:
         rows.append(f"  | … | {len(ids.removed) - most} more | | | |")
     return rows + [""]
