@@ -1,0 +1,1 @@
+"""Stage ``calibration-quality``: projection uncertainty and cross-validation (docs/calibration-quality.md)."""
