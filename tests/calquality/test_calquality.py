@@ -94,15 +94,15 @@ def test_projection_sigma_against_repeated_calibrations():
     ref = adjust(blocks[0][0])
     cam_t = truth["cam"]
     R_t = rotation_from_opk_many(truth["opk"])
+    states = [adjust(block).state for block, _ in blocks]
     for dist in (3.0, 30.0):
         _, _, xy = cq.format_grid((36.0, 24.0), 8)
         p = dist * cq.unproject(xy, cam_t, "brown")
         qs, qc = [], []
-        for block, _ in blocks:
-            r = adjust(block)
-            Rk = rotation_from_opk_many(r.state.opk)
-            qs.append(cq.project_camera(cq._mean_pcam(p, truth["X0"], R_t, r.state.X0, Rk), r.state.cam_params[0], "brown"))
-            qc.append(cq.project_camera(p, r.state.cam_params[0], "brown"))
+        for r in states:
+            Rk = rotation_from_opk_many(r.opk)
+            qs.append(cq.project_camera(cq._mean_pcam(p, truth["X0"], R_t, r.X0, Rk), r.cam_params[0], "brown"))
+            qc.append(cq.project_camera(p, r.cam_params[0], "brown"))
         for name, q, frame in (("mean-pcam", np.array(qs), "mean-pcam"), ("camera", np.array(qc), "camera")):
             e = q - xy
             C = np.einsum("kni,knj->nij", e, e) / len(e)          # about the truth, not the mean
