@@ -57,6 +57,11 @@ class HtmlFigure:
     caption: str = ""
 
     @property
+    def width(self) -> int:
+        """Pixel width from the PNG header (0 when the bytes are not a PNG)."""
+        return int.from_bytes(self.png[16:20], "big") if self.png[:8] == b"\x89PNG\r\n\x1a\n" else 0
+
+    @property
     def data_uri(self) -> str:
         return "data:image/png;base64," + base64.b64encode(self.png).decode("ascii")
 
