@@ -162,17 +162,23 @@ def ratio_test(errors: np.ndarray, sigma: np.ndarray, alpha: float = 0.05) -> Ra
                      pooled_p=float(2 * min(cdf, 1 - cdf)))
 
 
-def joint_test(errors: np.ndarray, cov: np.ndarray) -> dict:
+def joint_test(errors: np.ndarray, cov: np.ndarray, rcond: float = 1e-10) -> dict:
     """The exact joint test of realised errors ``(N, q)`` against the predicted joint covariance
-    ``(q, q)``: per realisation ``d = eᵀ C⁻¹ e ~ χ²(q)``, and ``Σ d ~ χ²(N q)`` over the N independent
-    realisations.  Returns the mean ``d / q`` (1 expected), the statistic, its degrees of freedom and
-    the two-sided p."""
+    ``(q, q)``: per realisation ``d = eᵀ C⁺ e ~ χ²(k)``, ``k`` the rank of ``C`` (``q`` unless a free
+    network's datum makes it singular), and ``Σ d ~ χ²(N k)`` over the N independent realisations.
+    Returns the mean ``d / k`` (1 expected), the statistic, its degrees of freedom, the two-sided p
+    and the rank."""
     e = np.asarray(errors, float)
     N, q = e.shape
-    L = np.linalg.cholesky(np.asarray(cov, float))
-    z = np.linalg.solve(L, e.T)                  # whitened errors (q, N)
+    C = np.asarray(cov, float)
+    s = np.sqrt(np.clip(np.diag(C), 0, None))
+    s[s == 0] = 1.0
+    lam, U = np.linalg.eigh(C / np.outer(s, s))           # scaled to correlations: rank by rcond
+    keep = lam > rcond * lam.max()
+    k = int(keep.sum())
+    z = (U[:, keep].T @ (e / s).T) / np.sqrt(lam[keep])[:, None]    # whitened errors (k, N)
     d = np.sum(z ** 2, axis=0)
     T = float(d.sum())
-    cdf = sps.chi2.cdf(T, N * q)
-    return {"normalised": float(T / (N * q)), "statistic": T, "dof": N * q, "p": float(2 * min(cdf, 1 - cdf)),
-            "per_realisation": d / q}
+    cdf = sps.chi2.cdf(T, N * k)
+    return {"normalised": float(T / (N * k)), "statistic": T, "dof": N * k, "p": float(2 * min(cdf, 1 - cdf)),
+            "rank": k, "per_realisation": d / k}

@@ -47,9 +47,9 @@ class CameraOptions:
 
 @dataclasses.dataclass(frozen=True)
 class DesignOptions:
-    stations: str = option(REQUIRED, "CSV of the planned stations: id,X,Y,Z and omega,phi,kappa (degrees) or "
+    stations: Path = option(REQUIRED, "CSV of the planned stations: id,X,Y,Z and omega,phi,kappa (degrees) or "
                                       "look_X,look_Y,look_Z[,roll] (a target point, roll in degrees)")
-    targets: str = option(REQUIRED, "CSV of the targets: id,X,Y,Z[,role] (role control|full|xy|z|check|tie, "
+    targets: Path = option(REQUIRED, "CSV of the targets: id,X,Y,Z[,role] (role control|full|xy|z|check|tie, "
                                      "default tie)")
     camera: CameraOptions = option(REQUIRED, "the planned camera")
     sigma_px: float = option(0.1, "a-priori σ of each image coordinate (pixels)")
@@ -376,8 +376,10 @@ def _report(block, res, free_pt, sig_pts, cam_rows, sig_cam, pairs, mc, o) -> st
                   "components as independent; points of one network are correlated, so it is indicative only."]
         if "joint" in mc:
             jt = mc["joint"]
-            lines += ["", f"Joint test of all {jt['dof'] // tp.n} estimated coordinates and camera parameters with their "
-                      f"full predicted covariance: mean eᵀC⁻¹e / q = {jt['normalised']:.3f} (1 expected), "
+            rank = "" if jt["rank"] == tc.ratio.size + tp.ratio.size else f" (rank {jt['rank']}: the datum's defect)"
+            lines += ["", f"Joint test of all {tc.ratio.size + tp.ratio.size} estimated coordinates and camera "
+                      f"parameters with their full predicted covariance{rank}: mean eᵀC⁺e / k = "
+                      f"{jt['normalised']:.3f} (1 expected), "
                       f"χ²({jt['dof']}) = {jt['statistic']:.1f}, two-sided p = {jt['p']:.3f}."]
         lines.append("")
     return "\n".join(lines)

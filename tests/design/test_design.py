@@ -189,3 +189,33 @@ def test_input_errors_name_file_line_field(tmp_path):
     assert "p.toml:" in msg and "camera.free" in msg and "'K9'" in msg
     no_col = (FIX / "targets.csv").read_text().replace("id,X,Y,Z,role", "id,X,Y,role")
     assert "field 'Z'" in _error(tmp_path, targets=no_col)
+
+
+def test_free_network_prediction_agrees_with_monte_carlo(planned):
+    """Inner constraints: the predicted covariance is singular (rank q − 7 over the points); the
+    joint test works in its range space."""
+    block, _ = planned
+    settings = BundleSettings(datum="free")
+    pred = adjust(block, BundleSettings(datum="free", variance="a-priori"))
+    free = np.flatnonzero(pred.point_used)
+    N = 30
+    errs = [realisation_errors(block, settings, np.random.default_rng(s)) for s in np.random.SeedSequence(3).spawn(N)]
+    E = np.stack([e["XYZ"][free] for e in errs]).reshape(N, -1)
+    _, C = parameter_covariance(pred, [f"point {i}" for i in block.points.ids[free]])
+    jt = joint_test(E, C)
+    assert jt["rank"] == E.shape[1] - 7
+    assert jt["p"] > 1e-3, jt
+    assert joint_test(E, C * 0.8 ** 2)["p"] < 1e-6
+
+
+def test_montecarlo_needs_a_planned_network(tmp_path):
+    from baarda.pipeline.testing import run_project_text
+
+    text = (FIX / "design.toml").read_text().replace('use = "design"\n[stage.options]\n',
+                                                      'use = "testfield"\n[stage.options]\n#')
+    text = "\n".join(ln for ln in text.splitlines()
+                     if not ln.startswith(("targets", "sigma_px", "sigma_control", "margin", "c_mm", "pixel_mm",
+                                           "resolution", "ap_model", "free", "[stage.options.camera]")))
+    out = run_project_text(text, tmp_path)
+    assert not out.ok
+    assert "design-montecarlo needs the bundle of a planned network" in out.message
