@@ -146,6 +146,13 @@ def test_bundled_project_runs(tmp_path):
     assert "Poorly separable" in report and "Joint test" in report
     rows = (tmp_path / "run" / "design-montecarlo_points.csv").read_text().splitlines()
     assert len(rows) == 31
+    # the bundle stage's option reached the adjustment: its point σ are σ0² Q, not σ̂0² Q = 0
+    import csv
+    pts = {r["point"]: r for r in csv.DictReader((tmp_path / "run" / "bundle_points.csv").open())}
+    mc_rows = {r["point"]: r for r in csv.DictReader((tmp_path / "run" / "design-montecarlo_points.csv").open())}
+    for pid in ("T01", "T17"):
+        assert float(pts[pid]["sX"]) == pytest.approx(float(mc_rows[pid]["sigma_X_pred"]), rel=1e-9)
+        assert 5e-5 < float(pts[pid]["sZ"]) < 5e-4
 
 
 def _project(tmp_path, stations=None, targets=None, camera_extra=""):
