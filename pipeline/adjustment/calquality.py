@@ -269,6 +269,23 @@ class CrossValidation:
     mahalanobis2: np.ndarray  # (ny, nx) Δqᵀ (Σ1 + Σ2)⁻¹ Δq, ~χ²(2) if the prediction holds
     photos: tuple             # (indices of set 1, indices of set 2)
     results: tuple            # the two BundleResults
+    rotation: np.ndarray | None = None       # (3,) rad, the rotation (vector) fitted between the camera frames
+    diff_fit: np.ndarray | None = None       # (ny, nx, 2) Δq after the fit
+    sigma_fit: np.ndarray | None = None      # (ny, nx) its predicted worst-direction σ, (I − H)(Σ₁+Σ₂)(I − H)ᵀ
+    mahalanobis2_fit: np.ndarray | None = None
+
+    @property
+    def ratio_fit(self) -> np.ndarray:
+        return np.hypot(self.diff_fit[..., 0], self.diff_fit[..., 1]) / self.sigma_fit
+
+    @property
+    def rms_fit(self) -> float:
+        return float(np.sqrt(np.nanmean(np.sum(self.diff_fit ** 2, axis=-1))))
+
+    @property
+    def fraction_above_2sigma_fit(self) -> float:
+        r = self.ratio_fit[np.isfinite(self.ratio_fit)]
+        return float(np.mean(r > 2.0)) if r.size else float("nan")
 
     @property
     def norm(self) -> np.ndarray:
@@ -321,6 +338,60 @@ def cross_validate(res, j: int, *, split: str = "even-odd", distance: float = 1.
     m2[fin] = np.einsum("ni,nij,nj->n", d[fin], np.linalg.pinv(C[fin]), d[fin])
     shape = (len(y), len(x))
     s1, s2 = maps[0].sigma, maps[1].sigma
+    rot, dfit, sfit, m2fit = _rotation_fit(xy, p, results, j, model, b1, b2, fin)
     return CrossValidation(x=x, y=y, diff=d.reshape(*shape, 2), sigma1=s1, sigma2=s2,
                            sigma_pred=np.sqrt(s1 ** 2 + s2 ** 2), mahalanobis2=m2.reshape(shape),
-                           photos=tuple(sets), results=tuple(results))
+                           photos=tuple(sets), results=tuple(results), rotation=rot,
+                           diff_fit=dfit.reshape(*shape, 2), sigma_fit=sfit.reshape(shape),
+                           mahalanobis2_fit=m2fit.reshape(shape))
+
+
+def _rotation_fit(xy, p, results, j, model, b1, b2, fin):
+    """mrcal's ``projection_diff`` with a fitted implied rotation: ``Δq(ω) = q(R(ω) p; b₂) − q``
+    with ω minimising ``Σ |Δq|²`` over the valid cells (Gauss–Newton), and the prediction of the
+    fitted differences, ``(I − H) (J₁Σ₁J₁ᵀ + J₂Σ₂J₂ᵀ) (I − H)ᵀ`` with ``H`` the rotation's hat matrix."""
+    from baarda.pipeline.geometry.rotations import rotation_from_rotvec
+
+    meta2 = results[1].camera_meta[j]
+    pv = p[fin]
+    n = len(pv)
+
+    def resid(w):
+        R = rotation_from_rotvec(w)[0]
+        return (project_camera(pv @ R.T, b2, model, meta2) - xy[fin]).ravel()
+
+    def jac(w):
+        A = np.zeros((2 * n, 3))
+        for t in range(3):
+            e = np.zeros(3)
+            e[t] = 1e-7
+            A[:, t] = (resid(w + e) - resid(w - e)) / 2e-7
+        return A
+
+    w = np.zeros(3)
+    for _ in range(5):
+        A = jac(w)
+        dw = np.linalg.lstsq(A, -resid(w), rcond=None)[0]
+        w = w + dw
+        if np.abs(dw).max() < 1e-13:
+            break
+    A = jac(w)
+    dfit = np.full((len(xy), 2), np.nan)
+    dfit[fin] = resid(w).reshape(-1, 2)
+    Cd = np.zeros((2 * n, 2 * n))
+    for res_k, bk in zip(results, (b1, b2)):
+        cov = joint_covariance(res_k, j, np.zeros(0, int))
+        J, _ = projection_jacobians(xy[fin], 1.0, bk, model, res_k.camera_meta[j],
+                                    sigmas=np.sqrt(np.clip(np.diag(cov), 0, None)))
+        J = J.reshape(2 * n, -1)
+        Cd += J @ cov @ J.T
+    H = A @ np.linalg.solve(A.T @ A, A.T)
+    M = np.eye(2 * n) - H
+    Cf = M @ Cd @ M.T
+    blocks = np.stack([Cf[0::2, 0::2].diagonal(), Cf[0::2, 1::2].diagonal(),
+                       Cf[1::2, 0::2].diagonal(), Cf[1::2, 1::2].diagonal()], axis=1).reshape(n, 2, 2)
+    sfit = np.full(len(xy), np.nan)
+    sfit[fin] = worst_sigma(blocks)
+    m2 = np.full(len(xy), np.nan)
+    m2[fin] = np.einsum("ni,nij,nj->n", dfit[fin], np.linalg.pinv(blocks), dfit[fin])
+    return w, dfit, sfit, m2

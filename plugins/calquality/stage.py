@@ -102,13 +102,22 @@ class CalibrationQuality(Stage):
             if cv is not None:
                 cols.update({f"cv_dx_{unit}": cv.diff[..., 0].ravel() * f, f"cv_dy_{unit}": cv.diff[..., 1].ravel() * f,
                              f"cv_diff_{unit}": cv.norm.ravel() * f, f"cv_sigma_pred_{unit}": cv.sigma_pred.ravel() * f,
-                             "cv_ratio": cv.ratio.ravel(), "cv_mahalanobis2": cv.mahalanobis2.ravel()})
+                             "cv_ratio": cv.ratio.ravel(), "cv_mahalanobis2": cv.mahalanobis2.ravel(),
+                             f"cv_fit_dx_{unit}": cv.diff_fit[..., 0].ravel() * f,
+                             f"cv_fit_dy_{unit}": cv.diff_fit[..., 1].ravel() * f,
+                             f"cv_fit_sigma_pred_{unit}": cv.sigma_fit.ravel() * f,
+                             "cv_fit_ratio": cv.ratio_fit.ravel(), "cv_fit_mahalanobis2": cv.mahalanobis2_fit.ravel()})
                 cs["cross_validation"] = {
                     "split": options.split, "photos": [len(cv.photos[0]), len(cv.photos[1])],
                     "rms": cv.rms * f, "sigma_pred_rms": float(np.sqrt(np.nanmean(cv.sigma_pred ** 2))) * f,
                     "fraction_above_2sigma": cv.fraction_above_2sigma,
                     "mean_mahalanobis2": float(np.nanmean(cv.mahalanobis2)),
-                    "sigma0_hat": [r.sigma0_hat for r in cv.results]}
+                    "sigma0_hat": [r.sigma0_hat for r in cv.results],
+                    "rotation_fit": {"rotation_deg": [float(v) for v in np.degrees(cv.rotation)],
+                                     "rms": cv.rms_fit * f,
+                                     "sigma_pred_rms": float(np.sqrt(np.nanmean(cv.sigma_fit ** 2))) * f,
+                                     "fraction_above_2sigma": cv.fraction_above_2sigma_fit,
+                                     "mean_mahalanobis2": float(np.nanmean(cv.mahalanobis2_fit))}}
             tables[f"map_{cid}"] = TableData(cols)
             summary["cameras"][cid] = cs
             out[cid] = {"map": m, "camera_only": mcam, "cv": cv, "unit": unit, "factor": f}
@@ -122,6 +131,12 @@ class CalibrationQuality(Stage):
                              f"RMS difference {c2['rms']:.3f} {unit} against a predicted {c2['sigma_pred_rms']:.3f} "
                              f"{unit}; {100 * c2['fraction_above_2sigma']:.0f} % of the format beyond 2σ; mean "
                              f"Δqᵀ(Σ₁+Σ₂)⁻¹Δq {c2['mean_mahalanobis2']:.2f} (2 expected).")
+                rf = c2["rotation_fit"]
+                lines.append(f"  after fitting the rotation between the two camera frames "
+                             f"({np.linalg.norm(rf['rotation_deg']):.3f}°, as mrcal's projection_diff): RMS "
+                             f"{rf['rms']:.3f} {unit} against a predicted {rf['sigma_pred_rms']:.3f} {unit}; "
+                             f"{100 * rf['fraction_above_2sigma']:.0f} % beyond 2σ; mean Mahalanobis² "
+                             f"{rf['mean_mahalanobis2']:.2f}.")
         first = summary["cameras"][ids[todo[0]]]
         summary["headline"] = (f"projection σ of camera {ids[todo[0]]}: centre {first['sigma_centre']:.3f} "
                                f"{first['unit']}, worst {first['sigma_worst']:.3f} {first['unit']}"

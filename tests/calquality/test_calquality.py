@@ -123,7 +123,7 @@ def test_projection_sigma_against_repeated_calibrations():
 def test_cross_validation_is_consistent_on_simulated_calibrations():
     """30 simulated calibrations, each split even/odd: the differences of the two halves' cameras
     follow the predicted covariance (mean Δqᵀ(Σ₁+Σ₂)⁻¹Δq ≈ 2, its χ²(2) expectation)."""
-    m2, frac, ratio_rms = [], [], []
+    m2, frac, ratio_rms, m2_fit, frac_fit = [], [], [], [], []
     for k in range(30):
         block, _ = _block(300 + k, n_photos=16, n_points=60)
         res = adjust(block)
@@ -132,8 +132,13 @@ def test_cross_validation_is_consistent_on_simulated_calibrations():
         m2.append(np.nanmean(cv.mahalanobis2))
         frac.append(cv.fraction_above_2sigma)
         ratio_rms.append(cv.rms / np.sqrt(np.nanmean(cv.sigma_pred ** 2)))
+        m2_fit.append(np.nanmean(cv.mahalanobis2_fit))
+        frac_fit.append(cv.fraction_above_2sigma_fit)
     print(f"\nmean Mahalanobis² {np.mean(m2):.2f} (2 expected), RMS |Δq| / RMS σ_pred {np.mean(ratio_rms):.2f}, "
-          f"fraction beyond 2σ {np.mean(frac):.3f}")
+          f"fraction beyond 2σ {np.mean(frac):.3f}; after the rotation fit: mean Mahalanobis² "
+          f"{np.mean(m2_fit):.2f}, beyond 2σ {np.mean(frac_fit):.3f}")
+    assert 1.5 < np.mean(m2_fit) < 2.6
+    assert np.mean(frac_fit) < 0.2
     assert 1.5 < np.mean(m2) < 2.6
     assert 0.75 < np.mean(ratio_rms) < 1.25
     assert np.mean(frac) < 0.2
@@ -155,6 +160,7 @@ def test_cross_validation_detects_a_changed_camera():
     block = block.replace(observations=obs.replace(xy=xy))
     cv = cq.cross_validate(adjust(block), 0, split="even-odd", distance=3.0, nx=10)
     assert cv.fraction_above_2sigma > 0.5
+    assert cv.fraction_above_2sigma_fit > 0.5       # a change of K1 is no rotation
     assert np.nanmean(cv.mahalanobis2) > 6          # 9.0 here; 2 expected for an unchanged lens
 
 
