@@ -378,18 +378,19 @@ def _rotation_fit(xy, p, results, j, model, b1, b2, fin):
     A = jac(w)
     dfit = np.full((len(xy), 2), np.nan)
     dfit[fin] = resid(w).reshape(-1, 2)
-    Cd = np.zeros((2 * n, 2 * n))
+    # J₁Σ₁J₁ᵀ + J₂Σ₂J₂ᵀ = G Gᵀ with G = [J₁L₁, J₂L₂] (Σ = L Lᵀ), and (I − H) G = G − Q Qᵀ G with
+    # Q an orthonormal basis of the rotation's columns: only the 2 × 2 blocks of the cells are formed
+    G = []
     for res_k, bk in zip(results, (b1, b2)):
         cov = joint_covariance(res_k, j, np.zeros(0, int))
         J, _ = projection_jacobians(xy[fin], 1.0, bk, model, res_k.camera_meta[j],
                                     sigmas=np.sqrt(np.clip(np.diag(cov), 0, None)))
-        J = J.reshape(2 * n, -1)
-        Cd += J @ cov @ J.T
-    H = A @ np.linalg.solve(A.T @ A, A.T)
-    M = np.eye(2 * n) - H
-    Cf = M @ Cd @ M.T
-    blocks = np.stack([Cf[0::2, 0::2].diagonal(), Cf[0::2, 1::2].diagonal(),
-                       Cf[1::2, 0::2].diagonal(), Cf[1::2, 1::2].diagonal()], axis=1).reshape(n, 2, 2)
+        lam, V = np.linalg.eigh(cov)
+        G.append(J.reshape(2 * n, -1) @ (V * np.sqrt(np.clip(lam, 0, None))))
+    G = np.hstack(G)
+    Q = np.linalg.qr(A)[0]
+    MG = (G - Q @ (Q.T @ G)).reshape(n, 2, -1)
+    blocks = np.einsum("nik,njk->nij", MG, MG)
     sfit = np.full(len(xy), np.nan)
     sfit[fin] = worst_sigma(blocks)
     m2 = np.full(len(xy), np.nan)
