@@ -40,7 +40,8 @@ def quality_figures(data: dict) -> dict:
         m, f, unit = d["map"], d["factor"], d["unit"]
         cv = d["cv"]
         ncol = 3 if cv is not None else 1
-        fig, axes = plt.subplots(1, ncol, figsize=(5.2 * ncol, 3.8), squeeze=False)
+        nrow = 2 if cv is not None and cv.diff_fit is not None else 1
+        fig, axes = plt.subplots(nrow, ncol, figsize=(5.2 * ncol, 3.8 * nrow), squeeze=False)
         _map(axes[0, 0], fig, m.x, m.y, m.sigma * f,
              f"σ projection, {m.frame}, at {m.distance:.3g}", unit)
         if cv is not None:
@@ -50,6 +51,15 @@ def quality_figures(data: dict) -> dict:
             _map(axes[0, 1], fig, cv.x, cv.y, cv.norm * f, "|Δq| of the two halves", unit, lims)
             _map(axes[0, 2], fig, cv.x, cv.y, cv.sigma_pred * f, "predicted √(σ₁² + σ₂²) (camera frame)", unit,
                  lims)
+            if nrow == 2:
+                nf = np.hypot(cv.diff_fit[..., 0], cv.diff_fit[..., 1]) * f
+                both = np.r_[nf.ravel(), (cv.sigma_fit * f).ravel()]
+                both = both[np.isfinite(both) & (both > 0)]
+                lims = (both.min(), both.max()) if both.size else None
+                _map(axes[1, 0], fig, cv.x, cv.y, cv.ratio_fit, "|Δq| / σ after the rotation fit", "ratio")
+                _map(axes[1, 1], fig, cv.x, cv.y, nf,
+                     f"|Δq| after fitting a {np.degrees(np.linalg.norm(cv.rotation)):.2f}° rotation", unit, lims)
+                _map(axes[1, 2], fig, cv.x, cv.y, cv.sigma_fit * f, "predicted σ after the fit", unit, lims)
         fig.tight_layout()
         cap = f"Camera {cid}: projection uncertainty over the format"
         out[f"uncertainty_{cid}"] = (fig, cap + (" and the cross-validation" if cv is not None else ""))

@@ -186,6 +186,8 @@ def test_stage(calibration, tmp_path):
     t = r.tables["map_cam"]
     assert len(t.columns["x_mm"]) == m.sigma.size
     json.dumps(r.summary)
+    figs = CalibrationQuality().plots(r, None)
+    assert list(figs) == ["uncertainty_cam"] and len(figs["uncertainty_cam"][0].axes) == 6 + 6   # maps + colour bars
     rec = check_recording(log_stage(CalibrationQuality, r, tmp_path / "quality.rrd"))
     assert rec is not None
     with pytest.raises(Exception, match="camera 'nope'"):
