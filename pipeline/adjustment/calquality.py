@@ -18,7 +18,10 @@ Cross-validation: the photos of one camera are split into two disjoint sets, eac
 the bundle's settings (the other photos' observations left out), and the same pixels are compared:
 ``Δq = q(d · unproject(q; b₁); b₂) − q``.  To first order ``Δq = J(δb₂ − δb₁)`` with the two
 solutions independent, so its covariance is ``Σ₁ + Σ₂`` of the camera-parameter-only propagation
-("camera" frame) — the prediction the differences are checked against.
+("camera" frame) — the prediction the differences are checked against.  As mrcal's
+``projection_diff`` does, the rotation between the two camera frames is also fitted (at infinity)
+and the differences after the fit are compared with ``(I − H)(Σ₁ + Σ₂)(I − H)ᵀ``, ``H`` the hat
+matrix of the three rotation parameters over the grid.
 
 Pure numerics: arrays and results in, arrays out.  See ``docs/calibration-quality.md``.
 """
