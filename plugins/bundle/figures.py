@@ -173,8 +173,11 @@ def convergence(history):
     plt = _plt()
     it = [h["iteration"] for h in history]
     fig, a = plt.subplots(figsize=(6.5, 3.4))
-    a.semilogy(it, [max(h["vtpv"], 1e-300) for h in history], "o-", color="#1f4e9c", label="vᵀPv")
-    steps = [(h["iteration"], h["max_step_sigma"]) for h in history if np.isfinite(h.get("max_step_sigma", np.nan))]
+    vtpv = np.array([h["vtpv"] for h in history], float)
+    (a.semilogy if np.any(vtpv > 0) else a.plot)(it, np.where(vtpv > 0, vtpv, np.nan) if np.any(vtpv > 0) else vtpv,
+                                                 "o-", color="#1f4e9c", label="vᵀPv")
+    steps = [(h["iteration"], h["max_step_sigma"]) for h in history
+             if np.isfinite(h.get("max_step_sigma", np.nan)) and h["max_step_sigma"] > 0]
     if steps:
         a2 = a.twinx()
         a2.semilogy(*zip(*steps), "s--", color="#d35400", label="largest correction / σ")
