@@ -677,14 +677,6 @@ def _sigma0_equivalent(res: BundleResult, protocol) -> str:
     return f"{_f(um, 3)} µm"
 
 
-def _sigma0_equivalent(res: BundleResult, protocol) -> str:
-    """σ̂0 × the median a-priori image σ in the unit of the source (µm, or px for a pixel source)."""
-    um = _sigma0_um(res)
-    if protocol and protocol.get("unit") == "px":
-        return f"{_f(um / 1000.0 / float(res.block_in.cameras.pixel_mm[0]), 3)} px"
-    return f"{_f(um, 3)} µm"
-
-
 def _flagged_lines(res: BundleResult, ds, most: int = 15) -> list[str]:
     """The largest flagged standardized residuals, with photo, point and coordinate."""
     idx = np.flatnonzero(ds.flagged)
