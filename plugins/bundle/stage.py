@@ -401,6 +401,30 @@ def _state_tables(st, block: Block) -> dict:
     }
 
 
+def _crs_columns(res: BundleResult, block: Block) -> dict:
+    """The adjusted points and their σ in the user's CRS (``block.meta["crs"]``, written by a source
+    that read coordinates in a CRS; the adjustment itself runs in the local east-north-up frame):
+    ``<axis>_crs`` and ``s<axis>_crs``, the covariance carried over as ``J C Jᵀ``.  None without a CRS."""
+    from baarda.pipeline.crs import frame_of_block
+
+    frame = frame_of_block(block)
+    if frame.is_identity:
+        return {}
+    XYZ = res.state.XYZ
+    ok = np.isfinite(XYZ).all(axis=1)
+    user = np.full_like(XYZ, np.nan)
+    sig = np.full_like(XYZ, np.nan)
+    if ok.any():
+        user[ok] = frame.from_local(XYZ[ok])
+        J = frame.jacobian(XYZ[ok])
+        C = np.nan_to_num(res.cov_points[ok])
+        sig[ok] = np.sqrt(np.clip(np.einsum("nij,njk,nik->ni", J, C, J), 0.0, None))
+    names = frame.axis_names()
+    out = {f"{a}_crs": user[:, i] for i, a in enumerate(names)}
+    out.update({f"s{a}_crs": sig[:, i] for i, a in enumerate(names)})
+    return out
+
+
 def _f(x, nd=4):
     return "–" if x is None or not np.isfinite(x) else f"{x:.{nd}g}"
 
@@ -783,9 +807,10 @@ def _tables(res: BundleResult, extras, decision, block) -> dict:
         "point": pts.ids.tolist(), "role": pts.role.tolist(), "X": XYZ[:, 0], "Y": XYZ[:, 1], "Z": XYZ[:, 2],
         "sX": sp[:, 0], "sY": sp[:, 1], "sZ": sp[:, 2], "rays": rays,
         "dX_check": dXYZ[:, 0], "dY_check": dXYZ[:, 1], "dZ_check": dXYZ[:, 2],
-        **bundle_external.point_columns(res, extras.get("confidence", 0.0))},
+        **bundle_external.point_columns(res, extras.get("confidence", 0.0)), **_crs_columns(res, block)},
         f"adjusted object points ({block.object_unit}) with a-posteriori σ; check points: adjusted − surveyed; "
-        "error ellipsoid (semi-axes, direction of the largest), plan ellipse (bearing from +X), height interval")
+        "error ellipsoid (semi-axes, direction of the largest), plan ellipse (bearing from +X), height interval; "
+        "*_crs: the same points and σ in the CRS the coordinates were given in (docs/crs.md), where there is one")
     chk = pts.role == "check"
     if chk.any():
         tables["check_points"] = TableData({
