@@ -208,7 +208,7 @@ def test_unequal_weights_are_not_equivalent():
 def test_recording(pinhole, tmp_path):
     block, _, res = pinhole
     out = run_stage(PycolmapCrossCheck, {"block": block, "bundle": res}, {}, tmp_path=tmp_path)
-    summary = read_recording(log_stage(PycolmapCrossCheck, out, tmp_path / "cc.rrd"))
+    summary = read_recording(log_stage(PycolmapCrossCheck, out, tmp_path / "crosscheck.rrd"))
     paths = {e.path: e for e in summary.entities}
     for p in ("/crosscheck/baarda/points", "/crosscheck/pycolmap/points", "/crosscheck/baarda/centres",
               "/crosscheck/pycolmap/centres"):
