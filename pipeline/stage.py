@@ -170,12 +170,11 @@ class ProgressBar:
     def close(self) -> None:
         if self.progress._active is self:
             self.progress._active = None
+        long = time.monotonic() - self.t0 >= 1.0     # a line stays only for work that took a while
         if self._bar is not None:
             self._bar.close()
             self._bar = None
-            if self.progress.enabled:
-                self.progress.message(self.describe())
-        elif self.progress.enabled and self.n and time.monotonic() - self.t0 >= 1.0:
+        if self.progress.enabled and self.n and long:
             self.progress.message(self.describe())
 
     def __enter__(self):
