@@ -136,7 +136,6 @@ class BundleOptions:
             "['photo 001', 'point 17', 'camera cam', 'point 18 Z'] (a photo's X0…kappa, a point's X, Y, Z, a camera's "
             "c, xp, yp, APs, or one component)")
 
-
     def __post_init__(self):
         names = ap_model_names()
         for m in [self.ap_model] * bool(self.ap_model) + list(self.ap_models.values()):
@@ -174,8 +173,6 @@ class BundleOptions:
             raise ValueError("vc_alpha must lie strictly between 0 and 1")
         if self.vc_iterations < 1:
             raise ValueError("vc_iterations must be at least 1")
-        if self.variance_components != "none" and not self.covariance:
-            raise ValueError("variance_components needs the redundancy numbers: set covariance = true")
         if self.variance_components != "none" and not self.covariance:
             raise ValueError("variance_components needs the redundancy numbers: set covariance = true")
 
