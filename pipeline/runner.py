@@ -149,6 +149,7 @@ def run_project(project_path: str | Path, out: str | Path | None = None, *,
             rec.status, rec.summary, rec.report = "ok", jsonable(result.summary), result.report
             previous.append(EarlierStage(spec.id, spec.use, result))
             _write_outputs(run_dir, spec, stage, result, ctx, rec, recording_id)
+            rec.seconds = time.perf_counter() - t0      # all of the stage's work: its tables, recording, figures
             _write_report(run_dir, project, records, recording_id, started, shown=run.target)
             if verbose:
                 print(f"      done in {rec.seconds:.2f} s", file=stream, flush=True)
@@ -344,8 +345,9 @@ def _write_report(run_dir, project, records, recording_id, started, shown=None):
     if project.description:
         lines += [project.description, ""]
     lines += [f"- project file: `{Path(project.path).name}`", f"- started: {started}, baarda {__version__}",
-              f"- recording id: `{recording_id}` (open all recordings, in the run directory: "
-              f"`{_shown_viewer()} *.rrd`); the same report with figures: [report.html](report.html)", "",
+              f"- recording id: `{recording_id}` (open the recordings in run order with `baarda view .`, in the "
+              f"run directory; or `{_shown_viewer()} *.rrd`); the same report with figures: "
+              "[report.html](report.html)", "",
               "| stage | uses | status | time (s) |", "|---|---|---|---|"]
     lines += [f"| {r.id} | {r.use} | {r.status} | {r.seconds:.2f} |" for r in records]
     lines.append("")

@@ -189,3 +189,34 @@ def test_review_reads_recordings_back(tmp_path, pm, capsys):
 def test_review_of_a_directory_without_recordings(tmp_path, capsys):
     assert main(["review", str(tmp_path)]) == 2
     assert "no .rrd recordings" in capsys.readouterr().err
+
+
+class SlowLog(Stage):
+    """A stage whose recording takes a known time."""
+    summary = "Quick to run, slow to log."
+    reads = ("numbers",)
+    writes = ("slow",)
+
+    @dataclass(frozen=True)
+    class Options:
+        pass
+
+    def run(self, inputs, options, ctx):
+        return StageResult(artefacts={"slow": 1}, summary={}, report="ok")
+
+    def log(self, result, rec, ctx):
+        import time
+
+        time.sleep(0.3)
+
+
+def test_stage_time_counts_all_of_its_work(tmp_path):
+    """The time in report.md / results.json includes writing the stage's recording and figures."""
+    import json
+
+    pm = make_plugin_manager({"numbers": NumbersSource, "slow": SlowLog})
+    out = run_project_text(PROJECT.replace('use = "mean"', 'use = "slow"'), tmp_path, plugins=pm)
+    assert out.ok, out.message
+    res = json.loads((out.run_dir / "results.json").read_text())
+    slow = next(s for s in res["stages"] if s["use"] == "slow")
+    assert slow["seconds"] >= 0.3
