@@ -9,7 +9,7 @@
 
 
 import pytest
-from stats_helpers import helmert_model, poly_model
+from .stats_helpers import helmert_model, poly_model
 
 
 @pytest.fixture(scope="session")

@@ -6,7 +6,7 @@ import pytest
 from baarda.pipeline.stats import (LinearModel, Snapshot, data_snooping, iterated_data_snooping,
                             joint_test_2d, mdb, pope_iterated, pope_test, snapshot_from_arrays,
                             tau_critical, w_test)
-from stats_helpers import helmert_design
+from .stats_helpers import helmert_design
 
 BETA = np.array([1.0, 0.01, -22.0, -100.0])
 

@@ -8,7 +8,7 @@ import scipy.sparse as sp
 from baarda.pipeline.errors import AdjustmentError
 from baarda.pipeline.stats import (LinearModel, data_snooping, estimated_errors, external_reliability,
                             joint_test_2d, mdb, snapshot_from_arrays, w_test)
-from stats_helpers import cov_of
+from .stats_helpers import cov_of
 
 
 def correlated_data(model, seed=5):

@@ -11,7 +11,7 @@ from scipy import stats
 from baarda.pipeline.stats import (critical_normal, delta0, joint_test_2d, mdb, tau_critical,
                             tau_critical_max, tau_distribution, w_test)
 
-from stats_helpers import cov_of, operators, stacked
+from .stats_helpers import cov_of, operators, stacked
 
 
 def binomial_ok(count, N, p, k=4.0):

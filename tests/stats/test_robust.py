@@ -9,7 +9,7 @@ from scipy import optimize
 from baarda.pipeline.stats import (DEFAULT_C, LinearModel, irls, robust_rho, robust_weights,
                                    scale_covariance, weighted_linear_refit)
 
-from stats_helpers import helmert_model
+from .stats_helpers import helmert_model
 
 
 # ------------------------------------------------------------------ weight functions

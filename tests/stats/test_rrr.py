@@ -5,7 +5,7 @@ import pytest
 from scipy import stats
 
 from baarda.pipeline.stats import LinearModel, rrr
-from stats_helpers import helmert_design
+from .stats_helpers import helmert_design
 
 X1 = np.array([-4, -3, -2, -1, 0, 10.0])
 
