@@ -182,7 +182,7 @@ def _cmd_batch(args) -> int:
         rows = run_batch(jobs, out, engine, progress=say)
     ok = sum(r["status"] == "ok" for r in rows)
     print(f"batch directory: {out}")
-    print(f"runs: {ok}/{len(rows)} ok; summary: {out / 'summary.csv'}, {out / 'summary.md'}")
+    print(f"runs: {ok}/{len(rows)} ok; summary: {out / 'summary.csv'}, {out / 'summary.md'}, {out / 'summary.html'}")
     return 0 if ok == len(rows) else 1
 
 
