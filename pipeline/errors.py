@@ -74,3 +74,16 @@ def quote(token: str) -> str:
     if len(text) <= QUOTE_LIMIT and text.isprintable():
         return repr(text)
     return f"a {len(text)}-character value"
+
+
+def finite_number(tok: str, path, line: int | None, field: str) -> float:
+    """A token of an input file as a finite float, or :class:`InputError` naming file, line and field."""
+    import math
+
+    try:
+        v = float(tok)
+    except ValueError:
+        raise InputError(f"expected a number, got {quote(tok)}", path=path, line=line, field=field) from None
+    if not math.isfinite(v):
+        raise InputError(f"expected a finite number, got {quote(tok)}", path=path, line=line, field=field)
+    return v

@@ -246,15 +246,8 @@ def _precision_sparse(prob, lin, red, st):
         return order[bounds[s + 1]:bounds[s + 2]]
 
     def visit(s, front, Z):
+        Zx, loc = front_cofactors(front, Z, d, sym.ipos, posg)
         nf = len(front)
-        Zx = np.zeros((nf + 1, nf + 1))
-        sc = d[front]
-        Zx[:nf, :nf] = Z * sc[:, None] * sc[None, :]
-        fpos = sym.ipos[front]
-
-        def loc(C):
-            p = posg[C]
-            return np.where(p < n, np.searchsorted(fpos, np.minimum(p, n - 1)), nf)
 
         def gather(idx):
             li = loc(idx)
@@ -295,6 +288,25 @@ def _precision_sparse(prob, lin, red, st):
         Qpp *= prob.elim_free[:, :, None] & prob.elim_free[:, None, :]
     return dict(Qx=None, Qpp=Qpp, H=H, Q_cam=Q_cam, Q_eo=Q_eo, Q_gpt=Q_gpt,
                 cofactors=SparseCofactors(red["factor"][1], Q_diag, datum))
+
+
+def front_cofactors(front, Z, d, ipos, posg):
+    """A front of the selected inversion as cofactors of the global unknowns: ``Zx`` (nf + 1)² —
+    the scaled block ``Z`` unscaled by the Jacobi factors ``d``, with a zero row and column for fixed
+    parameters — and ``loc(C)``: the row of ``Zx`` of global columns ``C`` (``posg``: elimination
+    position of every global column, ``len(ipos)`` for a fixed one)."""
+    nf = len(front)
+    n = len(ipos)
+    Zx = np.zeros((nf + 1, nf + 1))
+    sc = d[front]
+    Zx[:nf, :nf] = Z * sc[:, None] * sc[None, :]
+    fpos = ipos[front]
+
+    def loc(C):
+        p = posg[C]
+        return np.where(p < n, np.searchsorted(fpos, np.minimum(p, n - 1)), nf)
+
+    return Zx, loc
 
 
 def _s_transform(prob, red, st, Q_eo, Q_gpt, gpt, Qpp, Q_diag):

@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .collinearity import EO_NAMES
+from .precision import front_cofactors
 
 __all__ = ["OwnEffects", "own_effects", "effect_vectors", "parameter_covariance", "parameter_names_of",
            "row_mdb", "bar_delta0", "linearised_model"]
@@ -354,16 +355,7 @@ def _sparse_visit(prob, red, groups, single, tracks, singles, chunk_bytes):
         return order[bounds[s + 1]:bounds[s + 2]]
 
     def visit(s, front, Z):
-        nf = len(front)
-        Zx = np.zeros((nf + 1, nf + 1))
-        sc = d[front]
-        Zx[:nf, :nf] = Z * sc[:, None] * sc[None, :]
-        fpos = sym.ipos[front]
-
-        def loc(C):
-            p = posg[C]
-            return np.where(p < n, np.searchsorted(fpos, np.minimum(p, n - 1)), nf)
-
+        Zx, loc = front_cofactors(front, Z, d, sym.ipos, posg)
         _hand(s, Zx, loc)
 
     def _hand(s, Zx, loc):

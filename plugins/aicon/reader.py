@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from baarda.pipeline.errors import InputError, quote
+from baarda.pipeline.errors import finite_number as _num
 from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points
 
 SUFFIXES = ("ior", "eor", "obc", "phc", "scale")
@@ -113,14 +114,6 @@ def _lines(path: Path) -> list[tuple[int, list[str]]]:
     return out
 
 
-def _num(tok: str, path: Path, line: int, name: str) -> float:
-    try:
-        v = float(tok)
-    except ValueError:
-        raise InputError(f"expected a number, got {quote(tok)}", path=path, line=line, field=name) from None
-    if not math.isfinite(v):
-        raise InputError(f"expected a finite number, got {quote(tok)}", path=path, line=line, field=name)
-    return v
 
 
 def _int(tok: str, path: Path, line: int, name: str) -> int:

@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from baarda.pipeline.errors import InputError, quote
+from baarda.pipeline.errors import finite_number as _num
 from baarda.pipeline.geometry import mm_from_pixels
 from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points
 
@@ -200,14 +201,6 @@ class DbatScript:
 # helpers
 
 
-def _num(tok: str, path, line, name) -> float:
-    try:
-        v = float(tok)
-    except ValueError:
-        raise InputError(f"expected a number, got {quote(tok)}", path=path, line=line, field=name) from None
-    if not math.isfinite(v):
-        raise InputError(f"expected a finite number, got {quote(tok)}", path=path, line=line, field=name)
-    return v
 
 
 def _nums(node: Node, path, n: int | tuple[int, ...], name: str | None = None) -> list[float]:

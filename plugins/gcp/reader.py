@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from baarda.pipeline.errors import InputError, quote
+from baarda.pipeline.errors import finite_number as _num
 
 GCP_FIELDS = ("geo_x", "geo_y", "geo_z", "im_x", "im_y", "image_name", "gcp_name")
 
@@ -32,14 +33,6 @@ def _text(path: Path, what: str) -> str:
         raise InputError(f"cannot read {what}: {e.strerror}", path=path) from None
 
 
-def _num(tok: str, path, line: int, name: str) -> float:
-    try:
-        v = float(tok)
-    except ValueError:
-        raise InputError(f"expected a number, got {quote(tok)}", path=path, line=line, field=name) from None
-    if not math.isfinite(v):
-        raise InputError(f"expected a finite number, got {quote(tok)}", path=path, line=line, field=name)
-    return v
 
 
 @dataclass(frozen=True)
