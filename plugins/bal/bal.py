@@ -161,6 +161,35 @@ def behind_camera(problem: BalProblem) -> np.ndarray:
     return depth + P[:, 5] >= 0
 
 
+def baarda_from_bal(cameras: np.ndarray, pixel_mm):
+    """BAL camera rows ``(n, 9)`` (``r``, ``t``, ``f``, ``k1``, ``k2``) → baarda's ``c`` (mm), brown
+    ``K1``, ``K2``, ``R_cam_from_world (n, 3, 3)`` and ``X0 (n, 3)``; ``pixel_mm`` scalar or ``(n,)``.
+    The inverse is :func:`bal_from_baarda`; both are the one place BAL's conventions live
+    (``docs/bal-libmv.md``): BAL's camera frame is baarda's image-space frame, so
+    ``R_cam_from_world = R(r)``, ``X0 = −Rᵀ t``, ``c = f·p``, ``K1 = k1/c²``, ``K2 = k2/c⁴``."""
+    P = np.asarray(cameras, float).reshape(-1, 9)
+    c = P[:, 6] * np.asarray(pixel_mm, float)
+    R = rotation_from_rotvec(P[:, :3]).reshape(-1, 3, 3)
+    X0 = -np.einsum("mji,mj->mi", R, P[:, 3:6])
+    return c, P[:, 7] / c**2, P[:, 8] / c**4, R, X0
+
+
+def bal_from_baarda(c, K1, K2, R_cam_from_world, X0, pixel_mm) -> np.ndarray:
+    """The inverse of :func:`baarda_from_bal`: BAL camera rows ``(n, 9)`` of baarda's ``c`` (mm),
+    brown ``K1``, ``K2``, ``R_cam_from_world (n, 3, 3)``, ``X0 (n, 3)`` and pitch ``pixel_mm``."""
+    from scipy.spatial.transform import Rotation
+
+    c = np.asarray(c, float).reshape(-1)
+    R = np.asarray(R_cam_from_world, float).reshape(-1, 3, 3)
+    out = np.empty((len(c), 9))
+    out[:, :3] = Rotation.from_matrix(R).as_rotvec()
+    out[:, 3:6] = -np.einsum("mij,mj->mi", R, np.asarray(X0, float).reshape(-1, 3))
+    out[:, 6] = c / np.asarray(pixel_mm, float)
+    out[:, 7] = np.asarray(K1, float) * c**2
+    out[:, 8] = np.asarray(K2, float) * c**4
+    return out
+
+
 def block_from_bal(problem: BalProblem, *, pixel_mm: float = 0.001, sigma_px: float = 1.0,
                    intrinsics: str = "free", object_unit: str = "m") -> Block:
     """One baarda camera and one photo per BAL camera; brown ``K1 = k1/c²``, ``K2 = k2/c⁴``.
@@ -176,17 +205,15 @@ def block_from_bal(problem: BalProblem, *, pixel_mm: float = 0.001, sigma_px: fl
     if np.any(f <= 0):
         bad = int(np.flatnonzero(f <= 0)[0])
         raise InputError(f"camera {bad}: focal length f = {f[bad]:g} must be > 0", path=problem.path, field="f")
-    c = f * pixel_mm
+    c, K1, K2, R, X0 = baarda_from_bal(P, pixel_mm)
     ap = np.zeros((m, len(BROWN)))
-    ap[:, 0] = P[:, 7] / c**2
-    ap[:, 1] = P[:, 8] / c**4
+    ap[:, 0] = K1
+    ap[:, 1] = K2
     free = FREE if intrinsics == "free" else FIXED
     sigma_ap = np.zeros_like(ap)
     sigma_ap[:, :2] = free
     cameras = Cameras.make([str(i) for i in range(m)], c, 0.0, 0.0, ap_model="brown", ap=ap,
                            sigma_iop=[free, FIXED, FIXED], sigma_ap=sigma_ap, pixel_mm=pixel_mm)
-    R = rotation_from_rotvec(P[:, :3])
-    X0 = -np.einsum("mji,mj->mi", R, P[:, 3:6])
     opk = np.array([opk_from_rotation(Rk) for Rk in R]).reshape(-1, 3)
     photos = Photos.make([str(i) for i in range(m)], camera=np.arange(m), X0=X0, opk=opk)
     points = Points.make([str(j) for j in range(len(problem.points))], XYZ=problem.points, role="tie")
