@@ -256,6 +256,76 @@ def log_text(rec, entity: str, markdown: str) -> None:
     rec.log(entity, rr.TextDocument(viewer_text(markdown), media_type=rr.MediaType.MARKDOWN), static=True)
 
 
+STATISTIC_STYLE = {"colors": [31, 78, 156], "widths": 2.0}
+"""How a statistic's time series is drawn (:func:`log_series`): a blue line with round markers."""
+THRESHOLD_STYLE = {"colors": [192, 57, 43], "widths": 1.0, "interpolation_mode": "StepAfter"}
+"""How a critical value that changes during the run is drawn: a thin red step line in its statistic's view."""
+CONSTANTS = "constants"
+"""The child of a series group holding, as static ``AnyValues``, what did not change during the run."""
+
+
+def is_constant(values) -> bool:
+    """True when the finite values of a series are fewer than two or all equal (to 1e-12 relative)."""
+    v = np.asarray(values, float).reshape(-1)
+    v = v[np.isfinite(v)]
+    return v.size < 2 or float(np.ptp(v)) <= 1e-12 * max(1.0, float(np.max(np.abs(v))))
+
+
+def log_series(rec, group: str, steps, statistics: dict, thresholds: dict | None = None, *,
+               timeline: str = "iteration") -> dict[str, float]:
+    """Statistics over ``steps`` as time series under ``group`` (one parent: the layout draws them in
+    one view), each critical value that changes as a threshold line beside them (same view, styled by
+    :data:`THRESHOLD_STYLE`); a series that is constant over the run — a critical value that never
+    changed, a damping factor that stayed 0, anything logged only once — is not drawn as a flat line:
+    it goes to ``<group>/constants`` as a static value.  ``statistics`` and ``thresholds`` map a name
+    to one value per step (nan: no value at that step).  Returns the constants (name → value)."""
+    import rerun as rr
+
+    steps = np.asarray(steps, int).reshape(-1)
+    drawn: dict[str, tuple[np.ndarray, dict]] = {}
+    constants: dict[str, float] = {}
+    for table, style in ((statistics, STATISTIC_STYLE), (thresholds or {}, THRESHOLD_STYLE)):
+        for name, values in table.items():
+            v = np.asarray(values, float).reshape(-1)
+            if v.size != steps.size:
+                raise ValueError(f"series {group}/{name}: {v.size} values for {steps.size} steps")
+            fin = v[np.isfinite(v)]
+            if is_constant(v):
+                if fin.size:
+                    constants[name] = float(fin[0])
+                continue
+            drawn[name] = (v, style)
+    for name, (v, style) in drawn.items():
+        path = f"{group}/{name}"
+        parts = [rr.SeriesLines(names=viewer_text(name), **style)]
+        if style is STATISTIC_STYLE:
+            parts.append(rr.SeriesPoints(colors=style["colors"], markers="circle", marker_sizes=4.0))
+        rec.log(path, *parts, static=True)
+        for s, x in zip(steps, v):
+            if np.isfinite(x):
+                rec.set_time(timeline, sequence=int(s))
+                rec.log(path, rr.Scalars([float(x)]))
+    if drawn:
+        rec.reset_time()
+    if constants:
+        rec.log(f"{group}/{CONSTANTS}", rr.AnyValues(**constants), static=True)
+    return constants
+
+
+def read_series(path: Path) -> dict[str, np.ndarray]:
+    """Every ``Scalars`` series in a ``.rrd`` file: entity path → its values (in the file's chunk order)."""
+    from rerun.chunk import RrdReader
+
+    out: dict[str, list[float]] = {}
+    for chunk in RrdReader(str(path)).stream().to_chunks():
+        batch = chunk.to_record_batch()
+        if "Scalars:scalars" not in batch.schema.names:
+            continue
+        vals = batch.column(batch.schema.names.index("Scalars:scalars")).to_pylist()
+        out.setdefault(str(chunk.entity_path), []).extend(float(_first(x)) for x in vals if _first(x) is not None)
+    return {k: np.asarray(v, float) for k, v in out.items()}
+
+
 def log_values(rec, entity: str, values: dict) -> None:
     """Scalar summary values (numbers and strings) as ``AnyValues`` under ``entity``."""
     import rerun as rr

@@ -137,27 +137,36 @@ class BlunderRejection:
         return figures(result.data["artefact"], result.data["options"])
 
     def log(self, result: StageResult, rec, ctx: Context) -> None:
+        """Each method's statistic per step as a time series with its critical value in the same view
+        when that value changes (IDS's F with the dof, Pope's τ with the dof, RRR's naive Beta quantile
+        with the number of recursive residuals); a critical value that stays the same for the whole run
+        (IDS's K, RRR's Monte Carlo H) is a static value under ``…/constants`` (``docs/recordings.md``)."""
         import rerun as rr
+
+        from baarda.pipeline.recording import log_series
 
         report: BlunderReport = result.data["report"]
         for name, res in report.methods.items():
             base = f"blunders/{name}"
-            for i, h in enumerate(res.history):
-                rec.set_time("iteration", sequence=i)
+            h = res.history
+            if h:
+                steps = np.arange(len(h))
+                col = lambda k, f=_num: [f(x[k]) for x in h]   # noqa: E731
                 if name == "ids":
-                    rec.log(f"{base}/T", rr.Scalars(_num(h["T"])))
-                    rec.log(f"{base}/F_critical", rr.Scalars(_num(h["F_critical"])))
-                    rec.log(f"{base}/w_max", rr.Scalars(_num(abs(h["w_max"]))))
+                    log_series(rec, f"{base}/global_test", steps, {"T": col("T")}, {"F_critical": col("F_critical")})
+                    log_series(rec, f"{base}/w", steps, {"w_max": col("w_max", lambda x: abs(_num(x)))},
+                               {"K": [res.summary.get("K", np.nan)] * len(h)})
                 elif name == "pope":
-                    rec.log(f"{base}/sigma0_hat", rr.Scalars(_num(h["sigma0_hat"])))
-                    rec.log(f"{base}/tau_max", rr.Scalars(_num(h["tau_max"])))
-                    rec.log(f"{base}/tau_critical", rr.Scalars(_num(h["tau_critical"])))
+                    log_series(rec, f"{base}/tau", steps, {"tau_max": col("tau_max")},
+                               {"tau_critical": col("tau_critical")})
+                    log_series(rec, f"{base}/sigma0", steps, {"sigma0_hat": col("sigma0_hat")})
                 elif name == "rrr":
-                    rec.log(f"{base}/H_exp", rr.Scalars(_num(h["H_exp"])))
-                    rec.log(f"{base}/H", rr.Scalars(_num(h["H"])))
-                    rec.log(f"{base}/H_naive", rr.Scalars(_num(h["H_naive"])))
-                rec.log(f"{base}/step", rr.AnyValues(**{k: (str(v) if not isinstance(v, (int, float, bool)) else v)
-                                                        for k, v in h.items() if not isinstance(v, list)}))
+                    log_series(rec, f"{base}/H", steps, {"H_exp": col("H_exp")},
+                               {"H": col("H"), "H_naive": col("H_naive")})
+                for i, step in enumerate(h):
+                    rec.set_time("iteration", sequence=i)
+                    rec.log(f"{base}/step", rr.AnyValues(**{k: (str(v) if not isinstance(v, (int, float, bool)) else v)
+                                                            for k, v in step.items() if not isinstance(v, list)}))
             rec.reset_time()
             rec.log(f"{base}/rejected", rr.AnyValues(labels=[d.label for d in res.decisions] or [""],
                                                      skipped=res.skipped or ""))

@@ -12,6 +12,8 @@ from baarda.pipeline.stage import TableData
 from baarda.pipeline.stats.critical import delta0 as _delta0
 from baarda.pipeline.stats.ellipses import ellipse_columns
 
+from .protocol import image_units
+
 EO_LABELS = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
 
 
@@ -58,7 +60,9 @@ def _largest(ext, block, which: str) -> dict | None:
     k, c = np.unravel_index(int(np.argmax(sv)), sv.shape)
     obs = block.observations
     ph, pt = str(block.photos.ids[obs.photo[k]]), str(block.points.ids[obs.point[k]])
+    unit, scale, _ = image_units(block)
     out = {"observation": f"photo {ph} point {pt} {'xy'[c]}", "mdb_mm": float(ext["effects"].bias[k, c]),
+           "mdb": float(ext["effects"].bias[k, c]) * scale, "mdb_unit": unit,
            "r": float(ext["r"][k, c]), "in_sigma": float(s[k, c]), "effect": float(v[k, c])}
     if which == "point":
         out.update(point=pt, coordinate="XYZ"[j[k, c]])
@@ -92,11 +96,11 @@ def report_lines(ext: dict | None, block, most: int = 5) -> list[str]:
          "largest effects; rows with r ≤ 1e-10 are uncontrolled (no MDB, no effect).", ""]
     p, e = s["largest_on_point"], s["largest_on_orientation"]
     if p:
-        L.append(f"- largest on a point: {p['observation']} (r = {p['r']:.3g}, MDB {p['mdb_mm'] * 1000:.4g} µm) moves point "
+        L.append(f"- largest on a point: {p['observation']} (r = {p['r']:.3g}, MDB {p['mdb']:.4g} {p['mdb_unit']}) moves point "
                  f"{p['point']} {p['coordinate']} by {p['effect']:+.4g} {unit} = {p['in_sigma']:.2f} σ")
     if e:
         u = "°" if e["unit"] == "deg" else f" {unit}"
-        L.append(f"- largest on an orientation: {e['observation']} (r = {e['r']:.3g}, MDB {e['mdb_mm'] * 1000:.4g} µm) moves photo "
+        L.append(f"- largest on an orientation: {e['observation']} (r = {e['r']:.3g}, MDB {e['mdb']:.4g} {e['mdb_unit']}) moves photo "
                  f"{e['photo']} {e['parameter']} by {e['effect']:+.4g}{u} = {e['in_sigma']:.2f} σ")
     j, v, sg = ext["point"]
     sv = np.where(j >= 0, np.nan_to_num(sg, nan=-1.0), -1.0).reshape(-1)

@@ -39,6 +39,52 @@ def image_units(block) -> tuple[str, float, str | None]:
     return "µm", 1000.0, None
 
 
+AP_PIXEL_POWER = {
+    "none": (),
+    "brown": (2, 4, 6, 1, 1, 0, 0),
+    "aicon": (2, 4, 6, 1, 1, 0, 0),
+    "brown-backward": (2, 4, 6, 1, 1, 0, 0),
+    "ebner12": (0, 0, 1, 1, 1, 1, 2, 2, 2, 2, 3, 3),
+}
+"""Per AP model, the power k of each parameter's unit mm⁻ᵏ: a parameter of a term of degree k + 1 in
+the reduced image coordinates (K1 of ``x̄ r²``: k = 2; P1 of ``r² + 2x̄²``: k = 1; B1 of ``x̄``: k = 0,
+dimensionless).  In pixel coordinates the same term needs ``a_px = a_mm · pᵏ`` (p the pixel pitch in
+mm; ebner12's image base b and AICON's r0 then in px too), so the distortion in px is the model's own
+formula on px.  A model not listed (a third-party one) keeps its parameters in its own units."""
+
+_SUPERSCRIPT = str.maketrans("-0123456789", "⁻⁰¹²³⁴⁵⁶⁷⁸⁹")
+
+
+def _power_unit(base: str, k: int) -> str:
+    return "1" if k == 0 else f"{base}⁻{str(k).translate(_SUPERSCRIPT)}"
+
+
+def camera_rows(res, j: int, units: tuple | None = None) -> list[dict]:
+    """The rows of ``res.camera_table(j)`` in the units of the block's source, each with its ``unit``:
+    for a pixel source (:func:`image_units` px) c, xp, yp in px (xp, yp: the principal point's offset
+    from the image centre, y up) and the APs scaled by :data:`AP_PIXEL_POWER` (K1 px⁻², P1 px⁻¹, B1
+    dimensionless …); else the adjustment's mm (K1 mm⁻² …).  σ and the a-priori σ scale with their
+    value; correlations are unchanged.  The one conversion of camera parameters in every table."""
+    unit, scale, _ = units or image_units(res.block_in)
+    base = "px" if unit == "px" else "mm"
+    pitch = 1.0 / scale if unit == "px" else 1.0
+    rows = res.camera_table(j)
+    powers = AP_PIXEL_POWER.get(str(res.block_in.cameras.ap_model[j]))
+    if powers is not None and len(powers) != len(rows) - 3:
+        powers = None
+    out = []
+    for t, r in enumerate(rows):
+        if t < 3:
+            f, u = 1.0 / pitch, base
+        elif powers is not None:
+            f, u = pitch ** powers[t - 3], _power_unit(base, powers[t - 3])
+        else:
+            f, u = 1.0, "model units (mm)"
+        out.append({**r, "value": r["value"] * f + 0.0, "sigma": r["sigma"] * f,
+                    "apriori_sigma": r["apriori_sigma"] * f, "unit": u})
+    return out
+
+
 def _rms_rows(v, act, keys, ids) -> list[dict]:
     """RMS of x, y and all coordinates per key (photo or camera), by bincount: O(observations)."""
     keys = np.asarray(keys, int)
@@ -180,7 +226,7 @@ def _camera(res, j: int, src: str | None, scale: float) -> dict:
             for i, a in enumerate(free) for b in free[i + 1:] if abs(R[a, b]) > HIGH_CORRELATION]
     cam = {"camera": str(cams.ids[j]), "model": str(cams.ap_model[j]),
            "parameters": [{"name": r["parameter"], "value": r["value"], "sigma": r["sigma"],
-                           "status": r["status"]} for r in rows],
+                           "status": r["status"], "unit": r["unit"]} for r in camera_rows(res, j)],
            "high_correlations": high}
     if src:
         st = res.state.cam_params[j]

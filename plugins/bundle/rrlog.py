@@ -8,7 +8,8 @@ Entities (under the stage id: the recording roots every path there)
     ``images/<id>/observed``        image points (u = x + w/2, v = h/2 − y: mm, y down as in 2-D views)
     ``images/<id>/residuals``       residual vectors from computed to observed, × arrow scale
     ``cameras/<id>/distortion``     distortion field of the estimated APs on a grid, × scale
-    ``convergence/{cost,sigma0,damping,step}/*``  vᵀPv, σ̂0, λ, largest step per ``iteration``
+    ``convergence/{cost,sigma0,damping,step}/*``  vᵀPv, σ̂0, λ, largest step per ``iteration``; one
+                                    that did not change (λ = 0 throughout) under ``…/constants``
     ``bundle/summary``              σ̂0, dof, vᵀPv, arrow and ellipsoid scales (the report is the
                                     runner's ``<stage>/summary``)
 """
@@ -20,7 +21,8 @@ import numpy as np
 from baarda.pipeline.geometry import rotation_from_opk_many
 
 from baarda.pipeline.camera import get_ap_model
-from baarda.pipeline.recording import point_ellipsoids, role_colors, thin, view_from_photo, view_vectors
+from baarda.pipeline.recording import (log_series, point_ellipsoids, role_colors, thin, view_from_photo,
+                                       view_vectors)
 
 RED, GREY, BLUE = [230, 40, 40], [150, 150, 150], [40, 90, 230]
 
@@ -114,15 +116,14 @@ def log_bundle(rec, res, decision, options, report: str, max_photos: int | None 
                                            arrow_scale=scale, precision_scale=pscale,
                                            iterations=res.iterations), static=True)
     dof = max(res.dof, 1)
-    for h in res.history:
-        rec.set_time("iteration", sequence=int(h["iteration"]))
-        # one plot each (their scales differ by orders of magnitude): the layout plots the
-        # scalars under one parent entity together
-        rec.log("convergence/cost/vtpv", rr.Scalars([float(h["vtpv"])]))
-        rec.log("convergence/sigma0/sigma0_hat", rr.Scalars([float(np.sqrt(h["vtpv"] / dof))]))
-        rec.log("convergence/damping/lambda", rr.Scalars([float(h["lambda"])]))
-        if np.isfinite(h["max_step_sigma"]):
-            rec.log("convergence/step/max_step_sigma", rr.Scalars([float(h["max_step_sigma"])]))
+    # one view each (their scales differ by orders of magnitude); a series that stays the same for the
+    # whole run (λ = 0 when no step was damped) is a static value under convergence/<group>/constants
+    hist = res.history
+    it = [int(h["iteration"]) for h in hist]
+    log_series(rec, "convergence/cost", it, {"vtpv": [float(h["vtpv"]) for h in hist]})
+    log_series(rec, "convergence/sigma0", it, {"sigma0_hat": [float(np.sqrt(h["vtpv"] / dof)) for h in hist]})
+    log_series(rec, "convergence/damping", it, {"lambda": [float(h["lambda"]) for h in hist]})
+    log_series(rec, "convergence/step", it, {"max_step_sigma": [float(h["max_step_sigma"]) for h in hist]})
 
 
 def _log_precision(rec, res, used) -> float:

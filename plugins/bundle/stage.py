@@ -28,7 +28,7 @@ from baarda.pipeline.adjustment import (EO_NAMES, BundleResult, BundleSettings, 
 from baarda.pipeline.camera import ap_model_names, get_ap_model
 from baarda.plugins.bundle import external as bundle_external
 
-from .protocol import bundle_protocol, image_units, protocol_lines
+from .protocol import bundle_protocol, camera_rows, image_units, protocol_lines
 
 
 
@@ -448,7 +448,7 @@ def _summary(res: BundleResult, extras, o) -> dict:
                                    "n_flagged": int(before["snooping"].flagged.sum())}
     if extras.get("selection") is not None:
         out["ap_selection"] = extras["selection"].summary()
-    out["cameras"] = [r for j in range(len(res.block_in.cameras)) for r in res.camera_table(j)]
+    out["cameras"] = [r for j in range(len(res.block_in.cameras)) for r in camera_rows(res, j)]
     out["sigma0_um_equivalent"] = _sigma0_um(res)
     out["protocol"] = bundle_protocol(res, extras, alpha0=o.alpha0, beta0=o.beta0)
     if isinstance(out.get("check_points"), dict) and out["check_points"].get("n"):
@@ -545,17 +545,24 @@ def _report(res: BundleResult, extras, o, block, protocol=None) -> str:
     L.append("")
     L.append("### Camera parameters")
     L.append("")
-    L.append("| camera | parameter | value | σ | status |")
-    L.append("|---|---|---|---|---|")
+    u = image_units(block)
+    if u[0] == "px":
+        L += [f"In pixels ({u[2]} source): c and the principal point's offset from the image centre (xp, yp, "
+              "y up) in px, the additional parameters scaled to pixel coordinates (a parameter of unit mm⁻ᵏ "
+              "times pitchᵏ: K1 px⁻², P1 px⁻¹, B1 dimensionless; docs/report.md); OpenCV's form is in the "
+              "protocol summary above.", ""]
+    L.append("| camera | parameter | value | σ | unit | status |")
+    L.append("|---|---|---|---|---|---|")
     zero_fixed = {}                          # camera -> parameters held fixed at 0 (one line, not rows)
     for j in range(len(block.cameras)):
         if not res.camera_used[j]:
             continue
-        for r in res.camera_table(j):
+        for r in camera_rows(res, j, u):
             if r["status"] == "fixed" and r["value"] == 0.0:
                 zero_fixed.setdefault(r["camera"], []).append(r["parameter"])
                 continue
-            L.append(f"| {r['camera']} | {r['parameter']} | {r['value']:.8g} | {_f(r['sigma'], 3)} | {r['status']} |")
+            L.append(f"| {r['camera']} | {r['parameter']} | {r['value']:.8g} | {_f(r['sigma'], 3)} | {r['unit']} | "
+                     f"{r['status']} |")
     L += _zero_fixed_lines(zero_fixed)
     shown = 0
     for j in range(len(block.cameras)):
@@ -771,7 +778,18 @@ def _joint_columns(jt, k: int) -> dict:
     return {"T2d": T, "T2d_critical": crit, "T2d_flagged": flag.tolist()}
 
 
+def _pixel_columns(units, v, nab, mdbs) -> dict:
+    """For a pixel source: residuals, estimated errors and MDBs of each image point in px (the mm
+    columns stay: they are the adjustment's own numbers)."""
+    if units[0] != "px":
+        return {}
+    k = units[1]
+    return {"vx_px": k * v[:, 0], "vy_px": k * v[:, 1], "nabla_x_px": k * nab[:, 0], "nabla_y_px": k * nab[:, 1],
+            "mdb_x_px": k * mdbs[:, 0], "mdb_y_px": k * mdbs[:, 1]}
+
+
 def _tables(res: BundleResult, extras, decision, block) -> dict:
+    units = image_units(block)
     obs = block.observations
     ph_ids = block.photos.ids[obs.photo]
     pt_ids = block.points.ids[obs.point]
@@ -789,11 +807,14 @@ def _tables(res: BundleResult, extras, decision, block) -> dict:
         "photo": ph_ids.tolist(), "point": pt_ids.tolist(), "x": obs.xy[:, 0], "y": obs.xy[:, 1],
         "vx": v[:, 0], "vy": v[:, 1], "rx": r[:, 0], "ry": r[:, 1], "wx": w[:, 0], "wy": w[:, 1],
         "nabla_x": nab[:, 0], "nabla_y": nab[:, 1], "mdb_x": mdbs[:, 0], "mdb_y": mdbs[:, 1],
+        **_pixel_columns(units, v, nab, mdbs),
         **_joint_columns(extras.get("joint"), len(obs)),
         **bundle_external.observation_columns(extras.get("external"), len(obs)),
         **_robust_columns(extras.get("robust"), len(obs)),
         "decision": decision.tolist()},
-        "every image observation: residual (mm), redundancy, w-test, MDB (mm), 2-D test of the point (χ²(2)), "
+        "every image observation: residual (mm), redundancy, w-test, MDB (mm)"
+        + (f"; the same in pixels ({units[2]} source): *_px" if units[0] == "px" else "")
+        + ", 2-D test of the point (χ²(2)), "
         "largest effect of each MDB on its own point / photo (ext_*: object units, degrees, in σ), δ̄0")
     pts = block.points
     sp = res.point_sigmas()
@@ -813,10 +834,12 @@ def _tables(res: BundleResult, extras, decision, block) -> dict:
         tables["check_points"] = TableData({
             "point": pts.ids[chk].tolist(), "dX": dXYZ[chk, 0], "dY": dXYZ[chk, 1], "dZ": dXYZ[chk, 2]},
             f"check points: adjusted − surveyed ({block.object_unit})")
-    rows = [r for j in range(len(block.cameras)) for r in res.camera_table(j)]
+    rows = [r for j in range(len(block.cameras)) for r in camera_rows(res, j, units)]
     tables["cameras"] = TableData({k: [r[k] for r in rows] for k in
-                                   ("camera", "parameter", "value", "sigma", "status", "apriori_sigma")},
-                                  "camera parameters (mm; APs in the model's units)")
+                                   ("camera", "parameter", "value", "sigma", "status", "apriori_sigma", "unit")},
+                                  "camera parameters with σ in the unit of column 'unit': " + (
+                                      f"pixels ({units[2]} source: c, xp, yp in px, the APs scaled to pixel "
+                                      "coordinates, docs/report.md)" if units[0] == "px" else "mm (APs mm⁻ᵏ)"))
     se = res.eo_sigmas()
     X0, opk = res.state.X0, res.state.opk
     cols = {"photo": block.photos.ids.tolist()}

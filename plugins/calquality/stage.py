@@ -13,6 +13,7 @@ from typing import Literal
 import numpy as np
 
 from baarda.pipeline.adjustment import calquality as cq
+from baarda.pipeline.camera.convert import pixel_source
 from baarda.pipeline.options import option
 from baarda.pipeline.stage import Context, Stage, StageResult, TableData
 
@@ -66,10 +67,13 @@ class CalibrationQuality(Stage):
         if not todo:
             raise ctx.option_error("no camera with estimated parameters to assess", "cameras")
         out, tables, summary, lines = {}, {}, {"cameras": {}}, []
+        src = pixel_source(res.block_in.meta)
         for j in ctx.progress.track(todo, what="cameras"):
             cid = ids[j]
             pix = float(cams.pixel_mm[j])
-            unit, f = ("px", 1.0 / pix) if np.isfinite(pix) and pix > 0 else ("µm", 1000.0)
+            # pixels for a pixel source (COLMAP, BAL, libmv, OpenCV targets), µm for one measured in mm
+            # (a film or test-field camera, even with a nominal pitch): the units of the bundle's report
+            unit, f = ("px", 1.0 / pix) if src and np.isfinite(pix) and pix > 0 else ("µm", 1000.0)
             dist = options.distance or _working_distance(res, j)
             m = cq.projection_uncertainty(res, j, dist, nx=options.grid, frame=options.frame)
             mcam = m if options.frame == "camera" else cq.projection_uncertainty(res, j, dist, nx=options.grid,

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from baarda.pipeline.errors import InputError
-from baarda.pipeline.recording import read_recording
+from baarda.pipeline.recording import read_recording, read_series
 from baarda.pipeline.stats import LinearModel
 from baarda.pipeline.testing import check_stage, log_stage, run_stage
 from baarda.pipeline.contracts import AdjustmentArtefact
@@ -96,12 +96,22 @@ def test_auto_rho():
 
 def test_recording_has_iteration_history(tmp_path):
     res = run_stage(BlunderRejection, adjust("data1", tmp_path), {"rho": 4, "n_sim": 2000}, tmp_path=tmp_path)
-    summary = read_recording(log_stage(BlunderRejection, res, tmp_path / "b.rrd"))
+    path = log_stage(BlunderRejection, res, tmp_path / "b.rrd")
+    summary = read_recording(path)
+    series = read_series(path)
     by_path = {e.path: e for e in summary.entities}
-    ids = by_path["/b/blunders/ids/T"]
-    assert "iteration" in ids.timelines and ids.rows == 4  # 3 removals + the accepting step
-    assert by_path["/b/blunders/rrr/H_exp"].rows == 4         # ρ = 4 suspects
-    assert by_path["/b/blunders/pope/tau_max"].rows == 2
+    assert "iteration" in by_path["/b/blunders/ids/global_test/T"].timelines
+    assert len(series["/b/blunders/ids/global_test/T"]) == 4    # 3 removals + the accepting step
+    assert len(series["/b/blunders/rrr/H/H_exp"]) == 4         # ρ = 4 suspects
+    assert len(series["/b/blunders/pope/tau/tau_max"]) == 2
+    # the critical values beside their statistic: F and τ change with the dof
+    ids = res.artefacts["blunders"].methods["ids"]
+    np.testing.assert_allclose(sorted(series["/b/blunders/ids/global_test/F_critical"]),
+                               sorted(h["F_critical"] for h in ids.history))
+    assert len(set(series["/b/blunders/pope/tau/tau_critical"])) == 2
+    # IDS's K and RRR's H stay the same for the whole run: static values, not flat lines
+    assert "/b/blunders/ids/w/K" not in series and "/b/blunders/rrr/H/H" not in series
+    assert "K" in by_path["/b/blunders/ids/w/constants"].columns
     assert "/b/summary" in by_path
 
 

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 import rerun as rr
 
-from baarda.pipeline.recording import (open_recording, photo_root, point_ellipsoids, read_recording, thin,
-                                       view_from_photo, view_vectors, viewer_text)
+from baarda.pipeline.recording import (log_series, open_recording, photo_root, point_ellipsoids, read_recording,
+                                       thin, view_from_photo, view_vectors, viewer_text)
 from baarda.pipeline.runner import run_project
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -94,7 +94,20 @@ def test_the_paper000_pair_gets_one_view_per_photo_and_time_series(runs):
         "/screening/photos/L", "/screening/photos/R", "/source/photos/L", "/source/photos/R"]
     blunders = read_recording(run_dir / "blunders.rrd")
     series = sorted(v.origin for v in blunders.views if v.kind == "TimeSeries" and v.origin.startswith("/blunders"))
-    assert {"/blunders/ids", "/blunders/pope", "/blunders/rrr"} <= set(series), series
+    assert {"/blunders/ids/global_test", "/blunders/ids/w", "/blunders/pope/tau", "/blunders/pope/sigma0",
+            "/blunders/rrr/H"} <= set(series), series
+    # each critical value that changed is drawn in its statistic's view (IDS's F, Pope's τ: the dof
+    # fell with each rejection; RRR's naive Beta quantile with the recursive residuals), styled as a
+    # threshold; the ones that stayed the same (IDS's K, RRR's Monte Carlo H) are static values
+    ents = {e.path: e for e in blunders.entities}
+    for stat, crit in (("ids/global_test/T", "ids/global_test/F_critical"), ("pope/tau/tau_max", "pope/tau/tau_critical"),
+                       ("rrr/H/H_exp", "rrr/H/H_naive")):
+        for path in (stat, crit):
+            assert "Scalars:scalars" in ents[f"/blunders/{path}"].columns, path
+        assert "SeriesLines:interpolation_mode" in ents[f"/blunders/{crit}"].columns      # the threshold style
+        assert "SeriesPoints:markers" in ents[f"/blunders/{stat}"].columns                # the statistic's
+    assert "/blunders/ids/w/K" not in ents and "K" in ents["/blunders/ids/w/constants"].columns
+    assert "/blunders/rrr/H/H" not in ents and "H" in ents["/blunders/rrr/H/constants"].columns
 
 
 def test_bundle_logs_every_photo_and_point_ellipsoids(runs):
@@ -112,7 +125,49 @@ def test_bundle_logs_every_photo_and_point_ellipsoids(runs):
     assert "Ellipsoids3D:half_sizes" in ell.columns
     assert any(v.kind == "2D" for v in s.views) and any(v.kind == "3D" for v in s.views)
     series = {v.origin for v in s.views if v.kind == "TimeSeries"}
-    assert {f"/{bundle_id}/convergence/{g}" for g in ("cost", "sigma0", "damping", "step")} <= series
+    assert {f"/{bundle_id}/convergence/{g}" for g in ("cost", "sigma0", "step")} <= series
+    # λ stayed 0 (no damped step): a static value, not a flat line
+    ents = {e.path: e for e in s.entities}
+    damping = f"/{bundle_id}/convergence/damping"
+    assert (damping in series) != ("lambda" in ents.get(damping + "/constants", EMPTY).columns)
+
+
+EMPTY = type("Empty", (), {"columns": []})()
+
+
+def test_no_recording_plots_a_constant(runs):
+    """No time series of any stage of these runs is constant over the run: a critical value that never
+    changed, a damping factor that stayed 0, a value logged once are static values (``…/constants``),
+    not flat lines (docs/recordings.md lists the exceptions: none in these projects)."""
+    from baarda.pipeline.recording import is_constant, read_series
+
+    n = 0
+    for run_dir in runs.values():
+        for f in sorted(run_dir.glob("*.rrd")):
+            for path, values in read_series(f).items():
+                n += 1
+                assert not is_constant(values), (f.name, path, values[:5])
+    assert n >= 10
+
+
+def test_log_series_puts_constants_aside_and_thresholds_beside_their_statistic(tmp_path):
+    from baarda.pipeline.recording import read_series
+
+    rec = open_recording(tmp_path / "s.rrd", "id")
+    const = log_series(rec, "test/tau", [0, 1, 2], {"tau_max": [5.0, 4.0, 2.5], "flat": [1.0, 1.0, 1.0]},
+                       {"tau_critical": [2.9, 2.8, 2.7], "K": [3.29, 3.29, 3.29], "gone": [np.nan] * 3})
+    rec.disconnect()
+    assert const == {"flat": 1.0, "K": 3.29}
+    s = read_recording(tmp_path / "s.rrd")
+    np.testing.assert_array_equal(sorted(read_series(tmp_path / "s.rrd")["/s/test/tau/tau_critical"]), [2.7, 2.8, 2.9])
+    ents = {e.path: e for e in s.entities}
+    assert set(ents) >= {"/s/test/tau/tau_max", "/s/test/tau/tau_critical", "/s/test/tau/constants"}
+    assert not {"/s/test/tau/flat", "/s/test/tau/K", "/s/test/tau/gone"} & set(ents)
+    assert {"K", "flat"} <= set(ents["/s/test/tau/constants"].columns)
+    views = [v for v in s.views if v.kind == "TimeSeries"]
+    assert [v.origin for v in views] == ["/s/test/tau"]      # statistic and threshold in one view
+    with pytest.raises(ValueError, match="2 values for 3 steps"):
+        log_series(open_recording(tmp_path / "t.rrd", "id"), "x", [0, 1, 2], {"a": [1.0, 2.0]})
 
 
 def test_the_last_stage_holds_the_whole_runs_layout(runs):
