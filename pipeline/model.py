@@ -1,7 +1,7 @@
 """The photogrammetric data model: arrays with index arrays, never object graphs.
 
 A :class:`Block` holds five tables — cameras, photos, object points, image observations and
-stereo pairs — each a frozen dataclass of equally long numpy arrays.  Arrays are made read-only
+stereo pairs — and, optionally, GNSS antenna observations of the photos (:class:`Gnss`), each a frozen dataclass of equally long numpy arrays.  Arrays are made read-only
 when a table is built, so a stage cannot modify its input by accident; a stage that changes
 something builds a new table with :meth:`Table.replace` (or :func:`dataclasses.replace`).
 
@@ -270,6 +270,51 @@ class Pairs(Table):
 
 
 @dataclass(frozen=True, eq=False)
+class Gnss(Table):
+    """GNSS antenna observations: one row per photo with an observed antenna position.
+
+    photo (g,) index into photos (each photo at most once); XYZ (g, 3) the antenna position in the
+    object system and unit (the block's local Cartesian frame); cov (g, 3, 3) its a-priori covariance
+    (object unit², may be full); lever_arm (g, 3) the antenna in the **camera frame** of the photo's
+    camera (x right, y up, z back out of the lens; object unit; ``docs/conventions.md``).  The
+    bundle adjusts the observation equation ``XYZ + v = X0 + R_cam_from_worldᵀ · lever_arm``
+    (``docs/bundle.md``).  The lever arm is a camera's, repeated on its photos' rows (:meth:`make`
+    takes it per camera).
+    """
+
+    photo: np.ndarray
+    XYZ: np.ndarray
+    cov: np.ndarray
+    lever_arm: np.ndarray
+
+    _columns: ClassVar = {"photo": (int, ()), "XYZ": (float, (3,)), "cov": (float, (3, 3)),
+                          "lever_arm": (float, (3,))}
+
+    @classmethod
+    def make(cls, photo, XYZ, sigma=None, cov=None, lever_arm=None) -> "Gnss":
+        """From photo indices, antenna positions and ``sigma`` (scalar, (g,) or (g, 3); a diagonal
+        covariance) or ``cov`` (g, 3, 3); ``lever_arm`` (3,) for every row or (g, 3)."""
+        photo = np.asarray(photo, int).reshape(-1)
+        g = photo.shape[0]
+        if cov is None:
+            s = np.asarray(1.0 if sigma is None else sigma, float)
+            s = np.broadcast_to(s[:, None] if s.ndim == 1 else s, (g, 3))
+            cov = np.zeros((g, 3, 3))
+            cov[:, [0, 1, 2], [0, 1, 2]] = s ** 2
+        arm = np.broadcast_to(np.asarray(0.0 if lever_arm is None else lever_arm, float), (g, 3))
+        return cls(photo=photo, XYZ=np.asarray(XYZ, float).reshape(-1, 3), cov=cov, lever_arm=arm)
+
+    @classmethod
+    def empty(cls) -> "Gnss":
+        return cls.make(np.zeros(0, int), np.zeros((0, 3)))
+
+    @property
+    def sigma(self) -> np.ndarray:
+        """(g, 3) standard deviations (the covariance's diagonal)."""
+        return np.sqrt(np.einsum("gii->gi", self.cov))
+
+
+@dataclass(frozen=True, eq=False)
 class Block:
     """Everything one adjustment needs, plus provenance.
 
@@ -286,8 +331,15 @@ class Block:
     pairs: Pairs = field(default_factory=lambda: Pairs(left=np.zeros(0, int), right=np.zeros(0, int)))
     object_unit: str = "m"
     meta: dict = field(default_factory=dict)
+    gnss: Gnss = field(default_factory=lambda: Gnss.empty())
 
     def __post_init__(self):
+        g = self.gnss.photo
+        if len(g):
+            if g.min() < 0 or g.max() >= len(self.photos):
+                raise ValueError("Gnss.photo index out of range")
+            if len(np.unique(g)) != len(g):
+                raise ValueError("Gnss.photo: a photo has two antenna observations")
         obs = self.observations
         if len(obs):
             if obs.photo.min() < 0 or obs.photo.max() >= len(self.photos):
@@ -317,4 +369,5 @@ class Block:
             "observations": len(self.observations),
             "active_observations": int(self.observations.active.sum()),
             "pairs": len(self.pairs), "roles": roles, "object_unit": self.object_unit,
+            **({"gnss_antennas": len(self.gnss)} if len(self.gnss) else {}),
         }

@@ -27,8 +27,8 @@ from .diagnose import parameter_names
 from .initial import ResectionResult, initial_values, intersection, resection
 from .lm import ITERATION_CALLBACK, solve_bundle
 from .problem import BundleProblem
-from .reliability import (OwnEffects, effect_vectors, linearised_model, own_effects, parameter_covariance,
-                          row_mdb)
+from .reliability import (GlobalRowStats, OwnEffects, effect_vectors, global_rows, linearised_model, own_effects,
+                          parameter_covariance, row_mdb)
 from .reproject import project_block, reprojection_px, reprojection_summary
 from .settings import BundleSettings, BundleState, Distance, camera_meta
 from .variance import (LinearComponents, VarianceComponents, VarianceGroup, estimate_components, group_parts,
@@ -43,4 +43,5 @@ __all__ = [
     "estimate_components", "VarianceComponents", "VarianceGroup", "linear_components", "LinearComponents",
     "group_parts", "image_group_labels",
     "own_effects", "OwnEffects", "effect_vectors", "parameter_covariance", "linearised_model", "row_mdb",
+    "global_rows", "GlobalRowStats",
 ]

@@ -166,8 +166,8 @@ class SimilarityGauge:
     @classmethod
     def of(cls, prob: BundleProblem) -> "SimilarityGauge | None":
         """The gauge of ``prob`` when vᵀPv is invariant under it, else ``None``."""
-        if not prob.n_c or len(prob.prior_p_idx) or len(prob.oi) == 0:
-            return None
+        if not prob.n_c or len(prob.prior_p_idx) or len(prob.oi) == 0 or "gnss" in prob.grow_slices:
+            return None                      # (GNSS antennas are not invariant under a similarity)
         cam_cols = prob.g_cam[prob.g_cam >= 0]
         if not np.isin(prob.prior_g_idx, cam_cols).all():
             return None                      # a weighted constraint on an orientation or a point
@@ -270,10 +270,9 @@ def _linear_cost(prob, lin, pred, dx, dp) -> float:
     c += float(np.sum(prob.prior_g_w * (dg - dx[prob.prior_g_idx]) ** 2))
     if len(prob.prior_p_idx):
         c += float(np.sum(prob.prior_p_w * (dpv - dp[prob.prior_p_idx, prob.prior_p_coord]) ** 2))
-    if len(prob.dist_l):
-        wd = prob.settings.sigma0 / prob.dist_s
+    if len(dd):                  # rows on global unknowns (scale bars, GNSS antennas), whitened
         step = (lin["Jd"] * np.append(dx[:prob.n_g], 0.0)[lin["dcols"]]).sum(axis=1)
-        c += float(np.sum((wd * dd - step) ** 2))
+        c += float(np.sum((dd - step) ** 2))
     return c
 
 

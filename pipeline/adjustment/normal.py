@@ -64,31 +64,20 @@ class NormalEquations:
         if len(self.prior_p_idx):
             np.add.at(V, (self.prior_p_idx, self.prior_p_coord, self.prior_p_coord), self.prior_p_w)
             np.add.at(bp, (self.prior_p_idx, self.prior_p_coord), self.prior_p_w * dpv)
-        # distances (all their points are global unknowns)
-        if len(self.dist_l):
-            s0 = self.settings.sigma0
-            diff = st.XYZ[self.dist_a] - st.XYZ[self.dist_b]
-            unit = diff / np.linalg.norm(diff, axis=1, keepdims=True)
-            wd = s0 / self.dist_s
-            cols = np.concatenate([self.g_pt[self.dist_a], self.g_pt[self.dist_b]], axis=1)
-            Jd = np.concatenate([unit, -unit], axis=1) * wd[:, None]
-            ok = cols >= 0
-            cols = np.where(ok, cols, self.n_g)
-            Jd = Jd * ok
-            dist_lin = (Jd, cols)
-            r6 = np.broadcast_to(cols[:, :, None], (len(cols), 6, 6))
-            c6 = np.broadcast_to(cols[:, None, :], (len(cols), 6, 6))
-            U = U + _triplets(r6, c6, Jd[:, :, None] * Jd[:, None, :], ng1, sparse=self.solver_route() == "sparse")
-            gext = np.zeros(ng1)
-            np.add.at(gext, cols, Jd * (wd * dd)[:, None])
-            g = g + gext[:-1]
+        # observations on global unknowns only (scale bars, GNSS antennas): whitened rows J̃, ẽ = dd
+        Jd, dcols, _ = self.global_rows_linear(st)
+        if len(dd):
+            w = dcols.shape[1]
+            sh = (len(dcols), w, w)
+            U = U + _triplets(np.broadcast_to(dcols[:, :, None], sh), np.broadcast_to(dcols[:, None, :], sh),
+                              Jd[:, :, None] * Jd[:, None, :], ng1, sparse=self.solver_route() == "sparse")
+            g = g + np.bincount(dcols.ravel(), (Jd * dd[:, None]).ravel(), minlength=ng1)[:-1]
         # free coordinates that no observation touches stay fixed
         if self.n_e:
             fixed = ~self.elim_free
             pi, ci = np.nonzero(fixed)
             V[pi, ci, ci] = 1.0
             bp[fixed] = 0.0
-        Jd, dcols = dist_lin if len(self.dist_l) else (None, None)
         return dict(U=U, g=g, V=V, bp=bp, Jc=Jc, Jp=Jp, e=e, v=v, parts=parts, proj=proj,
                     Jd=Jd, dcols=dcols, t=time.perf_counter() - t0)
 
@@ -369,7 +358,7 @@ class NormalEquations:
     def global_pattern(self) -> sp.csr_matrix:
         """Sparsity of the reduced system of the global unknowns (n_g, n_g): the photo blocks with
         their cameras, photo pairs that share a point, observations of scale-bar points, priors and
-        distances."""
+        the observations on global unknowns (distances, GNSS antennas)."""
         if getattr(self, "_pattern", None) is None:
             ng1 = self.n_g + 1
             sc = self.seg_cols
@@ -382,10 +371,9 @@ class NormalEquations:
                 sh = (len(gc), gc.shape[1], gc.shape[1])
                 pat = pat + _triplets(np.broadcast_to(gc[:, :, None], sh), np.broadcast_to(gc[:, None, :], sh),
                                       np.ones(sh), ng1, sparse=True)
-            if len(self.dist_l):
-                cols = np.concatenate([self.g_pt[self.dist_a], self.g_pt[self.dist_b]], axis=1)
-                cols = np.where(cols >= 0, cols, self.n_g)
-                sh = (len(cols), 6, 6)
+            if self.n_grow_rows:                  # scale bars, GNSS antennas
+                cols = self.grow_cols
+                sh = (len(cols), cols.shape[1], cols.shape[1])
                 pat = pat + _triplets(np.broadcast_to(cols[:, :, None], sh), np.broadcast_to(cols[:, None, :], sh),
                                       np.ones(sh), ng1, sparse=True)
             if self.n_e:

@@ -10,7 +10,9 @@ Unknowns
     eliminated: every other object point (3×3 blocks).
 Observations
     image points (2×2 weight ``P = σ0² Σ⁻¹`` each, x/y may be correlated), weighted constraints on
-    any unknown (``0 < σ < inf``), distances between object points (scale bars).
+    any unknown (``0 < σ < inf``), and observations on global unknowns only (:class:`GlobalRows`):
+    distances between object points (scale bars) and GNSS antenna positions
+    ``X_antenna + v = X0 + R_cam_from_worldᵀ e`` (lever arm ``e`` in the camera frame).
 Datum
     ``"control"``: by control points / weighted constraints — the reduced system must be regular;
     ``"free"``: inner constraints (minimum norm) on the chosen points or on the projection
@@ -24,10 +26,13 @@ Everything is vectorised over observations; the reduced system is dense (``cho_f
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import scipy.sparse as sp
 
 from baarda.pipeline.errors import AdjustmentError, InputError
+from baarda.pipeline.geometry import rotation_and_derivatives
 from baarda.pipeline.model import Block
 
 from ..camera import get_ap_model
@@ -35,7 +40,32 @@ from .collinearity import Projector, bmv
 from .normal import NormalEquations
 from .settings import BundleSettings, BundleState, block_distances, camera_meta, check_unique
 
-__all__ = ["BundleProblem"]
+__all__ = ["BundleProblem", "GlobalRows"]
+
+
+@dataclass(frozen=True, eq=False)
+class GlobalRows:
+    """One kind of observation on global unknowns only (no eliminated point takes part): ``G``
+    observations of ``r`` scalar rows each, every one touching the ``w`` global columns ``cols``
+    (−1 = fixed), whitened by ``L`` (``LᵀL = P = σ0² Σ⁻¹``, (G, r, r)).
+
+    ``kind`` ``"distance"`` (a scale bar: r = 1, the 6 coordinates of its two points) or ``"gnss"``
+    (an antenna: r = 3, the photo's 6 orientation unknowns).  ``index`` the observation's row in
+    its source (the problem's distances; ``block.gnss``), ``l`` (G, r) the observed values.  The
+    normal equations, the predicted cost, the degrees of freedom, vᵀPv, the redundancy numbers and
+    the variance components treat every kind alike through the flat whitened rows
+    (:meth:`BundleProblem.global_rows_linear`)."""
+
+    kind: str
+    r: int
+    cols: np.ndarray
+    L: np.ndarray
+    l: np.ndarray
+    index: np.ndarray
+
+    @property
+    def n_rows(self) -> int:
+        return len(self.cols) * self.r
 
 
 class BundleProblem(NormalEquations):
@@ -58,6 +88,7 @@ class BundleProblem(NormalEquations):
         self._global_unknowns()
         self._column_layout()
         self._setup_priors()
+        self._global_rows()
         self._setup_datum()
         self._degrees_of_freedom()
         self._setup_iteration()
@@ -252,10 +283,53 @@ class BundleProblem(NormalEquations):
         gc = cidx[self.gp_obs]
         self.flatU_gp = (gc[:, :, None] * ng1 + gc[:, None, :]).ravel()
 
+    def _global_rows(self):
+        """Observations on global unknowns only, one :class:`GlobalRows` per kind: the scale bars
+        (their points are global unknowns) and the GNSS antennas of the photos that take part
+        (``block.gnss``; a photo without active image observations has no orientation to observe).
+        Flat layout: ``grow_cols`` (R, w) the columns of every scalar row (rows of one observation
+        share them; n_g = fixed), ``grow_slices[kind]`` its rows."""
+        s0 = self.settings.sigma0
+        kinds = []
+        if len(self.dist_l):
+            cols = np.concatenate([self.g_pt[self.dist_a], self.g_pt[self.dist_b]], axis=1)
+            kinds.append(GlobalRows("distance", 1, cols, (s0 / self.dist_s)[:, None, None], self.dist_l[:, None],
+                                    np.arange(len(self.dist_l))))
+        gn = self.block.gnss
+        if len(gn):
+            use = np.flatnonzero(self.photo_used[gn.photo])
+            cov = gn.cov[use]
+            if not np.isfinite(cov).all() or not np.isfinite(gn.XYZ[use]).all() \
+                    or not np.isfinite(gn.lever_arm[use]).all():
+                raise InputError("a GNSS antenna observation has a missing position, covariance or lever arm",
+                                 field="gnss")
+            try:
+                Lc = np.linalg.cholesky(s0 * s0 * np.linalg.inv(cov)) if len(use) else np.zeros((0, 3, 3))
+            except np.linalg.LinAlgError:
+                bad = use[np.argmin(np.linalg.eigvalsh(cov)[:, 0])]
+                raise InputError(f"the GNSS antenna of photo {str(self.block.photos.ids[gn.photo[bad]])!r} has a "
+                                 "covariance that is not positive definite", field="sigma") from None
+            kinds.append(GlobalRows("gnss", 3, self.g_eo[gn.photo[use]], np.transpose(Lc, (0, 2, 1)),
+                                    gn.XYZ[use], use))
+        self.grows = [k for k in kinds if len(k.cols)]
+        self.grow_slices = {}
+        w = max([k.cols.shape[1] for k in self.grows] + [1])
+        cols, off = [], 0
+        for k in self.grows:
+            c = np.full((len(k.cols), w), -1)
+            c[:, :k.cols.shape[1]] = k.cols
+            cols.append(np.repeat(c, k.r, axis=0))
+            self.grow_slices[k.kind] = slice(off, off + k.n_rows)
+            off += k.n_rows
+        cols = np.concatenate(cols) if cols else np.zeros((0, w), int)
+        self.grow_cols = np.where(cols >= 0, cols, self.n_g)
+        self.n_grow_rows = off
+
     def _degrees_of_freedom(self):
-        """Observation rows + weighted constraints + distances + datum constraints − unknowns."""
+        """Observation rows + weighted constraints + rows on global unknowns (distances, GNSS
+        antennas) + datum constraints − unknowns."""
         self.n_obs_rows = int(self.row_active[self.oi].sum())
-        self.dof = (self.n_obs_rows + len(self.prior_g_idx) + len(self.prior_p_idx) + len(self.dist_l)
+        self.dof = (self.n_obs_rows + len(self.prior_g_idx) + len(self.prior_p_idx) + self.n_grow_rows
                     + self.n_c - self.n_unknowns)
 
     def _setup_iteration(self):
@@ -432,7 +506,8 @@ class BundleProblem(NormalEquations):
         return self.projector.jacobians(pr) if jacobians else pr
 
     def residual_parts(self, st: BundleState, proj=None):
-        """Whitened image residuals e (k, 2), prior residuals (global, points), distances."""
+        """Whitened image residuals e (k, 2), prior residuals (global, points), the whitened
+        residuals of the rows on global unknowns (R,) (distances, GNSS antennas: :meth:`global_rows_linear`)."""
         proj = proj or self.project(st, False)
         v = self.l - proj.xy
         e = bmv(self.L, v)
@@ -440,14 +515,64 @@ class BundleProblem(NormalEquations):
         dg = self.prior_g_val - xg[self.prior_g_idx]
         dg = np.where(self.prior_g_ang, _wrap(dg), dg)
         dpv = self.prior_p_val - st.XYZ[self.elim_points[self.prior_p_idx], self.prior_p_coord]
-        dd = self.dist_l - np.linalg.norm(st.XYZ[self.dist_a] - st.XYZ[self.dist_b], axis=1)
+        dd = self.global_rows_linear(st, jacobians=False)[2]
         return v, e, dg, dpv, dd, proj
 
     def cost(self, st: BundleState, parts=None) -> float:
         v, e, dg, dpv, dd, _ = parts or self.residual_parts(st)
-        s0 = self.settings.sigma0
         return float(np.sum(e * e) + np.sum(self.prior_g_w * dg * dg) + np.sum(self.prior_p_w * dpv * dpv)
-                     + np.sum((s0 * dd / self.dist_s) ** 2)) if len(e) or len(dg) else 0.0
+                     + np.sum(dd * dd)) if len(e) or len(dg) or len(dd) else 0.0
+
+    # ------------------------------------------------------------------------------------------
+    def global_rows_eval(self, k: GlobalRows, st: BundleState, jacobians: bool = True):
+        """Computed values ``f`` (G, r) of one kind of observation on global unknowns and, with
+        ``jacobians``, ``J = ∂f/∂x`` (G, r, w) on its columns (zero on fixed ones), unwhitened.
+
+        distance ``f = |X_a − X_b|``, ``J = [uᵀ, −uᵀ]`` (u the unit vector from b to a);
+        gnss ``f = X0 + Rᵀ e`` (``R = R_cam_from_world(ω, φ, κ)``, ``e`` the lever arm in the camera
+        frame), ``∂f/∂X0 = I``, ``∂f/∂(ω, φ, κ)_a = (∂R/∂a)ᵀ e``."""
+        G = len(k.cols)
+        if k.kind == "distance":
+            ia, ib = self.dist_a[k.index], self.dist_b[k.index]
+            diff = st.XYZ[ia] - st.XYZ[ib]
+            d = np.linalg.norm(diff, axis=1)
+            if not jacobians:
+                return d[:, None], None
+            u = diff / d[:, None]
+            f, J = d[:, None], np.concatenate([u, -u], axis=1)[:, None, :]
+        elif k.kind == "gnss":
+            gn = self.block.gnss
+            ph = gn.photo[k.index]
+            arm = gn.lever_arm[k.index]
+            R, dR = rotation_and_derivatives(st.opk[ph])
+            f = st.X0[ph] + np.einsum("gji,gj->gi", R, arm)
+            if not jacobians:
+                return f, None
+            J = np.zeros((G, 3, 6))
+            J[:, :, :3] = np.eye(3)
+            J[:, :, 3:] = np.einsum("gaji,gj->gia", dR, arm)
+        else:                                                    # pragma: no cover
+            raise ValueError(k.kind)
+        return f, J * (k.cols >= 0)[:, None, :]
+
+    def global_rows_linear(self, st: BundleState, jacobians: bool = True):
+        """The whitened rows on global unknowns, flat over every kind (``grow_slices``):
+        ``(J̃ (R, w), cols (R, w), ẽ (R,))`` with ``ẽ = L (l − f)``, ``J̃ = L J`` (``J̃ = None``
+        without ``jacobians``); ``cols`` = ``grow_cols`` (n_g = fixed)."""
+        w = self.grow_cols.shape[1]
+        Js, es = [], []
+        for k in self.grows:
+            f, J = self.global_rows_eval(k, st, jacobians)
+            es.append(np.einsum("gij,gj->gi", k.L, k.l - f).reshape(-1))
+            if jacobians:
+                Jw = np.zeros((len(k.cols), k.r, w))
+                Jw[:, :, :J.shape[2]] = np.einsum("gij,gjq->giq", k.L, J)
+                Js.append(Jw.reshape(-1, w))
+        e = np.concatenate(es) if es else np.zeros(0)
+        if not jacobians:
+            return None, self.grow_cols, e
+        J = np.concatenate(Js) if Js else np.zeros((0, w))
+        return J, self.grow_cols, e
 
     # ------------------------------------------------------------------------------------------
 

@@ -20,7 +20,10 @@ only on the observation's own photo (its camera, orientation, scale-bar point) a
 * :func:`parameter_covariance` — the joint covariance of any named parameters (``"photo 3"``,
   ``"point 17"``, ``"camera cam"``, or one component ``"point 17 Z"``), from the same solves;
 * :func:`linearised_model` — the bundle linearised at its solution as a dense
-  :class:`~baarda.pipeline.stats.linear.LinearModel` (small and medium blocks), for RRR.
+  :class:`~baarda.pipeline.stats.linear.LinearModel` (small and medium blocks), for RRR;
+* :func:`global_rows` — residuals, redundancy numbers and a statistics-library
+  :class:`~baarda.pipeline.stats.snapshot.Snapshot` (w-tests, MDBs, data snooping) of the
+  observations on global unknowns: scale bars and GNSS antennas.
 
 Baarda's scalar ``δ̄0_i = √(∇xᵀ N ∇x)/σ0 = ∇_i √(P − P Qvv P)_ii / σ0`` bounds the effect on any
 function ``f`` of the unknowns: ``|∇f| ≤ δ̄0_i σ_f`` (a-priori ``σ_f``).  Effects "in σ" below use the
@@ -38,7 +41,7 @@ from .collinearity import EO_NAMES
 from .precision import front_cofactors
 
 __all__ = ["OwnEffects", "own_effects", "effect_vectors", "parameter_covariance", "parameter_names_of",
-           "row_mdb", "bar_delta0", "linearised_model"]
+           "row_mdb", "bar_delta0", "linearised_model", "GlobalRowStats", "global_rows"]
 
 
 # --------------------------------------------------------------------------------------------------
@@ -116,6 +119,99 @@ def _apply_Q(prob, red, Qx, st, a_g: np.ndarray, a_p: np.ndarray):
         y = y - np.einsum("pac,cj->paj", Gp, T @ CtD)
     y = y * prob.elim_free[:, :, None]
     return xg, y
+
+
+# --------------------------------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class GlobalRowStats:
+    """One kind of observation on global unknowns (``"distance"``, ``"gnss"``) at the solution.
+
+    ``index`` (G,) the observations' rows in their source (the result's ``distances``;
+    ``block.gnss``); ``v`` (G, r) residuals observed − computed (object units); ``sigma`` (G, r)
+    a-priori σ; ``r`` (G, r) redundancy numbers ``(Qvv P)_ii``; ``PQvvP`` (G, r, r) blocks;
+    ``snapshot`` the rows as a :class:`~baarda.pipeline.stats.snapshot.Snapshot` (the bundle's vᵀPv
+    and dof; rows ``r g + i``), so ``stats.w_test``, ``stats.mdb``, ``stats.data_snooping`` apply."""
+
+    kind: str
+    index: np.ndarray
+    v: np.ndarray
+    sigma: np.ndarray
+    r: np.ndarray
+    PQvvP: np.ndarray
+    snapshot: object = field(repr=False)
+
+
+def _cofactor_blocks(res, cols: np.ndarray) -> np.ndarray:
+    """(G, w, w) cofactors of the global unknowns ``cols`` (G, w) (n_g: fixed → 0).  Dense route:
+    gathered from ``K⁻¹``; sparse route: a row group within one photo's orientation from the
+    orientations' cofactors (the selected inversion), any other by solves."""
+    prob = res.problem
+    n_g = prob.n_g
+    G, w = cols.shape
+    if res.cofactors is None:
+        raise ValueError("the statistics of the observations need the precision: adjust with covariance = true")
+    Qg = getattr(res.cofactors, "Qg", None)
+    if Qg is not None:
+        Qp = np.zeros((n_g + 1, n_g + 1))
+        Qp[:n_g, :n_g] = Qg
+        return Qp[cols[:, :, None], cols[:, None, :]]
+    out = np.zeros((G, w, w))
+    Q_eo = np.zeros((prob.m + 1, 7, 7))
+    Q_eo[:prob.m, :6, :6] = res.cov_eo / res.variance_factor
+    photo = np.full(n_g + 1, prob.m)
+    comp = np.full(n_g + 1, 6)
+    m = prob.g_eo >= 0
+    photo[prob.g_eo[m]], comp[prob.g_eo[m]] = np.nonzero(m)
+    ph = photo[cols]
+    fixed = cols >= n_g
+    first = np.where(fixed, prob.m + 1, ph).min(axis=1)
+    one = (np.where(fixed, first[:, None], ph) == first[:, None]).all(axis=1) & (first < prob.m)
+    c = comp[cols]
+    out[one] = Q_eo[first[one][:, None, None], c[one][:, :, None], c[one][:, None, :]]
+    for j in np.flatnonzero(~one):
+        ok = ~fixed[j]
+        if ok.any():
+            cj = cols[j, ok]
+            out[j][np.ix_(ok, ok)] = res.cofactor_columns(cj)[cj]
+    return out
+
+
+def global_rows(res) -> dict:
+    """``{kind: GlobalRowStats}`` of the observations on global unknowns (scale bars, GNSS antennas):
+    ``H = J̃ Q J̃ᵀ`` per observation (r × r, ``J̃ = L J`` whitened, ``Q`` the cofactors of its
+    columns), ``Qvv P = L⁻¹ (I − H) L``, ``P Qvv P = Lᵀ (I − H) L`` — as for the image points.
+    Needs the precision (``covariance = true``); either solver route."""
+    from baarda.pipeline.stats.snapshot import Snapshot
+
+    prob, st = res.problem, res.state
+    blk = res.block_in
+    out = {}
+    for k in prob.grows:
+        f, J = prob.global_rows_eval(k, st)
+        v = k.l - f
+        Jw = np.einsum("gij,gjq->giq", k.L, J)
+        Q = _cofactor_blocks(res, np.where(k.cols >= 0, k.cols, prob.n_g))
+        H = np.einsum("giq,gqs,gjs->gij", Jw, Q, Jw)
+        R = np.eye(k.r)[None] - H
+        Li = np.linalg.inv(k.L)
+        r = np.einsum("gij,gjl,gli->gi", Li, R, k.L)
+        PQ = np.einsum("gji,gjl,glm->gim", k.L, R, k.L)
+        P = np.einsum("gji,gjl->gil", k.L, k.L)
+        Pv = np.einsum("gij,gj->gi", P, v)
+        sig = prob.settings.sigma0 * np.sqrt(np.einsum("gii->gi", np.linalg.inv(P)))
+        if k.kind == "distance":
+            labels = [f"distance {res.distances[i].a}–{res.distances[i].b}" for i in k.index]
+        else:
+            ids = blk.photos.ids[blk.gnss.photo[k.index]]
+            labels = [f"antenna photo {p} {c}" for p in ids.tolist() for c in "XYZ"]
+        G = len(k.cols)
+        snap = Snapshot(v=v.reshape(-1), Pv=Pv.reshape(-1), PQvvP=np.einsum("gii->gi", PQ).reshape(-1),
+                        r=r.reshape(-1), sigma_l=sig.reshape(-1), vtpv=res.vtpv, dof=res.dof, sigma0=res.sigma0,
+                        active=np.ones(G * k.r, bool), labels=np.array(labels, dtype=str),
+                        group=np.repeat(np.arange(G), k.r) if k.r > 1 else np.full(G, -1),
+                        meta={"source": f"bundle {k.kind}", "rows": f"row {k.r} g + i: coordinate i of observation g"})
+        out[k.kind] = GlobalRowStats(kind=k.kind, index=k.index, v=v, sigma=sig, r=r, PQvvP=PQ, snapshot=snap)
+    return out
 
 
 # --------------------------------------------------------------------------------------------------
@@ -514,7 +610,7 @@ def linearised_model(res, max_entries: float = DENSE_LIMIT):
     methods that need the design): rows ``2 i + c`` are image coordinate ``c`` of block observation
     ``i`` (the snapshot's rows: ``l`` = the residual at the solution, inactive rows zero with unit
     weight), followed by the weighted constraints (camera/orientation priors, control coordinates,
-    scale bars; ``l`` = their residuals).  Unknowns: the free global parameters and the free
+    scale bars, GNSS antennas; ``l`` = their residuals).  Unknowns: the free global parameters and the free
     coordinates of the eliminated points; a free network's datum is held by the minimal datum of
     the sparse route (``n_c`` photo parameters), which changes no residual, redundancy or test.
     Its least-squares solution is ``Δx = 0`` with the bundle's ``v``, ``vᵀPv``, dof and redundancy
@@ -527,7 +623,7 @@ def linearised_model(res, max_entries: float = DENSE_LIMIT):
     prob, st = res.problem, res.state
     k_all = len(res.residuals)
     n_img = 2 * k_all
-    n_pri = len(prob.prior_g_idx) + len(prob.prior_p_idx) + len(prob.dist_l)
+    n_pri = len(prob.prior_g_idx) + len(prob.prior_p_idx) + prob.n_grow_rows
     n_rows = n_img + n_pri
     held = np.zeros(0, int)
     if prob.n_c:
@@ -587,19 +683,22 @@ def linearised_model(res, max_entries: float = DENSE_LIMIT):
         A[r0, pcol[p, c]] = 1.0
         l[r0], r0 = d, r0 + 1
         w_pri.append(w)
-    if len(prob.dist_l):
-        wd = prob.settings.sigma0 / prob.dist_s
-        for j in range(len(prob.dist_l)):
-            for t in range(6):
-                col = gcol[lin["dcols"][j, t]]
-                if col >= 0:
-                    A[r0, col] += lin["Jd"][j, t] / wd[j]
-            l[r0], r0 = dd[j], r0 + 1
-            w_pri.append(wd[j] ** 2)
+    grow_P = []                       # rows on global unknowns (scale bars, GNSS antennas): P blocks
+    for k in prob.grows:
+        f, J = prob.global_rows_eval(k, st)
+        cc = gcol[np.where(k.cols >= 0, k.cols, prob.n_g)]                      # (G, w)
+        for g in range(len(k.cols)):
+            ok = cc[g] >= 0
+            A[r0:r0 + k.r, cc[g][ok]] = J[g][:, ok]
+            l[r0:r0 + k.r] = k.l[g] - f[g]
+            grow_P.append((r0, k.L[g].T @ k.L[g]))
+            w_pri.extend(np.diag(grow_P[-1][1]))
+            r0 += k.r
     labels = list(np.asarray(res.snapshot.labels)) if res.snapshot is not None else [str(i) for i in range(n_img)]
     labels += _prior_labels(res)
     group = np.r_[np.repeat(np.arange(k_all), 2), np.full(n_pri, -1)]
-    if prob.L_diag:
+    grow_diag = all(np.count_nonzero(Pg - np.diag(np.diag(Pg))) == 0 for _, Pg in grow_P)
+    if prob.L_diag and grow_diag:
         P = np.ones(n_rows)
         Pd = np.ones((k_all, 2))
         Pd[prob.oi] = np.einsum("kii->ki", Pblk)
@@ -610,6 +709,8 @@ def linearised_model(res, max_entries: float = DENSE_LIMIT):
         for kk, o in enumerate(prob.oi):
             P[2 * o:2 * o + 2, 2 * o:2 * o + 2] = Pblk[kk]
         P[np.arange(n_img, n_rows), np.arange(n_img, n_rows)] = w_pri
+        for r0, Pg in grow_P:
+            P[r0:r0 + len(Pg), r0:r0 + len(Pg)] = Pg
     return LinearModel(A, l, P, sigma0=prob.settings.sigma0, labels=labels, group=group), n_img
 
 
@@ -630,5 +731,9 @@ def _prior_labels(res) -> list[str]:
     out = [f"prior {names.get(int(g), g)}" for g in prob.prior_g_idx]
     out += [f"control point {blk.points.ids[prob.elim_points[p]]} {'XYZ'[c]}"
             for p, c in zip(prob.prior_p_idx, prob.prior_p_coord)]
-    out += [f"distance {d.a}–{d.b}" for d in prob.distances]
+    for k in prob.grows:
+        if k.kind == "distance":
+            out += [f"distance {prob.distances[i].a}–{prob.distances[i].b}" for i in k.index]
+        else:
+            out += [f"antenna photo {p} {c}" for p in blk.photos.ids[blk.gnss.photo[k.index]].tolist() for c in "XYZ"]
     return out

@@ -2,7 +2,7 @@
 
 The observations fall into groups ``g`` (image coordinates per camera, per photo or in groups a
 user defines; control-point coordinates; exterior-orientation priors; weighted camera
-parameters; scale bars), each with an unknown factor ``f_g`` on its a-priori standard deviations.
+parameters; scale bars; GNSS antenna positions), each with an unknown factor ``f_g`` on its a-priori standard deviations.
 With the group's share of the weighted square sum ``Ω_g = v_gᵀ P_g v_g`` and of the redundancy
 ``r_g = Σ_{i∈g} r_i`` (the redundancy numbers ``r_i = (Qvv P)_ii``)::
 
@@ -54,7 +54,7 @@ class VarianceGroup:
     """One group's estimate: ``factor`` multiplies the group's a-priori σ."""
 
     name: str
-    kind: str                 # image | control | eo | interior | distance
+    kind: str                 # image | control | eo | interior | distance | gnss
     n: int                    # scalar observations (rows)
     redundancy: float         # r_g (last adjustment)
     omega: float              # Ω_g = v_gᵀ P_g v_g in the last adjustment (its weights)
@@ -190,7 +190,8 @@ def group_parts(result: BundleResult, image_labels: np.ndarray) -> list[dict]:
     """Per group of ``result``: ``name, kind, n, omega`` (Ω_g, in the adjustment's weights) and
     ``redundancy`` (r_g).  Image rows from the result's residuals and redundancy numbers; a prior
     on an unknown ``j`` has ``r = 1 − p_j Q_jj``, a scale bar ``r = 1 − p a Q aᵀ`` (``a`` the
-    distance's gradient).  Over all groups ``Σ r_g = dof``."""
+    distance's gradient), a GNSS antenna coordinate ``r = (Qvv P)_ii`` of its 3 × 3 block
+    (:func:`~.reliability.global_rows`).  Over all groups ``Σ r_g = dof``."""
     prob = result.problem
     st = result.state
     _, e, dg, dpv, dd, _ = prob.residual_parts(st)
@@ -231,23 +232,14 @@ def group_parts(result: BundleResult, image_labels: np.ndarray) -> list[dict]:
         q = result.cov_points[pts, prob.prior_p_coord, prob.prior_p_coord] / var
         w = prob.prior_p_w
         add("control", "control", len(w), np.sum(w * dpv ** 2), np.sum(1.0 - w * q))
-    # scale bars
-    if len(prob.dist_l):
-        s0 = prob.settings.sigma0
-        w = (s0 / prob.dist_s) ** 2
-        ia, ib = prob.dist_a, prob.dist_b
-        u = st.XYZ[ia] - st.XYZ[ib]
-        u = u / np.linalg.norm(u, axis=1)[:, None]
-        rr = np.ones(len(w))
-        for t in range(len(w)):
-            cols = np.r_[prob.g_pt[ia[t]], prob.g_pt[ib[t]]]
-            grad = np.r_[u[t], -u[t]]
-            ok = cols >= 0
-            if ok.any():
-                Q = result.cofactor_columns(cols[ok])[cols[ok]]
-                g = grad[ok]
-                rr[t] = 1.0 - w[t] * float(g @ Q @ g)
-        add("scale bars", "distance", len(w), np.sum(w * dd ** 2), np.sum(rr))
+    # observations on global unknowns: scale bars, GNSS antennas (whitened residuals dd)
+    if prob.n_grow_rows:
+        from .reliability import global_rows
+
+        for kind, gs in global_rows(result).items():
+            sl = prob.grow_slices[kind]
+            name = {"distance": "scale bars", "gnss": "GNSS"}[kind]
+            add(name, kind, sl.stop - sl.start, np.sum(dd[sl] ** 2), np.sum(gs.r))
     return list(out.values())
 
 
@@ -273,6 +265,8 @@ def scale_block(block: Block, settings: BundleSettings, factors: dict, image_lab
         f = factors["interior"]
         out = out.replace(cameras=out.cameras.replace(sigma_iop=scaled(out.cameras.sigma_iop, f),
                                                       sigma_ap=scaled(out.cameras.sigma_ap, f)))
+    if factors.get("GNSS", 1.0) != 1.0 and len(block.gnss):
+        out = out.replace(gnss=block.gnss.replace(cov=block.gnss.cov * factors["GNSS"] ** 2))
     from .settings import block_distances
 
     bars = tuple(settings.distances) + tuple(block_distances(block))
