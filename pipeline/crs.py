@@ -11,8 +11,14 @@ ellipsoid near the data), adjusted there, and converted back for reports and exp
 
 Heights: a 2-D CRS (e.g. ``EPSG:32722``) carries the third coordinate through as the
 **ellipsoidal height** h of its datum (GNSS heights; ``docs/crs.md``).  A 3-D CRS (``EPSG:4979``,
-a geocentric CRS) is transformed by pyproj with its heights.  A compound CRS with a geoid needs
-PROJ's geoid grid; when PROJ cannot transform, an :class:`InputError` says so.
+a geocentric CRS) is transformed by pyproj with its heights.  A compound CRS whose heights are
+above a geoid (``EPSG:32722+5773``, or a PROJ string with ``+geoidgrids=…``) is transformed with
+PROJ's geoid grid: ``h = H + N``.  Grids are looked up where PROJ looks (its data directory, the
+user-writable directory ``pyproj.datadir.get_user_data_dir()``) and in the folders named by
+``PROJ_DATA`` / ``PROJ_LIB``, which :func:`use_grid_directories` adds (pyproj's wheels ignore
+them otherwise).  When the grid is missing PROJ would fall back to a "ballpark" transformation
+that ignores the geoid (h = H, metres wrong); baarda refuses instead, with an :class:`InputError`
+naming the grid (``docs/crs.md``).  Nothing is downloaded.
 
 pyproj is used only here (an engine module); the frame numerics (:func:`ecef_from_geodetic`,
 :func:`geodetic_from_ecef`, :func:`R_enu_from_ecef`) are plain numpy.  Axes and units:
@@ -29,7 +35,7 @@ import numpy as np
 from baarda.pipeline.errors import InputError
 
 __all__ = ["ecef_from_geodetic", "geodetic_from_ecef", "R_enu_from_ecef", "parse_crs", "LocalFrame",
-           "local_frame", "frame_of_block"]
+           "local_frame", "frame_of_block", "use_grid_directories", "crs_label"]
 
 WGS84_A = 6378137.0
 WGS84_F = 1.0 / 298.257223563
@@ -112,6 +118,104 @@ def parse_crs(text: str, *, path=None, line: int | None = None, field: str | Non
     return crs
 
 
+def crs_label(text: str) -> str:
+    """A CRS (any form ``parse_crs`` reads, e.g. the WKT a frame keeps) as short text that reads
+    back as the same CRS: ``EPSG:32722``; a compound of two registered parts as
+    ``EPSG:32722+5773``; else a PROJ string when it keeps everything (``+geoidgrids=…``), else
+    one-line WKT."""
+    import warnings
+
+    crs = parse_crs(text)
+    auth = crs.to_authority()
+    if auth:
+        return ":".join(auth)
+    if crs.is_compound:
+        parts = [c.to_authority() for c in crs.sub_crs_list]
+        if all(parts) and len({a[0] for a in parts}) == 1:
+            return f"{parts[0][0]}:" + "+".join(a[1] for a in parts)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)        # "you will likely lose …": checked below
+        try:
+            proj = crs.to_proj4()
+        except Exception:                                   # noqa: BLE001 — no PROJ string for it
+            proj = None
+    if proj and parse_crs(proj).equals(crs, ignore_axis_order=True):
+        return proj.replace("\n", " ").replace(" +type=crs", "")
+    return crs.to_wkt()
+
+
+# --------------------------------------------------------------------------------------------
+# grids and transformations
+
+_ADDED_GRID_DIRS: set[str] = set()
+
+
+def use_grid_directories(*dirs) -> list[str]:
+    """Let PROJ find grids (geoid models, datum shifts) in ``dirs`` and in the folders of the
+    ``PROJ_DATA`` / ``PROJ_LIB`` environment variables (``os.pathsep``-separated); returns the
+    folders added now.  Folders that do not exist are ignored; each is added once."""
+    import os
+
+    import pyproj
+
+    wanted = [str(d) for d in dirs]
+    for var in ("PROJ_DATA", "PROJ_LIB"):
+        wanted += [d for d in os.environ.get(var, "").split(os.pathsep) if d]
+    added = []
+    for d in wanted:
+        if d in _ADDED_GRID_DIRS or not os.path.isdir(d):
+            continue
+        pyproj.datadir.append_data_dir(d)
+        _ADDED_GRID_DIRS.add(d)
+        added.append(d)
+    return added
+
+
+def _missing_grids(group) -> list[str]:
+    names = []
+    for op in group.unavailable_operations:
+        for g in getattr(op, "grids", []) or []:
+            if not g.available and g.short_name not in names:
+                names.append(g.short_name)
+    return names
+
+
+def _transformer(crs_text: str, geo_text: str):
+    """pyproj's best transformation from ``crs_text`` to ``geo_text`` (x/y order), refused when PROJ
+    lacks a grid the best one needs (it would use a ballpark one) or cannot build one at all."""
+    import pyproj
+
+    use_grid_directories()
+    key = (crs_text, geo_text, pyproj.datadir.get_data_dir())
+    if key in _TRANSFORMERS:
+        return _TRANSFORMERS[key]
+    import warnings
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)     # "best transformation is not available": said below
+            group = pyproj.transformer.TransformerGroup(crs_text, geo_text, always_xy=True)
+    except pyproj.exceptions.ProjError as e:
+        grid = re.search(r"(\S+\.(?:gtx|tif|tiff|gsb|byn|gvb))", str(e))
+        what = f"the grid {grid.group(1)}" if grid else "a grid or an operation"
+        raise InputError(f"PROJ cannot transform the coordinates: {what} not found ({str(e).splitlines()[0][:120]}); "
+                         "put grids where PROJ looks or in a folder named by PROJ_DATA (docs/crs.md)",
+                         field="crs") from None
+    missing = _missing_grids(group)
+    if missing and not group.best_available:
+        raise InputError(f"the heights need the grid {', '.join(missing)} (e.g. a geoid model), which PROJ "
+                         "does not have here; without it PROJ would ignore the geoid. Put the grid in "
+                         f"{pyproj.datadir.get_user_data_dir()} or in a folder named by PROJ_DATA (docs/crs.md; "
+                         "baarda downloads nothing)", field="crs")
+    if not group.transformers:
+        raise InputError("PROJ has no transformation from the CRS to geographic coordinates", field="crs")
+    _TRANSFORMERS[key] = group.transformers[0]
+    return group.transformers[0]
+
+
+_TRANSFORMERS: dict = {}
+
+
 # --------------------------------------------------------------------------------------------
 # the local frame
 
@@ -141,9 +245,8 @@ class LocalFrame:
         if geo is None:
             raise InputError(f"the CRS {self.crs[:60]!r} has no geodetic datum: give coordinates in a projected, "
                              "geographic or geocentric CRS, or none for a local system", field="crs")
-        geo3 = geo.to_3d() if len(crs.axis_info) == 2 or crs.is_projected else geo
-        fwd = pyproj.Transformer.from_crs(crs, geo3, always_xy=True)
-        return crs, fwd
+        geo3 = geo.to_3d() if len(crs.axis_info) == 2 or crs.is_projected or crs.is_compound else geo
+        return crs, _transformer(self.crs, geo3.to_wkt())
 
     def geodetic(self, xyz) -> np.ndarray:
         """lon°, lat°, h (n, 3) of coordinates in the user's CRS (h: ellipsoidal)."""
@@ -235,7 +338,10 @@ def local_frame(crs_text: str | None, xyz, *, path=None, line=None, field="crs")
     ok = np.isfinite(xyz).all(axis=1)
     if not ok.any():
         raise InputError("no finite coordinates to place the local frame", path=path, field=field)
-    g = tmp.geodetic(xyz[ok])
+    try:
+        g = tmp.geodetic(xyz[ok])
+    except InputError as e:
+        raise InputError(f"CRS {str(crs_text).strip()[:60]!r}: {e.message}", path=path, line=line, field=field) from None
     if tmp._transformers()[0].is_geographic and (np.abs(g[:, 1]) > 90).any():
         raise InputError("latitude outside ±90° (are longitude and latitude swapped?)", path=path, field=field)
     origin = ecef_from_geodetic(g[:, 0], g[:, 1], g[:, 2], a, f).mean(axis=0)

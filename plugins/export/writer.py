@@ -13,6 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
+from baarda.pipeline.crs import crs_label
+
 
 @dataclass(frozen=True)
 class PointExport:
@@ -75,11 +77,7 @@ def write_ply(path: str | Path, ex: PointExport, *, binary: bool = True) -> Path
     v["rays"] = ex.rays
     comments = ["baarda adjusted points", f"axes {' '.join(ex.names)} sigma {' '.join(ex.sigma_names)}"]
     if ex.crs is not None:
-        import pyproj
-
-        crs = pyproj.CRS.from_user_input(ex.crs)
-        auth = crs.to_authority()
-        comments.append("crs " + (":".join(auth) if auth else crs.to_proj4().replace("\n", " ")))
+        comments.append("crs " + crs_label(ex.crs))
     path = Path(path)
     PlyData([PlyElement.describe(v, "vertex")], text=not binary, byte_order="<",
             comments=comments).write(str(path))
@@ -94,11 +92,7 @@ def write_csv(path: str | Path, ex: PointExport) -> Path:
     geo = ex.names[0] == "lon"
     with path.open("w", newline="", encoding="utf-8") as f:
         if ex.crs is not None:
-            import pyproj
-
-            crs = pyproj.CRS.from_user_input(ex.crs)
-            auth = crs.to_authority()
-            f.write(f"# crs: {':'.join(auth) if auth else crs.to_proj4()}\n")
+            f.write(f"# crs: {crs_label(ex.crs)}\n")
         w = csv.writer(f)
         local = ex.crs is not None
         w.writerow(["point", "role", *ex.names, *ex.sigma_names, "rays"] + (["E_local", "N_local", "U_local"]

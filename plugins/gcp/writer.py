@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from baarda.pipeline.crs import LocalFrame, frame_of_block, parse_crs
+from baarda.pipeline.crs import LocalFrame, crs_label, frame_of_block, parse_crs
 from baarda.pipeline.errors import InputError
 from baarda.pipeline.geometry import pixels_from_mm
 from baarda.pipeline.model import ROLES
@@ -28,19 +28,9 @@ SURVEYED = ("full", "xy", "z", "check")
 
 
 def crs_line(frame: LocalFrame, original: str | None = None) -> str:
-    """The CRS as ODM's first line: the text the list was read with when given, else ``EPSG:n``
-    when PROJ knows a code, else a PROJ string, else one-line WKT."""
-    if original:
-        return original.strip()
-    crs = parse_crs(frame.crs)
-    code = crs.to_epsg()
-    if code:
-        return f"EPSG:{code}"
-    try:
-        text = crs.to_proj4()
-    except Exception:                          # noqa: BLE001 — PROJ cannot say it as a PROJ string
-        text = None
-    return text if text and "+proj" in text else crs.to_wkt()
+    """The CRS as ODM's first line: the text the list was read with when given, else
+    :func:`~baarda.pipeline.crs.crs_label` (``EPSG:n``, ``EPSG:a+b``, a PROJ string, WKT)."""
+    return original.strip() if original else crs_label(frame.crs)
 
 
 def gcp_lines(block, *, roles=SURVEYED, frame: LocalFrame | None = None, crs_text: str | None = None) -> tuple[list[str], dict]:
