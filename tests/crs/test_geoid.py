@@ -43,8 +43,14 @@ def grids(tmp_path_factory):
     # the same plane under the name PROJ looks for when a CRS uses EGM96 heights (EPSG:5773):
     # us_nga_egm96_15.tif, or its former name egm96_15.gtx
     write_gtx(d / "egm96_15.gtx", N)
+    before = pyproj.datadir.get_data_dir()
     assert use_grid_directories(d) == [str(d)]
-    return d
+    yield d
+    # the rest of the session must not see the synthetic "EGM96"
+    from baarda.pipeline import crs
+
+    pyproj.datadir.set_data_dir(before)
+    crs._ADDED_GRID_DIRS.discard(str(d))
 
 
 # three targets of the odm-br-gcp set (UTM 22S) with heights above the geoid
