@@ -60,3 +60,103 @@ def redundancy_numbers(r, labels_x=None, title="Redundancy numbers r = (Qvv P)ii
     ax.legend(fontsize=8)
     fig.tight_layout()
     return fig
+
+
+def vector_scale(xy, d, span_fraction: float = 0.1) -> float:
+    """Arrow scale so that the longest vector ``d`` (k, 2) is ``span_fraction`` of the extent of
+    the positions ``xy`` (m, 2)."""
+    xy = np.asarray(xy, float).reshape(-1, 2)
+    d = np.asarray(d, float).reshape(-1, 2)
+    xy = xy[np.isfinite(xy).all(axis=1)]
+    d = d[np.isfinite(d).all(axis=1)]
+    span = float(np.ptp(xy, axis=0).max()) if len(xy) > 1 else 0.0
+    dmax = float(np.max(np.hypot(d[:, 0], d[:, 1]))) if len(d) else 0.0
+    return span_fraction * (span or dmax or 1.0) / dmax if dmax > 0 else 1.0
+
+
+def point_errors(sets, unit: str, title: str, components=("X", "Y", "Z"), background=None, reference=None):
+    """Point differences as vectors in plan and per component as bars (one figure).
+
+    ``sets``: list of dicts ``{"label", "ids" (n,), "xy" (n, 2) plan positions, "d" (n, 3)
+    differences, "sigma" (n, 3) or None (drawn as ±1σ error bars), "color"}`` — e.g. check-point
+    errors of two methods, or control and check differences.  All sets share one arrow scale.
+    ``background``: (m, 2) other points drawn grey in the plan.  ``reference``: ``{"label",
+    "ids", "d" (k, 3)}`` drawn as black crosses on the bars (published values).  Bars: one group
+    per point id (in the order of first appearance), one bar per set."""
+    plt = _plt()
+    comps = [("XYZ".index(c), c) for c in components]
+    fig = plt.figure(figsize=(12.5, 1.2 + 2.1 * max(len(comps), 2)))
+    gs = fig.add_gridspec(len(comps), 2, width_ratios=[1, 1.35])
+    a = fig.add_subplot(gs[:, 0])
+    sets = [s for s in sets if len(s["ids"])]
+    all_xy = np.vstack([np.asarray(s["xy"], float).reshape(-1, 2) for s in sets]) if sets else np.zeros((0, 2))
+    all_d = np.vstack([np.asarray(s["d"], float).reshape(-1, 3)[:, :2] for s in sets]) if sets else np.zeros((0, 2))
+    ext = all_xy if background is None else np.vstack([all_xy, np.asarray(background, float).reshape(-1, 2)])
+    k = vector_scale(ext, all_d)
+    if background is not None and len(background):
+        bg = np.asarray(background, float)
+        a.plot(bg[:, 0], bg[:, 1], ".", color="#bbb", ms=3, zorder=0)
+    for s in sets:
+        xy, d = np.asarray(s["xy"], float).reshape(-1, 2), np.asarray(s["d"], float).reshape(-1, 3)
+        a.quiver(xy[:, 0], xy[:, 1], k * d[:, 0], k * d[:, 1], angles="xy", scale_units="xy", scale=1,
+                 color=s["color"], width=0.005, label=s["label"])
+        a.plot(xy[:, 0], xy[:, 1], "o", ms=3, color=s["color"])
+        fin = np.isfinite(d[:, :2]).all(axis=1)
+        a.update_datalim(xy[fin] + k * d[fin, :2])          # the arrow heads inside the axes
+        for p, (x, y) in zip(s["ids"], xy):
+            a.annotate(str(p), (x, y), fontsize=7, xytext=(3, 3), textcoords="offset points")
+    a.autoscale_view()
+    a.set_aspect("equal", adjustable="datalim")
+    a.ticklabel_format(useOffset=False, style="plain")
+    a.set_xlabel(f"X ({unit})")
+    a.set_ylabel(f"Y ({unit})")
+    a.set_title(f"plan: vectors × {k:.3g}", fontsize=10)
+    if sets:
+        a.legend(fontsize=8, loc="best")
+    ids = []
+    for s in sets:
+        ids += [str(i) for i in s["ids"] if str(i) not in ids]
+    pos = {i: n for n, i in enumerate(ids)}
+    members = {i: [n for n, s in enumerate(sets) if i in {str(j) for j in s["ids"]}] for i in ids}
+    width = 0.8 / max(max((len(m) for m in members.values()), default=1), 1)
+    axes = []
+    for row, (c, name) in enumerate(comps):
+        b = fig.add_subplot(gs[row, 1], sharex=axes[0] if axes else None)
+        axes.append(b)
+        for n, s in enumerate(sets):
+            d = np.asarray(s["d"], float).reshape(-1, 3)
+            x = np.array([pos[str(i)] + (members[str(i)].index(n) - (len(members[str(i)]) - 1) / 2) * width
+                          for i in s["ids"]], float)     # a point's bars side by side, centred on its tick
+            sg = None if s.get("sigma") is None else np.asarray(s["sigma"], float).reshape(-1, 3)[:, c]
+            b.bar(x, d[:, c], width=width, color=s["color"], yerr=sg, ecolor="#333", capsize=2,
+                  error_kw={"lw": 0.8}, label=s["label"] + (" ± 1σ" if sg is not None else ""))
+        if reference is not None and len(reference["ids"]):
+            rd = np.asarray(reference["d"], float).reshape(-1, 3)
+            rx = [pos.get(str(i)) for i in reference["ids"]]
+            keep = [j for j, x in enumerate(rx) if x is not None]
+            b.plot([rx[j] for j in keep], rd[keep, c], "x", color="k", ms=7, mew=1.5, label=reference["label"])
+        b.axhline(0, color="k", lw=0.7)
+        b.set_ylabel(f"d{name} ({unit})")
+        if row == 0:
+            b.set_title(title, fontsize=10)
+            b.legend(fontsize=7, loc="best")
+    if axes:
+        axes[-1].set_xticks(np.arange(len(ids)), ids, fontsize=7, rotation=90 if len(ids) > 12 else 0)
+        for b in axes[:-1]:
+            b.tick_params(labelbottom=False)
+        axes[-1].set_xlabel("point")
+    fig.tight_layout()
+    return fig
+
+
+def sigma_dots(ax, names, values, band: float = 1.0, label: str = "", color="#1f4e9c", offset: float = 0.0,
+               marker="o", positions=None):
+    """Differences in units of σ per named quantity as dots over the tick labels ``names``, with a
+    shaded ±``band`` σ band; ``positions`` (default 0, 1, …) place ``values`` at some of the ticks."""
+    x = (np.arange(len(names)) if positions is None else np.asarray(positions, float)) + offset
+    ax.axhspan(-band, band, color="#e8eef7", zorder=0)
+    ax.axhline(0, color="k", lw=0.7)
+    ax.plot(x, np.asarray(values, float), marker, ls="none", color=color, ms=6, label=label)
+    ax.set_xticks(np.arange(len(names)), [str(n) for n in names], fontsize=8)
+    ax.set_xlim(-0.6, len(names) - 0.4)
+    return ax

@@ -129,6 +129,12 @@ class PycolmapCrossCheck(Stage):
         return StageResult(artefacts={"crosscheck": cc}, summary=summary, report=report, tables=_tables(cc, result),
                            data={"cc": cc, "result": result, "arrow_scale": options.arrow_scale})
 
+    def plots(self, result: StageResult, ctx: Context) -> dict:
+        """Figures for report.html: differences in σ, the final costs, the residual distributions."""
+        from .figures import crosscheck_figures
+
+        return crosscheck_figures(result.data["cc"], result.data["result"], result.tables)
+
     def log(self, result: StageResult, rec, ctx: Context) -> None:
         log_crosscheck(rec, result.data["cc"], result.data["result"], result.data["arrow_scale"], result.report)
 

@@ -184,8 +184,20 @@ class DbatReport(Stage):
             report += "\n\n" + _camera_comparison(earlier, q)
             summary["camera_vs_earlier"] = {k: (q["camera"][k][0] - earlier["camera"][k][0]) for k in q["camera"]
                                             if k in earlier["camera"]}
+        meta = res.block_in.meta.get("dbat", {})
         return StageResult(artefacts={"dbat_report": q}, summary=summary, report=report,
-                           tables=_quality_tables(q))
+                           tables=_quality_tables(q),
+                           data={"quality": q, "earlier": earlier, "rho_high": options.rho_high,
+                                 "script": meta.get("script"),
+                                 "marks": sum(int(m["count"]) for m in meta.get("marks", [])) or None})
+
+    def plots(self, result: StageResult, ctx: Context) -> dict:
+        """Figures for report.html: the camera against DBAT's published report and an earlier
+        dbat-report, its correlations, control and check differences, rays and angles."""
+        from .figures import report_figures
+
+        d = result.data
+        return report_figures(d["quality"], d["script"], d["marks"], d["earlier"], d["rho_high"])
 
 
 def _quality(res) -> dict:
@@ -386,4 +398,12 @@ class DbatMarks(Stage):
                            "du_px": d["duv"][:, 0], "dv_px": d["duv"][:, 1]},
                           "paired marks and image points: differences in pixels (block − marks)")
         return StageResult(artefacts={"dbat_marks_comparison": cmp}, summary=summary, report=report,
-                           tables={"pairs": table})
+                           tables={"pairs": table}, data={"radius_px": options.match_radius_px})
+
+    def plots(self, result: StageResult, ctx: Context) -> dict:
+        """Figure for report.html: the pairs' differences as vectors, histograms and scatter."""
+        from .figures import marks_figure
+
+        return {"differences": (marks_figure(result.artefacts["dbat_marks_comparison"], result.data["radius_px"]),
+                                "Image points of the block − the script's marks (pixels, x right, y down): vectors "
+                                "over the image (all photos), histograms with the bias, du against dv")}
