@@ -325,6 +325,7 @@ class BundleAdjustment:
                 decision[flagged_obs] = "flagged"
             decision[np.unique(np.flatnonzero(rejected_rows) // 2)] = "rejected"
         extras.update(bundle_external.compute(res, options, ctx))
+        extras["gnss"] = _gnss(res, options) if snap is not None and len(res.block_in.gnss) else None
         res.extras = extras
         out_block = res.block
         if robust is not None:   # the robust weights are the estimator's, not the block's a-priori σ
@@ -339,13 +340,13 @@ class BundleAdjustment:
                                                          linearise=bundle_external.linearisation(res))
         else:
             artefacts["adjustment"] = None
-        return StageResult(
-            artefacts=artefacts,
-            summary=(summary := _summary(res, extras, options)),
-            report=_report(res, extras, options, block, summary.get("protocol")),
-            tables=_tables(res, extras, decision, block),
-            data={"result": res, "decision": decision, "options": options, "extras": extras},
-        )
+        summary, tables = _summary(res, extras, options), _tables(res, extras, decision, block)
+        report = _report(res, extras, options, block, summary.get("protocol"))
+        if extras["gnss"] is not None:          # the GNSS antennas' section, table and summary entry
+            summary["gnss"], tables["gnss"] = extras["gnss"]["summary"], extras["gnss"]["table"]
+            report += "\n\n" + "\n".join(extras["gnss"]["lines"])
+        return StageResult(artefacts=artefacts, summary=summary, report=report, tables=tables,
+                           data={"result": res, "decision": decision, "options": options, "extras": extras})
 
     def plots(self, result: StageResult, ctx: Context) -> dict:
         """Figures for report.html (drawn by the engine; see plugins/bundle/figures.py)."""
@@ -865,3 +866,49 @@ def _tables(res: BundleResult, extras, decision, block) -> dict:
                                       "vᵀPv, damping and largest correction (in σ of an observation) per iteration")
     tables.update(bundle_external.tables(extras))
     return tables
+
+
+def _gnss(res: BundleResult, o) -> dict | None:
+    """The GNSS antennas as observations of the bundle (``block.gnss``): per photo the residuals
+    ``v = X_antenna − (X0 + Rᵀ e)`` (object units; E N U in a CRS's local frame, else X Y Z), a-priori σ,
+    redundancy numbers, w-tests and MDBs (:func:`baarda.pipeline.adjustment.global_rows`, the
+    statistics library's data snooping at the stage's α0, β0); the report section, table and summary."""
+    from baarda.pipeline.adjustment import global_rows
+
+    gs = global_rows(res).get("gnss")
+    if gs is None:
+        return None
+    blk = res.block_in
+    ds = stats.data_snooping(gs.snapshot, alpha0=o.alpha0, beta0=o.beta0)
+    G = len(gs.index)
+    w, mdb = ds.w.reshape(G, 3), ds.mdb.reshape(G, 3)
+    flagged = ds.flagged.reshape(G, 3).any(axis=1)
+    ax = ("E", "N", "U") if isinstance(blk.meta, dict) and blk.meta.get("crs") else ("X", "Y", "Z")
+    ids = blk.photos.ids[blk.gnss.photo[gs.index]].astype(str).tolist()
+    u = blk.object_unit
+    cols = {"photo": ids}
+    for name, arr in (("v", gs.v), ("s", gs.sigma), ("r", gs.r), ("w", w), ("mdb", mdb)):
+        cols.update({f"{name}{a}": arr[:, t] for t, a in enumerate(ax)})
+    cols["flagged"] = flagged
+    rms = np.sqrt(np.mean(gs.v ** 2, axis=0))
+    om = float(np.sum(gs.snapshot.Pv * gs.snapshot.v))
+    rsum = float(gs.r.sum())
+    lines = ["### GNSS antennas", "",
+             f"{G} antenna positions observed: `X_antenna + v = X0 + R_cam_from_worldᵀ · e` (lever arm e in the "
+             f"camera frame). Residuals ({u}): RMS {ax[0]} {rms[0]:.4g}, {ax[1]} {rms[1]:.4g}, {ax[2]} {rms[2]:.4g}; "
+             f"their share of vᵀPv {om:.4g} on redundancy {rsum:.4g} (Ω/r = {om / rsum if rsum > 0 else float('nan'):.3g}"
+             f"); w-test critical value {ds.critical:.3g}: {int(flagged.sum())} antenna(s) flagged.", ""]
+    order = np.argsort(-np.abs(w).max(axis=1))
+    show = order[:min(G, 15)]
+    head = ["photo"] + [f"v{a}" for a in ax] + [f"r{a}" for a in ax] + [f"w{a}" for a in ax] + ["flagged"]
+    from baarda.pipeline.report import markdown_table
+
+    lines.append(("Largest |w| first" + (f" ({len(show)} of {G})" if len(show) < G else "") + ":"))
+    lines += ["", markdown_table(head, [[ids[g]] + [f"{x:.4f}" for x in gs.v[g]] + [f"{x:.3f}" for x in gs.r[g]]
+                                        + [f"{x:.2f}" for x in w[g]] + ["yes" if flagged[g] else ""] for g in show])]
+    summary = {"antennas": G, "rms": rms.tolist(), "axes": list(ax), "unit": u, "omega": om, "redundancy": rsum,
+               "critical": float(ds.critical), "flagged": int(flagged.sum()),
+               "flagged_photos": [ids[g] for g in np.flatnonzero(flagged)]}
+    table = TableData(cols, f"GNSS antenna residuals v = observed − computed ({u}), a-priori σ, redundancy numbers, "
+                            "w-tests and MDBs per photo")
+    return {"summary": summary, "lines": lines, "table": table}

@@ -3,8 +3,8 @@
 * :func:`gcp_block` — an ODM ``gcp_list.txt`` (already parsed) and a known camera as a block in the
   local frame: photos by name (orientation unknown), the targets as control (or check) points,
   their pixel measurements converted to mm.
-* :func:`apply_gnss` — GNSS antenna positions as weighted projection-centre constraints
-  (``Photos.sigma_eo``), reduced by a per-camera lever arm with the photos' current attitude.
+* :func:`apply_gnss` — GNSS antenna positions with a per-camera lever arm as observations of the
+  bundle (``Block.gnss``; the bundle adjusts ``X_antenna + v = X0 + R_cam_from_worldᵀ · e``).
 
 Conventions: ``docs/conventions.md`` (pixels ↔ mm, rotations), ``docs/crs.md``.
 """
@@ -17,7 +17,7 @@ import numpy as np
 
 from baarda.pipeline.errors import InputError
 from baarda.pipeline.geometry import mm_from_pixels, rotation_from_opk_many
-from baarda.pipeline.model import FREE, Block, Cameras, Observations, Photos, Points
+from baarda.pipeline.model import FREE, Block, Cameras, Gnss, Observations, Photos, Points
 
 
 @dataclass(frozen=True)
@@ -112,44 +112,49 @@ def gcp_block(gcp, camera: CameraSpec, frame, *, sigma_px: float = 1.0, sigma_co
 
 
 def apply_gnss(block: Block, photo_ids, X_antenna, sigma, *, lever_arm=None, opk_default=None) -> tuple[Block, dict]:
-    """``block`` with GNSS-observed projection centres as weighted constraints.
+    """``block`` with GNSS antenna observations of the photos ``photo_ids`` (``block.gnss``).
 
-    ``X_antenna (m, 3)`` antenna positions in the block's object system and unit, ``sigma (m, 3)``
-    their standard deviations; ``lever_arm`` ``{camera id: (3,)}`` the antenna in the camera frame
-    (x right, y up, z back out of the lens; object unit).  The constraint is on
-    ``X0 = X_antenna − R_cam_from_worldᵀ · lever_arm`` with the photo's current ω φ κ (so a
-    non-zero lever arm needs an attitude: from ``opk_default`` for photos that have none, or from
-    an earlier adjustment — run the bundle, this stage, the bundle again; ``docs/crs.md``).
-    Photos not named keep what they had; a photo id the block lacks is an error.
+    ``X_antenna (g, 3)`` antenna positions in the block's object system and unit, ``sigma (g, 3)``
+    their standard deviations (or ``(g, 3, 3)`` covariances); ``lever_arm`` ``{camera id: (3,)}``
+    the antenna in the camera frame (x right, y up, z back out of the lens; object unit).  The
+    bundle adjusts ``X_antenna + v = X0 + R_cam_from_worldᵀ · lever_arm`` as an observation of the
+    photo's orientation (``docs/bundle.md``): no reduction with a fixed attitude here.
+
+    Initial values only: a photo without an attitude gets ``opk_default`` (e.g. nadir), and a photo
+    without a projection centre but with an attitude gets ``X0 = X_antenna − Rᵀ · lever_arm`` — so
+    it needs no resection.  Earlier antenna observations of other photos are kept; a photo named
+    again is replaced.  Photo ids the block lacks are skipped (``info["unknown_photos"]``).
     """
     ph = block.photos
     idx = {p: k for k, p in enumerate(ph.ids.tolist())}
+    keep = [k for k, p in enumerate(photo_ids) if p in idx]
     missing = [p for p in photo_ids if p not in idx]
-    rows = np.array([idx[p] for p in photo_ids if p in idx], int)
+    rows = np.array([idx[photo_ids[k]] for k in keep], int)
+    Xa = np.asarray(X_antenna, float)[keep].reshape(-1, 3)
+    sig = np.asarray(sigma, float)[keep]
+    cams = list(block.cameras.ids)
+    arms = np.zeros((len(ph), 3))
+    for cid, a in (lever_arm or {}).items():
+        arms[ph.camera == cams.index(cid)] = np.asarray(a, float)
+    arm = arms[rows]
     X0 = np.array(ph.X0, float)
     opk = np.array(ph.opk, float)
-    se = np.array(ph.sigma_eo, float)
     if opk_default is not None:
         no_att = ~np.isfinite(opk[rows]).all(axis=1)
         opk[rows[no_att]] = np.asarray(opk_default, float)
-    arms = np.zeros((len(ph), 3))
-    for cid, a in (lever_arm or {}).items():
-        cams = ph.camera == list(block.cameras.ids).index(cid)
-        arms[cams] = np.asarray(a, float)
-    Xa = np.asarray(X_antenna, float)[[k for k, p in enumerate(photo_ids) if p in idx]]
-    arm = arms[rows]
-    needs = np.abs(arm).sum(axis=1) > 0
-    if needs.any() and not np.isfinite(opk[rows[needs]]).all():
-        k = rows[needs][~np.isfinite(opk[rows[needs]]).all(axis=1)][0]
-        raise InputError(f"photo {ph.ids[k]!r} has a lever arm but no attitude (ω φ κ): give opk_deg, or run a "
-                         "bundle before this stage", field="lever_arm")
-    offset = np.zeros_like(Xa)
-    if needs.any():
-        R = rotation_from_opk_many(opk[rows[needs]])
-        offset[needs] = np.einsum("kji,kj->ki", R, arm[needs])     # R_cam_from_worldᵀ · a
-    X0[rows] = Xa - offset
-    se[rows, :3] = np.asarray(sigma, float)[[k for k, p in enumerate(photo_ids) if p in idx]]
-    out = block.replace(photos=ph.replace(X0=X0, opk=opk, sigma_eo=se))
+    start = ~np.isfinite(X0[rows]).all(axis=1) & np.isfinite(opk[rows]).all(axis=1)
+    if start.any():
+        R = rotation_from_opk_many(opk[rows[start]])
+        X0[rows[start]] = Xa[start] - np.einsum("kji,kj->ki", R, arm[start])      # X_antenna − Rᵀ e
+    new = Gnss.make(rows, Xa, sigma=sig if sig.ndim == 2 else None, cov=sig if sig.ndim == 3 else None, lever_arm=arm)
+    old = block.gnss
+    if len(old):
+        stay = ~np.isin(old.photo, rows)
+        new = Gnss(photo=np.r_[old.photo[stay], new.photo], XYZ=np.vstack([old.XYZ[stay], new.XYZ]),
+                   cov=np.concatenate([old.cov[stay], new.cov]), lever_arm=np.vstack([old.lever_arm[stay], new.lever_arm]))
+    out = block.replace(photos=ph.replace(X0=X0, opk=opk), gnss=new)
     info = {"photos_with_gnss": int(len(rows)), "unknown_photos": missing,
-            "lever_arm_applied": int(needs.sum()), "max_offset": float(np.abs(offset).max()) if len(offset) else 0.0}
+            "lever_arm_nonzero": int((np.abs(arm).sum(axis=1) > 0).sum()),
+            "max_lever_arm": float(np.linalg.norm(arm, axis=1).max()) if len(arm) else 0.0,
+            "initial_centres": int(start.sum())}
     return out, info

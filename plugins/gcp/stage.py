@@ -1,5 +1,5 @@
 """Stages ``gcp-list`` (source: an ODM/OpenSfM ``gcp_list.txt`` with a known camera, no photos
-needed) and ``gnss-centres`` (GNSS-observed projection centres as weighted constraints).
+needed) and ``gnss-centres`` (GNSS antenna positions with a lever arm as observations of the bundle).
 
 Both read coordinates in a user CRS and work in the block's local east-north-up frame
 (:mod:`baarda.pipeline.crs`, ``docs/crs.md``).
@@ -186,8 +186,8 @@ class GnssOptions:
 
 
 class GnssCentres:
-    summary = "GNSS-observed projection centres (CSV, any CRS, lever arm per camera) as weighted constraints"
-    reads = ("block", "bundle?")
+    summary = "GNSS antenna positions per photo (CSV, any CRS, lever arm per camera) as observations of the bundle"
+    reads = ("block",)
     writes = ("block",)
     Options = GnssOptions
 
@@ -231,39 +231,22 @@ class GnssCentres:
                                opk_default=None if options.opk_deg is None else np.radians(options.opk_deg))
         if unknown:
             ctx.warn(f"{len(unknown)} GNSS row(s) for photos not in the block skipped")
-        info["neglected_max"] = _neglected_term(out, inputs.get("bundle"), arms)
-        if info["neglected_max"] is not None and info["neglected_max"] > 0.2 * float(np.min(sig * unit)):
-            ctx.warn(f"the lever arm times the attitude's σ reaches {info['neglected_max']:.3g} {out.object_unit}, more "
-                     "than a fifth of the GNSS σ: the reduction with a fixed attitude (docs/crs.md) is too coarse here")
         info["file"] = str(g.path)
         info["crs"] = crs
-        ph = out.photos
-        rows = [k for k, p in enumerate(ph.ids) if p in set(g.photo)]
-        neglected = ("" if info["neglected_max"] is None else
-                     f" The attitude's uncertainty, not carried into the constraint, moves the antenna by at most "
-                     f"{info['neglected_max']:.3g} {out.object_unit} (|lever arm| × σ of ω, φ, κ from the bundle).")
-        report = (f"{info['photos_with_gnss']} photos get GNSS projection centres from `{g.path.name}` "
+        gn = out.gnss
+        u = out.object_unit
+        arm_txt = ", ".join(f"camera `{k}` ({', '.join(f'{x:g}' for x in v)})" for k, v in options.lever_arm.items())
+        report = (f"{info['photos_with_gnss']} photos get GNSS antenna observations from `{g.path.name}` "
                   f"(CRS {crs!r}), σ E/N/h median {np.median(sig[:, 0]) * 1000:.0f}/{np.median(sig[:, 1]) * 1000:.0f}/"
-                  f"{np.median(sig[:, 2]) * 1000:.0f} mm; lever arm applied to {info['lever_arm_applied']} "
-                  f"(largest offset {info['max_offset']:.3f} {out.object_unit})." + neglected)
-        table = TableData({"photo": ph.ids[rows].tolist(), "X0": ph.X0[rows, 0], "Y0": ph.X0[rows, 1],
-                           "Z0": ph.X0[rows, 2], "sX0": ph.sigma_eo[rows, 0], "sY0": ph.sigma_eo[rows, 1],
-                           "sZ0": ph.sigma_eo[rows, 2]},
-                          f"projection-centre constraints in the block's frame ({out.object_unit})")
-        return StageResult(artefacts={"block": out}, summary=info, report=report, tables={"centres": table})
-
-
-def _neglected_term(block, bundle, arms) -> float | None:
-    """Largest |lever arm| · σ(angle) over the photos, with σ of ω φ κ from an earlier bundle of the
-    same photos (None without one or without a lever arm): what the fixed-attitude reduction ignores."""
-    if bundle is None or not arms or getattr(bundle, "cov_eo", None) is None:
-        return None
-    b = getattr(bundle, "block", None)
-    if b is None or not np.array_equal(b.photos.ids, block.photos.ids):
-        return None
-    cam_ids = list(block.cameras.ids)
-    length = np.zeros(len(block.photos))
-    for cid, a in arms.items():
-        length[block.photos.camera == cam_ids.index(cid)] = float(np.linalg.norm(a))
-    s_ang = np.sqrt(np.clip(np.einsum("kii->ki", np.asarray(bundle.cov_eo)[:, 3:, 3:]), 0, None)).max(axis=1)
-    return float(np.max(length * s_ang)) if len(length) else None
+                  f"{np.median(sig[:, 2]) * 1000:.0f} mm; lever arm (camera frame, m): "
+                  + (arm_txt or "none") + ". The bundle adjusts them as observations "
+                  "`X_antenna + v = X0 + R_cam_from_worldᵀ · e` of each photo's position and attitude "
+                  "(residuals, redundancy numbers and w-tests in its GNSS section; `docs/crs.md`)."
+                  + (f" {info['initial_centres']} photo(s) without a projection centre start from the antenna "
+                     "reduced with their attitude." if info["initial_centres"] else ""))
+        s3 = gn.sigma
+        table = TableData({"photo": out.photos.ids[gn.photo].tolist(), "X": gn.XYZ[:, 0], "Y": gn.XYZ[:, 1],
+                           "Z": gn.XYZ[:, 2], "sX": s3[:, 0], "sY": s3[:, 1], "sZ": s3[:, 2],
+                           "arm_x": gn.lever_arm[:, 0], "arm_y": gn.lever_arm[:, 1], "arm_z": gn.lever_arm[:, 2]},
+                          f"GNSS antenna observations in the block's frame and lever arms in the camera frame ({u})")
+        return StageResult(artefacts={"block": out}, summary=info, report=report, tables={"antennas": table})

@@ -1,9 +1,11 @@
-"""GNSS projection centres on a simulated aerial block (pipeline.synthetic.simulate_aerial), against truth.
+"""GNSS antenna positions (``gnss-centres``) on a simulated aerial block (pipeline.synthetic.simulate_aerial),
+against truth.
 
 The block is placed in UTM 22S (a local frame at 49.4° W, 25.6° S); GNSS antenna positions are the
 true centres plus a lever arm rotated by the true attitude plus 5 cm noise, written as a CSV in
-EPSG:32722.  Only the four corner control points are kept.  The adjusted centres and points must
-agree with truth within their predicted σ (normalised errors: mean square near 1, none beyond 4.5).
+EPSG:32722.  Only the four corner control points are kept.  The stage puts the antennas into the
+block as observations; one bundle adjusts them with the lever arm.  The adjusted centres and points
+must agree with truth within their predicted σ (normalised errors ``dᵀ C⁻¹ d`` ~ χ²(3)).
 """
 
 from __future__ import annotations
@@ -61,37 +63,74 @@ def test_gnss_centres_with_lever_arm_against_truth(tmp_path):
     noisy, exact, frame, rng = _scene()
     csv = _gnss_csv(tmp_path, exact, frame, rng)
     opts = {"path": str(csv), "lever_arm": {"cam": ARM.tolist()}, "opk_deg": [0.0, 0.0, 0.0]}
-    # pass 1: attitude from opk_deg (nadir) for the lever arm; pass 2: from the adjusted attitude
-    blk = run_stage(GnssCentres, {"block": noisy}, opts, tmp_path=tmp_path).artefacts["block"]
+    # one pass: the antennas are observations of the bundle (no reduction with a fixed attitude)
+    out = run_stage(GnssCentres, {"block": noisy}, opts, tmp_path=tmp_path)
+    blk = out.artefacts["block"]
+    gn = blk.gnss
+    assert len(gn) == len(blk.photos) and np.allclose(gn.lever_arm, ARM) and np.allclose(gn.sigma, 0.05)
+    # the antennas in the local frame: truth + Rᵀ·arm + noise (UTM → local round trip)
+    R = rotation_from_opk_many(exact.photos.opk)
+    assert np.abs(gn.XYZ - exact.photos.X0 - np.einsum("kji,j->ki", R, ARM)).max() < 0.25
+    # initial values only: the photos start at the antennas reduced with the nadir attitude
+    assert np.allclose(blk.photos.opk, 0.0) and np.isinf(blk.photos.sigma_eo).all()
+    assert out.summary["initial_centres"] == len(blk.photos) and not out.warnings
+    assert "antennas" in out.tables
     res = adjust(blk, BundleSettings())
-    second = run_stage(GnssCentres, {"block": res.block, "bundle": res}, opts, tmp_path=tmp_path)
-    blk2 = second.artefacts["block"]
-    # the neglected term |a|·σ_angle is reported: sub-millimetre here, no warning
-    assert 0 < second.summary["neglected_max"] < 1e-3 and not second.warnings
-    res2 = adjust(blk2, BundleSettings())
-    # the prior is the antenna position reduced with the adjusted attitude: its error is |ARM|·Δangle
     ok_pts = exact.points.role == "tie"
-    q_pts = _normalised(res2.block.points.XYZ[ok_pts], exact.points.XYZ[ok_pts], res2.cov_points[ok_pts])
-    q_ph = _normalised(res2.block.photos.X0, exact.photos.X0, res2.cov_eo[:, :3, :3])
+    q_pts = _normalised(res.block.points.XYZ[ok_pts], exact.points.XYZ[ok_pts], res.cov_points[ok_pts])
+    q_ph = _normalised(res.block.photos.X0, exact.photos.X0, res.cov_eo[:, :3, :3])
     # χ²(3) per point: mean 3, 99.99 % quantile 21.1.  The errors of one block are correlated (one
-    # datum), so one realisation's mean scatters (1.3-5.5 over seeds 0-25; the Monte Carlo test below
-    # averages 20 blocks)
+    # datum), so one realisation's mean scatters (the Monte Carlo test below averages 20 blocks)
     assert 1.2 < q_pts.mean() < 5.0, q_pts.mean()
     assert q_pts.max() < 30.0
     assert 1.0 < q_ph.mean() < 5.0, q_ph.mean()
     assert q_ph.max() < 30.0
-    # without the lever arm correction the centres are off by |ARM| ≈ 29 cm: far outside their σ
+    # without the lever arm the centres are off by |ARM| ≈ 29 cm: far outside their σ
     blk_bad = run_stage(GnssCentres, {"block": noisy}, {"path": str(csv), "opk_deg": [0, 0, 0]},
                         tmp_path=tmp_path).artefacts["block"]
     bad = adjust(blk_bad, BundleSettings())
     q_bad = _normalised(bad.block.photos.X0, exact.photos.X0, bad.cov_eo[:, :3, :3])
     assert q_bad.mean() > 10 * q_ph.mean()
-    # the GNSS centres carry the datum: adjusted centres within a few cm of truth
-    err = np.linalg.norm(res2.block.photos.X0 - exact.photos.X0, axis=1)
+    # the GNSS antennas carry the datum: adjusted centres within a few cm of truth
+    err = np.linalg.norm(res.block.photos.X0 - exact.photos.X0, axis=1)
     print(f"GNSS test: centres RMS error {np.sqrt(np.mean(err ** 2)) * 1000:.1f} mm, "
           f"mean q points {q_pts.mean():.2f} (χ²(3): 3), mean q centres {q_ph.mean():.2f}, "
           f"without lever arm {q_bad.mean():.1f}")
     assert np.sqrt(np.mean(err ** 2)) < 0.05
+    # a second gnss-centres stage replaces the antennas of the photos it names and keeps the others
+    two = run_stage(GnssCentres, {"block": res.block}, opts, tmp_path=tmp_path).artefacts["block"]
+    assert len(two.gnss) == len(gn) and two.summary()["gnss_antennas"] == len(gn)
+    assert np.array_equal(two.photos.X0, res.block.photos.X0)     # adjusted centres are not replaced
+
+
+def test_bundle_stage_reports_the_antennas(tmp_path):
+    """The bundle stage's GNSS section and table: per photo the antenna residuals, r, w; a 1 m
+    blunder on one antenna height is flagged."""
+    from baarda.plugins.bundle.stage import BundleAdjustment
+
+    noisy, exact, frame, rng = _scene(5)
+    csv = _gnss_csv(tmp_path, exact, frame, rng)
+    text = csv.read_text().splitlines()
+    e, n, h, s = text[2 + 7].split(",")[1:]
+    text[2 + 7] = ",".join([text[2 + 7].split(",")[0], e, n, f"{float(h) + 1.0:.4f}", s])
+    csv.write_text("\n".join(text) + "\n")
+    opts = {"path": str(csv), "lever_arm": {"cam": ARM.tolist()}, "opk_deg": [0.0, 0.0, 0.0]}
+    blk = run_stage(GnssCentres, {"block": noisy}, opts, tmp_path=tmp_path).artefacts["block"]
+    out = run_stage(BundleAdjustment, {"block": blk}, {}, tmp_path=tmp_path)
+    tab = out.tables["gnss"].columns
+    assert list(tab["photo"]) == blk.photos.ids.tolist()
+    res = out.artefacts["bundle"]
+    from baarda.pipeline.adjustment import group_parts, image_group_labels
+
+    parts = {p["name"]: p for p in group_parts(res, image_group_labels(res.block_in, "all"))}
+    assert set(parts) == {"image", "control", "GNSS"}
+    assert sum(p["redundancy"] for p in parts.values()) == pytest.approx(res.dof, rel=1e-9)
+    assert np.sum(tab["rE"]) + np.sum(tab["rN"]) + np.sum(tab["rU"]) == pytest.approx(parts["GNSS"]["redundancy"])
+    flagged = [p for p, f in zip(tab["photo"], tab["flagged"]) if f]
+    assert flagged == [blk.photos.ids[7]]
+    assert abs(tab["wU"][7]) > 10
+    assert "### GNSS antennas" in out.report and f"| {blk.photos.ids[7]} |" in out.report
+    assert out.summary["gnss"]["antennas"] == len(blk.photos) and out.summary["gnss"]["flagged"] == 1
 
 
 @pytest.mark.slow
@@ -104,8 +143,6 @@ def test_gnss_predicted_precision_monte_carlo(tmp_path):
         csv = _gnss_csv(tmp_path, exact, frame, rng)
         opts = {"path": str(csv), "lever_arm": {"cam": ARM.tolist()}, "opk_deg": [0.0, 0.0, 0.0]}
         blk = run_stage(GnssCentres, {"block": noisy}, opts, tmp_path=tmp_path).artefacts["block"]
-        blk = run_stage(GnssCentres, {"block": adjust(blk, BundleSettings()).block}, opts,
-                        tmp_path=tmp_path).artefacts["block"]
         res = adjust(blk, BundleSettings())
         tie = exact.points.role == "tie"
         qp.append(_normalised(res.block.points.XYZ[tie], exact.points.XYZ[tie], res.cov_points[tie]).mean())
