@@ -20,6 +20,7 @@ import numpy as np
 from baarda.pipeline.geometry.rotations import rotation_and_derivatives, rotation_from_opk_many
 
 from ..camera import get_ap_model
+from . import kernels
 
 __all__ = ["Projection", "Projector", "project_observations", "IOP_NAMES", "EO_NAMES"]
 
@@ -117,19 +118,10 @@ class Projector:
         opk = np.asarray(opk, float)
         if R is None:
             R = rotation_from_opk_many(opk)
-        ph = self.obs_photo
-        D = XYZ[self.obs_point] - X0[ph]                  # (k, 3)
-        d = bmv(R[ph], D)
-        U, V, W = d[:, 0], d[:, 1], d[:, 2]
+        d, xbar, xy = kernels.project(XYZ, X0, R, self.obs_point, self.obs_photo, self.cam, cam_params)
+        W = d[:, 2]
         cp = cam_params[self.cam]
         c = cp[:, 0]
-        f = -c / W
-        xy = np.empty((self.k, 2))
-        xbar = np.empty((self.k, 2))
-        np.multiply(f, U, out=xbar[:, 0])
-        np.multiply(f, V, out=xbar[:, 1])
-        np.add(cp[:, 1], xbar[:, 0], out=xy[:, 0])
-        np.add(cp[:, 2], xbar[:, 1], out=xy[:, 1])
         for model, sel, meta in self.groups:
             p = model.n_params
             if sel is None:
@@ -150,7 +142,7 @@ class Projector:
         cols = np.arange(ptot) if self.cam_cols is None else self.cam_cols
         if dR is None:
             _, dR = rotation_and_derivatives(pr._opk)
-        d, c, W = pr._d, pr._c, pr.W
+        d, c = pr._d, pr._c
         xb, yb = pr.xbar[:, 0], pr.xbar[:, 1]
         # the model's image derivative D = ∂Δ/∂(x̄, ȳ) (Jxy = I + D), ∂Δ/∂ap and ∂Δ/∂c
         ap_cols = cols[cols >= 3] - 3
@@ -176,41 +168,16 @@ class Projector:
                     J_cam[:, :, pos] = Jp
                 else:
                     J_cam[np.ix_(sel, [0, 1], pos)] = Jp
-        # ∂(x̄, ȳ)/∂d = f [[1, 0, −U/W], [0, 1, −V/W]], f = −c/W; JG = (I + D) ∂(x̄, ȳ)/∂d
-        f = -c / W
-        u = d[:, 0] / W
-        v = d[:, 1] / W
-        JG = np.empty((k, 2, 3))
-        if Jxy is None:
-            JG[:, 0, 0] = f
-            JG[:, 0, 1] = 0.0
-            JG[:, 0, 2] = -f * u
-            JG[:, 1, 0] = 0.0
-            JG[:, 1, 1] = f
-            JG[:, 1, 2] = -f * v
-        else:
-            Jxy[:, 0, 0] += 1.0
-            Jxy[:, 1, 1] += 1.0
-            np.multiply(Jxy[:, :, 0], f[:, None], out=JG[:, :, 0])
-            np.multiply(Jxy[:, :, 1], f[:, None], out=JG[:, :, 1])
-            JG[:, :, 2] = -(JG[:, :, 0] * u[:, None] + JG[:, :, 1] * v[:, None])
-        ph = self.obs_photo
-        J_point = bmm(JG, pr._R[ph])                      # ∂/∂X = JG R
-        # ∂d/∂angle = ∂R/∂angle (X − X0) = S_a d with S_a = ∂R/∂angle Rᵀ skew: s_a × d
+        # ∂(x̄, ȳ)/∂d = f [[1, 0, −U/W], [0, 1, −V/W]], f = −c/W; JG = (I + D) ∂(x̄, ȳ)/∂d;
+        # ∂/∂X = JG R; ∂d/∂angle = ∂R/∂angle (X − X0) = S_a d with S_a = ∂R/∂angle Rᵀ skew (axial
+        # vector s_a): J_angle[:, i, a] = JG_i · (s_a × d) = s_a · (d × JG_i)
         S = np.einsum("maij,mkj->maik", dR, pr._R)        # (m, 3, 3, 3)
         sv = np.stack([S[:, :, 2, 1], S[:, :, 0, 2], S[:, :, 1, 0]], axis=2)   # (m, 3 angles, 3)
-        # J_angle[:, i, a] = JG_i · (s_a × d) = s_a · (d × JG_i)
-        h = np.cross(d[:, None, :], JG)                   # (k, 2, 3)
-        J_eo = np.empty((k, 2, 6))
-        J_eo[:, :, :3] = -J_point
-        J_eo[:, :, 3:] = bmm(h, np.transpose(sv[ph], (0, 2, 1)))
+        J_point, J_eo, J_c = kernels.eo_point_jacobians(d, pr.xbar, c, Jxy, pr._R, sv, self.obs_photo)
         # camera: ∂/∂c = (I + D)(x̄, ȳ)/c + the model's own ∂Δ/∂c; ∂/∂xp = (1, 0), ∂/∂yp = (0, 1)
         for j, t in enumerate(cols.tolist()):
             if t == 0:
-                if Jxy is None:
-                    J_cam[:, :, j] = pr.xbar / c[:, None]
-                else:
-                    J_cam[:, :, j] = bmv(Jxy, pr.xbar / c[:, None])
+                J_cam[:, :, j] = J_c
                 if Jc_model is not None:
                     J_cam[:, :, j] += Jc_model
             elif t == 1:

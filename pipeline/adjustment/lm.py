@@ -17,6 +17,7 @@ from baarda.pipeline.geometry import (opk_from_rotation_many, rotation_and_deriv
                                       similarity_motions)
 from baarda.pipeline.model import Block
 
+from . import kernels
 from .factor import solve_reduced
 from .problem import BundleProblem
 from .settings import BundleSettings, BundleState
@@ -255,12 +256,8 @@ def final_system(prob: BundleProblem, st: BundleState, proj=None):
 
 def _pred(prob, lin, dx, dp) -> np.ndarray:
     """Whitened change J̃Δ of every observation (k, 2)."""
-    xk = np.append(dx[:prob.n_g], 0.0)[prob.cidx]                          # (k, q)
-    pred = np.matmul(lin["Jc"], xk[:, :, None])[:, :, 0]
-    if prob.n_e:
-        pk = np.vstack([dp, np.zeros((1, 3))])[prob.pidx]
-        pred += np.matmul(lin["Jp"], pk[:, :, None])[:, :, 0]
-    return pred
+    return kernels.linear_change(lin["Jc"], prob.cidx, dx[:prob.n_g], lin["Jp"], prob.pidx,
+                                 dp if prob.n_e else None)
 
 
 def _linear_cost(prob, lin, pred, dx, dp) -> float:

@@ -16,6 +16,7 @@ import scipy.sparse as sp
 from baarda.pipeline.errors import AdjustmentError
 from baarda.pipeline.geometry import similarity_motions
 
+from . import kernels
 from .collinearity import bmm, bmv
 from .settings import BundleState
 
@@ -53,11 +54,7 @@ class NormalEquations:
         proj.J_cam = proj.J_eo = proj.J_point = None      # whitened copies above; recomputed if needed again
         U, g = self.gram_U(Jc, e)
         ng1 = self.n_g + 1
-        Vk = Jp[:, 0, :, None] * Jp[:, 0, None, :]
-        Vk += Jp[:, 1, :, None] * Jp[:, 1, None, :]
-        V = (self.obs_to_point @ Vk.reshape(k, 9))[:-1].reshape(-1, 3, 3)
-        Jpe = Jp[:, 0, :] * e[:, 0, None] + Jp[:, 1, :] * e[:, 1, None]
-        bp = (self.obs_to_point @ Jpe)[:-1]
+        V, bp = kernels.point_normals(Jp, e, self.pidx, self.n_e)
         # priors
         U = U + _triplets(self.prior_g_idx, self.prior_g_idx, self.prior_g_w, ng1, sparse=self.solver_route() == "sparse")
         np.add.at(g, self.prior_g_idx, self.prior_g_w * dg)
@@ -276,14 +273,14 @@ class NormalEquations:
             U = U + lam * (sp.diags(U.diagonal()) if sp.issparse(U) else np.diag(np.diag(U)))
             V = V + lam * np.einsum("pii->pi", V)[:, :, None] * np.eye(3)
         Li = _chol3_inv(V, self)                                   # (n_e, 3, 3) lower, L⁻¹ with V = L Lᵀ
-        Li1 = np.concatenate([Li, np.eye(3)[None]], axis=0)        # dummy point for global-point obs
         # B_k = W_k L⁻ᵀ = Jcᵀ (Jp L⁻ᵀ), held transposed: BkT (k, 3, q)
-        Jh = bmm(Jp, np.transpose(Li1[self.pidx], (0, 2, 1)))
-        BkT = Jh[:, 0, :, None] * Jc[:, 0, None, :]
-        BkT += Jh[:, 1, :, None] * Jc[:, 1, None, :]
+        BkT = kernels.schur_blocks(Jc, Jp, Li, self.pidx)
         Cg, Cp = self.constraint_rows(st)
         n_x = n_g + n_c
-        Bc = np.einsum("pac,pba->pcb", Cp, Li) if n_c else None   # (n_e, n_c, 3) = Cpᵀ L⁻ᵀ
+        if n_c:                                                     # (n_e, n_c, 3) = Cpᵀ L⁻ᵀ (Cp = 0 unless
+            Bc = np.einsum("pac,pba->pcb", Cp, Li) if self.datum_on_elim else np.zeros((n_e, n_c, 3))   # on points)
+        else:
+            Bc = None
         B = BMatrix(self, BkT, Bc, sparse=route == "sparse")
         z = bmv(Li, bp)                                             # L⁻¹ b_p
         rhs = np.concatenate([g, np.zeros(n_c)]) - (B.matvec(z) if n_e else 0.0)
@@ -484,22 +481,8 @@ def _chol3(V, prob):
 def _chol3_inv(V, prob):
     """``L⁻¹`` of ``V = L Lᵀ`` for every 3×3 block (closed form; LAPACK's error path when a block
     is not positive definite)."""
-    a00, a10, a11 = V[:, 0, 0], V[:, 1, 0], V[:, 1, 1]
-    a20, a21, a22 = V[:, 2, 0], V[:, 2, 1], V[:, 2, 2]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        l00 = np.sqrt(a00)
-        l10 = a10 / l00
-        l20 = a20 / l00
-        l11 = np.sqrt(a11 - l10 * l10)
-        l21 = (a21 - l20 * l10) / l11
-        l22 = np.sqrt(a22 - l20 * l20 - l21 * l21)
-        i00, i11, i22 = 1.0 / l00, 1.0 / l11, 1.0 / l22
-        Li = np.zeros_like(V)
-        Li[:, 0, 0], Li[:, 1, 1], Li[:, 2, 2] = i00, i11, i22
-        Li[:, 1, 0] = -l10 * i00 * i11
-        Li[:, 2, 1] = -l21 * i11 * i22
-        Li[:, 2, 0] = (l10 * l21 - l11 * l20) * i00 * i11 * i22
-    if not np.isfinite(Li).all():
+    Li, ok = kernels.chol3_inv(V)
+    if not ok:
         return np.linalg.inv(_chol3(V, prob))
     return Li
 
@@ -575,15 +558,11 @@ class BMatrix:
         pl = prob.pair_plan()
         gs, ge, oa, ob = pl["gs"], pl["ge"], pl["oa"], pl["ob"]
         S = np.empty((len(gs), q, q))
+        gs, ge = np.asarray(gs, np.intp), np.asarray(ge, np.intp)
 
-        def chunk(c):                                  # one BLAS product per photo pair (measured faster
-            g0, g1 = pl["chunks"][c]                   # than batched q×q products per observation pair:
-            p0, p1 = gs[g0], ge[g1 - 1]                # BAL 0.034 s against 0.24 s, 2 000 aerial photos
-            XA = X[oa[p0:p1]]                          # 0.13 s against 0.59 s)
-            XB = X[ob[p0:p1]]
-            for g in range(g0, g1):
-                a, b = gs[g] - p0, ge[g] - p0
-                np.matmul(XA[a:b].reshape(-1, q).T, XB[a:b].reshape(-1, q), out=S[g])
+        def chunk(c):                                  # a compiled loop over the observation pairs of
+            g0, g1 = pl["chunks"][c]                   # each photo pair (no gathered copies of X)
+            kernels.pair_products(X, oa, ob, gs, ge, g0, g1, S)
 
         parallel_for(len(pl["chunks"]), chunk, prob.settings.threads)
         return S, segment_sums(X, prob.seg_start, prob.seg_end, prob.settings.threads)
@@ -607,25 +586,19 @@ class BMatrix:
     def matvec(self, z):
         """``B z`` for z (n_e, 3)."""
         prob = self.prob
-        q = prob.q_ph
-        z1 = np.vstack([z.reshape(-1, 3), np.zeros((1, 3))])
-        y = np.matmul(z1[prob.pidx][:, None, :], self.BkT[:, :, :q])[:, 0, :]     # (k, q)
-        ys = np.add.reduceat(y, prob.seg_start, axis=0)                           # per photo
         out = np.zeros(self.n_x)
-        out[:prob.n_g] = np.bincount(prob.seg_cols.ravel(), ys.ravel(), minlength=prob.n_g + 1)[:-1]
-        if prob.n_c and prob.n_e:
+        out[:prob.n_g] = kernels.b_matvec(self.BkT, z.reshape(-1, 3), prob.pidx, prob.seg_start, prob.seg_end,
+                                          prob.seg_cols, prob.n_g)
+        if prob.datum_on_elim:                    # (else Bc = 0)
             out[prob.n_g:] = np.einsum("pca,pa->c", self.Bc, z.reshape(-1, 3))
         return out
 
     def rmatvec(self, x):
         """``Bᵀ x`` as (n_e, 3)."""
         prob = self.prob
-        q = prob.q_ph
-        xg = np.append(x[:prob.n_g], 0.0)[prob.seg_cols]                     # (n_seg, q)
-        xk = np.repeat(xg, prob.seg_len, axis=0)                              # (k, q)
-        y = np.matmul(self.BkT[:, :, :q], xk[:, :, None])[:, :, 0]           # (k, 3)
-        out = (prob.obs_to_point @ y)[:-1]
-        if prob.n_c and prob.n_e:
+        out = kernels.b_rmatvec(self.BkT, x[:prob.n_g], prob.pidx, prob.seg_start, prob.seg_end, prob.seg_cols,
+                                prob.n_e)
+        if prob.datum_on_elim:
             out += np.einsum("pca,c->pa", self.Bc, x[prob.n_g:])
         return out
 

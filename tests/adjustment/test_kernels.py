@@ -1,0 +1,178 @@
+"""The compiled per-observation kernels (``pipeline/adjustment/kernels.py``) against the numpy
+formulas they replace, written out here independently, on random data (with repeated points,
+observations of no eliminated point and fixed columns)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from baarda.pipeline.adjustment import kernels
+
+RNG_SEED = 20261125
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(RNG_SEED)
+
+
+def _rotations(rng, m):
+    Q = np.linalg.qr(rng.normal(size=(m, 3, 3)))[0]
+    return Q * np.sign(np.linalg.det(Q))[:, None, None]
+
+
+def test_project_is_the_collinearity_formula(rng):
+    k, m, n, K = 200, 5, 40, 2
+    XYZ = rng.normal(size=(n, 3)) * 10
+    X0 = rng.normal(size=(m, 3)) + [0, 0, 30]
+    R = _rotations(rng, m)
+    pt, ph, cam = rng.integers(0, n, k), rng.integers(0, m, k), rng.integers(0, K, k)
+    cp = rng.normal(size=(K, 6)) + [50, 0, 0, 0, 0, 0]
+    d, xbar, xy = kernels.project(XYZ, X0, R, pt, ph, cam, cp)
+    d_ref = np.einsum("kij,kj->ki", R[ph], XYZ[pt] - X0[ph])
+    xbar_ref = -cp[cam, 0, None] * d_ref[:, :2] / d_ref[:, 2:]
+    np.testing.assert_allclose(d, d_ref, rtol=1e-14, atol=1e-12)
+    np.testing.assert_allclose(xbar, xbar_ref, rtol=1e-13)
+    np.testing.assert_allclose(xy, cp[cam, 1:3] + xbar_ref, rtol=1e-13)
+
+
+@pytest.mark.parametrize("with_model", [False, True])
+def test_eo_point_jacobians_match_finite_differences(rng, with_model):
+    """J_point and the angle columns by central differences of d → x̄ (with a linear model
+    Δ = A x̄, whose ∂Δ/∂x̄ = A), and (I + A) x̄ / c for the principal distance."""
+    k, m = 30, 3
+    R = _rotations(rng, m)
+    X0 = rng.normal(size=(m, 3))
+    XYZ = rng.normal(size=(k, 3)) * 5 + [0, 0, -40]
+    ph = rng.integers(0, m, k)
+    c = rng.uniform(20, 60, k)
+    A = rng.normal(size=(k, 2, 2)) * 0.05 if with_model else None
+    sv = rng.normal(size=(m, 3, 3))                   # any axial vectors: ∂d/∂angle_a = s_a × d
+
+    def image(XYZ_, d_extra=None):
+        d = np.einsum("kij,kj->ki", R[ph], XYZ_ - X0[ph])
+        if d_extra is not None:
+            d = d + d_extra
+        xb = -c[:, None] * d[:, :2] / d[:, 2:]
+        return xb + (np.einsum("kij,kj->ki", A, xb) if with_model else 0.0)
+
+    d = np.einsum("kij,kj->ki", R[ph], XYZ - X0[ph])
+    xbar = -c[:, None] * d[:, :2] / d[:, 2:]
+    J_point, J_eo, J_c = kernels.eo_point_jacobians(d, xbar, c, A, R, sv, ph)
+    h = 1e-6
+    for j in range(3):
+        dX = np.zeros(3)
+        dX[j] = h
+        fd = (image(XYZ + dX) - image(XYZ - dX)) / (2 * h)
+        np.testing.assert_allclose(J_point[:, :, j], fd, rtol=1e-6, atol=1e-8)
+        np.testing.assert_array_equal(J_eo[:, :, j], -J_point[:, :, j])
+    for a in range(3):
+        step = np.cross(sv[ph, a], d) * h
+        fd = (image(XYZ, step) - image(XYZ, -step)) / (2 * h)
+        np.testing.assert_allclose(J_eo[:, :, 3 + a], fd, rtol=1e-6, atol=1e-8)
+    M = np.eye(2) + (A if with_model else 0.0)
+    np.testing.assert_allclose(J_c, np.einsum("kij,kj->ki", np.broadcast_to(M, (k, 2, 2)), xbar / c[:, None]),
+                               rtol=1e-14)
+
+
+def test_point_normals_sum_per_point(rng):
+    k, n_e = 300, 50
+    Jp, e = rng.normal(size=(k, 2, 3)), rng.normal(size=(k, 2))
+    pidx = rng.integers(0, n_e + 1, k)                # n_e: an observation of no eliminated point
+    V, bp = kernels.point_normals(Jp, e, pidx, n_e)
+    V_ref, bp_ref = np.zeros((n_e + 1, 3, 3)), np.zeros((n_e + 1, 3))
+    np.add.at(V_ref, pidx, np.einsum("kra,krb->kab", Jp, Jp))
+    np.add.at(bp_ref, pidx, np.einsum("kra,kr->ka", Jp, e))
+    np.testing.assert_allclose(V, V_ref[:-1], rtol=1e-13, atol=1e-13)
+    np.testing.assert_allclose(bp, bp_ref[:-1], rtol=1e-13, atol=1e-13)
+
+
+def test_chol3_inv_and_its_failure(rng):
+    A = rng.normal(size=(100, 3, 3))
+    V = A @ np.swapaxes(A, 1, 2) + 0.1 * np.eye(3)
+    Li, ok = kernels.chol3_inv(V)
+    assert ok
+    np.testing.assert_allclose(Li, np.linalg.inv(np.linalg.cholesky(V)), rtol=1e-10, atol=1e-12)
+    V[7] = np.diag([1.0, -1.0, 1.0])                  # not positive definite
+    assert kernels.chol3_inv(V)[1] is False
+
+
+def _dense_B(BkT, pidx, cols, n_g, n_e):
+    """B (n_g, 3 n_e) from the per-observation blocks (column n_g and point n_e dropped)."""
+    B = np.zeros((n_g + 1, 3 * (n_e + 1)))
+    for i in range(len(BkT)):
+        for a in range(3):
+            np.add.at(B[:, 3 * pidx[i] + a], cols[i], BkT[i, a, :cols.shape[1]])
+    return B[:n_g, :3 * n_e]
+
+
+def _segments(rng, k, n_seg, q, n_g):
+    cuts = np.sort(rng.choice(np.arange(1, k), n_seg - 1, replace=False))
+    start = np.r_[0, cuts]
+    end = np.r_[cuts, k]
+    seg_cols = rng.integers(0, n_g + 1, (n_seg, q))   # shared and fixed (n_g) columns
+    obs_cols = np.repeat(seg_cols, end - start, axis=0)
+    return start, end, seg_cols, obs_cols
+
+
+def test_schur_blocks_and_products_with_B(rng):
+    k, n_e, q, n_g, n_seg = 400, 60, 9, 50, 7
+    Jc, Jp = rng.normal(size=(k, 2, q)), rng.normal(size=(k, 2, 3))
+    A = rng.normal(size=(n_e, 3, 3))
+    Li = np.linalg.inv(np.linalg.cholesky(A @ np.swapaxes(A, 1, 2) + np.eye(3)))
+    pidx = rng.integers(0, n_e + 1, k)
+    BkT = kernels.schur_blocks(Jc, Jp, Li, pidx)
+    Li1 = np.concatenate([Li, np.eye(3)[None]])
+    ref = np.einsum("krb,kab,krj->kaj", Jp, Li1[pidx], Jc)          # (Jp L⁻ᵀ)ᵀ Jc
+    np.testing.assert_allclose(BkT, ref, rtol=1e-12, atol=1e-12)
+    start, end, seg_cols, obs_cols = _segments(rng, k, n_seg, q, n_g)
+    B = _dense_B(BkT, pidx, obs_cols, n_g, n_e)
+    z = rng.normal(size=(n_e, 3))
+    np.testing.assert_allclose(kernels.b_matvec(BkT, z, pidx, start, end, seg_cols, n_g), B @ z.ravel(),
+                               rtol=1e-12, atol=1e-12)
+    x = rng.normal(size=n_g)
+    np.testing.assert_allclose(kernels.b_rmatvec(BkT, x, pidx, start, end, seg_cols, n_e).ravel(), B.T @ x,
+                               rtol=1e-12, atol=1e-12)
+
+
+def test_pair_products(rng):
+    k, q = 120, 7
+    X = rng.normal(size=(k, 3, q))
+    oa, ob = rng.integers(0, k, 90), rng.integers(0, k, 90)
+    gs = np.array([0, 10, 10, 55])                    # one empty group
+    ge = np.array([10, 10, 55, 90])
+    S = np.full((4, q, q), np.nan)
+    kernels.pair_products(X, oa, ob, gs, ge, 1, 4, S)
+    assert np.isnan(S[0]).all()                       # outside g0 … g1 − 1: untouched
+    for g in range(1, 4):
+        ref = X[oa[gs[g]:ge[g]]].reshape(-1, q).T @ X[ob[gs[g]:ge[g]]].reshape(-1, q)
+        np.testing.assert_allclose(S[g], ref, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("points", [True, False])
+def test_linear_change(rng, points):
+    k, q, n_g, n_e = 200, 9, 40, 30
+    Jc, Jp = rng.normal(size=(k, 2, q)), rng.normal(size=(k, 2, 3))
+    cidx = rng.integers(0, n_g + 1, (k, q))
+    pidx = rng.integers(0, n_e + 1, k) if points else np.full(k, 0)
+    dx, dp = rng.normal(size=n_g), rng.normal(size=(n_e, 3))
+    got = kernels.linear_change(Jc, cidx, dx, Jp, pidx, dp if points else None)
+    ref = np.einsum("krj,kj->kr", Jc, np.append(dx, 0.0)[cidx])
+    if points:
+        ref += np.einsum("kra,ka->kr", Jp, np.vstack([dp, np.zeros((1, 3))])[pidx])
+    np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-12)
+
+
+def test_kernels_run_without_a_writable_cache(monkeypatch):
+    """No cache locator (a read-only install without a user cache): compiled without caching."""
+    from numba.core import caching
+
+    monkeypatch.setattr(caching.FunctionCache._impl_class, "_locator_classes", [])
+
+    def twice(a):
+        return 2.0 * a
+
+    f = kernels._jit(twice)
+    assert f(np.arange(3.0)).tolist() == [0.0, 2.0, 4.0]
+    assert f.compiled._cache.__class__.__name__ == "NullCache"
