@@ -112,6 +112,14 @@ def log_bundle(rec, res, decision, options, report: str, max_photos: int | None 
                             labels=[f"{m * 1000:.1f} µm" for m in mag]), static=True)
         rec.log(f"cameras/{_safe(block.cameras.ids[j])}/distortion_scale", rr.AnyValues(arrow_scale=dscale),
                 static=True)
+    gn = (res.extras or {}).get("gnss")
+    if gn is not None:         # GNSS antennas: observed positions, residual arrows computed → observed (scaled)
+        g_obs, g_v = gn["observed"], gn["v"]
+        g_rms = float(np.sqrt(np.mean(g_v ** 2)))
+        g_sc = 0.03 * float(np.ptp(st.X0[res.photo_used], axis=0).max()) / g_rms if g_rms > 0 else 1.0
+        rec.log("world/gnss/antennas", rr.Points3D(g_obs, labels=gn["photos"], radii=rr.Radius.ui_points(5.0)), static=True)
+        rec.log("world/gnss/residuals", rr.Arrows3D(origins=g_obs - g_v * g_sc, vectors=g_v * g_sc), static=True)
+        rec.log("world/gnss/arrow_scale", rr.AnyValues(arrow_scale=g_sc), static=True)
     rec.log("bundle/summary", rr.AnyValues(sigma0_hat=res.sigma0_hat, dof=res.dof, vtpv=res.vtpv,
                                            arrow_scale=scale, precision_scale=pscale,
                                            iterations=res.iterations), static=True)

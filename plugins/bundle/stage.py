@@ -911,4 +911,5 @@ def _gnss(res: BundleResult, o) -> dict | None:
                "flagged_photos": [ids[g] for g in np.flatnonzero(flagged)]}
     table = TableData(cols, f"GNSS antenna residuals v = observed − computed ({u}), a-priori σ, redundancy numbers, "
                             "w-tests and MDBs per photo")
-    return {"summary": summary, "lines": lines, "table": table}
+    return {"summary": summary, "lines": lines, "table": table, "photos": ids, "v": gs.v,
+            "observed": blk.gnss.XYZ[gs.index]}

@@ -131,6 +131,19 @@ def test_bundle_stage_reports_the_antennas(tmp_path):
     assert abs(tab["wU"][7]) > 10
     assert "### GNSS antennas" in out.report and f"| {blk.photos.ids[7]} |" in out.report
     assert out.summary["gnss"]["antennas"] == len(blk.photos) and out.summary["gnss"]["flagged"] == 1
+    # the recording: observed antennas and their residual arrows (computed → observed)
+    import rerun as rr
+
+    from baarda.pipeline.recording import read_recording
+    from baarda.plugins.bundle.rrlog import log_bundle
+
+    rec = rr.RecordingStream("gnss-test")
+    rec.save(str(tmp_path / "bundle.rrd"))
+    log_bundle(rec, res, out.data["decision"], out.data["options"], out.report)
+    rec.flush()
+    del rec
+    paths = {e.path for e in read_recording(tmp_path / "bundle.rrd").entities}
+    assert {"/world/gnss/antennas", "/world/gnss/residuals"} <= paths
 
 
 @pytest.mark.slow
