@@ -141,6 +141,15 @@ class IndependentModels(Stage):
                            data={"result": result, "stats": stats, "block": block,
                                  "arrow_scale": o.arrow_scale})
 
+    def plots(self, result: StageResult, ctx: Context) -> dict:
+        """Figures for report.html: check-point errors (beside an earlier bundle's), y-parallaxes,
+        model-point residuals (plugins/independent_models/figures.py)."""
+        from .figures import independent_model_figures
+
+        d = result.data
+        return independent_model_figures(d["result"], d["stats"], result.tables, d["block"].object_unit,
+                                         ctx.previous if ctx is not None else ())
+
     def log(self, result: StageResult, rec, ctx: Context) -> None:
         log_independent_models(rec, result.data["result"], result.data["stats"],
                                arrow_scale=result.data["arrow_scale"])

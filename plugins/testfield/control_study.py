@@ -318,6 +318,12 @@ class ControlStudy(Stage):
         return StageResult(artefacts={"study": study}, summary=summary, report=study_report(study),
                            tables=_tables(study), data=study)
 
+    def plots(self, result: StageResult, ctx: Context) -> dict:
+        """Figures for report.html: the study's curves beside the paper's tables (plugins/testfield/figures.py)."""
+        from .figures import control_study_figures
+
+        return control_study_figures(result.data)
+
     def log(self, result: StageResult, rec, ctx: Context) -> None:
         import rerun as rr
 

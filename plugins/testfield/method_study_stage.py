@@ -117,6 +117,12 @@ class MethodStudy(Stage):
         return StageResult(artefacts={"method-study": study}, summary=summary, report=study_report(study),
                            tables=_tables(study), data=study)
 
+    def plots(self, result: StageResult, ctx: Context) -> dict:
+        """Figures for report.html: the study's curves beside the paper's tables (plugins/testfield/figures.py)."""
+        from .figures import method_study_figures
+
+        return method_study_figures(result.data)
+
     def log(self, result: StageResult, rec, ctx: Context) -> None:
         import rerun as rr
 
