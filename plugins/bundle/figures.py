@@ -56,6 +56,7 @@ def residual_vectors(res, decision=None, images: dict | None = None):
     block = res.block_in
     obs, cams = block.observations, block.cameras
     unit, scale, _ = image_units(block)
+    g = scale if unit == "px" else 1.0          # format coordinates: px for a pixel source, else mm
     act = np.asarray(res.obs_active, bool)
     v = np.asarray(res.residuals, float)
     ss = np.bincount(obs.photo[act], weights=(v[act] ** 2).sum(axis=1), minlength=len(block.photos))
@@ -70,16 +71,17 @@ def residual_vectors(res, decision=None, images: dict | None = None):
     vmax = np.nanpercentile(np.hypot(v[act, 0], v[act, 1]), 95) if act.any() else 1.0
     for ax, p in zip(axes.ravel(), photos):
         j = block.photos.camera[p]
-        fw, fh = cams.format_mm[j]
+        fw, fh = np.asarray(cams.format_mm[j], float) * g
         m = act & (obs.photo == p)
-        xy = obs.xy[m]
+        xy = obs.xy[m] * g
         size = max(fw, fh) if fw > 0 else np.ptp(xy) or 1.0
-        k = 0.08 * size / (vmax or 1.0)          # mm of arrow per mm of residual
+        k = 0.08 * size / (g * vmax or 1.0)      # format units of arrow per format unit of residual
         flag = np.zeros(m.sum(), bool) if decision is None else np.isin(np.asarray(decision)[m], ["flagged", "rejected"])
-        ax.quiver(xy[~flag, 0], xy[~flag, 1], k * v[m][~flag, 0], k * v[m][~flag, 1], angles="xy", scale_units="xy",
+        vm = v[m] * g
+        ax.quiver(xy[~flag, 0], xy[~flag, 1], k * vm[~flag, 0], k * vm[~flag, 1], angles="xy", scale_units="xy",
                   scale=1, color="#1f4e9c", width=0.006)
         if flag.any():
-            ax.quiver(xy[flag, 0], xy[flag, 1], k * v[m][flag, 0], k * v[m][flag, 1], angles="xy", scale_units="xy",
+            ax.quiver(xy[flag, 0], xy[flag, 1], k * vm[flag, 0], k * vm[flag, 1], angles="xy", scale_units="xy",
                       scale=1, color="#c0392b", width=0.008)
         ax.plot(xy[:, 0], xy[:, 1], ".", ms=2, color="#555")
         src = (images or {}).get(str(block.photos.ids[p]))
@@ -95,7 +97,7 @@ def residual_vectors(res, decision=None, images: dict | None = None):
         ax.tick_params(labelsize=7)
     for ax in axes.ravel()[n:]:
         ax.axis("off")
-    fig.suptitle(f"Image residuals (observed − computed) over the format, mm; an arrow of "
+    fig.suptitle(f"Image residuals (observed − computed) over the format ({'px' if unit == 'px' else 'mm'}, y up); an arrow of "
                  f"{0.08 * 100:.0f} % of the format is {vmax * scale:.3g} {unit} (95th percentile); red: flagged/rejected",
                  fontsize=10)
     fig.tight_layout()
@@ -137,7 +139,7 @@ def network(res):
         sel = np.flatnonzero(ok)[:MAX_ELLIPSES]
         segs = [np.column_stack([XYZ[p, i] + e[0], XYZ[p, j] + e[1]])
                 for p in sel for e in [_ellipse(C[p][np.ix_([i, j], [i, j])]) * k]]
-        ax.add_collection(LineCollection(segs, colors="#c0392b", linewidths=0.6))
+        ax.add_collection(LineCollection(segs, colors="#28a0a0", linewidths=0.6))   # the recordings' ellipsoid colour
         ax.set_aspect("equal", adjustable="datalim")
         ax.set_title(name, fontsize=10)
         ax.set_xlabel(f"{'XYZ'[i]} ({block.object_unit})")
@@ -217,6 +219,7 @@ def distortion(res, j: int, n: int = 60):
         fw = fh = 2 * float(np.max(np.abs(obs.xy[m]))) if m.any() else 1.0
     Cap = np.asarray(res.cov_cameras[j], float)[3:3 + p, 3:3 + p]
     unit, scale, _ = image_units(res.block_in)
+    g, gu = (scale, "px") if unit == "px" else (1.0, "mm")      # the format: px for a pixel source
 
     def delta(x, y):
         dx, dy = model.distortion(x, y, np.repeat(ap, len(x), 0), np.full(len(x), c), meta)
@@ -228,27 +231,28 @@ def distortion(res, j: int, n: int = 60):
     fig, (a, b) = plt.subplots(1, 2, figsize=(12, 4.6))
     t = np.linspace(0, fw / 2, n)
     dx, _, sx, _ = delta(t, np.zeros(n))
-    a.plot(t, dx, color="#1f4e9c", label="Δx along +x")
-    a.fill_between(t, dx - sx, dx + sx, color="#1f4e9c", alpha=0.2)
+    a.plot(g * t, dx, color="#1f4e9c", label="Δx along +x")
+    a.fill_between(g * t, dx - sx, dx + sx, color="#1f4e9c", alpha=0.2)
     t2 = np.linspace(0, fh / 2, n)
     _, dy, _, sy = delta(np.zeros(n), t2)
-    a.plot(t2, dy, color="#d35400", label="Δy along +y")
-    a.fill_between(t2, dy - sy, dy + sy, color="#d35400", alpha=0.2)
+    a.plot(g * t2, dy, color="#d35400", label="Δy along +y")
+    a.fill_between(g * t2, dy - sy, dy + sy, color="#d35400", alpha=0.2)
     a.axhline(0, color="k", lw=0.6)
-    a.set_xlabel("distance from the principal point (mm)")
+    a.set_xlabel(f"distance from the principal point ({gu})")
     a.set_ylabel(f"distortion ({unit})")
     a.set_title(f"camera {cams.ids[j]} ({cams.ap_model[j]}): profiles, ±1σ bands", fontsize=10)
     a.legend(fontsize=8)
-    g = 13
-    X, Y = np.meshgrid(np.linspace(-fw / 2, fw / 2, g), np.linspace(-fh / 2, fh / 2, g))
+    ng = 13
+    X, Y = np.meshgrid(np.linspace(-fw / 2, fw / 2, ng), np.linspace(-fh / 2, fh / 2, ng))
     dx, dy, sx, sy = delta(X.ravel(), Y.ravel())
     mag = np.hypot(dx, dy)
-    k = 0.06 * max(fw, fh) / (mag.max() or 1.0)
-    b.quiver(X.ravel(), Y.ravel(), k * dx, k * dy, angles="xy", scale_units="xy", scale=1, color="#1f4e9c", width=0.004)
-    cs = b.contourf(X, Y, np.hypot(sx, sy).reshape(X.shape), levels=10, cmap="Oranges", alpha=0.5)
+    k = 0.06 * g * max(fw, fh) / (mag.max() or 1.0)
+    b.quiver(g * X.ravel(), g * Y.ravel(), k * dx, k * dy, angles="xy", scale_units="xy", scale=1, color="#1f4e9c",
+             width=0.004)
+    cs = b.contourf(g * X, g * Y, np.hypot(sx, sy).reshape(X.shape), levels=10, cmap="Oranges", alpha=0.5)
     fig.colorbar(cs, ax=b, label=f"σ of the distortion ({unit})")
     b.set_aspect("equal")
-    b.set_title(f"field over the format (mm); longest arrow {mag.max():.3g} {unit}", fontsize=10)
+    b.set_title(f"field over the format ({gu}); longest arrow {mag.max():.3g} {unit}", fontsize=10)
     fig.tight_layout()
     return fig
 

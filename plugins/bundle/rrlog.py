@@ -21,6 +21,8 @@ import numpy as np
 from baarda.pipeline.geometry import rotation_from_opk_many
 
 from baarda.pipeline.camera import get_ap_model
+
+from .protocol import image_units
 from baarda.pipeline.recording import (log_series, point_ellipsoids, role_colors, thin, view_from_photo,
                                        view_vectors)
 
@@ -94,7 +96,8 @@ def log_bundle(rec, res, decision, options, report: str, max_photos: int | None 
         rec.log("world/rejected_rays", rr.LineStrips3D(strips, colors=RED,
                                                        labels=[f"{photos.ids[obs.photo[k]]}/{pts.ids[obs.point[k]]}: "
                                                                f"{decision[k]}" for k in rb]), static=True)
-    # distortion field of the estimated APs
+    # distortion field of the estimated APs (labelled in px for a pixel source, else µm)
+    unit, uscale, _ = image_units(block)
     for j in np.flatnonzero(res.camera_used):
         mdl = get_ap_model(block.cameras.ap_model[j])
         if mdl.n_params == 0:
@@ -109,7 +112,7 @@ def log_bundle(rec, res, decision, options, report: str, max_photos: int | None 
         rec.log(f"cameras/{_safe(block.cameras.ids[j])}/distortion",
                 rr.Arrows2D(origins=view_from_photo(np.column_stack([xb, yb]), fmt),
                             vectors=view_vectors(np.column_stack([dx, dy]) * dscale),
-                            labels=[f"{m * 1000:.1f} µm" for m in mag]), static=True)
+                            labels=[f"{m * uscale:.{2 if unit == 'px' else 1}f} {unit}" for m in mag]), static=True)
         rec.log(f"cameras/{_safe(block.cameras.ids[j])}/distortion_scale", rr.AnyValues(arrow_scale=dscale),
                 static=True)
     gn = (res.extras or {}).get("gnss")
