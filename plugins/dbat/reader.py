@@ -16,8 +16,12 @@ intersection, bundle).  Format and mapping to baarda: ``docs/dbat.md``.  In shor
 * ``<cameras><camera>`` — ``sensor`` (``w,h`` or ``auto,h`` mm), ``image`` (``W,H`` px),
   ``focal``/``cc``, ``pp`` (mm from the image corner, y down), ``K``, ``P``, ``aspect``, ``skew``,
   ``model`` (DBAT lens model 3: the backward Brown model, baarda's ``brown-backward``), ``nK``, ``nP``.
+* ``<prior_eo>`` — ``<file format="id,x,y,z,omega,phi,kappa" units="degrees|radian|gon">``: the
+  photos' projection centres and DBAT's ω φ κ (image ids as in the image list), used as initial
+  values by ``set_initial_values`` ``<eo>loaded</eo>``.  DBAT's camera frame is x right, y down, z
+  forward; baarda's the same turned 180° about x, so the angles go through :func:`flip_opk`.
 * ``<operations>`` — ``check_ray_count min_rays``, ``set_initial_values`` (``io`` ``default`` |
-  ``loaded``), ``set_bundle_estimate_params`` (``io``: ``true``/``false`` or per-parameter
+  ``loaded``, ``eo`` ``loaded``), ``set_bundle_estimate_params`` (``io``: ``true``/``false`` or per-parameter
   ``<all>``, ``<cc>``, ``<pp>``, ``<aspect>``, ``<skew>``, ``<K>``, ``<P>``; ``eo``), and the
   computations ``spatial_resection``, ``forward_intersection``, ``bundle_adjustment``.
 
@@ -39,7 +43,7 @@ import numpy as np
 
 from baarda.pipeline.errors import InputError, quote
 from baarda.pipeline.errors import finite_number as _num
-from baarda.pipeline.geometry import mm_from_pixels
+from baarda.pipeline.geometry import mm_from_pixels, opk_from_rotation_many, rotation_from_opk_many
 from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points
 
 AP_NAMES = ("K1", "K2", "K3", "P1", "P2", "aspect", "skew")
@@ -195,10 +199,25 @@ class DbatScript:
     estimate_eo: bool
     operations: list[str]
     unknown_operations: list[str]
+    prior_eo: dict | None = None       # image id -> (X0 (3,), DBAT's ω φ κ radians (3,), file, line)
+    eo_initial: str = "default"        # "default" | "loaded"
 
 
 # --------------------------------------------------------------------------------------------
 # helpers
+
+
+_FLIP = np.diag([1.0, -1.0, -1.0])
+
+
+def flip_opk(opk) -> np.ndarray:
+    """DBAT's ω φ κ ↔ baarda's (``(n, 3)`` radians; the same function both ways).  DBAT's world-to-
+    camera rotation is ``R3(κ) R2(φ) R1(ω)`` with baarda's elementary rotations
+    (``eulerpinhole``: ``eulerrotmat(ang, 123, false)ᵀ``), but its camera frame has y down and z
+    forward (``x_mm − pp = f U/W`` with marks measured y down); baarda's camera frame is that one
+    turned 180° about x: ``R_baarda = diag(1, −1, −1) R_dbat``, an involution."""
+    R = rotation_from_opk_many(np.asarray(opk, float).reshape(-1, 3))
+    return opk_from_rotation_many(_FLIP @ R)
 
 
 
@@ -435,6 +454,37 @@ def _marks(section: Node, path, base, here, dbat_dir) -> list[MarkFile]:
     return out
 
 
+_ANGLE_UNITS = {"radian": 1.0, "radians": 1.0, "degrees": math.pi / 180, "degree": math.pi / 180,
+                "gon": math.pi / 200}
+
+
+def _prior_eo(section: Node, path, base, here, dbat_dir) -> dict:
+    """``<prior_eo><file format="id,x,y,z,omega,phi,kappa" units="degrees">`` → {image id: (X0,
+    DBAT's ω φ κ in radians, file, line)}."""
+    fns = section.findall("file")
+    if len(fns) != 1:
+        raise InputError(f"<prior_eo> must name exactly one <file>, got {len(fns)}", path=path, line=section.line,
+                         field="file")
+    fn = fns[0]
+    ang = ("omega", "phi", "kappa")
+    cols = _format(fn, path, {"id", "x", "y", "z", *ang}, {"id", "label", "x", "y", "z", *ang})
+    units = fn.attrib.get("units")
+    if units not in _ANGLE_UNITS:
+        raise InputError(f"the angles' unit must be radian, degrees or gon, got {quote(str(units))}", path=path,
+                         line=fn.line, field="units")
+    file = _resolve(base, fn.value, here, dbat_dir, path, fn.line, "file")
+    out = {}
+    for line, r in _rows(file, cols, path, fn.line):
+        iid = _id(r["id"])
+        if iid in out:
+            raise InputError(f"image {quote(iid)} listed twice (first on line {out[iid][3]})", path=file, line=line,
+                             field="id")
+        X0 = np.array([_num(r[c], file, line, c) for c in ("x", "y", "z")])
+        opk = np.array([_num(r[c], file, line, c) for c in ang]) * _ANGLE_UNITS[units]
+        out[iid] = (X0, opk, file, line)
+    return out
+
+
 def _camera(section: Node, path) -> DbatCamera:
     cams = section.findall("camera")
     if len(cams) != 1:
@@ -586,6 +636,9 @@ def read_dbat(path: Path, *, dbat_dir: Path | None = None) -> DbatScript:
     if ip is None:
         raise InputError("the script has no <image_pts> section", path=path, line=inp.line, field="image_pts")
     marks = _marks(ip, path, base, here, dbat_dir)
+    pe = inp.find("prior_eo")
+    prior_eo = _prior_eo(pe, path, base, here, dbat_dir) if pe is not None else None
+    eo_initial = "default"
     # operations
     ops_node = root.find("operations")
     operations, unknown = [], []
@@ -614,6 +667,16 @@ def read_dbat(path: Path, *, dbat_dir: Path | None = None) -> DbatScript:
                     raise InputError(f"initial io values are 'default' or 'loaded', got {quote(v)}", path=path,
                                      line=io.line, field="io")
                 io_initial = v
+            eo = kids[0].find("eo")
+            if eo is not None:
+                v = (eo.find("all").value if eo.find("all") is not None else eo.value).lower()
+                if v not in ("default", "loaded"):
+                    raise InputError(f"initial eo values are 'loaded', got {quote(v)}", path=path, line=eo.line,
+                                     field="eo")
+                if v == "loaded" and prior_eo is None:
+                    raise InputError("<eo>loaded</eo> needs a <prior_eo> file in the input section", path=path,
+                                     line=eo.line, field="eo")
+                eo_initial = v
         elif opname == "set_bundle_estimate_params":
             est_io = _estimate_io(kids[0].find("io"), path, camera.nK, camera.nP)
             eo = kids[0].find("eo")
@@ -626,7 +689,7 @@ def read_dbat(path: Path, *, dbat_dir: Path | None = None) -> DbatScript:
     return DbatScript(path=path, name=name, object_unit=unit, control=control, check=check, images=images,
                       image_files=image_files, images_list=images_list, marks=marks, camera=camera,
                       min_rays=min_rays, io_initial=io_initial, estimate_io=est_io, estimate_eo=est_eo,
-                      operations=operations, unknown_operations=unknown)
+                      operations=operations, unknown_operations=unknown, prior_eo=prior_eo, eo_initial=eo_initial)
 
 
 # --------------------------------------------------------------------------------------------
@@ -753,11 +816,21 @@ def dbat_block(script: DbatScript) -> Block:
     obs = Observations.make(np.asarray(ob_img, int)[keep_obs], [index[q] for q in ob_pt_arr[keep_obs]], xy,
                             sigma=np.asarray(ob_s, float)[keep_obs] * p)
     photos = Photos.make(photo_ids(script.images), camera=0)
+    if script.eo_initial == "loaded" and script.prior_eo:
+        X0 = np.full((len(photos), 3), np.nan)
+        opk = np.full((len(photos), 3), np.nan)
+        for iid, (x0, a, file, line) in script.prior_eo.items():
+            if iid not in img_index:
+                raise InputError(f"image {quote(iid)} is not in the image list", path=file, line=line, field="id")
+            X0[img_index[iid]] = x0
+            opk[img_index[iid]] = flip_opk(a)[0]
+        photos = photos.replace(X0=X0, opk=opk)
     unused_ctrl = [pid for pid, r in zip(ids, role) if r == "full" and rays[pid] == 0]
     meta = {
         "dbat": {
             "script": str(script.path), "name": script.name, "camera": dataclasses.asdict(cam), "io_initial": script.io_initial,
             "estimate_io": dict(script.estimate_io), "min_rays": script.min_rays, "operations": script.operations,
+            "eo_initial": script.eo_initial,
             "unknown_operations": script.unknown_operations, "labels": labels,
             "images": {k: (str(v) if v is not None else None) for k, v in script.image_files.items()},
             "image_paths": dict(script.images),

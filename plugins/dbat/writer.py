@@ -13,10 +13,13 @@ a folder with the script ``<name>.xml`` and the files it names, laid out as DBAT
   list (DBAT numbers, the photo ids as file names), the active image measurements in pixels
   (origin at the image corner, y down) with their σ.
 
-DBAT scripts have no place for initial tie-point coordinates, and the writer gives no initial
-orientations (DBAT's ``prior_eo`` angle convention is not one baarda can check here): the project
-resects and intersects (``spatial_resection``, ``forward_intersection``) before the bundle, as
-the DBAT demos do.
+* the photos' orientations, when every photo has one, as ``<prior_eo>`` (``prior/eo.txt``:
+  ``id,x,y,z,omega,phi,kappa`` in degrees, DBAT's angles by :func:`.reader.flip_opk`, the function
+  the reader uses the other way) and initial values (``set_initial_values`` ``<eo>loaded</eo>``),
+  so the project does not resect; otherwise it resects every photo (``spatial_resection``).
+
+DBAT scripts have no place for initial tie-point coordinates: the project intersects them
+(``forward_intersection``) before the bundle, as the DBAT demos do.
 """
 
 from __future__ import annotations
@@ -33,7 +36,7 @@ from baarda.pipeline.geometry import pixels_from_mm
 from baarda.pipeline.options import option
 from baarda.pipeline.stage import Context, StageResult
 
-from .reader import AP_NAMES, DbatCamera, dbat_from_baarda
+from .reader import AP_NAMES, DbatCamera, dbat_from_baarda, flip_opk
 
 MODEL = "brown-backward"
 _IO_TAGS = (("cc", "c"), ("px", "xp"), ("py", "yp"))
@@ -154,6 +157,13 @@ def dbat_files(block, *, name: str = "baarda", prior=None) -> tuple[dict[str, st
         path = paths.get(n) if n in paths and Path(str(paths[n]).replace("\\", "/")).stem == pid else f"{pid}.jpg"
         img_lines.append(f"{n}, {path}\n")
     files["images/images.txt"] = head + "# id, path\n" + "".join(img_lines)
+    # orientations: all or none (a DBAT project resects every photo or none)
+    oriented = bool(len(ph)) and bool(ph.has_orientation.all())
+    if oriented:
+        opk_d = np.degrees(flip_opk(ph.opk))
+        files["prior/eo.txt"] = head + "# id, x, y, z, omega, phi, kappa (degrees; DBAT's camera frame: y down, z forward)\n" \
+            + "".join(f"{n}, {_g(x[0])}, {_g(x[1])}, {_g(x[2])}, {_g(a[0])}, {_g(a[1])}, {_g(a[2])}\n"
+                      for n, x, a in zip(nums, np.asarray(ph.X0, float), opk_d))
     # marks: active observations, pixels from the image corner, y down
     act = np.flatnonzero(obs.active)
     uv = pixels_from_mm(obs.xy[act], (W, H), p, convention="colmap") if act.size else np.zeros((0, 2))
@@ -167,13 +177,17 @@ def dbat_files(block, *, name: str = "baarda", prior=None) -> tuple[dict[str, st
     min_rays = int(meta.get("min_rays", 2))
     io = "".join(f"          <{t}>{'true' if v else 'false'}</{t}>\n" for t, v in _io_flags(est))
     ctrl_fmt = "id,label,x,y,z,sx,sy,sz" if weighted else "id,label,x,y,z"
+    eo_xml = ("\n    <prior_eo>\n      <file format=\"id,x,y,z,omega,phi,kappa\" units=\"degrees\">prior/eo.txt</file>\n"
+              "    </prior_eo>\n" if oriented else "")
+    eo_init = "        <eo>loaded</eo>\n" if oriented else ""
+    resection = "" if oriented else "    <operation>spatial_resection</operation>\n"
     check_xml = ("    <check_pts>\n      <file format=\"id,label,x,y,z\">reference/check.txt</file>\n    </check_pts>\n"
                  if chk.size else "")
     xml = f"""<?xml version="1.0" encoding="UTF-8"?>
 <document dbat_script_version="1.0">
-  <c>Written by baarda's dbat-export: the camera's values are the initial values (io loaded);
-  DBAT scripts hold no initial orientations or tie points, so the photos are resected and the
-  points intersected before the bundle.</c>
+  <c>Written by baarda's dbat-export: the camera's values and (when every photo has one) the
+  orientations are the initial values (io, eo loaded); DBAT scripts hold no initial tie points,
+  so they are intersected before the bundle.</c>
   <meta>
     <name>{escape(name)}</name>
     <project_unit>{escape(block.object_unit)}</project_unit>
@@ -192,7 +206,7 @@ def dbat_files(block, *, name: str = "baarda", prior=None) -> tuple[dict[str, st
     <image_pts>
       <file format="im,id,x,y,sxy">measurements/markpts.txt</file>
     </image_pts>
-
+{eo_xml}
     <cameras>
       <camera>
         <name>{escape(cid)}</name>
@@ -218,7 +232,7 @@ def dbat_files(block, *, name: str = "baarda", prior=None) -> tuple[dict[str, st
     <operation>
       <set_initial_values>
         <io>loaded</io>
-        <op>loaded</op>
+{eo_init}        <op>loaded</op>
       </set_initial_values>
     </operation>
     <operation>
@@ -233,14 +247,13 @@ def dbat_files(block, *, name: str = "baarda", prior=None) -> tuple[dict[str, st
         </op>
       </set_bundle_estimate_params>
     </operation>
-    <operation>spatial_resection</operation>
-    <operation>forward_intersection</operation>
+{resection}    <operation>forward_intersection</operation>
     <operation>bundle_adjustment</operation>
   </operations>
 </document>
 """
     files[f"{name}.xml"] = xml
-    info = {"script": f"{name}.xml", "images": len(ph), "control": int(ctrl.size), "check": int(chk.size),
+    info = {"script": f"{name}.xml", "images": len(ph), "orientations": oriented, "control": int(ctrl.size), "check": int(chk.size),
             "weighted_control": weighted, "marks": int(act.size), "inactive_left_out": int(len(obs) - act.size),
             "marks_with_unequal_sigma": unequal, "estimated": sorted(k for k, v in est.items() if v)}
     return files, info
@@ -293,7 +306,8 @@ class DbatExport:
             ctx.warn(f"{info['marks_with_unequal_sigma']} mark(s) with different σ in x and y or a correlation: "
                      "written with one σ (the root of the mean variance), as DBAT's sxy")
         what = "adjusted" if bundle is not None and not options.source else "source"
-        report = (f"Wrote the DBAT script project `{options.path}/{info['script']}` ({what} camera as initial values; "
+        eo = "and orientations " if info["orientations"] else ""
+        report = (f"Wrote the DBAT script project `{options.path}/{info['script']}` ({what} camera {eo}as initial values; "
                   f"estimated: {', '.join(info['estimated']) or 'none'}): {info['images']} images, {info['control']} "
                   f"control ({'weighted' if info['weighted_control'] else 'fixed'}) and {info['check']} check points, "
                   f"{info['marks']} marks.")

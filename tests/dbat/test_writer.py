@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from baarda.pipeline.errors import InputError
+from baarda.pipeline.geometry import rotation_from_opk_many
 from baarda.pipeline.model import FIXED, FREE
 from baarda.pipeline.synthetic.aerial import simulate_convergent
 from baarda.pipeline.testing import check_stage, run_stage
@@ -18,11 +19,12 @@ from baarda.plugins.dbat.writer import DbatExport, dbat_files, write_dbat
 AP = np.array([-2.0e-4, 3.0e-7, -1.0e-10, 2.0e-5, -1.5e-5, 1.0e-4, -5.0e-5])    # K1 K2 K3 P1 P2 aspect−1 skew
 
 
-def synthetic(weighted=True):
+def synthetic(weighted=True, exact=False):
     """A convergent block in pixels with a brown-backward camera (non-zero P2 and skew, whose signs
     DBAT's y-down image frame flips), weighted or fixed control, two check points."""
-    block, _ = simulate_convergent(np.random.default_rng(3), n_photos=6, n_points=30, model="none", xp=0.06,
-                                   yp=-0.04, pixel_mm=0.004, resolution=(6000, 4000))
+    noisy, error_free = simulate_convergent(np.random.default_rng(3), n_photos=6, n_points=30, model="none",
+                                            xp=0.06, yp=-0.04, pixel_mm=0.004, resolution=(6000, 4000))
+    block = error_free if exact else noisy
     cams = block.cameras
     sig_ap = np.array([[FREE, FREE, FIXED, FREE, FREE, FIXED, FIXED]])
     cams = cams.replace(ap_model=np.array(["brown-backward"]), ap=AP[None], sigma_ap=sig_ap,
@@ -54,6 +56,11 @@ def compare(a, b, *, xy_tol=1e-9):
     assert cb.pixel_mm[0] == pytest.approx(ca.pixel_mm[0], rel=1e-15)
     assert cb.resolution.tolist() == ca.resolution.tolist()
     assert b.photos.ids.tolist() == a.photos.ids.tolist()
+    if a.photos.has_orientation.all():
+        assert np.abs(b.photos.X0 - a.photos.X0).max() < 1e-12
+        assert np.abs(rotation_from_opk_many(b.photos.opk) - rotation_from_opk_many(a.photos.opk)).max() < 1e-13
+    else:
+        assert not b.photos.has_orientation.any()
     ka = {i: k for k, i in enumerate(a.points.ids.tolist())}
     for k, pid in enumerate(b.points.ids.tolist()):
         j = ka[pid]
@@ -78,7 +85,7 @@ def compare(a, b, *, xy_tol=1e-9):
 def test_synthetic_round_trip(tmp_path, weighted):
     block = synthetic(weighted)
     info = write_dbat(block, tmp_path / "p", name="synthetic")
-    assert info["weighted_control"] == weighted and info["check"] == 2
+    assert info["weighted_control"] == weighted and info["check"] == 2 and info["orientations"]
     back = dbat_block(read_dbat(tmp_path / "p" / "synthetic.xml"))
     compare(block, back)
     xml = (tmp_path / "p" / "synthetic.xml").read_text()
@@ -92,6 +99,48 @@ def test_synthetic_round_trip(tmp_path, weighted):
     assert float(P[0]) == DBAT_SIGN[3] * AP[3] and float(P[1]) == DBAT_SIGN[4] * AP[4]
     assert float(re.search(r"<skew>(.*)</skew>", xml).group(1)) == DBAT_SIGN[6] * AP[6]
     assert float(re.search(r"<aspect>(.*)</aspect>", xml).group(1)) == pytest.approx(1 + AP[5], abs=1e-16)
+    assert "<eo>loaded</eo>" in xml and "spatial_resection" not in xml and "<prior_eo>" in xml
+
+
+def test_dbat_angles_project_as_dbat_does(tmp_path):
+    """The prior_eo file against DBAT's projection written out from its code (eulerpinhole,
+    res_euler_brown): U = eulerrotmat(ω φ κ, 123, moving)ᵀ (X − X0), x_mm − pp = c U₁/U₃ with the
+    marks in mm from the image corner, y down — the same image points as baarda's collinearity
+    (no distortion here)."""
+    block = synthetic(exact=True)
+    cams = block.cameras
+    block = block.replace(cameras=cams.replace(ap=np.zeros_like(cams.ap)))
+    write_dbat(block, tmp_path, name="p")
+    rows = [ln.split(",") for ln in (tmp_path / "prior" / "eo.txt").read_text().splitlines() if ln[0] != "#"]
+    eo = {r[0].strip(): np.array([float(v) for v in r[1:]]) for r in rows}
+    marks = [ln.split(",") for ln in (tmp_path / "measurements" / "markpts.txt").read_text().splitlines()
+             if ln[0] != "#"]
+    numbers = {r[0].strip(): r[1].strip().rsplit(".", 1)[0]
+               for r in (ln.split(",") for ln in (tmp_path / "images" / "images.txt").read_text().splitlines()
+                         if ln[0] != "#")}
+    xml = (tmp_path / "p.xml").read_text()
+    pp = np.array([float(v) for v in re.search(r"<pp>(.*)</pp>", xml).group(1).split(",")])
+    c = float(re.search(r"<cc>(.*)</cc>", xml).group(1))
+    px = block.cameras.pixel_mm[0]
+
+    def active(axis, a):                              # DBAT's eulerrotmat elementary rotations
+        ca, sa = np.cos(a), np.sin(a)
+        return {1: np.array([[1, 0, 0], [0, ca, -sa], [0, sa, ca]]),
+                2: np.array([[ca, 0, sa], [0, 1, 0], [-sa, 0, ca]]),
+                3: np.array([[ca, -sa, 0], [sa, ca, 0], [0, 0, 1]])}[axis]
+
+    pid_of = {str(i): k for k, i in enumerate(block.points.ids.tolist())}
+    worst = 0.0
+    for im, pt, u, v, _ in marks:
+        e = eo[im.strip()]
+        w, p_, k = np.radians(e[3:])
+        M = active(1, w) @ active(2, p_) @ active(3, k)          # eulerrotmat(ang, 123, false)
+        U = M.T @ (block.points.XYZ[pid_of[pt.strip()]] - e[:3])
+        x_model = c * U[:2] / U[2] + pp
+        x_mark = np.array([float(u), float(v)]) * px
+        worst = max(worst, np.abs(x_model - x_mark).max())
+    # error-free simulated marks: DBAT's model reproduces them to rounding
+    assert worst < 1e-9 and len(numbers) == len(block.photos) == len(eo)
 
 
 def test_camcal_source_round_trip(shared_data, tmp_path):
