@@ -10,6 +10,8 @@ Entities (under the stage id: the recording roots every path there)
     ``cameras/<id>/distortion``     distortion field of the estimated APs on a grid, × scale
     ``convergence/{cost,sigma0,damping,step}/*``  vᵀPv, σ̂0, λ, largest step per ``iteration``; one
                                     that did not change (λ = 0 throughout) under ``…/constants``
+    ``ids/{global_test,w}/*``       with ``blunders = "ids"``: T with F critical, max |w| (K constant:
+                                    ``ids/w/constants``) per ``rejection``
     ``bundle/summary``              σ̂0, dof, vᵀPv, arrow and ellipsoid scales (the report is the
                                     runner's ``<stage>/summary``)
 """
@@ -135,6 +137,14 @@ def log_bundle(rec, res, decision, options, report: str, max_photos: int | None 
     log_series(rec, "convergence/sigma0", it, {"sigma0_hat": [float(np.sqrt(h["vtpv"] / dof)) for h in hist]})
     log_series(rec, "convergence/damping", it, {"lambda": [float(h["lambda"]) for h in hist]})
     log_series(rec, "convergence/step", it, {"max_step_sigma": [float(h["max_step_sigma"]) for h in hist]})
+    # iterated data snooping inside the bundle: one step per rejection (the same groups as blunder-rejection)
+    ids = (getattr(res, "extras", None) or {}).get("ids")
+    if ids is not None and ids.history:
+        steps = [int(h.iteration) for h in ids.history]
+        log_series(rec, "ids/global_test", steps, {"T": [float(h.T) for h in ids.history]},
+                   {"F_critical": [float(h.critical) for h in ids.history]}, timeline="rejection")
+        log_series(rec, "ids/w", steps, {"w_max": [abs(float(h.w_max)) for h in ids.history]},
+                   {"K": [float(ids.critical)] * len(steps)}, timeline="rejection")
 
 
 def _log_precision(rec, res, used) -> float:

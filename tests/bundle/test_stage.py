@@ -53,6 +53,19 @@ def test_ids_rejects_a_planted_blunder(tmp_path):
     assert (dec == "rejected").sum() == 1
     assert not res.artefacts["block"].observations.active[k]
     assert abs(res.artefacts["bundle"].sigma0_hat - 1) < 0.15
+    # the recording: T with its F critical value (which fell with the dof) in one view, max |w| per
+    # rejection; K, the same for the whole run, a static value
+    from baarda.pipeline.recording import read_recording, read_series
+
+    path = log_stage(BundleAdjustment, res, tmp_path / "bundle.rrd")
+    series = read_series(path)
+    ids = res.artefacts["bundle"].extras["ids"]
+    np.testing.assert_allclose(series["/bundle/ids/global_test/T"], [h.T for h in ids.history])
+    np.testing.assert_allclose(series["/bundle/ids/global_test/F_critical"], [h.critical for h in ids.history])
+    assert len(series["/bundle/ids/w/w_max"]) == 2 and "/bundle/ids/w/K" not in series
+    rec = read_recording(path)
+    assert "K" in {e.path: e for e in rec.entities}["/bundle/ids/w/constants"].columns
+    assert {"/bundle/ids/global_test", "/bundle/ids/w"} <= {v.origin for v in rec.views if v.kind == "TimeSeries"}
 
 
 def test_joint_2d_test_per_image_point_against_closed_form(tmp_path):
