@@ -20,7 +20,7 @@ import warnings
 import numpy as np
 
 __all__ = ["project", "eo_point_jacobians", "point_normals", "chol3_inv", "schur_blocks", "b_matvec",
-           "b_rmatvec", "pair_products", "linear_change"]
+           "b_rmatvec", "pair_products", "add_blocks", "linear_change"]
 
 
 class _jit:
@@ -269,11 +269,10 @@ def _pair_products(X, oa, ob, gs, ge, g0, g1, S):
                 acc[i, j] = 0.0
         for t in range(gs[g], ge[g]):
             a, b = oa[t], ob[t]
-            for r in range(3):
-                for i in range(q):
-                    xa = X[a, r, i]
-                    for j in range(q):
-                        acc[i, j] += xa * X[b, r, j]
+            for i in range(q):
+                x0, x1, x2 = X[a, 0, i], X[a, 1, i], X[a, 2, i]
+                for j in range(q):
+                    acc[i, j] += x0 * X[b, 0, j] + x1 * X[b, 1, j] + x2 * X[b, 2, j]
         for i in range(q):
             for j in range(q):
                 S[g, i, j] = acc[i, j]
@@ -283,6 +282,25 @@ def pair_products(X, oa, ob, gs, ge, g0, g1, S):
     """``S[g] = Σ_{t in gs[g]:ge[g]} X[oa_t]ᵀ X[ob_t]`` (q × q) for the groups g0 … g1 − 1, in place
     (the photo-pair blocks of ``B Bᵀ``; X (k, 3, q) C-contiguous; ranges may run on threads)."""
     _pair_products(X, oa, ob, gs, ge, g0, g1, S)
+
+
+@_jit
+def _add_blocks(out, flat, vals, ng1, mirror):
+    n = ng1 - 1
+    for t in range(flat.shape[0]):
+        r = flat[t] // ng1
+        c = flat[t] - r * ng1
+        if r < n and c < n:
+            out[r, c] += vals[t]
+            if mirror:
+                out[c, r] += vals[t]
+
+
+def add_blocks(out, flat, vals, ng1, mirror):
+    """``out[r, c] += vals`` (and ``out[c, r]`` with ``mirror``) at the flat positions
+    ``flat = r ng1 + c`` of an ng1 × ng1 layout, in place; row or column ``ng1 − 1`` (fixed
+    parameters) dropped.  ``out`` (≥ ng1 − 1 square, C-contiguous float64)."""
+    _add_blocks(out, _i(flat), _f(vals).ravel(), ng1, mirror)
 
 
 @_jit

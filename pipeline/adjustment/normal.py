@@ -527,10 +527,8 @@ class BMatrix:
         if self.mode == "pairs":
             pl = prob.pair_plan()
             S, Dg = self.pair_blocks(X)
-            A = np.bincount(pl["flat"], S.ravel(), minlength=ng1 * ng1).reshape(ng1, ng1)
-            A = A + A.T
-            A += np.bincount(pl["flat_diag"], Dg.ravel(), minlength=ng1 * ng1).reshape(ng1, ng1)
-            out[:n_g, :n_g] = A[:-1, :-1]
+            kernels.add_blocks(out, pl["flat"], S, ng1, True)          # S_ab and S_abᵀ
+            kernels.add_blocks(out, pl["flat_diag"], Dg, ng1, False)
         else:
             S = self.sparse()[:n_g]
             out[:n_g, :n_g] = (S @ S.T).toarray()

@@ -176,3 +176,18 @@ def test_kernels_run_without_a_writable_cache(monkeypatch):
     f = kernels._jit(twice)
     assert f(np.arange(3.0)).tolist() == [0.0, 2.0, 4.0]
     assert f.compiled._cache.__class__.__name__ == "NullCache"
+
+
+def test_add_blocks(rng):
+    ng1, m = 13, 40
+    flat = rng.integers(0, ng1 * ng1, m)              # repeated positions and the dropped row/column 12
+    vals = rng.normal(size=m)
+    out = np.zeros((ng1 + 2, ng1 + 2))                # larger than ng1 − 1: the border rows stay 0
+    kernels.add_blocks(out, flat, vals, ng1, True)
+    A = np.bincount(flat, vals, minlength=ng1 * ng1).reshape(ng1, ng1)
+    ref = np.zeros_like(out)
+    ref[:ng1 - 1, :ng1 - 1] = (A + A.T)[:-1, :-1]
+    np.testing.assert_allclose(out, ref, rtol=1e-14, atol=1e-14)
+    out2 = np.zeros((ng1 - 1, ng1 - 1))
+    kernels.add_blocks(out2, flat.astype(np.int32), vals, ng1, False)
+    np.testing.assert_allclose(out2, A[:-1, :-1], rtol=1e-14, atol=1e-14)
