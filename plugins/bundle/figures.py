@@ -159,8 +159,12 @@ def checkpoint_errors(res):
     d = res.state.XYZ[chk] - pts.XYZ[chk]
     ou = block.object_unit
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.2), gridspec_kw={"width_ratios": [1.3, 1]})
-    span = max(float(np.ptp(pts.XYZ[res.point_used][:, :2], axis=0).max()), 1e-9)
-    dmax = float(np.max(np.hypot(d[:, 0], d[:, 1]))) if len(d) else 0.0
+    # the network's extent from the adjusted points (tie points have no given coordinates: nan)
+    xy_used = res.state.XYZ[res.point_used][:, :2]
+    xy_used = xy_used[np.isfinite(xy_used).all(axis=1)]
+    span = max(float(np.ptp(xy_used, axis=0).max()) if len(xy_used) else 0.0, 1e-9)
+    h = np.hypot(d[:, 0], d[:, 1])
+    dmax = float(np.nanmax(h)) if np.isfinite(h).any() else 0.0
     k = 0.1 * span / dmax if dmax > 0 else 1.0
     a.plot(res.state.XYZ[res.point_used, 0], res.state.XYZ[res.point_used, 1], ".", color="#bbb", ms=3)
     a.quiver(pts.XYZ[chk, 0], pts.XYZ[chk, 1], k * d[:, 0], k * d[:, 1], angles="xy", scale_units="xy", scale=1,

@@ -150,3 +150,16 @@ def test_network_figure_has_a_marker_and_legend_entry_per_control_role(tmp_path)
     import matplotlib.pyplot as plt
 
     plt.close(fig)
+    # the check-point figure's arrow factor is finite when tie points have no given coordinates
+    import dataclasses
+
+    from baarda.plugins.bundle.figures import checkpoint_errors
+
+    b = res.artefacts["bundle"]
+    XYZ = np.array(b.block_in.points.XYZ, float)
+    XYZ[np.asarray(b.block_in.points.role) == "tie"] = np.nan
+    nan_ties = dataclasses.replace(b, block_in=b.block_in.replace(points=b.block_in.points.replace(XYZ=XYZ)))
+    fig = checkpoint_errors(nan_ties)
+    title = fig.axes[0].get_title()
+    assert "nan" not in title and "×" in title, title
+    plt.close(fig)
