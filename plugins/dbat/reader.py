@@ -469,8 +469,11 @@ def _prior_eo(section: Node, path, base, here, dbat_dir) -> dict:
     ang = ("omega", "phi", "kappa")
     cols = _format(fn, path, {"id", "x", "y", "z", *ang}, {"id", "label", "x", "y", "z", *ang})
     units = fn.attrib.get("units")
+    if units is None:
+        raise InputError("the <prior_eo> file needs the attribute units (radian, degrees or gon)", path=path,
+                         line=fn.line, field="units")
     if units not in _ANGLE_UNITS:
-        raise InputError(f"the angles' unit must be radian, degrees or gon, got {quote(str(units))}", path=path,
+        raise InputError(f"the angles' unit must be radian, degrees or gon, got {quote(units)}", path=path,
                          line=fn.line, field="units")
     file = _resolve(base, fn.value, here, dbat_dir, path, fn.line, "file")
     out = {}

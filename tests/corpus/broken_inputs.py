@@ -425,6 +425,22 @@ def dbat_cases() -> list[Case]:
     c.append(Case("dbat/missing-xml", files, source_project("dbat", "nowhere.xml"), names="nowhere.xml"))
     c += [Case(f"dbat/validate-{n}", project(**cases[n][1]), source_project("dbat", "p.xml"), command="validate",
                names=cases[n][0]) for n in ("marks-letter", "xml-malformed", "ctrl-duplicate")]
+    # initial orientations (<prior_eo>, what dbat-export writes)
+    eo_xml = files["p.xml"].replace("</image_pts>", '</image_pts>\n<prior_eo><file format="id,x,y,z,omega,phi,kappa" '
+                                    'units="degrees">prior/eo.txt</file></prior_eo>', 1) \
+        .replace("<all>default</all>\n        </io>", "<all>default</all>\n        </io>\n        <eo>loaded</eo>", 1)
+    assert "<eo>loaded</eo>" in eo_xml
+    eo_row = "1, 0.1, 0.2, 0.9, 180, 0, 0"
+    eo_ok = {**files, "p.xml": eo_xml, "prior/eo.txt": eo_row + "\n"}
+    eo_cases = {
+        "eo-letter": ("eo.txt", {"prior/eo.txt": eo_row.replace("180", "1 80") + "\n"}),
+        "eo-unknown-image": ("eo.txt", {"prior/eo.txt": eo_row.replace("1,", "99,", 1) + "\n"}),
+        "eo-twice": ("eo.txt", {"prior/eo.txt": eo_row + "\n" + eo_row + "\n"}),
+        "eo-no-units": ("p.xml", {"p.xml": eo_xml.replace(' units="degrees"', "")}),
+        "eo-loaded-without-file": ("p.xml", {"p.xml": files["p.xml"].replace(
+            "<all>default</all>\n        </io>", "<all>default</all>\n        </io>\n        <eo>loaded</eo>", 1)}),
+    }
+    c += [Case(f"dbat/{n}", {**eo_ok, **ch}, source_project("dbat", "p.xml"), names=f) for n, (f, ch) in eo_cases.items()]
     return c
 
 
