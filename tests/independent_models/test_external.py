@@ -52,6 +52,7 @@ def test_point_ellipsoids_match_the_sigmas(im_run):
     assert np.allclose(p["height_half"], p["sZ"], rtol=1e-9)
 
 
+@pytest.mark.slow  # 25-55 s: 500 RRR simulations of the block
 def test_rrr_runs_on_the_block_adjustment(im_run, tmp_path):
     from baarda.plugins.blunder_rejection.stage import BlunderRejection
 

@@ -30,7 +30,7 @@ SECONDS = {
     "aicon/aicon.toml": 23.3,
     "aicon/vendor.toml": 6.6,
     "bal/bal.toml": 1.8,
-    "bal/libmv.toml": 7.6,
+    "bal/libmv.toml": 14.4,
     "calibration/charuco.toml": 0.5,
     "calibration/chessboard.toml": 6.8,
     "colmap/colmap.toml": 0.6,

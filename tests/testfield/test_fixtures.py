@@ -22,6 +22,7 @@ def test_testfield_project_runs(repo_root, tmp_path):
     assert len(block.photos) == 10 and block.cameras.ap_model[0] == "ebner12"
 
 
+@pytest.mark.slow  # 30-70 s: the 115-photo AICON project
 def test_aicon_project_reads_shared_data(repo_root, shared_data, tmp_path):
     """fixtures/aicon/aicon.toml names ../../../shared/data/...: from <repo>/fixtures/aicon that is
     <repo's parent>/shared/data, where CI (and this checkout) keep the shared data."""

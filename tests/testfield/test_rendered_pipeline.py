@@ -75,6 +75,7 @@ def check_outcome(outcome, *, max_px: float, max_missing: int = 0):
     return det, tc
 
 
+@pytest.mark.slow  # 12-25 s: renders and detects 13 photos
 def test_fast_variant(tmp_path):
     """2340 × 1660 pixel photos, about 5 s."""
     outcome = run_project_text(fast_variant(FIXTURE.read_text()), tmp_path)
@@ -82,6 +83,7 @@ def test_fast_variant(tmp_path):
     print("\nfast:", det.summary(), tc.summary())
 
 
+@pytest.mark.slow  # 35-75 s: the full-size rendered project (make test-slow)
 def test_fixture(tmp_path):
     """The bundled project as `baarda run` runs it (4680 × 3320 pixels)."""
     t0 = time.perf_counter()
