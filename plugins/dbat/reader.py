@@ -18,8 +18,9 @@ intersection, bundle).  Format and mapping to baarda: ``docs/dbat.md``.  In shor
   ``model`` (DBAT lens model 3: the backward Brown model, baarda's ``brown-backward``), ``nK``, ``nP``.
 * ``<prior_eo>`` — ``<file format="id,x,y,z,omega,phi,kappa" units="degrees|radian|gon">``: the
   photos' projection centres and DBAT's ω φ κ (image ids as in the image list), used as initial
-  values by ``set_initial_values`` ``<eo>loaded</eo>``.  DBAT's camera frame is x right, y down, z
-  forward; baarda's the same turned 180° about x, so the angles go through :func:`flip_opk`.
+  values by ``set_initial_values`` ``<eo>loaded</eo>``.  DBAT's ω φ κ are baarda's (its rotation is
+  ``R3(κ) R2(φ) R1(ω)``, its camera looks down −z: DBAT's published sxb report gives photo 1 the
+  angles baarda adjusts, ``tests/dbat/test_projects.py``), so they are taken as they are.
 * ``<operations>`` — ``check_ray_count min_rays``, ``set_initial_values`` (``io`` ``default`` |
   ``loaded``, ``eo`` ``loaded``), ``set_bundle_estimate_params`` (``io``: ``true``/``false`` or per-parameter
   ``<all>``, ``<cc>``, ``<pp>``, ``<aspect>``, ``<skew>``, ``<K>``, ``<P>``; ``eo``), and the
@@ -43,7 +44,7 @@ import numpy as np
 
 from baarda.pipeline.errors import InputError, quote
 from baarda.pipeline.errors import finite_number as _num
-from baarda.pipeline.geometry import mm_from_pixels, opk_from_rotation_many, rotation_from_opk_many
+from baarda.pipeline.geometry import mm_from_pixels
 from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points
 
 AP_NAMES = ("K1", "K2", "K3", "P1", "P2", "aspect", "skew")
@@ -199,25 +200,13 @@ class DbatScript:
     estimate_eo: bool
     operations: list[str]
     unknown_operations: list[str]
-    prior_eo: dict | None = None       # image id -> (X0 (3,), DBAT's ω φ κ radians (3,), file, line)
+    prior_eo: dict | None = None       # image id -> (X0 (3,), ω φ κ radians (3,), file, line)
     eo_initial: str = "default"        # "default" | "loaded"
 
 
 # --------------------------------------------------------------------------------------------
 # helpers
 
-
-_FLIP = np.diag([1.0, -1.0, -1.0])
-
-
-def flip_opk(opk) -> np.ndarray:
-    """DBAT's ω φ κ ↔ baarda's (``(n, 3)`` radians; the same function both ways).  DBAT's world-to-
-    camera rotation is ``R3(κ) R2(φ) R1(ω)`` with baarda's elementary rotations
-    (``eulerpinhole``: ``eulerrotmat(ang, 123, false)ᵀ``), but its camera frame has y down and z
-    forward (``x_mm − pp = f U/W`` with marks measured y down); baarda's camera frame is that one
-    turned 180° about x: ``R_baarda = diag(1, −1, −1) R_dbat``, an involution."""
-    R = rotation_from_opk_many(np.asarray(opk, float).reshape(-1, 3))
-    return opk_from_rotation_many(_FLIP @ R)
 
 
 
@@ -460,7 +449,7 @@ _ANGLE_UNITS = {"radian": 1.0, "radians": 1.0, "degrees": math.pi / 180, "degree
 
 def _prior_eo(section: Node, path, base, here, dbat_dir) -> dict:
     """``<prior_eo><file format="id,x,y,z,omega,phi,kappa" units="degrees">`` → {image id: (X0,
-    DBAT's ω φ κ in radians, file, line)}."""
+    ω φ κ in radians, file, line)}."""
     fns = section.findall("file")
     if len(fns) != 1:
         raise InputError(f"<prior_eo> must name exactly one <file>, got {len(fns)}", path=path, line=section.line,
@@ -826,7 +815,7 @@ def dbat_block(script: DbatScript) -> Block:
             if iid not in img_index:
                 raise InputError(f"image {quote(iid)} is not in the image list", path=file, line=line, field="id")
             X0[img_index[iid]] = x0
-            opk[img_index[iid]] = flip_opk(a)[0]
+            opk[img_index[iid]] = a
         photos = photos.replace(X0=X0, opk=opk)
     unused_ctrl = [pid for pid, r in zip(ids, role) if r == "full" and rays[pid] == 0]
     meta = {

@@ -14,9 +14,9 @@ a folder with the script ``<name>.xml`` and the files it names, laid out as DBAT
   (origin at the image corner, y down) with their σ.
 
 * the photos' orientations, when every photo has one, as ``<prior_eo>`` (``prior/eo.txt``:
-  ``id,x,y,z,omega,phi,kappa`` in degrees, DBAT's angles by :func:`.reader.flip_opk`, the function
-  the reader uses the other way) and initial values (``set_initial_values`` ``<eo>loaded</eo>``),
-  so the project does not resect; otherwise it resects every photo (``spatial_resection``).
+  ``id,x,y,z,omega,phi,kappa`` in degrees; DBAT's ω φ κ are baarda's, ``docs/dbat.md``) and initial
+  values (``set_initial_values`` ``<eo>loaded</eo>``), so the project does not resect; otherwise
+  it resects every photo (``spatial_resection``).
 
 DBAT scripts have no place for initial tie-point coordinates: the project intersects them
 (``forward_intersection``) before the bundle, as the DBAT demos do.
@@ -36,7 +36,7 @@ from baarda.pipeline.geometry import pixels_from_mm
 from baarda.pipeline.options import option
 from baarda.pipeline.stage import Context, StageResult
 
-from .reader import AP_NAMES, DbatCamera, dbat_from_baarda, flip_opk
+from .reader import AP_NAMES, DbatCamera, dbat_from_baarda
 
 MODEL = "brown-backward"
 _IO_TAGS = (("cc", "c"), ("px", "xp"), ("py", "yp"))
@@ -160,8 +160,8 @@ def dbat_files(block, *, name: str = "baarda", prior=None) -> tuple[dict[str, st
     # orientations: all or none (a DBAT project resects every photo or none)
     oriented = bool(len(ph)) and bool(ph.has_orientation.all())
     if oriented:
-        opk_d = np.degrees(flip_opk(ph.opk))
-        files["prior/eo.txt"] = head + "# id, x, y, z, omega, phi, kappa (degrees; DBAT's camera frame: y down, z forward)\n" \
+        opk_d = np.degrees(np.asarray(ph.opk, float))
+        files["prior/eo.txt"] = head + "# id, x, y, z, omega, phi, kappa (degrees)\n" \
             + "".join(f"{n}, {_g(x[0])}, {_g(x[1])}, {_g(x[2])}, {_g(a[0])}, {_g(a[1])}, {_g(a[2])}\n"
                       for n, x, a in zip(nums, np.asarray(ph.X0, float), opk_d))
     # marks: active observations, pixels from the image corner, y down

@@ -20,8 +20,8 @@ AP = np.array([-2.0e-4, 3.0e-7, -1.0e-10, 2.0e-5, -1.5e-5, 1.0e-4, -5.0e-5])    
 
 
 def synthetic(weighted=True, exact=False):
-    """A convergent block in pixels with a brown-backward camera (non-zero P2 and skew, whose signs
-    DBAT's y-down image frame flips), weighted or fixed control, two check points."""
+    """A convergent block in pixels with a brown-backward camera (every parameter non-zero),
+    weighted or fixed control, two check points."""
     noisy, error_free = simulate_convergent(np.random.default_rng(3), n_photos=6, n_points=30, model="none",
                                             xp=0.06, yp=-0.04, pixel_mm=0.004, resolution=(6000, 4000))
     block = error_free if exact else noisy
@@ -102,45 +102,28 @@ def test_synthetic_round_trip(tmp_path, weighted):
     assert "<eo>loaded</eo>" in xml and "spatial_resection" not in xml and "<prior_eo>" in xml
 
 
-def test_dbat_angles_project_as_dbat_does(tmp_path):
-    """The prior_eo file against DBAT's projection written out from its code (eulerpinhole,
-    res_euler_brown): U = eulerrotmat(ω φ κ, 123, moving)ᵀ (X − X0), x_mm − pp = c U₁/U₃ with the
-    marks in mm from the image corner, y down — the same image points as baarda's collinearity
-    (no distortion here)."""
-    block = synthetic(exact=True)
-    cams = block.cameras
-    block = block.replace(cameras=cams.replace(ap=np.zeros_like(cams.ap)))
-    write_dbat(block, tmp_path, name="p")
-    rows = [ln.split(",") for ln in (tmp_path / "prior" / "eo.txt").read_text().splitlines() if ln[0] != "#"]
-    eo = {r[0].strip(): np.array([float(v) for v in r[1:]]) for r in rows}
-    marks = [ln.split(",") for ln in (tmp_path / "measurements" / "markpts.txt").read_text().splitlines()
-             if ln[0] != "#"]
-    numbers = {r[0].strip(): r[1].strip().rsplit(".", 1)[0]
-               for r in (ln.split(",") for ln in (tmp_path / "images" / "images.txt").read_text().splitlines()
-                         if ln[0] != "#")}
-    xml = (tmp_path / "p.xml").read_text()
-    pp = np.array([float(v) for v in re.search(r"<pp>(.*)</pp>", xml).group(1).split(",")])
-    c = float(re.search(r"<cc>(.*)</cc>", xml).group(1))
-    px = block.cameras.pixel_mm[0]
+def test_sxb_orientations_are_written_as_dbat_reports_them(shared_data, tmp_path):
+    """sxb adjusted, exported: the prior_eo row of photo 1 (8811.jpg) holds the values DBAT's own
+    report prints for it (niclasborlin/dbat data/script/sxb/result/report.txt, DBAT 0.9.1.2; the
+    numbers of tests/dbat/test_projects.py) — DBAT's X0 and ω φ κ are baarda's."""
+    from baarda.pipeline.adjustment import BundleSettings, adjust
 
-    def active(axis, a):                              # DBAT's eulerrotmat elementary rotations
-        ca, sa = np.cos(a), np.sin(a)
-        return {1: np.array([[1, 0, 0], [0, ca, -sa], [0, sa, ca]]),
-                2: np.array([[ca, 0, sa], [0, 1, 0], [-sa, 0, ca]]),
-                3: np.array([[ca, -sa, 0], [sa, ca, 0], [0, 0, 1]])}[axis]
-
-    pid_of = {str(i): k for k, i in enumerate(block.points.ids.tolist())}
-    worst = 0.0
-    for im, pt, u, v, _ in marks:
-        e = eo[im.strip()]
-        w, p_, k = np.radians(e[3:])
-        M = active(1, w) @ active(2, p_) @ active(3, k)          # eulerrotmat(ang, 123, false)
-        U = M.T @ (block.points.XYZ[pid_of[pt.strip()]] - e[:3])
-        x_model = c * U[:2] / U[2] + pp
-        x_mark = np.array([float(u), float(v)]) * px
-        worst = max(worst, np.abs(x_model - x_mark).max())
-    # error-free simulated marks: DBAT's model reproduces them to rounding
-    assert worst < 1e-9 and len(numbers) == len(block.photos) == len(eo)
+    src = dbat_block(read_dbat(shared_data / "dbat-sxb" / "sxb.xml"))
+    res = adjust(src, BundleSettings(datum="control"))
+    run_stage(DbatExport, {"block": res.block, "bundle": res}, {"path": "sxb", "name": "sxb"}, tmp_path=tmp_path)
+    images = dict(ln.replace(" ", "").split(",") for ln in (tmp_path / "sxb" / "images" / "images.txt")
+                  .read_text().splitlines() if ln[0] != "#")
+    rows = {r[0].strip(): np.array([float(v) for v in r[1:]]) for r in (
+        ln.split(",") for ln in (tmp_path / "sxb" / "prior" / "eo.txt").read_text().splitlines() if ln[0] != "#")}
+    n = next(k for k, v in images.items() if v.endswith("8811.jpg"))
+    assert np.allclose(rows[n][:3], (999660.940086, 112368.368648, 1916.563176), atol=0.002)
+    assert np.allclose(rows[n][3:], (0.829772, -0.417236, -89.914549), atol=2e-5)
+    # read back: the orientations are the initial values, to the last digits written
+    back = dbat_block(read_dbat(tmp_path / "sxb" / "sxb.xml"))
+    assert back.meta["dbat"]["eo_initial"] == "loaded"
+    assert np.abs(back.photos.X0 - res.block.photos.X0).max() < 1e-9
+    assert np.abs(back.photos.opk - res.block.photos.opk).max() < 1e-14
+    assert "spatial_resection" not in back.meta["dbat"]["operations"]
 
 
 def test_camcal_source_round_trip(shared_data, tmp_path):
