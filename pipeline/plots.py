@@ -106,13 +106,19 @@ def point_errors(sets, unit: str, title: str, components=("X", "Y", "Z"), backgr
         for p, (x, y) in zip(s["ids"], xy):
             a.annotate(str(p), (x, y), fontsize=7, xytext=(3, 3), textcoords="offset points")
     a.autoscale_view()
-    a.set_aspect("equal", adjustable="datalim")
+    a.set_aspect("equal", adjustable="box")
     a.ticklabel_format(useOffset=False, style="plain")
+    from matplotlib.ticker import MaxNLocator
+
+    a.xaxis.set_major_locator(MaxNLocator(5))
+    a.yaxis.set_major_locator(MaxNLocator(6))
+    if len(ext) and np.nanmax(np.abs(ext[:, 0])) >= 1e4:      # long map coordinates: slanted, apart
+        a.tick_params(axis="x", labelrotation=25)
     a.set_xlabel(f"X ({unit})")
     a.set_ylabel(f"Y ({unit})")
     a.set_title(f"plan: vectors × {k:.3g}", fontsize=10)
-    if sets:
-        a.legend(fontsize=8, loc="best")
+    if sets:                                   # below the plan: a flat plan leaves no free corner
+        a.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=min(len(sets), 3), frameon=False)
     ids = []
     for s in sets:
         ids += [str(i) for i in s["ids"] if str(i) not in ids]

@@ -41,7 +41,10 @@ def _log_hist(ax, series, xlabel):
         zero = int((v == 0).sum())
         ax.hist(v[v > 0], bins=bins, color=col, alpha=0.6,
                 label=f"{label} ({v.size}" + (f"; {zero} exactly 0)" if zero else ")"))
+    from matplotlib.ticker import MaxNLocator
+
     ax.set_xscale("log")
+    ax.yaxis.set_major_locator(MaxNLocator(integer=True))
     ax.set_xlabel(xlabel)
     ax.set_ylabel("count")
     ax.legend(fontsize=8)

@@ -87,7 +87,6 @@ def camera_comparison(q: dict, reference: dict | None, earlier: dict | None):
     lim = max(1.5, float(np.nanmax(np.abs(np.concatenate([np.asarray(s[2], float) for s in series])))) * 1.15)
     a.set_ylim(-lim, lim)
     a.set_title("camera: difference in units of σ (shaded: ±1σ)", fontsize=10)
-    a.legend(fontsize=8, loc="best")
     b.axhline(0, color="k", lw=0.7)
     b.set_xticks(np.arange(len(names)), names, fontsize=8)
     b.set_xlim(-0.6, len(names) - 0.4)
@@ -97,8 +96,10 @@ def camera_comparison(q: dict, reference: dict | None, earlier: dict | None):
     b.set_ylabel("relative difference of σ")
     b.set_xlabel("camera parameter (DBAT's names)")
     b.set_title("standard deviations", fontsize=10)
-    b.legend(fontsize=8, loc="best")
-    fig.tight_layout()
+    ha, la = a.get_legend_handles_labels()
+    hb, lb = b.get_legend_handles_labels()
+    fig.legend(ha + hb, la + lb, loc="lower center", ncol=2, fontsize=8, frameon=False)
+    fig.tight_layout(rect=(0, 0.06 + 0.05 * len(series), 1, 1))
     return fig
 
 
@@ -172,14 +173,18 @@ def rays_and_angles(q: dict):
              ("tie", role == "tie", "#7f8c8d"))
     used = rays > 0
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 3.6))
-    bins = np.linspace(0, 90, 46)
-    rbins = np.arange(0.5, max(int(rays.max()) if rays.size else 1, 1) + 1.5)
-    for name, m, col in kinds:
-        m = m & used
-        if not m.any():
-            continue
+    fin = ang[used & np.isfinite(ang)]
+    top = min(90.0, float(fin.max()) * 1.1 + 1.0) if fin.size else 90.0
+    bins = np.linspace(0, top, 46)
+    r_used = rays[used]
+    values = np.arange(int(r_used.min()), int(r_used.max()) + 1) if r_used.size else np.arange(1, 2)
+    drawn = [(name, m & used, col) for name, m, col in kinds if (m & used).any()]
+    w = 0.8 / max(len(drawn), 1)
+    for n, (name, m, col) in enumerate(drawn):
         a.hist(ang[m & np.isfinite(ang)], bins=bins, color=col, alpha=0.6, label=f"{name} ({int(m.sum())})")
-        b.hist(rays[m], bins=rbins, color=col, alpha=0.6, label=name)
+        b.bar(values + (n - (len(drawn) - 1) / 2) * w, [int((rays[m] == k).sum()) for k in values], width=w,
+              color=col, label=name)
+    b.set_xticks(values)
     a.set_xlabel("largest intersection angle (°)")
     a.set_ylabel("points")
     a.set_title("intersection angles", fontsize=10)
@@ -242,7 +247,7 @@ def marks_figure(cmp: dict, radius_px: float):
     b.set_xlabel("difference (px)")
     b.set_ylabel("pairs")
     b.set_title("histograms (lines: bias)", fontsize=10)
-    b.legend(fontsize=8)
+    b.legend(fontsize=8, loc="upper left")
     c.plot(duv[:, 0], duv[:, 1], ".", ms=2, color="#555")
     t = np.linspace(0, 2 * np.pi, 200)
     r = np.asarray(a_["rms_px"], float)

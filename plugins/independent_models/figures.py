@@ -77,7 +77,7 @@ def y_parallaxes(result, stats):
     """Residual y-parallax of every point per model (µm): used, flagged, removed before the model."""
     plt = _plt()
     data = y_parallax_points(result, stats)
-    fig, ax = plt.subplots(figsize=(max(6.5, 0.75 * len(data) + 3), 4.0))
+    fig, ax = plt.subplots(figsize=(max(10.0, 0.75 * len(data) + 3), 4.0))
     rng = np.random.default_rng(0)          # horizontal jitter only, for legibility
     seen = set()
     for k, (mid, ids, py, used, flag, _) in enumerate(data):
@@ -101,27 +101,36 @@ def y_parallaxes(result, stats):
     return fig
 
 
-def model_residual_rms(table) -> tuple[list, np.ndarray]:
-    """(model ids, (m, 3) RMS of vx, vy, vz) from the stage's ``residuals`` table."""
+def model_residual_rms(table, projection_centres: bool = False) -> tuple[list, np.ndarray]:
+    """(model ids, (m, 3) RMS of vx, vy, vz) from the stage's ``residuals`` table, over the model
+    points or (``projection_centres``) over the projection centres (role ``pc``); nan where a model
+    has none."""
     model = np.asarray(table.columns["model"]).astype(str)
+    pc = np.asarray(table.columns["role"]).astype(str) == "pc"
     v = np.column_stack([np.asarray(table.columns[c], float) for c in ("vx", "vy", "vz")])
     ids = list(dict.fromkeys(model.tolist()))
-    return ids, np.array([np.sqrt(np.nanmean(v[model == m] ** 2, axis=0)) for m in ids]).reshape(-1, 3)
+    sel = pc if projection_centres else ~pc
+    rms = [np.sqrt(np.mean(v[(model == m) & sel] ** 2, axis=0)) if np.any((model == m) & sel) else np.full(3, np.nan)
+           for m in ids]
+    return ids, np.array(rms).reshape(-1, 3)
 
 
 def model_residuals(table, unit: str):
     plt = _plt()
-    ids, rms = model_residual_rms(table)
     f, u = (1000.0, "mm") if unit == "m" else (1.0, unit)
-    fig, ax = plt.subplots(figsize=(max(6.5, 0.75 * len(ids) + 3), 3.6))
-    x = np.arange(len(ids))
-    for c, (name, col) in enumerate((("x", "#1f4e9c"), ("y", "#2c7a3f"), ("z", "#c0392b"))):
-        ax.bar(x + (c - 1) * 0.27, rms[:, c] * f, width=0.27, color=col, label=f"RMS v{name}")
-    ax.set_xticks(x, ids, fontsize=8, rotation=45 if len(ids) > 10 else 0)
-    ax.set_xlabel("model")
-    ax.set_ylabel(f"RMS residual ({u})")
-    ax.set_title("model-point residuals in the object frame (observed − computed), per model", fontsize=10)
-    ax.legend(fontsize=8)
+    has_pc = bool(np.any(np.asarray(table.columns["role"]).astype(str) == "pc"))
+    ids = model_residual_rms(table)[0]
+    fig, axes = plt.subplots(1, 2 if has_pc else 1, figsize=(max(10.0, 1.3 * len(ids) + 3), 3.6), squeeze=False)
+    for ax, pc, what in zip(axes[0], (False, True), ("model points", "projection centres")):
+        ids, rms = model_residual_rms(table, pc)
+        x = np.arange(len(ids))
+        for c, (name, col) in enumerate((("x", "#1f4e9c"), ("y", "#2c7a3f"), ("z", "#c0392b"))):
+            ax.bar(x + (c - 1) * 0.27, rms[:, c] * f, width=0.27, color=col, label=f"RMS v{name}")
+        ax.set_xticks(x, ids, fontsize=8, rotation=45 if len(ids) > 8 else 0)
+        ax.set_xlabel("model")
+        ax.set_ylabel(f"RMS residual ({u})")
+        ax.set_title(f"{what}: residuals in the object frame (observed − computed)", fontsize=10)
+        ax.legend(fontsize=8)
     fig.tight_layout()
     return fig
 
@@ -137,5 +146,6 @@ def independent_model_figures(result, stats, tables, unit: str, previous=()) -> 
     out["y_parallax"] = (y_parallaxes(result, stats),
                          "Relative orientation of each model: residual y-parallax of every point (µm)")
     out["model_residuals"] = (model_residuals(tables["residuals"], unit),
-                              "RMS of the model-point residuals of the block adjustment, per model and axis")
+                              "RMS of the residuals of the block adjustment per model and axis: model points and "
+                              "projection centres")
     return out

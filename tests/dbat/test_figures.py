@@ -21,6 +21,14 @@ from baarda.plugins.dbat.stage import DbatMarks, DbatReport  # noqa: E402
 
 from .test_projects import CAMCAL, SXB_CHECK, SXB_CONTROL  # noqa: E402
 
+@pytest.fixture(autouse=True)
+def _close_figures():
+    yield
+    import matplotlib.pyplot as plt
+
+    plt.close("all")
+
+
 
 def _report(shared_data, name, tmp_path, inputs=None):
     block = dbat_block(read_dbat(shared_data / name))

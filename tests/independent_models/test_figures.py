@@ -22,6 +22,14 @@ from baarda.plugins.independent_models.stage import IndependentModels  # noqa: E
 
 from .test_stage import _weighted  # noqa: E402
 
+@pytest.fixture(autouse=True)
+def _close_figures():
+    yield
+    import matplotlib.pyplot as plt
+
+    plt.close("all")
+
+
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
@@ -88,9 +96,11 @@ def test_y_parallaxes_and_residuals_are_the_stage_numbers(run):
     assert sum(len(ln.get_ydata()) for ln in red) == len(flagged)
     assert sorted(np.concatenate([ln.get_ydata() for ln in ax.get_lines() if len(ln.get_ydata()) and
                                   ln.get_marker() == "o"])) == pytest.approx(sorted(t["py_um"]))
-    ids, rms = model_residual_rms(out.tables["residuals"])
     r = out.tables["residuals"].columns
-    m0 = np.asarray(r["model"]).astype(str) == ids[0]
-    assert rms[0, 2] == pytest.approx(np.sqrt(np.mean(np.asarray(r["vz"], float)[m0] ** 2)))
-    bars = [p.get_height() for p in IndependentModels().plots(out, None)["model_residuals"][0].axes[0].patches]
-    assert np.allclose(bars, 1000 * rms.T.ravel())    # m → mm, x bars first
+    axes = IndependentModels().plots(out, None)["model_residuals"][0].axes
+    assert len(axes) == 2                              # model points, projection centres
+    for ax, pc in zip(axes, (False, True)):
+        ids, rms = model_residual_rms(out.tables["residuals"], pc)
+        m0 = (np.asarray(r["model"]).astype(str) == ids[0]) & ((np.asarray(r["role"]) == "pc") == pc)
+        assert m0.any() and rms[0, 2] == pytest.approx(np.sqrt(np.mean(np.asarray(r["vz"], float)[m0] ** 2)))
+        assert np.allclose([p.get_height() for p in ax.patches], 1000 * rms.T.ravel())    # m → mm, x bars first

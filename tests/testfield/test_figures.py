@@ -16,6 +16,14 @@ from baarda.plugins.testfield.method_study import (BUNDLE, BUNDLE_AP, IM, PAPER_
                                                    VARIANTS)
 from baarda.plugins.testfield.method_study_stage import MethodStudy  # noqa: E402
 
+@pytest.fixture(autouse=True)
+def _close_figures():
+    yield
+    import matplotlib.pyplot as plt
+
+    plt.close("all")
+
+
 
 def _line(ax, label):
     return next(ln for ln in ax.get_lines() if ln.get_label() == label)
