@@ -155,7 +155,10 @@ class BalExport:
 
     def run(self, inputs, options: BalExportOptions, ctx: Context) -> StageResult:
         bundle = inputs.get("bundle")
-        block = inputs["block"] if options.source or bundle is None else bundle.block
+        block = inputs["block"] if bundle is None else bundle.block
+        if options.source and bundle is not None:
+            block = bundle.block_in            # the bundle hands on its adjusted block as 'block'
+
         out = ctx.output_path(options.path, "path")
         out.parent.mkdir(parents=True, exist_ok=True)
         try:

@@ -67,7 +67,7 @@ def gcp_lines(block, *, roles=SURVEYED, frame: LocalFrame | None = None, crs_tex
     lines = [crs_text or crs_line(frame)]
     for r, (u, v) in zip(rows, uv):
         X = geo[obs.point[r]]
-        lines.append(f"{X[0]:.12g} {X[1]:.12g} {X[2]:.12g} {u:.12g} {v:.12g} {ph.ids[obs.photo[r]]} "
+        lines.append(f"{X[0]:.15g} {X[1]:.15g} {X[2]:.15g} {u:.12g} {v:.12g} {ph.ids[obs.photo[r]]} "
                      f"{pts.ids[obs.point[r]]}")
     info = {"measurements": int(rows.size), "targets": int(np.unique(obs.point[rows]).size),
             "images": int(np.unique(obs.photo[rows]).size),
@@ -88,8 +88,8 @@ def write_gcp_list(block, path: str | Path, **kw) -> dict:
 @dataclass(frozen=True)
 class GcpExportOptions:
     path: Path = option(Path("gcp_list.txt"), "output file inside the run directory")
-    points: str = option("surveyed", "'surveyed': the coordinates the source read (the block); 'adjusted': the "
-                                     "bundle's")
+    points: str = option("surveyed", "'surveyed': the coordinates the source read (after a bundle: its input "
+                                     "block); 'adjusted': the bundle's")
     roles: list[str] = option(list(SURVEYED), "roles of the points written (default the surveyed ones: full, xy, "
                                               "z, check)")
     crs: str | None = option(None, "write in this CRS instead of the block's")
@@ -116,6 +116,8 @@ class GcpExport:
             if bundle is None:
                 raise ctx.option_error("points = 'adjusted' needs a bundle stage before gcp-export", "points")
             block = bundle.block
+        elif bundle is not None and getattr(bundle, "block_in", None) is not None:
+            block = bundle.block_in            # the bundle hands on its adjusted block as 'block'
         frame = frame_of_block(block)
         crs_text = None
         if options.crs is not None:

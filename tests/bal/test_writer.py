@@ -81,6 +81,11 @@ def test_bundle_result_reprojects_as_baarda(adjusted, tmp_path):
     ref = project_block(block, obs.photo[rows], obs.point[rows]) / p
     assert np.abs(uv - ref).max() < 1e-9
     assert np.allclose(back.xy, obs.xy[rows] / p, rtol=0, atol=1e-9)
+    # source = true after a bundle: the bundle's input block (the pipeline's 'block' is the adjusted one)
+    out = run_stage(BalExport, {"block": block, "bundle": res}, {"path": "src.txt", "source": True}, tmp_path=tmp_path)
+    src = read_bal(tmp_path / "src.txt")
+    assert out.summary["block"] == "source"
+    assert np.array_equal(src.points, res.block_in.points.XYZ) and not np.allclose(src.points, back.points)
 
 
 def test_refusals_and_drop(adjusted, tmp_path):

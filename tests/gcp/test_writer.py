@@ -70,6 +70,11 @@ def test_adjusted_points_and_refusals(odm, tmp_path):
     run_stage(GcpExport, {"block": block, "bundle": moved}, {"points": "adjusted"}, tmp_path=tmp_path)
     back = read_gcp_list(tmp_path / "gcp_list.txt")
     assert np.allclose(back.geo[:, 2] - gcp.geo[[gcp.name.index(n) for n in back.name], 2], 0.25, atol=1e-6)
+    # after a bundle the pipeline's 'block' is the adjusted one: 'surveyed' takes the bundle's input
+    moved.block_in = block
+    run_stage(GcpExport, {"block": moved.block, "bundle": moved}, {"path": "s.txt"}, tmp_path=tmp_path)
+    # (0.25 m along the origin's vertical is a few µm horizontal at the targets: compare to 10 µm)
+    assert np.abs(read_gcp_list(tmp_path / "s.txt").geo - back.geo + [0, 0, 0.25]).max() < 1e-5
     with pytest.raises(InputError, match="needs a bundle") as e:
         run_stage(GcpExport, {"block": block}, {"points": "adjusted"}, tmp_path=tmp_path)
     assert e.value.field == "points"
