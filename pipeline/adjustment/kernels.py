@@ -19,7 +19,7 @@ import warnings
 
 import numpy as np
 
-__all__ = ["project", "eo_point_jacobians", "point_normals", "chol3_inv", "schur_blocks", "b_matvec",
+__all__ = ["project", "eo_point_jacobians", "whitened", "point_normals", "chol3_inv", "schur_blocks", "b_matvec",
            "b_rmatvec", "pair_products", "add_blocks", "linear_change"]
 
 
@@ -131,6 +131,37 @@ def eo_point_jacobians(d, xbar, c, Dxy, R, sv, obs_photo):
     _eo_point_jacobians(_f(d), _f(xbar), _f(c), _f(Dxy) if has else np.zeros((0, 2, 2)), has, _f(R), _f(sv),
                         _i(obs_photo), J_point, J_eo, J_c)
     return J_point, J_eo, J_c
+
+
+@_jit
+def _whitened(L, J_cam, J_eo, se, J_point, spt, Jc, Jp):
+    a, ne, npt = J_cam.shape[2], se.shape[0], spt.shape[0]
+    for i in range(L.shape[0]):
+        l00, l01, l10, l11 = L[i, 0, 0], L[i, 0, 1], L[i, 1, 0], L[i, 1, 1]
+        for j in range(a):
+            x0, x1 = J_cam[i, 0, j], J_cam[i, 1, j]
+            Jc[i, 0, j] = l00 * x0 + l01 * x1
+            Jc[i, 1, j] = l10 * x0 + l11 * x1
+        for t in range(ne):
+            x0, x1 = J_eo[i, 0, se[t]], J_eo[i, 1, se[t]]
+            Jc[i, 0, a + t] = l00 * x0 + l01 * x1
+            Jc[i, 1, a + t] = l10 * x0 + l11 * x1
+        for j in range(3):
+            x0, x1 = J_point[i, 0, j], J_point[i, 1, j]
+            Jp[i, 0, j] = l00 * x0 + l01 * x1
+            Jp[i, 1, j] = l10 * x0 + l11 * x1
+        for t in range(npt):
+            Jc[i, 0, a + ne + t] = Jp[i, 0, spt[t]]
+            Jc[i, 1, a + ne + t] = Jp[i, 1, spt[t]]
+
+
+def whitened(L, J_cam, J_eo, se, J_point, spt):
+    """``(L [J_cam, J_eo[:, :, se], J_point[:, :, spt]], L J_point)``: the whitened Jacobian of the
+    global columns (k, 2, q) and of the point (k, 2, 3), ``L`` (k, 2, 2) per observation."""
+    k = len(L)
+    Jc, Jp = np.empty((k, 2, J_cam.shape[2] + len(se) + len(spt))), np.empty((k, 2, 3))
+    _whitened(_f(L), _f(J_cam), _f(J_eo), _i(se), _f(J_point), _i(spt), Jc, Jp)
+    return Jc, Jp
 
 
 @_jit

@@ -38,17 +38,10 @@ class NormalEquations:
             self.projector.jacobians(proj)
         parts = self.residual_parts(st, proj)
         v, e, dg, dpv, dd, _ = parts
-        k = len(e)
         sc, se, spt = self.jac_cols
-        Jc = np.empty((k, 2, self.q))
-        a, b = len(sc), len(sc) + len(se)
-        Jc[:, :, :a] = proj.J_cam
-        Jc[:, :, a:b] = proj.J_eo if len(se) == 6 else proj.J_eo[:, :, se]
-        Jc[:, :, b:] = proj.J_point[:, :, spt]
-        Jc = self.whiten(Jc, out=Jc)
+        Jc, Jp = kernels.whitened(self.L, proj.J_cam, proj.J_eo, se, proj.J_point, spt)   # L [J_cam J_eo J_pt]
         if not self.col_mask_all:
             Jc *= self.col_mask[:, None, :]
-        Jp = self.whiten(proj.J_point)
         if not self.pt_mask_all:
             Jp *= self.pt_mask[:, None, :]
         proj.J_cam = proj.J_eo = proj.J_point = None      # whitened copies above; recomputed if needed again
@@ -77,12 +70,6 @@ class NormalEquations:
             bp[fixed] = 0.0
         return dict(U=U, g=g, V=V, bp=bp, Jc=Jc, Jp=Jp, e=e, v=v, parts=parts, proj=proj,
                     Jd=Jd, dcols=dcols, t=time.perf_counter() - t0)
-
-    def whiten(self, J, out=None):
-        """``L J`` for (k, 2, c) Jacobians."""
-        if self.L_diag:
-            return np.multiply(J, self.L_rows, out=out)
-        return bmm(self.L, J)
 
     def gram_U(self, Jc, e=None):
         """``Σ_k Jc_kᵀ Jc_k`` over the global unknowns (and ``Σ_k Jc_kᵀ e_k`` when ``e`` is given):

@@ -191,3 +191,15 @@ def test_add_blocks(rng):
     out2 = np.zeros((ng1 - 1, ng1 - 1))
     kernels.add_blocks(out2, flat.astype(np.int32), vals, ng1, False)
     np.testing.assert_allclose(out2, A[:-1, :-1], rtol=1e-14, atol=1e-14)
+
+
+@pytest.mark.parametrize("diagonal", [True, False])
+def test_whitened_columns(rng, diagonal):
+    k = 150
+    L = np.triu(rng.normal(size=(k, 2, 2))) if not diagonal else rng.normal(size=(k, 2, 2)) * np.eye(2)
+    J_cam, J_eo, J_point = rng.normal(size=(k, 2, 2)), rng.normal(size=(k, 2, 6)), rng.normal(size=(k, 2, 3))
+    se, spt = np.array([0, 1, 2, 4, 5]), np.array([2, 0])
+    Jc, Jp = kernels.whitened(L, J_cam, J_eo, se, J_point, spt)
+    J = np.concatenate([J_cam, J_eo[:, :, se], J_point[:, :, spt]], axis=2)
+    np.testing.assert_allclose(Jc, L @ J, rtol=1e-14, atol=1e-14)
+    np.testing.assert_allclose(Jp, L @ J_point, rtol=1e-14, atol=1e-14)
