@@ -37,6 +37,15 @@ from .detect import (DEFAULT_SIGMA_PX, Detection, detect_aruco, detect_blobs, de
 IOP = ("c", "xp", "yp")
 
 
+def _pitch_note(options, sigma_px: float) -> str:
+    """The pixel pitch beside a σ in px only when it is a real one (given, or from a render stage):
+    the default 1 µm is a nominal scale for pixel sources, and µm at that pitch would mean nothing."""
+    default = next(f.default for f in dataclasses.fields(options) if f.name == "pixel_mm")
+    if options.pixel_mm == default:
+        return ""
+    return f" = {sigma_px * options.pixel_mm * 1000:g} µm at pitch {options.pixel_mm:g} mm"
+
+
 @dataclass(frozen=True)
 class TargetOptions:
     target: Literal["chessboard", "charuco", "aruco", "circles-grid", "circles"] = field(
@@ -435,7 +444,7 @@ class TargetDetection(Stage):
         lines = [f"Target type **{options.target}**: {len(used)} of {len(files)} image(s) used, "
                  f"{len(block.observations)} image points, {len(block.points)} object points "
                  f"({_points_origin(options, block)}); a-priori sigma "
-                 f"{sigma_px:g} px = {sigma_px * options.pixel_mm * 1000:g} µm at pitch {options.pixel_mm:g} mm.", "",
+                 f"{sigma_px:g} px{_pitch_note(options, sigma_px)}.", "",
                  "| image | camera | points | status | note |", "|---|---|---:|---|---|"]
         for r in rows:
             lines.append(f"| {Path(r['file']).name} | {r['camera']} | {r['points']} | {r['status']} | {r['message']} |")
