@@ -446,6 +446,12 @@ class BundleProblem(NormalEquations):
         self.datum_photos = np.zeros(0, int)
         if st.datum != "free":
             return
+        if any(k.kind == "gnss" for k in getattr(self, "grows", ())):
+            # antennas observe position, orientation and scale of the block: inner constraints on top
+            # would pull against them (σ̂0 4.6 instead of 1.0 on the test block of docs/bundle.md)
+            raise InputError("GNSS antenna observations fix the datum (position, orientation and scale); a free "
+                             "network's inner constraints would contradict them: use datum = \"control\"",
+                             field="datum")
         self.scale_free = len(self.dist_l) == 0
         self.n_c = 7 if self.scale_free else 6
         pts = self.block.points

@@ -187,6 +187,10 @@ def test_datum_from_antennas_and_its_diagnosis():
     # no antenna, no control: the full datum is missing
     with pytest.raises(AdjustmentError, match="no datum: 7 degrees"):
         adjust(blk.replace(gnss=Gnss.empty()), BundleSettings())
+    # antennas and a free network's inner constraints contradict each other: refused, naming the option
+    with pytest.raises(InputError, match='use datum = "control"') as e:
+        adjust(blk, BundleSettings(datum="free"))
+    assert e.value.field == "datum"
 
 
 def test_antenna_covariance_must_be_positive_definite():
