@@ -15,12 +15,27 @@ numba's user cache; without any writable cache the kernels are compiled in every
 
 from __future__ import annotations
 
+import os
+import threading
 import warnings
 
 import numpy as np
 
 __all__ = ["project", "eo_point_jacobians", "whitened", "point_normals", "chol3_inv", "schur_blocks", "b_matvec",
            "b_rmatvec", "pair_products", "add_blocks", "linear_change"]
+
+
+def _source_stamp():
+    """This file's (mtime, size), as numba's cache index keys it."""
+    try:
+        st = os.stat(__file__)
+        return st.st_mtime, st.st_size
+    except OSError:
+        return None
+
+
+_IMPORTED_STAMP = _source_stamp()
+_LOCK = threading.Lock()
 
 
 class _jit:
@@ -35,7 +50,9 @@ class _jit:
 
     def __call__(self, *args):
         if self.compiled is None:
-            self.compiled = _compile(self.fn)
+            with _LOCK:                                # one compilation when threads call first together
+                if self.compiled is None:
+                    self.compiled = _compile(self.fn)
         return self.compiled(*args)
 
 
@@ -43,10 +60,13 @@ def _compile(fn):
     import numba
 
     opts = dict(nogil=True, error_model="numpy")
+    # numba keys its cache by the source file's stamp when the kernel is compiled; a file changed
+    # since this process imported it would get this process's (old) code under the new stamp
+    cache = _source_stamp() == _IMPORTED_STAMP
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", numba.NumbaWarning)
-            return numba.njit(cache=True, **opts)(fn)
+            return numba.njit(cache=cache, **opts)(fn)
     except RuntimeError:                               # "cannot cache function …: no locator available"
         return numba.njit(**opts)(fn)
 

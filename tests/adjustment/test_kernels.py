@@ -203,3 +203,15 @@ def test_whitened_columns(rng, diagonal):
     J = np.concatenate([J_cam, J_eo[:, :, se], J_point[:, :, spt]], axis=2)
     np.testing.assert_allclose(Jc, L @ J, rtol=1e-14, atol=1e-14)
     np.testing.assert_allclose(Jp, L @ J_point, rtol=1e-14, atol=1e-14)
+
+
+def test_no_cache_when_the_source_changed_since_import(monkeypatch):
+    """A kernels.py edited after this process imported it is not cached under the new stamp."""
+    monkeypatch.setattr(kernels, "_IMPORTED_STAMP", (0.0, 0))
+
+    def thrice(a):
+        return 3.0 * a
+
+    f = kernels._jit(thrice)
+    assert f(np.arange(2.0)).tolist() == [0.0, 3.0]
+    assert f.compiled._cache.__class__.__name__ == "NullCache"
