@@ -16,13 +16,15 @@ from pathlib import Path
 import numpy as np
 
 from baarda.pipeline import montecarlo
-from baarda.pipeline.adjustment import parameter_covariance
+from baarda.pipeline.adjustment import own_effects, parameter_covariance, row_mdb
 from baarda.pipeline.camera import ap_model_names, get_ap_model
 from baarda.pipeline.errors import InputError, quote
-from baarda.pipeline.geometry import opk_from_rotation
+from baarda.pipeline.geometry import opk_from_rotation, rotation_from_opk_many
 from baarda.pipeline.options import REQUIRED, option
 from baarda.pipeline.report import markdown_table
 from baarda.pipeline.stage import Context, SourceStage, Stage, StageResult, TableData
+from baarda.pipeline.stats.critical import delta0 as _delta0
+from baarda.pipeline.stats.ellipses import plan_ellipses
 from baarda.pipeline.synthetic.closerange import look_at
 
 from .network import PlannedCamera, joint_test, plan_block, ratio_test, realisation_errors
@@ -99,12 +101,25 @@ class DesignSource(SourceStage):
         tables = {"rays": TableData({"target": list(tid), "role": list(role), "rays": rays.tolist()},
                                     "planned rays per target")}
         return StageResult(artefacts={"block": block}, summary=summary, report=report, tables=tables,
-                           data={"block": block})
+                           data={"block": block, "rays": rays, "per_station": per_station,
+                                 "view": viewing_directions(block.photos.opk)})
+
+    def plots(self, result: StageResult, ctx: Context) -> dict:
+        """The planned network and its rays (report.html; plugins/design/figures.py)."""
+        from .figures import plan_figures
+
+        return plan_figures(result.data)
 
     def log(self, result: StageResult, rec, ctx: Context) -> None:
         from baarda.pipeline.recording import log_block
 
         log_block(rec, result.data["block"], root="planned")
+
+
+def viewing_directions(opk) -> np.ndarray:
+    """(m, 3) unit viewing directions of the stations in object space: the camera's −z axis
+    (a point in front has W < 0), i.e. minus the third row of ``R_cam_from_world``."""
+    return -rotation_from_opk_many(opk)[:, 2, :]
 
 
 def _camera(o: CameraOptions, ctx: Context) -> PlannedCamera:
@@ -297,7 +312,8 @@ class DesignMonteCarlo(Stage):
             E_cam = np.stack([[e["cam"][j, t] for j, t, _ in cam_rows] for e in errs]) if cam_rows else \
                 np.zeros((options.n_sim, 0))
             t_cam = ratio_test(E_cam, sig_cam, options.alpha)
-            mc = {"points": t_pts, "cameras": t_cam, "sigma0_hat": np.array([e["sigma0_hat"] for e in errs])}
+            mc = {"points": t_pts, "cameras": t_cam, "sigma0_hat": np.array([e["sigma0_hat"] for e in errs]),
+                  "errors_points": E_pts, "dof": int(errs[0]["dof"])}
             if options.joint_test:
                 specs = [f"point {i}" for i in block.points.ids[free_pt]] + [f"camera {c}" for c in block.cameras.ids]
                 names, C = parameter_covariance(res, specs)
@@ -329,7 +345,57 @@ class DesignMonteCarlo(Stage):
                 "ratio_interval": [round(t_pts.lower, 4), round(t_pts.upper, 4)],
                 "sigma0_hat_mean": round(float(np.mean(mc["sigma0_hat"])), 4)})
         report = _report(block, res, free_pt, sig_pts, cam_rows, sig_cam, pairs, mc, options)
-        return StageResult(artefacts={"design": out}, summary=summary, report=report, tables=tables, data=out)
+        data = {**out, "figures": figure_data(res, pred["points"], free_pt)}
+        return StageResult(artefacts={"design": out}, summary=summary, report=report, tables=tables, data=data)
+
+    def plots(self, result: StageResult, ctx: Context) -> dict:
+        """Predicted precision and reliability of the plan, and the Monte Carlo against the prediction
+        (report.html; plugins/design/figures.py)."""
+        from .figures import montecarlo_figures
+
+        return montecarlo_figures(result.data)
+
+
+def figure_data(res, cov_points, free_pt, delta0: float | None = None) -> dict:
+    """What the design-montecarlo figures draw, from the prediction ``res`` (the bundle of the plan):
+    the planned network, the points' standard error ellipses in plan (X, Y) and elevation (X, Z) from
+    σ0² Q (``a``, ``b``, bearing in degrees: :func:`plan_ellipses`), and per target the internal and
+    external reliability of its image rows: the smallest redundancy number, the largest MDB (δ0 σ0 /
+    √(PQvvP)ᵢᵢ, px) and the largest effect of an MDB on the target's own coordinates (object units and
+    in its predicted σ).  ``delta0`` defaults to δ0(0.1 %, 80 %)."""
+    block = res.block_in
+    d0 = _delta0() if delta0 is None else float(delta0)
+    C = np.asarray(cov_points, float)
+    xz = C[:, [0, 2, 1]][:, :, [0, 2, 1]]
+    n = len(block.points)
+    obs = block.observations
+    act = np.asarray(res.row_active, bool)                            # (k, 2)
+    tgt = np.repeat(obs.point[:, None], 2, axis=1)
+    px = np.asarray(block.cameras.pixel_mm, float)[block.photos.camera[obs.photo]][:, None]
+    if res.snapshot is None:                                          # no precision: no reliability
+        r = mdb_px = vp = sp = np.full(act.shape, np.nan)
+    else:
+        r = np.asarray(res.snapshot.r, float).reshape(-1, 2)
+        mdb_px = row_mdb(res, d0) / px
+        _, vp, sp, *_ = own_effects(res, d0).largest()
+    r_min = np.full(n, np.inf)
+    np.minimum.at(r_min, tgt[act], r[act])
+    mdb_max = np.full(n, -np.inf)
+    np.maximum.at(mdb_max, tgt[act], mdb_px[act])
+    eff = np.where(act & np.isfinite(sp), np.abs(vp), -np.inf)
+    eff_max = np.full(n, -np.inf)
+    np.maximum.at(eff_max, tgt, eff)
+    effs = np.where(act & np.isfinite(sp), sp, -np.inf)
+    eff_sig = np.full(n, -np.inf)
+    np.maximum.at(eff_sig, tgt, effs)
+    clean = lambda a: np.where(np.isfinite(a), a, np.nan)
+    return {"ids": np.asarray(block.points.ids), "role": np.asarray(block.points.role),
+            "XYZ": np.array(res.state.XYZ, float), "X0": np.array(res.state.X0, float),
+            "view": viewing_directions(res.state.opk), "used": np.asarray(res.point_used, bool),
+            "free": np.asarray(free_pt), "object_unit": block.object_unit,
+            "ellipse_xy": np.column_stack(plan_ellipses(C)), "ellipse_xz": np.column_stack(plan_ellipses(xz)),
+            "r_rows": r[act & np.isfinite(r)], "delta0": d0, "r_min": clean(r_min), "mdb_max_px": clean(mdb_max),
+            "effect_max": clean(eff_max), "effect_max_sigma": clean(eff_sig)}
 
 
 def _correlated(res, rho_max):
