@@ -15,7 +15,7 @@ import numpy as np
 from baarda.pipeline.errors import InputError
 from baarda.pipeline.options import option
 from baarda.pipeline.report import markdown_table
-from baarda.pipeline.recording import role_colors
+from baarda.pipeline.recording import log_series, role_colors
 from baarda.pipeline.stage import Context, Stage, StageResult, TableData
 from baarda.pipeline.stats import data_snooping, global_test, iterated_data_snooping
 from baarda.pipeline.contracts import AdjustmentArtefact
@@ -432,11 +432,13 @@ def log_independent_models(rec, result: IndependentModelResult, stats: dict, roo
             origins=pts[idx] - chk["dXYZ"], vectors=chk["dXYZ"] * kk, labels=chk["ids"].tolist(),
             colors=[[40, 170, 60]]), static=True)
         lines.append(f"- {root}/block/check_errors: adjusted − surveyed (from the surveyed point) ×{kk:.3g}")
-    # convergence of the block adjustment
+    # convergence of the block adjustment: σ̂0 per iteration through the one series writer (a single
+    # iteration, or one that never changed, is a static value under …/block/constants)
     dof = max(blk.dof, 1)
-    for i, vtpv in enumerate(blk.history):
-        rec.set_time("iteration", sequence=i)
-        rec.log(f"{root}/block/sigma0_hat", rr.Scalars([float(np.sqrt(vtpv / dof))]))
+    log_series(rec, f"{root}/block", np.arange(len(blk.history)),
+               {"sigma0_hat": [float(np.sqrt(vtpv / dof)) for vtpv in blk.history]})
+    lines.append(f"- {root}/block/sigma0_hat: σ̂0 per iteration of the block adjustment "
+                 f"(a static value in {root}/block/constants when it did not change)")
     rec.log(f"{root}/legend", rr.TextDocument("\n".join(lines), media_type=rr.MediaType.MARKDOWN), static=True)
 
 
