@@ -153,8 +153,7 @@ def child_baarda(a) -> dict:
     from baarda.pipeline.adjustment import BundleSettings, adjust
 
     block = load_block(Path(a.block))
-    threads = (os.cpu_count() or 1) if a.threads < 1 else a.threads     # the cores pycolmap gets
-    settings = BundleSettings(tol_rel=a.tol_rel, max_iter=a.max_iter, covariance=True, threads=threads)
+    settings = BundleSettings(tol_rel=a.tol_rel, max_iter=a.max_iter, covariance=True)
     best = None
     for _ in range(max(1, a.repeat)):          # the fastest of --repeat solves
         t0 = time.perf_counter()
@@ -374,7 +373,7 @@ def run(sizes=(500, 1000, 2000, 5000, 10000), *, pycolmap: bool = True, bal: boo
                                                                                        time.gmtime())}
     say(results["machine"])
     say(f"each child: at most {timeout:.0f} s and {mem_gb:g} GB address space; stopping rule for both solvers: "
-        f"relative cost decrease < {tol_rel:g}, at most {max_iter} iterations; best of {repeat}; threads {threads} (both solvers); "
+        f"relative cost decrease < {tol_rel:g}, at most {max_iter} iterations; best of {repeat}; pycolmap threads {threads}; "
         f"BLAS threads {os.environ.get('OPENBLAS_NUM_THREADS', '1')}")
     try:
         if bal:
@@ -447,7 +446,7 @@ def main(argv=None) -> int:
     ap.add_argument("--max-iter", type=int, default=200)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--repeat", type=int, default=1, help="solves per child; the fastest is reported")
-    ap.add_argument("--threads", type=int, default=-1, help="threads of both solvers (-1: all cores)")
+    ap.add_argument("--threads", type=int, default=-1, help="pycolmap threads (-1: all cores)")
     ap.add_argument("--workdir", type=Path, default=None, help="keep the children's files here (default: temporary)")
     ap.add_argument("--json", type=Path, default=None, help="write every number to this file")
     # the child side (internal)
