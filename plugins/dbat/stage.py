@@ -27,6 +27,9 @@ class DbatOptions:
     path: Path | None = option(None, "the DBAT script project (XML), relative to the project file (required)")
     dbat_dir: Path | None = option(None, "DBAT's installation folder, for paths that use $DBAT (the photos of "
                                          "an image list are otherwise looked up beside the list)")
+    crs: str | None = option(None, "the CRS of the control, check and prior-EO coordinates (a DBAT script has no "
+                                   "place for one; e.g. 'EPSG:32632'): the block is adjusted in a local "
+                                   "east-north-up frame and reported and exported in this CRS (docs/crs.md)")
 
 
 class DbatSource(SourceStage):
@@ -42,6 +45,8 @@ class DbatSource(SourceStage):
         dbat_dir = ctx.resolve(options.dbat_dir) if options.dbat_dir is not None else None
         script = read_dbat(ctx.resolve(options.path), dbat_dir=dbat_dir)
         block = dbat_block(script)
+        if options.crs is not None:
+            block = _in_crs(block, options.crs, ctx)
         d = block.meta["dbat"]
         pts = block.points
         summary = {**block.summary(), "script": d["script"], "name": d["name"],
@@ -50,7 +55,13 @@ class DbatSource(SourceStage):
                    "dropped_points": len(d["dropped_points"]), "dropped_marks": d["dropped_marks"],
                    "photos_found": sum(v is not None for v in d["images"].values()),
                    "estimated": [k for k, v in d["estimate_io"].items() if v]}
-        return StageResult(artefacts={"block": block, "dbat_marks": block}, summary=summary, report=_report(block),
+        report = _report(block)
+        if "crs" in block.meta:
+            summary["crs"] = options.crs
+            o = summary["origin_lon_lat_h"] = list(block.meta["crs"]["origin"])
+            report += (f"\n\nCoordinates in {options.crs}: adjusted in a local frame (east, north, up; m) with its origin "
+                       f"at lon {o[0]:.8f}°, lat {o[1]:.8f}°, h {o[2]:.3f} m (ellipsoidal); `docs/crs.md`.")
+        return StageResult(artefacts={"block": block, "dbat_marks": block}, summary=summary, report=report,
                            tables=_tables(block), data={"block": block})
 
     def log(self, result: StageResult, rec, ctx: Context) -> None:
@@ -66,6 +77,41 @@ class DbatSource(SourceStage):
                 rec.log(f"world/{'control' if role == 'full' else 'check'}_points",
                         rr.Points3D(pts.XYZ[sel], labels=pts.ids[sel].tolist(), colors=colors[role],
                                     radii=rr.Radius.ui_points(5.0)), static=True)
+
+
+def _in_crs(block, crs: str, ctx: Context):
+    """``block`` with its coordinates, given in ``crs``, moved to the local east-north-up frame
+    (``pipeline/crs.py``; origin at the control and check points): points and prior projection
+    centres converted, prior attitudes turned by the rotation of the CRS's axes against the local
+    ones at each centre (meridian convergence, curvature); σ kept as metres east/north/up."""
+    from baarda.pipeline.crs import local_frame
+    from baarda.pipeline.geometry import opk_from_rotation_many, rotation_from_opk_many
+
+    if str(crs).strip().lower() in ("", "local", "none"):
+        return block
+    if block.object_unit != "m":
+        raise InputError(f"crs needs a project in metres (project_unit is {block.object_unit!r})",
+                         path=ctx.project_file, field="crs")
+    pts, ph = block.points, block.photos
+    known = np.isfinite(pts.XYZ).all(axis=1)
+    if not known.any():
+        raise InputError("crs: the script has no control or check points to place the local frame",
+                         path=ctx.project_file, field="crs")
+    frame = local_frame(crs, pts.XYZ[known], path=ctx.project_file, field="crs")
+    XYZ = np.array(pts.XYZ, float)
+    XYZ[known] = frame.to_local(XYZ[known])
+    X0, opk = np.array(ph.X0, float), np.array(ph.opk, float)
+    has = np.isfinite(X0).all(axis=1)
+    if has.any():
+        X0[has] = frame.to_local(X0[has])
+        J = frame.jacobian(X0[has])                                   # ∂(CRS)/∂(local)
+        U, _, Vt = np.linalg.svd(J)
+        R_crs_from_local = U @ Vt                                     # the rotation part of J
+        ok = np.isfinite(opk[has]).all(axis=1)
+        R = rotation_from_opk_many(np.where(ok[:, None], opk[has], 0.0)) @ R_crs_from_local
+        opk[has] = np.where(ok[:, None], opk_from_rotation_many(R), opk[has])
+    meta = {**block.meta, "crs": frame.to_meta()}
+    return block.replace(points=pts.replace(XYZ=XYZ), photos=ph.replace(X0=X0, opk=opk), meta=meta)
 
 
 def _fmt_sigma(s):

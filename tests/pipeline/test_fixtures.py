@@ -38,6 +38,7 @@ SECONDS = {
     "dbat/camcal.toml": 0.4,
     "dbat/sxb.toml": 0.3,
     "design/design.toml": 4.2,
+    "gnss/gnss.toml": 3.8,
     "odm/odm-br-gcp.toml": 5.6,
     "paper000/data1.toml": 0.6,
     "paper000/data2.toml": 0.6,
