@@ -133,7 +133,7 @@ def rays(block, n_rays, per_station):
     b.set_xticks(y, [str(i) for i in ph.ids], fontsize=7, rotation=90 if len(ph) > 12 else 0)
     b.set_xlabel("station")
     b.set_ylabel("image points")
-    b.set_title("Image points per station (dashed: the minimum 3)", fontsize=10)
+    b.set_title("Image points per station\n(dashed: the minimum 3)", fontsize=10)
     fig.tight_layout()
     return fig
 
