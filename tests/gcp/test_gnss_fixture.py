@@ -37,13 +37,20 @@ def gnss_run(repo_root, tmp_path_factory):
     return out
 
 
+def _close(x: str, y: str) -> bool:
+    try:
+        return abs(float(x) - float(y)) <= 1e-6 * max(1.0, abs(float(y)))
+    except ValueError:
+        return False
+
+
 def _truth(repo_root):
     t = _rows(repo_root / "fixtures" / "gnss" / "truth.csv")
     return {(r["kind"], r["id"]): np.array([float(r["E"]), float(r["N"]), float(r["h"])]) for r in t}
 
 
 def test_generator_is_deterministic(repo_root, tmp_path):
-    """make.py writes exactly the committed files (a second run in a temporary folder)."""
+    """make.py writes the committed files (a second run in a temporary folder; numbers to 1e-6)."""
     spec = importlib.util.spec_from_file_location("gnss_make", repo_root / "fixtures" / "gnss" / "make.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
@@ -51,7 +58,11 @@ def test_generator_is_deterministic(repo_root, tmp_path):
     here = repo_root / "fixtures" / "gnss"
     files = ["gnss.csv", "truth.csv"] + [f"dbat/{f}" for f in info["files"]]
     for f in files:
-        assert (tmp_path / f).read_text() == (here / f).read_text(), f
+        a, b = (tmp_path / f).read_text().splitlines(), (here / f).read_text().splitlines()
+        assert len(a) == len(b), f
+        for la, lb in zip(a, b):      # numbers to 1e-6 (another BLAS or PROJ may change the last digits)
+            ta, tb = la.replace(",", " ").split(), lb.replace(",", " ").split()
+            assert len(ta) == len(tb) and all(x == y or _close(x, y) for x, y in zip(ta, tb)), (f, la, lb)
     assert info["photos"] == 24 and info["control"] == 2 and info["check"] == 6 and info["tie"] >= 250
 
 
