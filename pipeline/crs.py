@@ -297,6 +297,17 @@ class LocalFrame:
             J[:, :, k] = (self.from_local(enu + d) - self.from_local(enu - d)) / (2 * step)
         return J
 
+    def rotation_from_local(self, enu) -> np.ndarray:
+        """(n, 3, 3) the rotation of the user's CRS axes against the local ones at ``enu``: the
+        orthogonal factor of :meth:`jacobian` (meridian convergence and curvature, without the scale
+        factor).  An attitude turns with it: ``R_cam_from_local = R_cam_from_crs · R``.  Identity for
+        an identity frame."""
+        enu = np.atleast_2d(np.asarray(enu, float))
+        if self.is_identity:
+            return np.broadcast_to(np.eye(3), (len(enu), 3, 3)).copy()
+        U, _, Vt = np.linalg.svd(self.jacobian(enu))
+        return U @ Vt
+
     def to_meta(self) -> dict:
         return {"crs": self.crs, "origin": list(self.origin), "a": self.a, "f": self.f, "frame": "enu"}
 

@@ -104,11 +104,8 @@ def _in_crs(block, crs: str, ctx: Context):
     has = np.isfinite(X0).all(axis=1)
     if has.any():
         X0[has] = frame.to_local(X0[has])
-        J = frame.jacobian(X0[has])                                   # ∂(CRS)/∂(local)
-        U, _, Vt = np.linalg.svd(J)
-        R_crs_from_local = U @ Vt                                     # the rotation part of J
         ok = np.isfinite(opk[has]).all(axis=1)
-        R = rotation_from_opk_many(np.where(ok[:, None], opk[has], 0.0)) @ R_crs_from_local
+        R = rotation_from_opk_many(np.where(ok[:, None], opk[has], 0.0)) @ frame.rotation_from_local(X0[has])
         opk[has] = np.where(ok[:, None], opk_from_rotation_many(R), opk[has])
     meta = {**block.meta, "crs": frame.to_meta()}
     return block.replace(points=pts.replace(XYZ=XYZ), photos=ph.replace(X0=X0, opk=opk), meta=meta)

@@ -71,6 +71,34 @@ def _io_flags(est: dict) -> list[tuple[str, bool]]:
     return out + [("aspect", est["aspect"]), ("skew", est["skew"])]
 
 
+def in_user_crs(block):
+    """``block`` with its points, projection centres and attitudes back in the user's CRS when a
+    source read them in one (``block.meta["crs"]``; the adjustment's local east-north-up frame,
+    ``docs/crs.md``), else ``block`` itself: a DBAT script has no CRS, so its coordinates are the
+    user's (the ``dbat`` source's ``crs`` option reads them back).  σ stay metres E/N/U."""
+    from baarda.pipeline.crs import frame_of_block
+    from baarda.pipeline.geometry import opk_from_rotation_many, rotation_from_opk_many
+
+    frame = frame_of_block(block)
+    if frame.is_identity:
+        return block
+    pts, ph = block.points, block.photos
+    XYZ = np.array(pts.XYZ, float)
+    known = np.isfinite(XYZ).all(axis=1)
+    XYZ[known] = frame.from_local(XYZ[known])
+    X0, opk = np.array(ph.X0, float), np.array(ph.opk, float)
+    has = np.isfinite(X0).all(axis=1)
+    if has.any():
+        Rl = frame.rotation_from_local(X0[has])                      # R_cam_from_local = R_cam_from_crs · Rl
+        ok = np.isfinite(opk[has]).all(axis=1)
+        R = rotation_from_opk_many(np.where(ok[:, None], opk[has], 0.0)) @ np.transpose(Rl, (0, 2, 1))
+        opk[has] = np.where(ok[:, None], opk_from_rotation_many(R), opk[has])
+        X0[has] = frame.from_local(X0[has])
+    meta = {k: v for k, v in block.meta.items() if k != "crs"}
+    meta["written_in_crs"] = frame.crs
+    return block.replace(points=pts.replace(XYZ=XYZ), photos=ph.replace(X0=X0, opk=opk), meta=meta)
+
+
 def dbat_files(block, *, name: str = "baarda", prior=None) -> tuple[dict[str, str], dict]:
     """The files of a DBAT script project of ``block`` as ``{relative path: text}``, and ``info``.
 
@@ -80,6 +108,11 @@ def dbat_files(block, *, name: str = "baarda", prior=None) -> tuple[dict[str, st
     a DBAT script cannot hold: more than one camera, a model other than ``brown-backward``, ids that
     are not whole numbers, planimetric or height-only control, weighted camera parameters, no pixel
     size."""
+    from baarda.pipeline.crs import crs_label, frame_of_block
+
+    crs = frame_of_block(block).crs
+    block = in_user_crs(block)
+    prior = None if prior is None else in_user_crs(prior)
     cams, ph, pts, obs = block.cameras, block.photos, block.points, block.observations
     if len(cams) != 1:
         raise InputError(f"a DBAT script holds one camera, the block has {len(cams)}", field="camera")
@@ -183,11 +216,12 @@ def dbat_files(block, *, name: str = "baarda", prior=None) -> tuple[dict[str, st
     resection = "" if oriented else "    <operation>spatial_resection</operation>\n"
     check_xml = ("    <check_pts>\n      <file format=\"id,label,x,y,z\">reference/check.txt</file>\n    </check_pts>\n"
                  if chk.size else "")
+    crs_note = f" Coordinates in {escape(crs_label(crs))}." if crs else ""
     xml = f"""<?xml version="1.0" encoding="UTF-8"?>
 <document dbat_script_version="1.0">
   <c>Written by baarda's dbat-export: the camera's values and (when every photo has one) the
   orientations are the initial values (io, eo loaded); DBAT scripts hold no initial tie points,
-  so they are intersected before the bundle.</c>
+  so they are intersected before the bundle.{crs_note}</c>
   <meta>
     <name>{escape(name)}</name>
     <project_unit>{escape(block.object_unit)}</project_unit>
@@ -253,7 +287,7 @@ def dbat_files(block, *, name: str = "baarda", prior=None) -> tuple[dict[str, st
 </document>
 """
     files[f"{name}.xml"] = xml
-    info = {"script": f"{name}.xml", "images": len(ph), "orientations": oriented, "control": int(ctrl.size), "check": int(chk.size),
+    info = {"crs": crs_label(crs) if crs else None, "script": f"{name}.xml", "images": len(ph), "orientations": oriented, "control": int(ctrl.size), "check": int(chk.size),
             "weighted_control": weighted, "marks": int(act.size), "inactive_left_out": int(len(obs) - act.size),
             "marks_with_unequal_sigma": unequal, "estimated": sorted(k for k, v in est.items() if v)}
     return files, info
@@ -311,6 +345,9 @@ class DbatExport:
                   f"estimated: {', '.join(info['estimated']) or 'none'}): {info['images']} images, {info['control']} "
                   f"control ({'weighted' if info['weighted_control'] else 'fixed'}) and {info['check']} check points, "
                   f"{info['marks']} marks.")
+        if info["crs"]:
+            report += (f"  Coordinates in {info['crs']} (the adjustment's local frame converted back; read them with "
+                       f"the dbat source's crs = \"{info['crs']}\").")
         if info["inactive_left_out"]:
             report += f"  {info['inactive_left_out']} inactive measurement(s) left out."
         return StageResult(summary={**info, "path": str(options.path), "camera": what}, report=report)

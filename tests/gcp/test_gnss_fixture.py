@@ -192,6 +192,20 @@ def test_dbat_source_in_a_crs(tmp_path):
     ang_raw = np.array([np.arccos(np.clip((np.trace(g @ t.T) - 1) / 2, -1, 1)) for g, t in zip(raw, R_true)])
     print(f"dbat crs: attitude error {ang.max():.2e} rad, without the rotation {ang_raw.min():.2e} rad")
     assert ang.max() < 1e-4 and ang_raw.min() > 0.025      # the reference fit itself: ~2e-5 (curvature)
+    # dbat-export of the block in its local frame writes the user's CRS again: the control and centres
+    # as they were in UTM, and reading that back with the same crs gives the same local block
+    info = write_dbat(blk, tmp_path / "back", name="again")
+    assert info["crs"] == "EPSG:32632"
+    assert "Coordinates in EPSG:32632" in (tmp_path / "back" / "again.xml").read_text()
+    back = run_stage(DbatSource, {}, {"path": str(tmp_path / "back" / "again.xml"), "crs": "EPSG:32632"},
+                     tmp_path=tmp_path).artefacts["block"]
+    assert np.allclose(LocalFrame.from_meta(back.meta["crs"]).from_local(back.points.XYZ[k]), utm_pts[role != "tie"],
+                       atol=1e-6)
+    assert np.allclose(back.points.XYZ[k], blk.points.XYZ[k], atol=1e-6)
+    assert np.allclose(back.photos.X0, blk.photos.X0, atol=1e-6)
+    # the CRS rotation comes from a central-difference Jacobian (0.01 m steps on UTM coordinates of
+    # ~1e6 m): ~1e-8 rad of rounding each way
+    assert np.abs(back.photos.opk - blk.photos.opk).max() < 1e-7
 
 
 def test_dbat_crs_errors(tmp_path, repo_root):
