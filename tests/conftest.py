@@ -1,7 +1,11 @@
-"""Shared fixtures: the location of ../shared/data (real data sets)."""
+"""Shared fixtures: the location of ../shared/data (real data sets); matplotlib headless, and every
+test's figures closed after it."""
 
 import os
+import sys
 from pathlib import Path
+
+os.environ.setdefault("MPLBACKEND", "Agg")
 
 import pytest
 
@@ -29,6 +33,14 @@ def shared_data() -> Path:
 @pytest.fixture(scope="session")
 def repo_root() -> Path:
     return ROOT
+
+
+@pytest.fixture(autouse=True)
+def _close_figures():
+    """Figures a test drew (report hooks, figure modules) are closed after it, so none accumulate."""
+    yield
+    if "matplotlib.pyplot" in sys.modules:
+        sys.modules["matplotlib.pyplot"].close("all")
 
 
 SHARED_BESIDE = ROOT.parent / "shared" / "data"

@@ -17,12 +17,6 @@ from baarda.pipeline.testing import run_stage  # noqa: E402
 from baarda.plugins.crosscheck.figures import normalised_differences, residual_data  # noqa: E402
 from baarda.plugins.crosscheck.stage import PycolmapCrossCheck  # noqa: E402
 
-@pytest.fixture(autouse=True)
-def _close_figures():
-    yield
-    import matplotlib.pyplot as plt
-
-    plt.close("all")
 
 
 

@@ -21,12 +21,6 @@ from baarda.plugins.dbat.stage import DbatMarks, DbatReport  # noqa: E402
 
 from .test_projects import CAMCAL, SXB_CHECK, SXB_CONTROL  # noqa: E402
 
-@pytest.fixture(autouse=True)
-def _close_figures():
-    yield
-    import matplotlib.pyplot as plt
-
-    plt.close("all")
 
 
 

@@ -22,12 +22,6 @@ from baarda.plugins.independent_models.stage import IndependentModels  # noqa: E
 
 from .test_stage import _weighted  # noqa: E402
 
-@pytest.fixture(autouse=True)
-def _close_figures():
-    yield
-    import matplotlib.pyplot as plt
-
-    plt.close("all")
 
 
 

@@ -16,12 +16,6 @@ from baarda.plugins.testfield.method_study import (BUNDLE, BUNDLE_AP, IM, PAPER_
                                                    VARIANTS)
 from baarda.plugins.testfield.method_study_stage import MethodStudy  # noqa: E402
 
-@pytest.fixture(autouse=True)
-def _close_figures():
-    yield
-    import matplotlib.pyplot as plt
-
-    plt.close("all")
 
 
 
