@@ -18,6 +18,33 @@ def _plt():
     return plt
 
 
+ROLE_MARKERS = {"full": ("^", False, "full control XYZ"), "xy": ("^", True, "planimetric control XY"),
+                "z": ("v", False, "height control Z"), "check": ("D", True, "check points"),
+                "tie": ("o", False, "tie points")}
+"""Marker, hollow?, legend label of each point role in network figures (colours: the recordings'
+``ROLE_COLORS``, so a role looks the same in report.html and in rerun)."""
+
+
+def role_colour(role: str):
+    """A point role's colour as matplotlib RGB (the recordings' ``ROLE_COLORS``)."""
+    from .recording import ROLE_COLORS, UNKNOWN_ROLE_COLOR
+
+    return np.asarray(ROLE_COLORS.get(role, UNKNOWN_ROLE_COLOR), float) / 255.0
+
+
+def role_points(ax, XYZ, role, mask, i: int, j: int, *, ms: float = 5, ms_tie: float = 3, zorder=None):
+    """Points ``mask`` of ``XYZ`` (axes ``i``, ``j``) by role: marker, colour and a legend entry
+    with the count for each role present (known roles in :data:`ROLE_MARKERS` order first)."""
+    role = np.asarray(role)
+    present = set(np.unique(role[mask]).tolist())
+    for rl in [r for r in ROLE_MARKERS if r in present] + sorted(present - set(ROLE_MARKERS)):
+        m = mask & (role == rl)
+        marker, hollow, label = ROLE_MARKERS.get(rl, ("o", False, rl))
+        col = role_colour(rl)
+        ax.plot(XYZ[m, i], XYZ[m, j], marker, ms=ms_tie if rl == "tie" else ms, color=col,
+                mfc="none" if hollow else col, mew=1.0, ls="none", label=f"{label} ({int(m.sum())})", zorder=zorder)
+
+
 def w_distribution(w, critical: float, title: str = "w-test statistics"):
     """Histogram of w against N(0, 1) and the normal QQ plot."""
     plt = _plt()

@@ -11,8 +11,7 @@ import numpy as np
 from baarda.pipeline import stats
 from baarda.pipeline.camera import get_ap_model
 
-from baarda.pipeline.plots import redundancy_numbers, w_distribution
-from baarda.pipeline.recording import ROLE_COLORS, UNKNOWN_ROLE_COLOR
+from baarda.pipeline.plots import redundancy_numbers, role_points, w_distribution
 
 from .protocol import image_units
 
@@ -20,11 +19,6 @@ MAX_DISTORTION_CAMERAS = 4
 """Cameras whose distortion is drawn (most image points first; a COLMAP block may have dozens)."""
 MAX_ELLIPSES = 3000
 """Points whose error ellipse is drawn (the first ones; the rest would be ink, not information)."""
-ROLE_MARKERS = {"full": ("^", False, "full control XYZ"), "xy": ("^", True, "planimetric control XY"),
-                "z": ("v", False, "height control Z"), "check": ("D", True, "check points"),
-                "tie": ("o", False, "tie points")}
-"""Marker, hollow?, legend label of each point role in the network figure (colours: the recordings'
-``ROLE_COLORS``, so a role looks the same in report.html and in rerun)."""
 MAX_PHOTOS = 12
 """Photos drawn in the residual figure (the largest RMS first)."""
 
@@ -128,13 +122,7 @@ def network(res):
     k = 0.04 * span / smax if smax > 0 else 1.0
     fig, axes = plt.subplots(1, 2, figsize=(12, 5))
     for ax, (i, j, name) in zip(axes, [(0, 1, "plan (X, Y)"), (0, 2, "elevation (X, Z)")]):
-        present = set(np.unique(pts.role[used]).tolist())
-        for role in [r for r in ROLE_MARKERS if r in present] + sorted(present - set(ROLE_MARKERS)):
-            m = used & (pts.role == role)
-            marker, hollow, label = ROLE_MARKERS.get(role, ("o", False, role))
-            colour = np.asarray(ROLE_COLORS.get(role, UNKNOWN_ROLE_COLOR), float) / 255.0
-            ax.plot(XYZ[m, i], XYZ[m, j], marker, ms=3 if role == "tie" else 5, color=colour,
-                    mfc="none" if hollow else colour, mew=1.0, label=f"{label} ({int(m.sum())})", ls="none")
+        role_points(ax, XYZ, pts.role, used, i, j)
         ax.plot(X0[:, i], X0[:, j], "s", ms=5, color="k", label=f"projection centres ({len(X0)})")
         sel = np.flatnonzero(ok)[:MAX_ELLIPSES]
         segs = [np.column_stack([XYZ[p, i] + e[0], XYZ[p, j] + e[1]])

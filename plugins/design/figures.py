@@ -12,14 +12,8 @@ from __future__ import annotations
 import numpy as np
 from scipy import stats as sps
 
-from baarda.pipeline.plots import redundancy_numbers
-from baarda.pipeline.recording import ROLE_COLORS, UNKNOWN_ROLE_COLOR
+from baarda.pipeline.plots import redundancy_numbers, role_colour, role_points
 
-ROLES = {"full": ("^", False, "full control XYZ"), "xy": ("^", True, "planimetric control XY"),
-         "z": ("v", False, "height control Z"), "check": ("D", True, "check points"),
-         "tie": ("o", False, "tie points")}
-"""Marker, hollow?, legend label per point role — the bundle's network figure uses the same ones
-(plugins/bundle/figures.py, which a plugin may not import), colours are the recordings'."""
 VIEWS = ((0, 1, "plan (X, Y)"), (0, 2, "elevation (X, Z)"))
 XYZ_COLORS = ("#1f4e9c", "#d35400", "#2e8b57")
 
@@ -33,21 +27,6 @@ def _plt():
 def _mm(unit: str) -> float:
     """Object units → mm."""
     return 1000.0 if unit == "m" else 1.0
-
-
-def _role_colour(role: str):
-    return np.asarray(ROLE_COLORS.get(role, UNKNOWN_ROLE_COLOR), float) / 255.0
-
-
-def _points(ax, XYZ, role, mask, i, j):
-    """The points by role (marker, colour, legend entry with the count)."""
-    present = set(np.unique(role[mask]).tolist())
-    for rl in [r for r in ROLES if r in present] + sorted(present - set(ROLES)):
-        m = mask & (role == rl)
-        marker, hollow, label = ROLES.get(rl, ("o", False, rl))
-        col = _role_colour(rl)
-        ax.plot(XYZ[m, i], XYZ[m, j], marker, ms=4 if rl == "tie" else 6, color=col, mfc="none" if hollow else col,
-                mew=1.0, ls="none", label=f"{label} ({int(m.sum())})", zorder=3)
 
 
 def _stations(ax, X0, view, ids, i, j, length, labels=True):
@@ -100,7 +79,7 @@ def planned_network(block, view):
         segs = np.stack([X0[obs.photo][:, [i, j]], XYZ[obs.point][:, [i, j]]], axis=1)
         ax.add_collection(LineCollection(segs, colors="#bbbbbb", linewidths=0.4, zorder=1,
                                          label=f"planned rays ({len(obs)})"))
-        _points(ax, XYZ, np.asarray(pts.role), np.ones(len(pts), bool), i, j)
+        role_points(ax, XYZ, pts.role, np.ones(len(pts), bool), i, j, ms=6, ms_tie=4, zorder=3)
         _stations(ax, X0, view, ph.ids if j == 1 else None, i, j, L)     # ids in plan only (elevation: stacked)
         ax.autoscale_view()
         _frame(ax, i, j, name, unit)
@@ -119,7 +98,7 @@ def rays(block, n_rays, per_station):
     fig, (a, b) = plt.subplots(1, 2, figsize=(12.5, 3.6), gridspec_kw={"width_ratios": [max(len(pts), 4),
                                                                                           max(len(ph), 4) + 4]})
     x = np.arange(len(pts))
-    a.bar(x, n_rays, color=[_role_colour(r) for r in pts.role], ec="#333", lw=0.3)
+    a.bar(x, n_rays, color=[role_colour(r) for r in pts.role], ec="#333", lw=0.3)
     a.axhline(2, color="#c0392b", ls="--", lw=1)
     a.set_xticks(x, [str(i) for i in pts.ids], fontsize=7, rotation=90)
     a.set_xlim(-0.6, len(pts) - 0.4)
@@ -195,7 +174,7 @@ def predicted_network(f: dict, mc=None):
                                             offset_transform=ax.transData, facecolors="none", edgecolors="#28a0a0",
                                             linewidths=1.0, zorder=3))
         ax.plot([], [], color="#28a0a0", label=f"predicted standard ellipses × {k:.3g}")
-        _points(ax, XYZ, f["role"], f["used"], i, j)
+        role_points(ax, XYZ, f["role"], f["used"], i, j, ms=6, ms_tie=4, zorder=3)
         _stations(ax, X0, f["view"], None, i, j, L, labels=False)
         ax.update_datalim(np.vstack([XYZ[sel][:, [i, j]] + k * a.max(), XYZ[sel][:, [i, j]] - k * a.max()]))
         ax.autoscale_view()
@@ -239,7 +218,7 @@ def reliability(f: dict):
     plt = _plt()
     ids = [str(i) for i in f["ids"]]
     x = np.arange(len(ids))
-    cols = [_role_colour(r) for r in f["role"]]
+    cols = [role_colour(r) for r in f["role"]]
     mm = _mm(f["object_unit"])
     panels = [(f["r_min"], "smallest r", "smallest redundancy number of the target's rows", ""),
               (f["mdb_max_px"], "largest MDB (px)", "largest MDB of the target's image rows", " px"),
