@@ -224,3 +224,23 @@ def test_snapshot_functions_scale_to_bundle_size():
     elapsed = time.perf_counter() - t0
     assert ds.w.shape == (n,) and jt.T.shape == (n // 2,)
     assert elapsed < 2.0
+
+
+def test_joint_test_of_a_block_with_one_direction_is_not_made():
+    """A 2×2 Qvv block of correlation |ρ| → 1 (a two-ray point: its residuals in one direction) has
+    no 2-D test: T is nan, not a number made of rounding; a block of |ρ| = 0.999 is tested with the
+    closed form vᵀ B⁻¹ v."""
+    from baarda.pipeline.stats.arrays import snapshot_from_arrays
+    from baarda.pipeline.stats.joint import joint_test_2d
+
+    q = 0.3
+    blocks, v = [], []
+    for one_minus_rho2 in (1e-12, 1e-8, 1e-3):
+        rho = np.sqrt(1 - one_minus_rho2)
+        blocks.append([[q, rho * q], [rho * q, q]])
+        v += [0.4, 0.41]
+    snap = snapshot_from_arrays(np.array(v), dof=3, Qvv_blocks=np.array(blocks), group=np.repeat([0, 1, 2], 2))
+    res = joint_test_2d(snap)
+    assert np.isnan(res.T[:2]).all() and not res.flagged[:2].any()
+    B = np.array(blocks[2])
+    assert res.T[2] == pytest.approx(np.array(v[4:]) @ np.linalg.solve(B, np.array(v[4:])), rel=1e-9)
