@@ -152,8 +152,12 @@ def child_baarda(a) -> dict:
 
     from baarda.pipeline.adjustment import BundleSettings, adjust
 
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from bal_vs_pycolmap import threads_of
+
     block = load_block(Path(a.block))
-    settings = BundleSettings(tol_rel=a.tol_rel, max_iter=a.max_iter, covariance=True)
+    settings = BundleSettings(tol_rel=a.tol_rel, max_iter=a.max_iter, covariance=True,
+                              threads=threads_of(a.threads))
     best = None
     for _ in range(max(1, a.repeat)):          # the fastest of --repeat solves
         t0 = time.perf_counter()
@@ -164,7 +168,7 @@ def child_baarda(a) -> dict:
         if best is None or solve < best["solve_seconds"]:
             r = np.asarray(res.redundancy)[np.asarray(res.obs_active)]
             best = {"solve_seconds": solve, "redundancy_seconds": tm.get("covariance", float("nan")),
-                    "wall_seconds": wall, "timings": tm, "iterations": int(res.iterations),
+                    "wall_seconds": wall, "timings": tm, "iterations": int(res.iterations), "threads": settings.threads,
                     "own_cost": float(res.vtpv) / 2, "sigma0_hat": float(res.sigma0_hat), "dof": int(res.dof),
                     "redundancy_finite": int(np.isfinite(r).all(axis=1).sum()), "redundancy_rows": int(r.shape[0]),
                     "redundancy_sum": float(np.sum(r)),
@@ -373,7 +377,7 @@ def run(sizes=(500, 1000, 2000, 5000, 10000), *, pycolmap: bool = True, bal: boo
                                                                                        time.gmtime())}
     say(results["machine"])
     say(f"each child: at most {timeout:.0f} s and {mem_gb:g} GB address space; stopping rule for both solvers: "
-        f"relative cost decrease < {tol_rel:g}, at most {max_iter} iterations; best of {repeat}; pycolmap threads {threads}; "
+        f"relative cost decrease < {tol_rel:g}, at most {max_iter} iterations; best of {repeat}; threads of both solvers {threads}; "
         f"BLAS threads {os.environ.get('OPENBLAS_NUM_THREADS', '1')}")
     try:
         if bal:
@@ -399,7 +403,7 @@ def run(sizes=(500, 1000, 2000, 5000, 10000), *, pycolmap: bool = True, bal: boo
                 r["baarda"] = run_child("baarda", workdir, tag, ["--block", str(block), *common], **kw)
                 b = r["baarda"]
                 if b.get("status") == "ok":
-                    say(f"  baarda:   {b['iterations']} iterations, solve {b['solve_seconds']:.2f} s, precision + "
+                    say(f"  baarda:   {b['iterations']} iterations, {b['threads']} threads, solve {b['solve_seconds']:.2f} s, precision + "
                         f"redundancy {b['redundancy_seconds']:.2f} s, wall {b['wall_seconds']:.2f} s, peak "
                         f"{_gb(b['peak_kb'])} GB, final cost {b['cost']:.6g}; Σr = {b['redundancy_sum']:.1f} for "
                         f"redundancy {b['dof']} ({b['redundancy_finite']} of {b['redundancy_rows']} observations "
@@ -446,7 +450,8 @@ def main(argv=None) -> int:
     ap.add_argument("--max-iter", type=int, default=200)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--repeat", type=int, default=1, help="solves per child; the fastest is reported")
-    ap.add_argument("--threads", type=int, default=-1, help="pycolmap threads (-1: all cores)")
+    ap.add_argument("--threads", type=int, default=-1,
+                    help="threads of both solvers: Ceres' and baarda's BundleSettings.threads (-1: all cores)")
     ap.add_argument("--workdir", type=Path, default=None, help="keep the children's files here (default: temporary)")
     ap.add_argument("--json", type=Path, default=None, help="write every number to this file")
     # the child side (internal)

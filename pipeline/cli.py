@@ -48,7 +48,8 @@ def _set_threads(n: int | None) -> int:
 
     Single-threaded BLAS: the bundle's many small dense solves run slower with threaded OpenBLAS
     (measured: the AICON fixture 25.5 s threaded, 15.8 s with one thread).  Where threads pay —
-    the sparse route's independent subtrees and its large fronts — the code asks for them.
+    the sparse route's independent subtrees, the dense route's photo-pair products, Monte Carlo
+    and batch workers — the code asks for them (``docs/benchmarks.md``, "Threads").
     """
     from threadpoolctl import threadpool_limits
 

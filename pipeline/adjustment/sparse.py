@@ -254,7 +254,7 @@ class SupernodalCholesky:
         self._pending: dict = {}
         top, groups = sym.split(self.threads)
         _parallel(groups, self._factor_step, reverse=False)
-        with _blas(self.threads):
+        with _blas(1):
             for s in top:
                 self._factor_step(int(s))
         del self._K, self._upd, self._pending
@@ -332,7 +332,7 @@ class SupernodalCholesky:
         self._left = sym.n_children.copy()
         self._lock = threading.Lock()
         top, groups = sym.split(self.threads)
-        with _blas(self.threads):
+        with _blas(1):
             for s in top[::-1]:
                 self._inverse_step(int(s), visit)
         _parallel(groups, lambda s: self._inverse_step(s, visit), reverse=True)
@@ -385,7 +385,14 @@ def _parallel(groups, step, reverse: bool) -> None:
 
 
 def _blas(n: int):
-    """BLAS/OpenMP pools limited to ``n`` threads for the block (threadpoolctl)."""
+    """BLAS/OpenMP pools limited to ``n`` threads for the block (threadpoolctl).
+
+    The sparse route keeps BLAS single-threaded everywhere, the top fronts included: two OpenBLAS
+    threads were slower than one for every front size measured on the 2-core machine (a front's
+    potrf + trsm + syrk: 8 ms fixed cost per call, 1.4× slower even at 2 000 columns; the top
+    fronts with two BLAS threads made a 2 000-photo block 5–25 % slower in all).  ``threads``
+    therefore means independent subtrees on Python threads only, and the result is bit-identical
+    whatever its value (``docs/bundle.md``, "Sparse route")."""
     from threadpoolctl import threadpool_limits
 
     return threadpool_limits(limits=max(1, int(n)))
