@@ -89,6 +89,21 @@ def redundancy_numbers(r, labels_x=None, title="Redundancy numbers r = (Qvv P)ii
     return fig
 
 
+def map_ticks(ax, x_values=()) -> None:
+    """Object coordinates written out in full on both axes (no offset like "+1e6", no "×1e6"
+    multiplier: a map coordinate is read as it is surveyed), five or six ticks, and the x labels
+    slanted when the coordinates are long (10 000 or more)."""
+    from matplotlib.ticker import MaxNLocator
+
+    ax.ticklabel_format(useOffset=False, style="plain")
+    ax.xaxis.set_major_locator(MaxNLocator(5))
+    ax.yaxis.set_major_locator(MaxNLocator(6))
+    x = np.asarray(x_values, float)
+    x = x[np.isfinite(x)]
+    if len(x) and np.max(np.abs(x)) >= 1e4:                # long map coordinates: slanted, apart
+        ax.tick_params(axis="x", labelrotation=25)
+
+
 def vector_scale(xy, d, span_fraction: float = 0.1) -> float:
     """Arrow scale so that the longest vector ``d`` (k, 2) is ``span_fraction`` of the extent of
     the positions ``xy`` (m, 2)."""
@@ -134,13 +149,7 @@ def point_errors(sets, unit: str, title: str, components=("X", "Y", "Z"), backgr
             a.annotate(str(p), (x, y), fontsize=7, xytext=(3, 3), textcoords="offset points")
     a.autoscale_view()
     a.set_aspect("equal", adjustable="box")
-    a.ticklabel_format(useOffset=False, style="plain")
-    from matplotlib.ticker import MaxNLocator
-
-    a.xaxis.set_major_locator(MaxNLocator(5))
-    a.yaxis.set_major_locator(MaxNLocator(6))
-    if len(ext) and np.nanmax(np.abs(ext[:, 0])) >= 1e4:      # long map coordinates: slanted, apart
-        a.tick_params(axis="x", labelrotation=25)
+    map_ticks(a, ext[:, 0] if len(ext) else ())
     a.set_xlabel(f"X ({unit})")
     a.set_ylabel(f"Y ({unit})")
     a.set_title(f"plan: vectors × {k:.3g}", fontsize=10)

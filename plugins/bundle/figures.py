@@ -11,7 +11,7 @@ import numpy as np
 from baarda.pipeline import stats
 from baarda.pipeline.camera import get_ap_model
 
-from baarda.pipeline.plots import redundancy_numbers, role_points, w_distribution
+from baarda.pipeline.plots import map_ticks, redundancy_numbers, role_points, w_distribution
 
 from .protocol import image_units
 
@@ -132,6 +132,7 @@ def network(res):
         ax.set_title(name, fontsize=10)
         ax.set_xlabel(f"{'XYZ'[i]} ({block.object_unit})")
         ax.set_ylabel(f"{'XYZ'[j]} ({block.object_unit})")
+        map_ticks(ax, np.r_[XYZ[used, i], X0[:, i]])
         ax.tick_params(labelsize=8)
     axes[0].legend(fontsize=7, loc="best")
     fig.suptitle(f"Network; standard error ellipses × {k:.3g} (largest σ {smax:.3g} {block.object_unit})", fontsize=10)
@@ -162,6 +163,7 @@ def checkpoint_errors(res):
     for p, x, y in zip(pts.ids[chk], pts.XYZ[chk, 0], pts.XYZ[chk, 1]):
         a.annotate(str(p), (x, y), fontsize=7, xytext=(3, 3), textcoords="offset points")
     a.set_aspect("equal", adjustable="datalim")
+    map_ticks(a, res.state.XYZ[res.point_used, 0])
     a.set_title(f"check points: plan error vectors × {k:.3g} (adjusted − surveyed)", fontsize=10)
     b.bar(np.arange(len(chk)), d[:, 2], color="#5b7fb5")
     b.set_xticks(np.arange(len(chk)), [str(x) for x in pts.ids[chk]], fontsize=7, rotation=90)
