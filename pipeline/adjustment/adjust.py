@@ -11,7 +11,7 @@ import numpy as np
 
 from baarda.pipeline.accuracy import check_point_rmse
 from baarda.pipeline.model import Block
-from baarda.pipeline.stats.snapshot import Snapshot
+from baarda.pipeline.stats.snapshot import GroupBlocks, Snapshot
 
 from .collinearity import EO_NAMES
 from .initial import initial_values
@@ -380,9 +380,13 @@ def _snapshot(block, prob, v_all, r_all, PQ_all, vtpv, dof, sigma0, sv_pred=None
     # "photo <id> point <id> x|y", built with numpy's string ufuncs (no list of 2k Python strings)
     ph = np.strings.add("photo ", block.photos.ids.astype(str)[obs.photo])
     base = np.strings.add(np.strings.add(ph, " point "), block.points.ids.astype(str)[obs.point])
-    labels = np.strings.add(np.repeat(base, 2), np.tile(np.array([" x", " y"]), k))
+    del ph
+    base = np.repeat(base, 2)
+    labels = np.strings.add(base, np.tile(np.array([" x", " y"]), k))
+    del base                                  # the intermediates gone before the Snapshot's copies
     group = np.repeat(np.arange(k), 2)
-    blocks = {int(i): PQ_all[i] for i in np.flatnonzero(act.all(axis=1))}
+    both = np.flatnonzero(act.all(axis=1))
+    blocks = GroupBlocks(both, PQ_all[both])         # arrays: no dict of a million views
     return Snapshot(v=v.reshape(-1), Pv=Pv.reshape(-1), PQvvP=PQd.reshape(-1), r=r_all.reshape(-1),
                     sigma_l=sig.reshape(-1), vtpv=float(vtpv), dof=int(dof), sigma0=float(sigma0),
                     active=act.reshape(-1), labels=labels, group=group, PQvvP_blocks=blocks,

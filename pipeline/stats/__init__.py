@@ -21,12 +21,12 @@ from baarda.pipeline.stats.robust import (DEFAULT_C, ROBUST_METHODS, RobustResul
                                           robust_rho, robust_weights, scale_covariance,
                                           weighted_linear_refit, weighted_refit)
 from baarda.pipeline.stats.rrr import RRRResult, recursive_residuals, rrr
-from baarda.pipeline.stats.snapshot import Refittable, Snapshot
+from baarda.pipeline.stats.snapshot import GroupBlocks, Refittable, Snapshot
 from baarda.pipeline.stats.tau_distribution import critical_max as tau_critical_max
 from baarda.pipeline.stats.tau_distribution import tau_critical
 
 __all__ = [
-    "Snapshot", "Refittable", "snapshot_from_arrays",
+    "Snapshot", "Refittable", "GroupBlocks", "snapshot_from_arrays",
     "LinearModel", "LinearAdjustment", "factor_normal_equations", "solve_normal",
     "delta0", "critical_normal", "alpha_prime", "global_power", "w_power",
     "GlobalTestResult", "global_test", "w_test", "estimated_errors", "mdb", "controlled",

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from baarda.pipeline.stats.snapshot import Snapshot, group_rows, pair_rows
+from baarda.pipeline.stats.snapshot import GroupBlocks, Snapshot, group_rows, pair_rows
 
 __all__ = ["snapshot_from_arrays"]
 
@@ -85,7 +85,7 @@ def snapshot_from_arrays(v, dof: int, *, p=None, P_blocks=None, qvv=None, Qvv_bl
         sig2[rows[:, 0]], sig2[rows[:, 1]] = Pb[:, 1, 1] / det, Pb[:, 0, 0] / det
         if Qvv_blocks is not None:
             live = act[rows].all(axis=1)
-            blocks = {int(g): PQP[k] for k, g in enumerate(gids) if live[k]}
+            blocks = GroupBlocks(gids[live], PQP[live])
     PQvvP = np.where(act, PQvvP, 0.0)
     r = np.where(act, r, 0.0)
     Pv = np.where(act, Pv, 0.0)

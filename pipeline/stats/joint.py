@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
-from baarda.pipeline.stats.snapshot import Snapshot, pair_rows
+from baarda.pipeline.stats.snapshot import GroupBlocks, Snapshot, pair_rows
 
 __all__ = ["JointTestResult", "joint_test_2d", "SINGULAR_BLOCK"]
 
@@ -53,12 +53,13 @@ class JointTestResult:
 def joint_test_2d(snap: Snapshot, alpha: float = 0.001) -> JointTestResult:
     """Joint χ²(2) test of every group with two active rows (image point x, y)."""
     groups, rows = pair_rows(np.where(snap.active, snap.group, -1))
-    blocks = snap.PQvvP_blocks or {}
-    missing = [int(g) for g in groups if int(g) not in blocks]
-    if missing:
+    blocks = GroupBlocks.of(snap.PQvvP_blocks)
+    have = blocks.has(groups)
+    if not have.all():
+        missing = [int(g) for g in groups[~have]]
         raise ValueError(f"joint_test_2d needs Snapshot.PQvvP_blocks for every 2-row group; "
                          f"missing for {len(missing)} group(s), e.g. {missing[:5]}")
-    B = np.array([blocks[int(g)] for g in groups], dtype=float).reshape(-1, 2, 2)
+    B = blocks.take(groups)
     g = snap.Pv[rows] if rows.size else np.zeros((0, 2))
     det = B[:, 0, 0] * B[:, 1, 1] - B[:, 0, 1] * B[:, 1, 0]
     scale = np.maximum(B[:, 0, 0] * B[:, 1, 1], 1e-300)

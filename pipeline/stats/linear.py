@@ -23,7 +23,7 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 
 from baarda.pipeline.errors import AdjustmentError
-from baarda.pipeline.stats.snapshot import Snapshot, pair_rows
+from baarda.pipeline.stats.snapshot import GroupBlocks, Snapshot, pair_rows
 
 __all__ = ["LinearModel", "LinearAdjustment", "factor_normal_equations", "solve_normal"]
 
@@ -315,7 +315,7 @@ class LinearModel:
         return LinearAdjustment(x=x, v=v, v_pred=v_pred, Qxx=Qxx, snapshot=snap, dof=dof,
                                 sigma0_hat=s0h, active=act)
 
-    def _blocks(self, idx, Pa, B, Qxx) -> dict | None:
+    def _blocks(self, idx, Pa, B, Qxx) -> GroupBlocks | None:
         """2×2 blocks of P Qvv P for groups with exactly two active rows."""
         grp = self.group[idx]
         gids, pairs = pair_rows(grp)
@@ -335,7 +335,7 @@ class LinearModel:
         blk[:, 0, 0] = p00 - q00
         blk[:, 0, 1] = blk[:, 1, 0] = p01 - q01
         blk[:, 1, 1] = p11 - q11
-        return {int(g): blk[k] for k, g in enumerate(grp[i0])}
+        return GroupBlocks(grp[i0], blk)
 
     def refit(self, active) -> Snapshot:
         """Adjust again with the rows where ``active`` is True; return the snapshot (Refittable)."""

@@ -19,10 +19,78 @@ which reduce to ``v_i / (σ0 √(Qvv)_ii)``, ``v_i / r_i`` and ``σ_li δ0 / √
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
+
+
+class GroupBlocks(Mapping):
+    """``group id -> (2, 2)`` blocks of ``P Qvv P`` held in two arrays instead of a dict.
+
+    A mapping like the dict it replaces (``blocks[g]``, ``g in blocks``, ``items()``), but one
+    (m,) id array and one (m, 2, 2) array: a dict of a million image points costs ≈ 250 bytes per
+    entry (a key, a view object, a hash slot) against 40 here, and :meth:`take` gathers many blocks
+    at once.  Read-only."""
+
+    def __init__(self, ids, blocks):
+        ids = np.asarray(ids, dtype=np.int64).reshape(-1)
+        blocks = np.asarray(blocks, dtype=float).reshape(-1, 2, 2)
+        if ids.shape[0] != blocks.shape[0]:
+            raise ValueError(f"GroupBlocks: {ids.shape[0]} ids for {blocks.shape[0]} blocks")
+        order = np.argsort(ids, kind="stable")
+        self.ids, self.blocks = ids[order], blocks[order]
+        if ids.size and (np.diff(self.ids) == 0).any():
+            raise ValueError("GroupBlocks: a group id is repeated")
+        self.ids.flags.writeable = False
+        self.blocks.flags.writeable = False
+
+    @classmethod
+    def of(cls, blocks) -> "GroupBlocks":
+        """``blocks`` as GroupBlocks (a dict ``group -> (2, 2)``, or GroupBlocks as it is)."""
+        if isinstance(blocks, GroupBlocks):
+            return blocks
+        blocks = dict(blocks or {})
+        return cls(list(blocks), [blocks[g] for g in blocks] if blocks else np.zeros((0, 2, 2)))
+
+    def _index(self, groups) -> tuple[np.ndarray, np.ndarray]:
+        g = np.asarray(groups, dtype=np.int64).reshape(-1)
+        i = np.minimum(np.searchsorted(self.ids, g), max(self.ids.size - 1, 0))
+        found = (self.ids[i] == g) if self.ids.size else np.zeros(g.shape, bool)
+        return i, found
+
+    def has(self, groups) -> np.ndarray:
+        """(k,) bool: which of ``groups`` have a block."""
+        return self._index(groups)[1]
+
+    def take(self, groups) -> np.ndarray:
+        """(k, 2, 2) blocks of ``groups``; KeyError naming the first missing ones."""
+        i, found = self._index(groups)
+        if not found.all():
+            raise KeyError([int(x) for x in np.asarray(groups).reshape(-1)[~found][:5]])
+        return self.blocks[i]
+
+    def __getitem__(self, g):
+        i, found = self._index([g])
+        if not found[0]:
+            raise KeyError(g)
+        return self.blocks[i[0]]
+
+    def __iter__(self):
+        return (int(g) for g in self.ids)
+
+    def __len__(self) -> int:
+        return int(self.ids.size)
+
+    def __contains__(self, g) -> bool:
+        try:
+            return bool(self._index([g])[1][0])
+        except (TypeError, ValueError, OverflowError):
+            return False
+
+    def __repr__(self) -> str:
+        return f"GroupBlocks({len(self)} groups)"
 
 
 @dataclass(frozen=True, eq=False)
@@ -43,8 +111,9 @@ class Snapshot:
     labels : (n,) str, e.g. ``"x 5"`` / ``"photo 11 point 506 y"``.
     group : (n,) int, rows that belong to one image point share a group id (x and y), for
         the joint 2-D test; ``-1`` for rows without a partner.
-    PQvvP_blocks : optional dict ``group -> (2, 2)`` block of ``P Qvv P`` for the joint test
-        (rows of a group in increasing row order).
+    PQvvP_blocks : optional mapping ``group -> (2, 2)`` block of ``P Qvv P`` for the joint test
+        (rows of a group in increasing row order): a dict, or :class:`GroupBlocks` (arrays; what
+        the bundle gives, a million image points need no million-entry dict).
     meta : dict, free-form extras of the adjustment.
     v_pred : optional (n,) ``l − f(x̂)`` for *every* row: equal to ``v`` on active rows, the
         predicted residual (the observation against the adjustment without it) on inactive rows.
@@ -64,7 +133,7 @@ class Snapshot:
     active: np.ndarray | None = None
     labels: np.ndarray | None = None
     group: np.ndarray | None = None
-    PQvvP_blocks: dict | None = None
+    PQvvP_blocks: Mapping | None = None
     meta: dict = field(default_factory=dict)
     v_pred: np.ndarray | None = None
     sigma_v_pred: np.ndarray | None = None
@@ -81,7 +150,12 @@ class Snapshot:
         act = np.ones(n, bool) if self.active is None else np.array(self.active, bool).reshape(-1)
         act.flags.writeable = False
         set_("active", act)
-        labels = np.array([str(i + 1) for i in range(n)] if self.labels is None else self.labels, dtype=str)
+        if isinstance(self.labels, np.ndarray) and self.labels.dtype.kind == "U" and self.labels.ndim == 1:
+            labels = self.labels              # already strings: shared, not copied (a million rows: 0.3 GB)
+        else:
+            labels = np.array([str(i + 1) for i in range(n)] if self.labels is None else self.labels, dtype=str)
+        if labels.shape[0] != n:
+            raise ValueError(f"Snapshot.labels: length {labels.shape[0]} != {n}")
         set_("labels", labels)
         grp = np.full(n, -1, int) if self.group is None else np.array(self.group, int)
         set_("group", grp)
