@@ -110,7 +110,9 @@ def log_bundle(rec, res, decision, options, report: str, max_photos: int | None 
         prm = np.broadcast_to(st.cam_params[j, 3:3 + mdl.n_params], (xb.size, mdl.n_params))
         dx, dy = mdl.distortion(xb, yb, prm, np.full(xb.size, st.cam_params[j, 0]), res.camera_meta[j])
         mag = np.hypot(dx, dy)
-        dscale = 0.05 * fmt.max() / mag.max() if mag.max() > 0 else 1.0
+        if not mag.max() > 0:          # no distortion at all (APs zero, e.g. fixed): no empty view
+            continue
+        dscale = 0.05 * fmt.max() / mag.max()
         rec.log(f"cameras/{_safe(block.cameras.ids[j])}/distortion",
                 rr.Arrows2D(origins=view_from_photo(np.column_stack([xb, yb]), fmt),
                             vectors=view_vectors(np.column_stack([dx, dy]) * dscale),

@@ -246,3 +246,19 @@ def test_testfield_fixture_selects_aps_by_the_papers_rule(repo_root, tmp_path):
     rho = cov / np.sqrt(np.outer(np.diag(cov), np.diag(cov)))
     assert np.abs(rho[~np.eye(len(idx), dtype=bool)]).max(initial=0) <= 0.75
     assert (tmp_path / "run" / "bundle_observations.csv").exists()
+
+
+def test_no_distortion_view_for_a_camera_without_distortion(tmp_path):
+    """APs held at zero (sxb's historical camera): the recording has no empty distortion view."""
+    blk, _ = make_block(model="brown", n_photos=8, n_points=40, noise_mm=0.001, rng=np.random.default_rng(5))
+    cams = blk.cameras.replace(ap=np.zeros_like(blk.cameras.ap))
+    blk = blk.replace(cameras=cams)
+    res = run_stage(BundleAdjustment, {"block": perturb(blk, np.random.default_rng(1))}, {"aps": "fixed"},
+                    tmp_path=tmp_path)
+    from baarda.pipeline.recording import read_recording
+
+    rec = read_recording(log_stage(BundleAdjustment, res, tmp_path / "bundle.rrd"))
+    paths = {e.path for e in rec.entities}
+    assert "/bundle/images/P1/residuals" in paths
+    assert not any(p.startswith("/bundle/cameras/") for p in paths)
+    assert not any(v.origin.startswith("/bundle/cameras/") for v in rec.views)
