@@ -227,6 +227,7 @@ class DbatReport(Stage):
             report += "\n\n" + _camera_comparison(earlier, q)
             summary["camera_vs_earlier"] = {k: (q["camera"][k][0] - earlier["camera"][k][0]) for k in q["camera"]
                                             if k in earlier["camera"]}
+        summary["headline"] = _quality_headline(q, earlier)
         meta = res.block_in.meta.get("dbat", {})
         return StageResult(artefacts={"dbat_report": q}, summary=summary, report=report,
                            tables=_quality_tables(q),
@@ -339,9 +340,8 @@ def _quality_report(q, options) -> str:
         lines += [f"{title} ({u}):", "",
                   markdown_table(["point", "label", "X prior", "Y prior", "Z prior", "σ prior", "X", "Y", "Z",
                                   "dX", "dY", "dZ", "σX", "σY", "σZ", "rays", "angle (°)"], rows), ""]
-        d = c["diff"]
-        lines.append(f"RMS of the {kind} differences: {np.sqrt(np.mean(np.sum(d ** 2, axis=1))):.3f} {u} "
-                     f"(3-D), largest {np.max(np.linalg.norm(d, axis=1)):.3f} {u} at {c['ids'][int(np.argmax(np.linalg.norm(d, axis=1)))]}.")
+        rms, big, at = _rms_largest(c)
+        lines.append(f"RMS of the {kind} differences: {rms:.3f} {u} (3-D), largest {big:.3f} {u} at {at}.")
         lines.append("")
     rows = []
     for kind, s in q["angle_stats"].items():
@@ -359,6 +359,50 @@ def _quality_report(q, options) -> str:
         lines.append("Smallest intersection angles of tie points: " +
                      ", ".join(f"{q['ids'][i]} {q['angles_deg'][i]:.2f}° ({q['rays'][i]} rays)" for i in t) + ".")
     return "\n".join(lines)
+
+
+def _rms_largest(c) -> tuple[float, float, str]:
+    """RMS (3-D) of the differences of a point comparison, the largest and the point it is at."""
+    d = np.asarray(c["diff"], float)
+    n = np.linalg.norm(d, axis=1)
+    k = int(np.argmax(n))
+    return float(np.sqrt(np.mean(n ** 2))), float(n[k]), str(c["ids"][k])
+
+
+def _quality_headline(q, earlier=None) -> str:
+    """One line for ``baarda review``: σ̂0 and the image RMS, then the control and check differences
+    (RMS 3-D, the largest and where) as the report gives them (fixed control: only how many);
+    without check points the free camera parameters and the first of them (a calibration's
+    principal distance); the largest change against an earlier dbat-report in its combined σ."""
+    u = q["object_unit"]
+    rms = f"RMS {q['rms_px']:.3f} px" if np.isfinite(q["rms_px"]) else f"RMS {q['rms_mm'] * 1000:.3f} µm"
+    parts = [f"σ̂0 = {q['sigma0']:.4f} ({rms})"]
+    for kind in ("control", "check"):
+        c = q[kind]
+        if not c["ids"]:
+            continue
+        if kind == "control" and np.all(np.asarray(c["prior_sigma"], float) == 0):
+            parts.append(f"control fixed ({len(c['ids'])})")
+            continue
+        r, big, at = _rms_largest(c)
+        parts.append(f"{kind} RMS {r:.3f} {u} (3-D), largest {big:.3f} {u} at {at}")
+    free = [k for k, (_, _, st, _) in q["camera_rows"].items() if st != "fixed"]
+    if free and not q["check"]["ids"]:
+        k = free[0]
+        v, s = q["camera"][k]
+        mm = " mm" if k in ("cc", "px", "py", "c", "xp", "yp") else ""
+        parts.append(f"{len(free)} camera parameter(s) free, {k} {v:.6g} ± {s:.3g}{mm}")
+    if earlier is not None:
+        z = []
+        for k in free:
+            if k in earlier["camera"]:
+                s = np.hypot(q["camera"][k][1], earlier["camera"][k][1])
+                if s > 0:
+                    z.append((abs(q["camera"][k][0] - earlier["camera"][k][0]) / s, k))
+        if z:
+            m, k = max(z)
+            parts.append(f"vs earlier: max |diff|/σ {m:.2f} ({k})")
+    return "; ".join(parts)
 
 
 def _quality_tables(q) -> dict:
@@ -421,6 +465,9 @@ class DbatMarks(Stage):
         cmp = compare_marks(marks, block, options.match_radius_px)
         a = cmp["all"]
         summary = {k: a[k] for k in ("marks", "points", "matched", "same_id", "bias_px", "rms_px", "sd_px")}
+        summary["headline"] = (f"{a['matched']} of {a['marks']} marks paired with the block's {a['points']} image "
+                               f"points ({a['same_id']} same id); bias ({a['bias_px'][0]:+.3f}, "
+                               f"{a['bias_px'][1]:+.3f}) px, RMS ({a['rms_px'][0]:.3f}, {a['rms_px'][1]:.3f}) px")
         rows = [[r["photo"], r["marks"], r["points"], r["matched"], r["same_id"], f"{r['bias_px'][0]:+.3f}",
                  f"{r['bias_px'][1]:+.3f}", f"{r['rms_px'][0]:.3f}", f"{r['rms_px'][1]:.3f}"] for r in cmp["photos"]]
         rows.append(["all", a["marks"], a["points"], a["matched"], a["same_id"], f"{a['bias_px'][0]:+.3f}",

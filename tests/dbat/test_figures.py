@@ -109,6 +109,9 @@ def test_marks_figure_draws_the_pairs(shared_data, tmp_path):
     other = marks.replace(observations=Observations.make(o.photo, o.point, o.xy + (shift + noise) * [p, -p],
                                                          sigma=0.1 * p))
     r = run_stage(DbatMarks, {"dbat_marks": marks, "block": other}, {}, tmp_path=tmp_path)
+    n, b = len(o), shift + noise.mean(axis=0)
+    assert r.summary["headline"].startswith(f"{n} of {n} marks paired with the block's {n} image points ({n} same id); "
+                                            f"bias ({b[0]:+.3f}, {b[1]:+.3f}) px, RMS (0.3")
     figs = DbatMarks().plots(r, None)
     assert list(figs) == ["differences"]
     vec, hist, scat = figs["differences"][0].axes

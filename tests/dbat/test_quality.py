@@ -50,6 +50,10 @@ def test_camcal_quality_as_dbat(shared_data):
     assert q["ray_stats"]["tie"] == {16: 1, 17: 1, 18: 2, 19: 3, 20: 5, 21: 84}
     assert q["ray_stats"]["control"] == {21: 4}
     assert "K2–K3 -97.8%" in out.report                                 # DBAT: K2/K3 −97.9 %
+    # fixed control has no differences: the review line names the calibrated camera instead
+    cc, s = q["camera"]["cc"]
+    assert out.summary["headline"] == (f"σ̂0 = {q['sigma0']:.4f} (RMS {q['rms_px']:.3f} px); control fixed (4); "
+                                       f"9 camera parameter(s) free, cc {cc:.6g} ± {s:.3g} mm")
 
 
 def test_sxb_quality_as_dbat(shared_data):
@@ -77,6 +81,9 @@ def test_sxb_quality_as_dbat(shared_data):
     # control: DBAT's ctrl point delta RMS 0.035, max 0.073 at 492; check RMS 0.421, max 0.488 at 351
     assert "RMS of the control differences: 0.035 m (3-D), largest 0.073 m at 492" in out.report
     assert "RMS of the check differences: 0.421 m (3-D), largest 0.488 m at 351" in out.report
+    # the line of `baarda review`: the same numbers
+    assert out.summary["headline"] == ("σ̂0 = 1.1786 (RMS 1.101 px); control RMS 0.035 m (3-D), largest 0.073 m "
+                                       "at 492; check RMS 0.421 m (3-D), largest 0.488 m at 351")
 
 
 def test_report_of_a_block_not_from_dbat():
