@@ -89,6 +89,9 @@ class DesignSource(SourceStage):
                    "rays_min": int(rays.min()), "rays_mean": round(float(rays.mean()), 2),
                    "sigma_px": options.sigma_px, "sigma_image_um": options.sigma_px * cam.pixel_mm * 1e3,
                    "free_camera_parameters": list(cam.free) + list((cam.sigma or {}))}
+        summary["headline"] = (f"planned network: {len(sid)} stations, {len(tid)} targets ({summary['control']} "
+                               f"control), {len(obs)} image points, {_span(summary['rays_min'], int(rays.max()))} "
+                               f"rays per target; σ {options.sigma_px} px")
         report = (f"Planned network: {len(sid)} stations, {len(tid)} targets "
                   f"({summary['control']} control), {len(obs)} planned image points "
                   f"({summary['rays_min']}–{int(rays.max())} rays per target, mean {summary['rays_mean']}). "
@@ -114,6 +117,10 @@ class DesignSource(SourceStage):
         from baarda.pipeline.recording import log_block
 
         log_block(rec, result.data["block"], root="planned")
+
+
+def _span(lo: int, hi: int) -> str:
+    return f"{lo}" if lo == hi else f"{lo}–{hi}"
 
 
 def viewing_directions(opk) -> np.ndarray:
@@ -345,6 +352,7 @@ class DesignMonteCarlo(Stage):
                 "ratio_interval": [round(t_pts.lower, 4), round(t_pts.upper, 4)],
                 "sigma0_hat_mean": round(float(np.mean(mc["sigma0_hat"])), 4)})
         report = _report(block, res, free_pt, sig_pts, cam_rows, sig_cam, pairs, mc, options)
+        summary["headline"] = _headline(block, free_pt, sig_pts, mc)
         data = {**out, "figures": figure_data(res, pred["points"], free_pt)}
         return StageResult(artefacts={"design": out}, summary=summary, report=report, tables=tables, data=data)
 
@@ -409,6 +417,22 @@ def _correlated(res, rho_max):
                     r = C[a, b] / (d[a] * d[b])
                     if abs(r) > rho_max:
                         out.append((names[a], names[b], float(r)))
+    return out
+
+
+def _headline(block, free_pt, sig_pts, mc) -> str:
+    """One line for ``baarda review``: the predicted median σ of the points (mm, as the report), then
+    the realisations' mean σ̂0, the points' rms ratio realised/predicted and the joint test's p."""
+    k = 1000.0 if block.object_unit == "m" else 1.0
+    med = np.median(sig_pts[free_pt] * k, axis=0) if free_pt.size else np.full(3, np.nan)
+    out = f"predicted median σ X, Y, Z {', '.join(f'{v:.3g}' for v in med)} mm"
+    if mc is None:
+        return out + "; no realisations"
+    tp = mc["points"]
+    out += (f"; {tp.n} realisations: mean σ̂0 {np.mean(mc['sigma0_hat']):.3f}, rms ratio {tp.pooled_ratio:.3f} "
+            f"({int(tp.rejected.sum())}/{tp.ratio.size} outside)")
+    if "joint" in mc:
+        out += f", joint test p = {mc['joint']['p']:.3f}"
     return out
 
 

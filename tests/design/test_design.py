@@ -141,6 +141,8 @@ def test_bundled_project_runs(tmp_path):
     mc = res["design-montecarlo"]["summary"]
     assert mc["n_sim"] == 20 and mc["points_components"] == 90
     assert mc["joint"]["p"] > 1e-3
+    assert mc["headline"].startswith("predicted median σ X, Y, Z ") and "20 realisations" in mc["headline"]
+    assert float(mc["headline"].rsplit("joint test p = ", 1)[1]) == pytest.approx(mc["joint"]["p"], abs=1e-3)
     assert res["bundle"]["summary"]["sigma0_hat"] == 0.0
     report = (tmp_path / "run" / "report.md").read_text()
     assert "Poorly separable" in report and "Joint test" in report
