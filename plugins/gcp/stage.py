@@ -244,6 +244,11 @@ class GnssCentres:
                   "(residuals, redundancy numbers and w-tests in its GNSS section; `docs/crs.md`)."
                   + (f" {info['initial_centres']} photo(s) without a projection centre start from the antenna "
                      "reduced with their attitude." if info["initial_centres"] else ""))
+        med = np.median(sig, axis=0) * 1000
+        arms_txt = "; ".join(f"camera {k} ({', '.join(f'{x:g}' for x in v)}) m" for k, v in options.lever_arm.items())
+        info["headline"] = (f"{info['photos_with_gnss']} photo(s) with GNSS antennas from {g.path.name} ({crs}): "
+                            f"σ E/N/h median {med[0]:.0f}/{med[1]:.0f}/{med[2]:.0f} mm, range "
+                            f"{np.min(sig) * 1000:.0f}–{np.max(sig) * 1000:.0f} mm; lever arm {arms_txt or 'none'}")
         s3 = gn.sigma
         table = TableData({"photo": out.photos.ids[gn.photo].tolist(), "X": gn.XYZ[:, 0], "Y": gn.XYZ[:, 1],
                            "Z": gn.XYZ[:, 2], "sX": s3[:, 0], "sY": s3[:, 1], "sZ": s3[:, 2],
