@@ -313,6 +313,7 @@ class TargetDetection(Stage):
         table = TableData({k: [r[k] for r in rows] for k in ("file", "photo", "camera", "points", "status", "message")},
                           "detections per image")
         report = self._report(options, files, rows, block, ref, sigma_px)
+        summary["headline"] = _headline(options.target, rows, block, ref)
         return StageResult(artefacts={"block": block}, summary=summary, report=report, tables={"detections": table},
                            data={"images": logged, "block": block})
 
@@ -465,3 +466,18 @@ class TargetDetection(Stage):
                 rec.log(f"{path}/points", rr.Points2D(uv, labels=list(ids), colors=[[255, 60, 40]],
                                                       radii=rr.Radius.ui_points(3.0)), static=True)
         log_block(rec, result.data["block"], root=f"{ctx.stage_id}/block")
+
+
+def _headline(target: str, rows: list[dict], block, ref: dict) -> str:
+    """One line for ``baarda review``: images used and skipped, the targets detected (image points,
+    object points, fewest and most per used image) and cv2.calibrateCamera's RMS per camera."""
+    used = [r["points"] for r in rows if r["status"] == "ok"]
+    skipped = len(rows) - len(used)
+    out = (f"{target}: {len(used)} of {len(rows)} image(s) used" + (f", {skipped} skipped" if skipped else "")
+           + f"; {len(block.observations)} image points of {len(block.points)} object points")
+    if used:
+        out += f" ({min(used)} per image)" if min(used) == max(used) else f" ({min(used)}–{max(used)} per image)"
+    if ref:
+        out += "; cv2.calibrateCamera RMS " + ", ".join(
+            (f"{cid} " if len(ref) > 1 else "") + f"{cal['rms_px']:.4f}" for cid, cal in ref.items()) + " px"
+    return out

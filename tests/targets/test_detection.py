@@ -35,6 +35,8 @@ def test_chessboard_counts_and_opencv_reference(chessboard):
     res, ctx = chessboard
     det = res.summary["detections"]
     assert len(det) == 26 and all(n == 54 for n in det.values()), det
+    assert res.summary["headline"].startswith("chessboard: 26 of 26 image(s) used; 1404 image points of 54 object "
+                                              "points (54 per image); cv2.calibrateCamera RMS left 0.")
     assert ctx.warnings == []
     b = res.artefacts["block"]
     assert b.cameras.ids.tolist() == ["left", "right"] and b.object_unit == "mm"
