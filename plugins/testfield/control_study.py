@@ -315,6 +315,7 @@ class ControlStudy(Stage):
                    "claims": [{"claim": c["claim"], "holds": c["holds"], "verdict": c["verdict"],
                                **{f"{k}_change_pct": round(v["change_pct"], 1) for k, v in c["keys"].items()}}
                               for c in study["conclusions"]]}
+        summary["headline"] = _headline(study, cfg)
         return StageResult(artefacts={"study": study}, summary=summary, report=study_report(study),
                            tables=_tables(study), data=study)
 
@@ -337,6 +338,21 @@ class ControlStudy(Stage):
                     rec.log(f"study/{key}/paper_{label}",
                             rr.Scalars([PAPER_TABLE2[row["case"]][idx] if name == "table2"
                                         else PAPER_TABLE3[row["case"]][idx - 2]]))
+
+
+def _headline(study, cfg: ControlStudyConfig) -> str:
+    """One line for ``baarda review``: realisations, noise and systematic errors, the configurations
+    run (control cases without and with APs, the single model) and their adjustments (failures when
+    any), how many of the paper's statements hold on the simulation."""
+    rows = study["rows"]
+    configs = {(r["block"], r["case"], r["aps"]) for r in rows}
+    failed = sum(1 for r in rows if r["error"])
+    held = sum(1 for c in study["conclusions"] if c["holds"])
+    single = any(b == "single-model" for b, _, _ in configs)
+    syst = f"systematics ×{cfg.systematic_scale:g}" if cfg.with_ap_errors else "no systematics"
+    return (f"{cfg.repetitions} realisations, σ {cfg.sigma_image_um:g} µm, {syst}: {len(configs)} configurations "
+            f"({len(cfg.cases)} cases with/without APs{', single model' if single else ''}), {len(rows)} adjustments"
+            + (f" ({failed} failed)" if failed else "") + f"; {held}/{len(study['conclusions'])} paper claims hold")
 
 
 def _tables(study) -> dict:

@@ -74,6 +74,10 @@ def test_stage(tmp_path):
     assert [row["case"] for row in study["tables"]["table2"]] == [1, 5]
     assert study["tables"]["single"][0]["case"] == 5
     assert "Table 2" in r.report and "Table 4" in r.report and "holds" in r.report
+    held = sum(c["holds"] for c in study["conclusions"])
+    assert r.summary["headline"] == (f"1 realisations, σ 40 µm, systematics ×1: 5 configurations (2 cases "
+                                     f"with/without APs, single model), 5 adjustments; "
+                                     f"{held}/{len(study['conclusions'])} paper claims hold")
     assert {"table2", "table3", "single", "realisations", "conclusions"} <= set(r.tables)
     log_stage(ControlStudy, r, tmp_path / "study.rrd")
     with pytest.raises(InputError):
