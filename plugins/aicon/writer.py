@@ -137,4 +137,7 @@ class AiconExportStage:
         report = (f"Wrote AICON files `{out.name}.*` ({', '.join(sorted(info['files']))}): {info['cameras']} camera(s), "
                   f"{info['images']} images, {info['points']} points, {info['measurements']} measurements"
                   + (", residuals and point σ of the bundle" if resid is not None else "") + ".")
+        info["headline"] = (f"AICON files {out.name}.* ({', '.join(sorted(info['files']))}): {info['cameras']} "
+                            f"camera(s), {info['images']} images, {info['points']} points, {info['measurements']} "
+                            "measurements" + (", with the bundle's residuals and σ" if resid is not None else ""))
         return StageResult(summary=info, report=report)

@@ -159,5 +159,10 @@ class LibmvExport:
             report += (f"  Left out: {len(info['skipped_photos'])} photo(s) without orientation, "
                        f"{info['skipped_points']} point(s) without coordinates or active rays, "
                        f"{info['skipped_observations']} inactive or unusable observation(s).")
+        left = len(info["skipped_photos"]) + info["skipped_points"] + info["skipped_observations"]
+        headline = (f"libmv problem {options.path} ({what} block): {info['cameras']} cameras, {info['points']} tracks, "
+                    f"{info['markers']} markers; float32 rounding ≤ {loss['markers_px']:.3g} px"
+                    + (f"; left out {len(info['skipped_photos'])} photo(s), {info['skipped_points']} point(s), "
+                       f"{info['skipped_observations']} observation(s)" if left else ""))
         return StageResult(summary={**info, **{f"float32_{k}": v for k, v in loss.items()},
-                                    "path": str(options.path), "block": what}, report=report)
+                                    "path": str(options.path), "block": what, "headline": headline}, report=report)

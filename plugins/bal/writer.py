@@ -175,4 +175,9 @@ class BalExport:
                        f"{info['skipped_points']} point(s) without coordinates or active rays, "
                        f"{info['skipped_observations']} inactive or unusable observation(s).")
         summary = {k: v for k, v in info.items() if k not in ("photo_ids", "point_ids")}
+        left = len(info["skipped_photos"]) + info["skipped_points"] + info["skipped_observations"]
+        summary["headline"] = (f"BAL problem {options.path} ({what} block): {info['cameras']} cameras, "
+                               f"{info['points']} points, {info['observations']} observations"
+                               + (f"; left out {len(info['skipped_photos'])} photo(s), {info['skipped_points']} "
+                                  f"point(s), {info['skipped_observations']} observation(s)" if left else ""))
         return StageResult(summary={**summary, "path": str(options.path), "block": what}, report=report)

@@ -123,5 +123,10 @@ class ColmapExport(Stage):
         report = (f"Wrote the block ({which}) as a {options.format} COLMAP model to `{out}`: {info['cameras']} camera(s) "
                   f"({', '.join(sorted(set(info['camera_models'])))}), {info['images']} images, "
                   f"{info['points3D']} points, {info['observations']} observations.")
+        info["headline"] = (f"{options.format} COLMAP model {options.path}/ (block {which}): {info['cameras']} "
+                            f"camera(s) ({', '.join(sorted(set(info['camera_models'])))}), {info['images']} images, "
+                            f"{info['points3D']} points, {info['observations']} observations"
+                            + (f"; {len(info['skipped_photos'])} photo(s) without orientation left out"
+                               if info["skipped_photos"] else ""))
         return StageResult(summary=info, report=report)
 

@@ -158,4 +158,7 @@ class ComparatorExport:
                   "pair(s).")
         if info["inactive_left_out"]:
             report += f"  {info['inactive_left_out']} inactive measurement(s) left out."
-        return StageResult(summary={**info, "path": str(options.path)}, report=report)
+        headline = (f"comparator file {options.path} (photo mode, mm): {info['photos']} photos, {info['measurements']} "
+                    f"measurements, {info['points_declared']} object points, {info['pairs']} pair(s)"
+                    + (f"; {info['inactive_left_out']} inactive left out" if info["inactive_left_out"] else ""))
+        return StageResult(summary={**info, "path": str(options.path), "headline": headline}, report=report)

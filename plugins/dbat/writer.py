@@ -350,4 +350,9 @@ class DbatExport:
                        f"the dbat source's crs = \"{info['crs']}\").")
         if info["inactive_left_out"]:
             report += f"  {info['inactive_left_out']} inactive measurement(s) left out."
-        return StageResult(summary={**info, "path": str(options.path), "camera": what}, report=report)
+        headline = (f"DBAT project {options.path}/{info['script']} ({what} camera): {info['images']} images, "
+                    f"{info['control']} control ({'weighted' if info['weighted_control'] else 'fixed'}) and "
+                    f"{info['check']} check points, {info['marks']} marks"
+                    + (f"; {info['crs']}" if info["crs"] else ""))
+        return StageResult(summary={**info, "path": str(options.path), "camera": what, "headline": headline},
+                           report=report)

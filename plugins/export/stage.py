@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from baarda.pipeline.crs import LocalFrame, frame_of_block, parse_crs
+from baarda.pipeline.crs import LocalFrame, crs_label, frame_of_block, parse_crs
 from baarda.pipeline.errors import InputError
 from baarda.pipeline.model import ROLES
 from baarda.pipeline.options import option
@@ -86,4 +86,9 @@ class PointExport:
                   f"{' '.join(ex.names)} and σ {' '.join(ex.sigma_names)} (median "
                   + " / ".join(f"{v * to_mm:.1f}" for v in med) + " mm"
                   + (", in the block's local system" if ex.crs is None else "") + ").")
+        sig = (f"{int(fin.sum())} with σ, median " + " / ".join(f"{v * to_mm:.1f}" for v in med) + " mm"
+               if fin.any() else "no σ: no bundle for them")
+        summary["headline"] = (f"{len(ex.ids)} points ({sig}) → {', '.join(p.name for p in written)}, "
+                               + ("the block's local system" if ex.crs is None else
+                                  f"{crs_label(ex.crs)} ({' '.join(ex.names)})"))
         return StageResult(summary=summary, report=report)

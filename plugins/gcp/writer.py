@@ -138,4 +138,8 @@ class GcpExport:
                   f"{info['targets']} points in {info['images']} images.")
         if info["inactive_left_out"]:
             report += f"  {info['inactive_left_out']} inactive measurement(s) left out."
-        return StageResult(summary={**info, "path": str(options.path), "points": options.points}, report=report)
+        headline = (f"{options.path} ({options.points} coordinates, {crs_text or crs_line(frame)}): "
+                    f"{info['measurements']} measurements of {info['targets']} points in {info['images']} images"
+                    + (f"; {info['inactive_left_out']} inactive left out" if info["inactive_left_out"] else ""))
+        return StageResult(summary={**info, "path": str(options.path), "points": options.points,
+                                    "headline": headline}, report=report)

@@ -76,3 +76,4 @@ def test_what_libmv_cannot_hold_is_refused(shared_data, tmp_path):
     out = run_stage(LibmvExport, {"block": block}, {"path": "out/p.bin"}, tmp_path=tmp_path)
     assert (tmp_path / "out" / "p.bin").is_file() or any(tmp_path.rglob("p.bin"))
     assert out.summary["cameras"] == len(block.photos) and out.summary["float32_markers_px"] < 1e-3
+    assert out.summary["headline"].startswith(f"libmv problem out/p.bin (source block): {len(block.photos)} cameras, ")

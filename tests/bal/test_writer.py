@@ -71,6 +71,9 @@ def test_bundle_result_reprojects_as_baarda(adjusted, tmp_path):
     assert abs(block.cameras.ap[0, 0]) > 0 and abs(block.cameras.ap[0, 1]) > 0
     out = run_stage(BalExport, {"block": block, "bundle": res}, {"path": "out/adjusted.txt"}, tmp_path=tmp_path)
     assert out.summary["block"] == "adjusted"
+    s = out.summary
+    assert s["headline"] == (f"BAL problem out/adjusted.txt (adjusted block): {s['cameras']} cameras, {s['points']} "
+                             f"points, {s['observations']} observations")
     back = read_bal(tmp_path / "out" / "adjusted.txt")
     assert len(back.cameras) == len(block.photos) and len(back.cam) == int(block.observations.active.sum())
     # BAL's formula on the file against baarda's collinearity on the adjusted block, in pixels

@@ -236,6 +236,8 @@ def test_stages_colmap_and_export(model_dir, tmp_path):
     out = ColmapExport().run({"block": res.artefacts["block"]}, ColmapExportOptions(path=Path("model"), format="text"),
                              ectx)
     assert out.summary["points3D"] == 1443
+    assert out.summary["headline"].startswith("text COLMAP model model/ (block as given): 23 camera(s) (")
+    assert out.summary["headline"].endswith(f"23 images, 1443 points, {out.summary['observations']} observations")
     assert pycolmap.Reconstruction(str(tmp_path / "model")).num_images() == 23
     with pytest.raises(InputError, match="required"):
         ColmapSource().run({}, ColmapSourceOptions(path=Path("")), ctx)

@@ -81,6 +81,9 @@ def test_fiducial_mode_is_written_as_photo_mode_only_without_correlation(tmp_pat
     assert e.value.field == "on_correlated"
     out = run_stage(ComparatorExport, {"block": src}, {"path": "f.cmp", "on_correlated": "drop"}, tmp_path=tmp_path)
     assert out.summary["correlation_dropped"] == len(src.observations) and out.warnings
+    assert out.summary["headline"] == (f"comparator file f.cmp (photo mode, mm): {out.summary['photos']} photos, "
+                                       f"{len(src.observations)} measurements, {out.summary['points_declared']} "
+                                       f"object points, {out.summary['pairs']} pair(s)")
     back = read(tmp_path / "f.cmp")
     assert np.abs(back.observations.xy - src.observations.xy).max() == 0.0
     assert np.allclose(np.diagonal(back.observations.cov, axis1=1, axis2=2),

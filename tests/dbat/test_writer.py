@@ -186,6 +186,10 @@ def test_stage_after_a_bundle_takes_the_adjusted_camera_and_the_prior_control(tm
     out = run_stage(DbatExport, {"block": b.block, "bundle": b}, {"path": "out/dbat", "name": "adj"},
                     tmp_path=tmp_path)
     assert out.summary["camera"] == "adjusted" and "1 mark(s) with different σ" in out.warnings[0]
+    s = out.summary
+    assert s["headline"].startswith(f"DBAT project out/dbat/adj.xml (adjusted camera): {s['images']} images, "
+                                    f"{s['control']} control (")
+    assert f"{s['marks']} marks" in s["headline"]
     back = dbat_block(read_dbat(tmp_path / "out" / "dbat" / "adj.xml"))
     assert back.cameras.c[0] == pytest.approx(block.cameras.c[0] + 0.01, abs=1e-12)
     full = back.points.role == "full"

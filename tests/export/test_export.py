@@ -38,6 +38,9 @@ def test_csv_and_ply_in_the_users_crs(adjusted, tmp_path):
     block, res, frame = adjusted
     out = run_stage(PointExport, {"block": block, "bundle": res}, {"path": "pts", "ply": "binary"}, tmp_path=tmp_path)
     assert out.summary["points"] == len(block.points) and out.summary["with_sigma"] == len(block.points)
+    n = len(block.points)
+    assert out.summary["headline"].startswith(f"{n} points ({n} with σ, median ")
+    assert out.summary["headline"].endswith(" mm) → pts.ply, pts.csv, EPSG:32722 (E N h)")
     rows = _read_csv(tmp_path / "pts.csv")
     utm = np.array([[float(r["E"]), float(r["N"]), float(r["h"])] for r in rows])
     # back to the local frame: the adjusted coordinates (to the CSV's 1 µm rounding)
@@ -88,6 +91,8 @@ def test_export_without_crs_and_without_bundle(tmp_path):
     assert len(lines) - 1 == int((noisy.points.role == "full").sum()) == out.summary["points"]
     assert "nan" in lines[1]
     assert any("σ columns are nan" in w for w in out.warnings)
+    assert out.summary["headline"] == (f"{out.summary['points']} points (no σ: no bundle for them) → p.csv, "
+                                       "the block's local system")
 
 
 def test_aicon_round_trip(shared_data, tmp_path):
@@ -126,6 +131,8 @@ def test_aicon_export_stage_writes_the_bundles_residuals(shared_data, tmp_path):
     res = adjust(block, BundleSettings(datum="free"))
     out = run_stage(AiconExportStage, {"block": res.block, "bundle": res}, {"path": "out/adj"}, tmp_path=tmp_path)
     assert out.summary["measurements"] == len(block.observations)
+    assert out.summary["headline"].endswith(f"{len(block.observations)} measurements, with the bundle's "
+                                            "residuals and σ")
     back = read_aicon(tmp_path / "out" / "adj")
     # AICON's residual sign: computed − observed = −v
     assert np.allclose(back.measurements["vxy"], -res.residuals, rtol=0, atol=1e-15)

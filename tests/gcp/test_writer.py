@@ -45,6 +45,8 @@ def test_crs_text_as_read_and_another_crs(odm, tmp_path):
     out = run_stage(GcpExport, {"block": b}, {"path": "odm/gcp_list.txt"}, tmp_path=tmp_path)
     back = read_gcp_list(tmp_path / "odm" / "gcp_list.txt")
     assert back.crs == gcp.crs and out.summary["measurements"] == len(gcp.image)
+    assert out.summary["headline"].startswith(f"odm/gcp_list.txt (surveyed coordinates, {gcp.crs}): "
+                                              f"{len(gcp.image)} measurements of ")
     # geographic: lon, lat in degrees, heights unchanged (same datum)
     run_stage(GcpExport, {"block": b}, {"path": "geo.txt", "crs": "EPSG:4979", "roles": ["check"]}, tmp_path=tmp_path)
     geo = read_gcp_list(tmp_path / "geo.txt")
