@@ -1,4 +1,5 @@
-"""Every bundled project validates and runs end to end through the runner, every stage ok.
+"""Every bundled project validates and runs end to end through the runner, every stage ok and
+with a finding on its line of ``baarda review``.
 
 The quick projects (under ~10 s on the 2-core machine) run in ``make test``, the others under the
 ``slow`` marker (``make test-slow``).  ``SECONDS`` holds each project's measured time (the time
@@ -16,6 +17,7 @@ import pytest
 
 from baarda.pipeline.plugins import PluginManager
 from baarda.pipeline.project import load_project
+from baarda.pipeline.review import _finding
 from baarda.pipeline.runner import run_project
 
 from conftest import SHARED_BESIDE, needs_shared_beside
@@ -94,3 +96,7 @@ def test_bundled_project_runs(rel, tmp_path):
     bad = {s["id"]: s.get("error") or s["status"] for s in res["stages"] if s["status"] != "ok"}
     assert not bad, bad
     assert all((tmp_path / "run" / f"{s['id']}.rrd").exists() for s in res["stages"])
+    # every stage says what it found on its line of `baarda review` (its summary's headline, or a
+    # source's "read N photo(s) …")
+    blank = [f"{s['id']} ({s['use']})" for s in res["stages"] if not _finding(s).strip()]
+    assert not blank, f"stages without a finding in `baarda review`: {blank}"
