@@ -99,6 +99,11 @@ def block_to_export(inputs) -> tuple[object, str]:
     adj = inputs.get("adjustment")
     if adj is not None and getattr(adj, "block_in", None) is block and hasattr(adj, "block"):
         return adj.block, "adjusted"
+    done = getattr(getattr(adj, "model", adj), "block", None)       # a bundle's adjusted block
+    if done is not None and (done is block or (
+            np.array_equal(done.points.XYZ, block.points.XYZ, equal_nan=True)
+            and np.array_equal(done.photos.X0, block.photos.X0, equal_nan=True))):
+        return block, "adjusted"            # the bundle hands it on (rejected observations switched off)
     return block, "as given"
 
 

@@ -268,7 +268,9 @@ def test_bundle_on_colmap_model_and_export_adjusted(model_dir, tmp_path):
     assert after["rms_px"] <= before["rms_px"]
     chosen, which = block_to_export({"block": block, "adjustment": result})
     assert which == "adjusted"
-    assert block_to_export({"block": result.block, "adjustment": result})[1] == "as given"
+    # the block a bundle hands on (its adjusted block) is written as it is, and named adjusted
+    assert block_to_export({"block": result.block, "adjustment": result}) == (result.block, "adjusted")
+    assert block_to_export({"block": block, "adjustment": None}) == (block, "as given")
     ctx = Context("export", project_dir=tmp_path, run_dir=tmp_path)
     ColmapExport().run({"block": block, "adjustment": result}, ColmapExportOptions(path=Path("adj")), ctx)
     rec = pycolmap.Reconstruction(str(tmp_path / "adj"))
