@@ -269,8 +269,11 @@ def test_bundle_on_colmap_model_and_export_adjusted(model_dir, tmp_path):
     chosen, which = block_to_export({"block": block, "adjustment": result})
     assert which == "adjusted"
     # the block a bundle hands on (its adjusted block) is written as it is, and named adjusted
-    assert block_to_export({"block": result.block, "adjustment": result}) == (result.block, "adjusted")
-    assert block_to_export({"block": block, "adjustment": None}) == (block, "as given")
+    adjusted = result.block                     # (a property: a new Block each time)
+    handed_on, which = block_to_export({"block": adjusted, "adjustment": result})
+    assert handed_on is adjusted and which == "adjusted"
+    given, which = block_to_export({"block": block, "adjustment": None})
+    assert given is block and which == "as given"
     ctx = Context("export", project_dir=tmp_path, run_dir=tmp_path)
     ColmapExport().run({"block": block, "adjustment": result}, ColmapExportOptions(path=Path("adj")), ctx)
     rec = pycolmap.Reconstruction(str(tmp_path / "adj"))
