@@ -435,7 +435,8 @@ class TargetDetection(Stage):
             sig += [sigma_px * pitch] * len(det)
         obs = Observations.make(obs_photo, obs_point, np.concatenate(obs_xy), sigma=np.array(sig))
         meta = dict(layout.meta)
-        meta["targets"] = {"target": "circles", "pixel_convention": "opencv"}
+        meta["targets"] = {"target": "circles", "pixel_convention": "opencv",
+                           "images": {pid: str(d.extra.get("file", "")) for pid, _, _, d in kept}}
         block = Block(cameras=cams, photos=layout.photos.take(ph_idx), points=layout.points.take(pt_idx),
                       observations=obs, object_unit=layout.object_unit, meta=meta)
         return block.replace(pairs=pairs_of_layout(layout, block))
