@@ -81,7 +81,7 @@ def residual_vectors(res, decision=None, images: dict | None = None):
         src = (images or {}).get(str(block.photos.ids[p]))
         back = _backdrop(src) if src else None
         if back is not None and fw > 0:
-            ax.imshow(back, cmap="gray", extent=(-fw / 2, fw / 2, -fh / 2, fh / 2), origin="upper", alpha=0.8,
+            ax.imshow(back, cmap="gray", extent=(-fw / 2, fw / 2, -fh / 2, fh / 2), origin="upper", alpha=0.45,
                       zorder=0)
         if fw > 0:
             ax.add_patch(plt.Rectangle((-fw / 2, -fh / 2), fw, fh, fill=False, ec="#999", lw=0.8))
@@ -252,12 +252,20 @@ def distortion(res, j: int, n: int = 60):
 
 
 def photo_images(block, previous=()) -> dict:
-    """Photo id → image file: from the block (``meta["targets"]["images"]``, opencv-targets) or from
+    """Photo id → image file: from the block (``meta["targets"]["images"]``, opencv-targets;
+    ``meta["dbat"]["images"]``, a DBAT project's images that were found) or from
     an earlier stage's ``images`` artefact with ``paths`` and ``photo_ids`` (testfield-render)."""
     out = {}
-    t = block.meta.get("targets") if isinstance(block.meta, dict) else None
+    meta = block.meta if isinstance(block.meta, dict) else {}
+    t = meta.get("targets")
     if isinstance(t, dict) and isinstance(t.get("images"), dict):
         out.update({str(k): v for k, v in t["images"].items() if v})
+    d = meta.get("dbat")                        # image files by DBAT's image number; photo id → number
+    if isinstance(d, dict) and isinstance(d.get("images"), dict) and isinstance(d.get("image_numbers"), dict):
+        for pid, num in d["image_numbers"].items():
+            f = d["images"].get(str(num))
+            if f and str(pid) not in out:
+                out[str(pid)] = f
     for st in previous:
         art = getattr(st.result, "artefacts", {}).get("images")
         if art is not None and hasattr(art, "paths") and hasattr(art, "photo_ids"):

@@ -123,3 +123,16 @@ def test_marks_figure_draws_the_pairs(shared_data, tmp_path):
     assert np.allclose(duv, shift + noise, atol=1e-9)
     assert sum(pt.get_height() for pt in hist.patches) == 2 * len(o)
     assert np.allclose(scat.get_lines()[0].get_xdata(), duv[:, 0])
+
+
+def test_residual_figure_finds_the_projects_photos(shared_data):
+    """A DBAT project's images (listed by image number) are drawn behind the bundle's residuals:
+    photo id → its own file, for every photo of sxb (the files are named by the photo ids)."""
+    from pathlib import Path
+
+    from baarda.plugins.bundle.figures import photo_images
+
+    block = dbat_block(read_dbat(shared_data / "dbat-sxb" / "sxb.xml"))
+    files = photo_images(block)
+    assert set(files) == set(block.photos.ids.tolist())
+    assert all(Path(f).is_file() and Path(f).stem == pid for pid, f in files.items())
