@@ -177,7 +177,9 @@ def _compare(result, plan: CrossCheckPlan, sol: PycolmapSolution, summary: dict,
     # cost ½ Σ ‖v/σ_j‖² (pycolmap's own, in its pixels = σ)
     w = result.residuals[used] / plan.sigma_mm[cam[used]][:, None]
     cost_b = 0.5 * float(np.sum(w * w))
-    rel = abs(sol.final_cost - cost_b) / max(cost_b, 1e-300)
+    # relative to the larger cost; error-free data (a planned network: cost 0) against a floor of
+    # 1e-12 σ² per observation instead of 1e-300 (which printed a relative difference of 1e+279)
+    rel = abs(sol.final_cost - cost_b) / max(cost_b, sol.final_cost, 1e-12 * max(int(used.sum()), 1))
     q["cost"] = {"max": rel, "rms": rel, "unit": "relative", "n": 1, "exact": exact,
                  "baarda": cost_b, "pycolmap": sol.final_cost, "pycolmap_initial": sol.initial_cost}
 

@@ -267,6 +267,14 @@ def plan_crosscheck(result) -> CrossCheckPlan:
     if held_ph.any():
         notes.append(f"{int(held_ph.sum())} photo(s) with weighted or partly fixed exterior orientation held at "
                      "baarda's adjusted values")
+    gnss = np.zeros(len(photos), bool)
+    gnss[np.asarray(block.gnss.photo, int)] = True
+    gnss &= used_ph & ~fixed_ph & ~held_ph
+    if gnss.any():                    # antenna observations pull on the pose: hold it where baarda put it
+        free_ph &= ~gnss
+        held_ph |= gnss
+        notes.append(f"{int(gnss.sum())} photo(s) with GNSS antenna observations held at baarda's adjusted poses "
+                     "(pycolmap has no antenna observations)")
     behind = behind_camera(result)
     if behind.any():
         notes.append(f"{int(behind.sum())} observation(s) of points behind their camera (first: photo "

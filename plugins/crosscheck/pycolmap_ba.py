@@ -152,11 +152,44 @@ def start_block(result, plan: CrossCheckPlan, start, *, xy=None):
 
 
 def build_reconstruction(result, plan: CrossCheckPlan, start):
-    """``(reconstruction, RecMap)`` of the cross-check's pycolmap problem (module docstring)."""
+    """``(reconstruction, RecMap)`` of the cross-check's pycolmap problem (module docstring).
+
+    A constant 3-D point seen in one image only (a control point with one ray: sxb's 403, odm's
+    HV18) gets a second observation with a zero residual in an image of its own camera, both
+    constant (:func:`twin_single_tracks`): pycolmap refuses a track of length one
+    (``Check failed: point3D.track.Length() > 1``) although such a point constrains its photo."""
     xy = corrected_observations(result, plan)
     blk, size = start_block(result, plan, start, xy=xy)
     models = [None if p.mode == "unused" else p.colmap_model for p in plan.cameras]
-    return block_to_reconstruction(blk, models, size)
+    rec, recmap = block_to_reconstruction(blk, models, size)
+    twin_single_tracks(rec, recmap.point3D_id[plan.point_constant & (recmap.point3D_id > 0)])
+    return rec, recmap
+
+
+def twin_single_tracks(rec, constant_ids) -> int:
+    """Give every constant 3-D point of ``rec`` (ids ``constant_ids``) that is observed in one image
+    a second observation in an extra image of an extra camera (SIMPLE_PINHOLE, f 1000 px, 1000 × 1000),
+    identity rotation, the point 10 units straight ahead, so it projects exactly onto the keypoint
+    (500, 500): a zero residual.  The extra image is in no adjuster configuration, so COLMAP holds
+    its pose constant; the point is constant: neither the cost nor any variable's gradient changes.
+    Returns how many points were twinned."""
+    import pycolmap
+
+    constant = {int(i) for i in np.asarray(constant_ids).ravel()}
+    n = 0
+    for pid, p3 in list(rec.points3D.items()):
+        if p3.track.length() > 1 or int(pid) not in constant:
+            continue
+        cid, iid = max(rec.cameras) + 1, max(rec.images) + 1
+        rec.add_camera_with_trivial_rig(pycolmap.Camera.create_from_model_name(cid, "SIMPLE_PINHOLE", 1000.0,
+                                                                                1000, 1000))
+        image = pycolmap.Image(name=f"twin of point3D {pid}", keypoints=np.array([[500.0, 500.0]]),
+                               camera_id=cid, image_id=iid)
+        t = np.array([0.0, 0.0, 10.0]) - np.asarray(p3.xyz, float)
+        rec.add_image_with_trivial_frame(image, pycolmap.Rigid3d(pycolmap.Rotation3d(np.eye(3)), t))
+        rec.add_observation(pid, pycolmap.TrackElement(iid, 0))
+        n += 1
+    return n
 
 
 def block_to_reconstruction(blk, models, size=None):
