@@ -22,7 +22,7 @@ import warnings
 import numpy as np
 
 __all__ = ["project", "eo_point_jacobians", "whitened", "point_normals", "chol3_inv", "schur_blocks", "b_matvec",
-           "b_rmatvec", "pair_products", "add_blocks", "linear_change"]
+           "b_rmatvec", "pair_products", "add_blocks", "linear_change", "front", "extend_add", "gather_block"]
 
 
 def _source_stamp():
@@ -377,6 +377,65 @@ def linear_change(Jc, cidx, dx_g, Jp, pidx, dp):
     pred = np.empty((len(Jc), 2))
     _linear_change(_f(Jc), _i(cidx), x1, _f(Jp) if Jp is not None else np.zeros((0, 2, 3)), _i(pidx), p1, pred)
     return pred
+
+
+@_jit
+def _front(indptr, indices, data, c0, c1, R):
+    ns = c1 - c0
+    nr = R.shape[0]
+    F = np.zeros((ns + nr, ns + nr))
+    for j in range(ns):
+        t = 0
+        for k in range(indptr[c0 + j], indptr[c0 + j + 1]):
+            r = indices[k]
+            if r < c0:
+                continue
+            if r < c1:
+                F[r - c0, j] = data[k]
+            else:
+                while t < nr and R[t] < r:             # searchsorted(R, r): the column's rows ascend
+                    t += 1
+                F[ns + t, j] = data[k]
+    return F
+
+
+def front(indptr, indices, data, c0, c1, R):
+    """The front (ns + nr)² of the columns ``c0 … c1 − 1`` (ns) of a CSC matrix with sorted
+    indices, rows: those columns, then the rows ``R`` (sorted, nr): the matrix entries of rows
+    ≥ c0 of those columns scattered into the front's first ns columns, zeros elsewhere (the
+    multifrontal factorisation's assembly; every row ≥ c1 of the columns is in ``R``)."""
+    return _front(indptr, indices, data, int(c0), int(c1), R)
+
+
+@_jit
+def _extend_add(F, rel, U):
+    n = rel.shape[0]
+    for i in range(n):
+        ri = rel[i]
+        for j in range(n):
+            F[ri, rel[j]] += U[i, j]
+
+
+def extend_add(F, rel, U):
+    """``F[np.ix_(rel, rel)] += U`` in place (rel distinct; ``U`` any strides): a child's update
+    matrix added into its parent's front."""
+    _extend_add(F, rel, U)
+
+
+@_jit
+def _gather_block(Z, rel, out):
+    n = rel.shape[0]
+    for i in range(n):
+        ri = rel[i]
+        for j in range(n):
+            out[i, j] = Z[ri, rel[j]]
+
+
+def gather_block(Z, rel):
+    """``Z[np.ix_(rel, rel)]`` as a new C-contiguous array."""
+    out = np.empty((len(rel), len(rel)))
+    _gather_block(Z, rel, out)
+    return out
 
 
 def _f(a):

@@ -15,7 +15,9 @@ Symbolic analysis
 Factorisation
     Multifrontal: each supernode assembles its front from the matrix and its children's update
     matrices, factors the diagonal block (LAPACK ``potrf``) and hands the Schur complement to its
-    parent.  ``K = L Lᵀ`` in the permuted order.
+    parent.  ``K = L Lᵀ`` in the permuted order.  The assembly, the extend-add and the selected
+    inversion's gather of ``Z_RR`` are compiled kernels (``kernels.front``, ``extend_add``,
+    ``gather_block``; the same sums in the same order as the numpy indexing they replace).
 Selected inversion
     Takahashi's equations per supernode, root first: with ``L̂_RJ = L_RJ L_JJ⁻¹``,
     ``Z_RJ = −Z_RR L̂_RJ`` and ``Z_JJ = L_JJ⁻ᵀ L_JJ⁻¹ − L̂_RJᵀ Z_RJ``; ``Z_RR`` is gathered from the
@@ -34,6 +36,8 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 from scipy.linalg import lapack
+
+from . import kernels
 
 __all__ = ["Symbolic", "SupernodalCholesky", "NotPositiveDefinite", "nested_dissection"]
 
@@ -266,19 +270,9 @@ class SupernodalCholesky:
         c0, c1 = int(sym.start[s]), int(sym.start[s + 1])
         ns = c1 - c0
         R = sym.rows[s]
-        nf = ns + len(R)
-        F = np.zeros((nf, nf))
-        a, b = indptr[c0], indptr[c1]
-        r = indices[a:b]
-        cj = np.repeat(np.arange(ns), np.diff(indptr[c0:c1 + 1]))
-        keep = r >= c0
-        r, cj, v = r[keep], cj[keep], data[a:b][keep]
-        inJ = r < c1
-        loc = np.where(inJ, r - c0, ns + np.searchsorted(R, r))
-        F[loc, cj] = v
+        F = kernels.front(indptr, indices, data, c0, c1, R)   # compiled, GIL released
         for c in sorted(self._pending.pop(s, ())):           # fixed order: the same sums whatever the threads
-            rc = sym.rel[c]
-            F[np.ix_(rc, rc)] += self._upd.pop(c)
+            kernels.extend_add(F, sym.rel[c], self._upd.pop(c))
         L11, info = lapack.dpotrf(F[:ns, :ns], lower=1, clean=1, overwrite_a=0)
         diag = self._diag[c0:c1]
         d = np.diag(L11) ** 2 if info == 0 else None
@@ -287,7 +281,7 @@ class SupernodalCholesky:
             raise NotPositiveDefinite(int(sym.perm[c0 + max(k, 0)]))
         self.L11[s] = L11
         if len(R):
-            L21 = sla.solve_triangular(L11, F[ns:, :ns].T, lower=True, check_finite=False).T
+            L21 = _trsm(L11, F[ns:, :ns].T).T
             self.L21[s] = L21
             U = F[ns:, ns:]
             U -= L21 @ L21.T
@@ -344,12 +338,11 @@ class SupernodalCholesky:
         ns = c1 - c0
         R = sym.rows[s]
         nr = len(R)
-        Linv = sla.solve_triangular(self.L11[s], np.eye(ns), lower=True, check_finite=False)
+        Linv = _trsm(self.L11[s], np.eye(ns))
         Z = np.empty((ns + nr, ns + nr))
         if nr:
             p = int(sym.parent[s])
-            rl = sym.rel[s]
-            ZRR = self._fronts[p][np.ix_(rl, rl)]
+            ZRR = kernels.gather_block(self._fronts[p], sym.rel[s])   # compiled, GIL released
             with self._lock:
                 self._left[p] -= 1
                 if self._left[p] == 0:
@@ -366,6 +359,17 @@ class SupernodalCholesky:
         if self._left[s] > 0:
             self._fronts[s] = Z
         visit(s, sym.perm[np.r_[np.arange(c0, c1), R].astype(np.intp)], Z)
+
+
+def _trsm(L, B):
+    """``L⁻¹ B`` for the lower-triangular, Fortran-ordered ``L`` of ``potrf``: LAPACK ``trtrs``, the
+    routine ``scipy.linalg.solve_triangular`` calls (same result, bit for bit), without its
+    Python-side checks, which took longer than a small front's solve.  scipy's ``trtrs`` wrapper
+    holds the GIL while it runs (two threads: no faster than one, measured)."""
+    x, info = lapack.dtrtrs(L, B, lower=1)
+    if info != 0:  # pragma: no cover - potrf's pivots were checked
+        raise np.linalg.LinAlgError(f"trtrs: info {info}")
+    return x
 
 
 def _parallel(groups, step, reverse: bool) -> None:

@@ -215,3 +215,48 @@ def test_no_cache_when_the_source_changed_since_import(monkeypatch):
     f = kernels._jit(thrice)
     assert f(np.arange(2.0)).tolist() == [0.0, 3.0]
     assert f.compiled._cache.__class__.__name__ == "NullCache"
+
+
+def _csc_front_case(rng, n=40, c0=12, c1=17):
+    """A symmetric sparse matrix (sorted CSC) and the rows below columns c0 … c1 − 1."""
+    import scipy.sparse as sp
+
+    A = sp.random(n, n, density=0.15, random_state=np.random.RandomState(7), format="csc")
+    K = (A + A.T + sp.eye(n)).tocsc()
+    K.sort_indices()
+    sub = K[:, c0:c1].tocoo()
+    R = np.unique(sub.row[sub.row >= c1]).astype(np.intp)
+    R = np.union1d(R, [n - 1, n - 3])                 # rows without an entry in these columns too
+    return K, R
+
+
+def test_front_assembles_the_csc_columns(rng):
+    c0, c1 = 12, 17
+    K, R = _csc_front_case(rng, c0=c0, c1=c1)
+    F = kernels.front(K.indptr, K.indices, K.data, c0, c1, R)
+    ns = c1 - c0
+    ref = np.zeros((ns + len(R), ns + len(R)))        # the numpy assembly it replaces
+    a, b = K.indptr[c0], K.indptr[c1]
+    r = K.indices[a:b]
+    cj = np.repeat(np.arange(ns), np.diff(K.indptr[c0:c1 + 1]))
+    keep = r >= c0
+    r, cj, v = r[keep], cj[keep], K.data[a:b][keep]
+    ref[np.where(r < c1, r - c0, ns + np.searchsorted(R, r)), cj] = v
+    assert np.array_equal(F, ref)
+    F64 = kernels.front(K.indptr.astype(np.int64), K.indices.astype(np.int64), K.data, c0, c1, R)
+    assert np.array_equal(F64, ref)
+
+
+def test_extend_add_and_gather_block(rng):
+    n, m = 30, 12
+    F = rng.normal(size=(n, n))
+    rel = np.sort(rng.choice(n, m, replace=False)).astype(np.intp)
+    P = rng.normal(size=(m + 4, m + 4))
+    U = P[4:, 4:]                                     # a strided view, as a child's update matrix is
+    ref = F.copy()
+    ref[np.ix_(rel, rel)] += U
+    kernels.extend_add(F, rel, U)
+    assert np.array_equal(F, ref)
+    G = kernels.gather_block(F, rel)
+    assert G.flags.c_contiguous
+    assert np.array_equal(G, F[np.ix_(rel, rel)])
