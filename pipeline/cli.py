@@ -48,8 +48,8 @@ def _set_threads(n: int | None) -> int:
 
     Single-threaded BLAS: the bundle's many small dense solves run slower with threaded OpenBLAS
     (measured: the AICON fixture 25.5 s threaded, 15.8 s with one thread).  Where threads pay —
-    the sparse route's independent subtrees, the dense route's photo-pair products, Monte Carlo
-    and batch workers — the code asks for them (``docs/benchmarks.md``, "Threads").
+    the dense route's photo-pair products, Monte Carlo and batch workers — the code asks for them
+    (``docs/benchmarks.md``, "Threads").
     """
     from threadpoolctl import threadpool_limits
 
@@ -328,7 +328,7 @@ def build_parser() -> argparse.ArgumentParser:
     _noise_args(r)
     _set_arg(r)
     r.add_argument("--threads", type=_positive_int, default=None, metavar="N",
-                   help="threads for the work that pays, e.g. the bundle's sparse route (default: every core; "
+                   help="threads for the work that pays, e.g. the bundle's photo-pair products (default: every core; "
                         "BLAS itself stays single-threaded, faster for the many small dense solves)")
     _scheduler_args(r)
     r.set_defaults(func=_cmd_run)

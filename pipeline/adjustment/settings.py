@@ -51,10 +51,10 @@ class BundleSettings:
     """camera id -> AP-model meta overrides (``b`` for ebner12, ``r0`` for aicon)."""
     covariance: bool = True
     threads: int = 1
-    """Python threads for the work that can share them: the sparse route's independent subtrees of
-    the elimination tree, the dense route's photo-pair products of the Schur complement and the
-    per-photo sums (compiled kernels that release the GIL).  BLAS stays single-threaded; results
-    do not depend on it."""
+    """Python threads for the work that can share them: the dense route's photo-pair products of the
+    Schur complement and the per-photo sums (compiled kernels that release the GIL); the sparse
+    route's independent subtrees only with ``sparse.SUBTREE_THREADS`` (off: it did not pay).  BLAS
+    stays single-threaded; results do not depend on it."""
     solver: Literal["auto", "dense", "sparse"] = "auto"
     """reduced camera system: dense Cholesky, or the sparse supernodal factorisation with selected
     inversion (``docs/bundle.md``, "Sparse route"); ``auto`` chooses by size and fill."""

@@ -41,6 +41,15 @@ from . import kernels
 
 __all__ = ["Symbolic", "SupernodalCholesky", "NotPositiveDefinite", "nested_dissection"]
 
+SUBTREE_THREADS = False
+"""Run independent subtrees of the elimination tree on ``threads`` Python threads.  Off: measured
+on the 2-core machine it never paid — with BLAS single-threaded, two threads gained 0–10 % on the
+factorisation and lost on the selected inversion, and once the fronts' assembly was compiled
+(kernels ``front``, ``extend_add``, ``gather_block``) whole adjustments were 10–20 % *slower* with
+two threads than with one (5 000 photos: 13.5 s against 11.4 s): scipy's triangular solve, numpy's
+small products and the precision's visitor hold the GIL (``docs/benchmarks.md``, "Threads").  The
+machinery stays, tested bit-identical, for when those parts are compiled too."""
+
 
 class NotPositiveDefinite(Exception):
     """The matrix is singular or indefinite; ``column`` is the original index of the first column
@@ -256,7 +265,7 @@ class SupernodalCholesky:
         self.L21: list = [None] * S
         self._upd: dict = {}
         self._pending: dict = {}
-        top, groups = sym.split(self.threads)
+        top, groups = sym.split(self.threads if SUBTREE_THREADS else 1)
         _parallel(groups, self._factor_step, reverse=False)
         with _blas(1):
             for s in top:
@@ -319,13 +328,13 @@ class SupernodalCholesky:
         """Call ``visit(s, front, Z)`` for every supernode, a parent before its children: ``front``
         the original column indices of the supernode's columns followed by its rows, ``Z`` the dense
         block of ``K⁻¹`` on them (the front's own copy: the visitor may keep it).  With ``threads``
-        > 1, independent subtrees are visited concurrently (one thread each): ``visit`` must only
+        > 1 and :data:`SUBTREE_THREADS`, independent subtrees are visited concurrently (one thread each): ``visit`` must only
         write what belongs to its supernode's subtree."""
         sym = self.sym
         self._fronts: dict = {}
         self._left = sym.n_children.copy()
         self._lock = threading.Lock()
-        top, groups = sym.split(self.threads)
+        top, groups = sym.split(self.threads if SUBTREE_THREADS else 1)
         with _blas(1):
             for s in top[::-1]:
                 self._inverse_step(int(s), visit)
