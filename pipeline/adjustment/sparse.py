@@ -403,9 +403,9 @@ def _blas(n: int):
     The sparse route keeps BLAS single-threaded everywhere, the top fronts included: two OpenBLAS
     threads were slower than one for every front size measured on the 2-core machine (a front's
     potrf + trsm + syrk: 8 ms fixed cost per call, 1.4× slower even at 2 000 columns; the top
-    fronts with two BLAS threads made a 2 000-photo block 5–25 % slower in all).  ``threads``
-    therefore means independent subtrees on Python threads only, and the result is bit-identical
-    whatever its value (``docs/bundle.md``, "Sparse route")."""
+    fronts with two BLAS threads made a 2 000-photo block 7–26 % slower in all, 1 000 photos 17–30 %).
+    ``threads`` never touches BLAS: with :data:`SUBTREE_THREADS` it means independent subtrees on
+    Python threads, and the result is bit-identical whatever its value (``docs/bundle.md``)."""
     from threadpoolctl import threadpool_limits
 
     return threadpool_limits(limits=max(1, int(n)))
