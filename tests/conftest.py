@@ -51,3 +51,12 @@ relative to the project file, i.e. ``shared/data`` beside the repository (as in 
 def needs_shared_beside(project: Path) -> bool:
     """The project names ``shared/data`` and the folder beside the repository is absent."""
     return "shared/data" in project.read_text() and not SHARED_BESIDE.is_dir()
+
+
+@pytest.fixture(scope="session")
+def shared_beside() -> Path:
+    """``shared/data`` beside the repository, where the bundled projects read real data (skip when
+    absent: ``shared_data`` may find another copy, but the projects' relative paths would not)."""
+    if not SHARED_BESIDE.is_dir():
+        pytest.skip(f"the bundled projects read ../shared/data beside the repository ({SHARED_BESIDE}), absent here")
+    return SHARED_BESIDE

@@ -40,7 +40,7 @@ def test_compare_marks_closed_form(shared_data):
 
 
 @pytest.fixture(scope="module")
-def detect_run(shared_data, tmp_path_factory):
+def detect_run(shared_beside, tmp_path_factory):
     from baarda.pipeline.cli import main
 
     out = tmp_path_factory.mktemp("camcal-detect") / "run"

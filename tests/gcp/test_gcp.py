@@ -71,7 +71,7 @@ def test_gnss_csv(tmp_path):
     assert e.value.line == 3
 
 
-def test_odm_fixture(repo_root, shared_data, tmp_path):
+def test_odm_fixture(repo_root, shared_beside, tmp_path):
     """fixtures/odm/odm-br-gcp.toml: 8 photos resected from the GNSS targets, 4 check points."""
     from baarda.pipeline.runner import run_project
 

@@ -23,7 +23,7 @@ PROJECTS = ["paper000/data1.toml", "testfield/block.toml", "colmap/colmap.toml",
 
 
 @pytest.fixture(scope="module")
-def runs(tmp_path_factory):
+def runs(tmp_path_factory, shared_beside):
     out = {}
     for p in PROJECTS:
         run_dir = tmp_path_factory.mktemp(Path(p).stem) / "run"
