@@ -21,7 +21,7 @@ from baarda.pipeline.stats import data_snooping, global_test, iterated_data_snoo
 from baarda.pipeline.contracts import AdjustmentArtefact
 from . import reliability as im_reliability
 
-from .workflow import IndependentModelResult, independent_model_block
+from baarda.pipeline.imodels import IndependentModelResult, independent_model_block
 
 
 
@@ -108,7 +108,7 @@ class IndependentModels(Stage):
             raise InputError(e.message, e.path or ctx.project_file, e.line, e.field) from None
         for w in result.warnings + result.notes:
             ctx.warn(w)
-        from .relor import WEAK_RCOND
+        from baarda.pipeline.imodels.relor import WEAK_RCOND
 
         for ro in result.relative:
             if ro.rcond < WEAK_RCOND:

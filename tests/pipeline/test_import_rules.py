@@ -20,7 +20,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 
 #: numerical libraries (modules or packages under pipeline/)
-LIBRARIES = ("geometry", "camera", "adjustment", "stats", "synthetic", "contracts", "accuracy", "model")
+LIBRARIES = ("geometry", "camera", "adjustment", "stats", "synthetic", "contracts", "accuracy", "model",
+             "imodels")
 #: what a library may import besides the standard library and other libraries
 #: (pymetis: the sparse route's fill-reducing ordering; threadpoolctl: its BLAS threads per phase)
 LIBRARY_THIRD_PARTY = {"numpy", "scipy", "pymetis", "threadpoolctl"}
@@ -29,7 +30,6 @@ LIBRARY_THIRD_PARTY = {"numpy", "scipy", "pymetis", "threadpoolctl"}
 LIBRARY_ONLY = {"numba": "baarda.pipeline.adjustment"}
 #: plugin → plugin edges allowed (through the other plugin's ``__init__`` only), and why
 ALLOWED_PLUGIN_EDGES = {
-    ("testfield", "independent_models"): "the method study compares the bundle with the independent-model block",
     ("crosscheck", "colmap"): "the cross-check writes the COLMAP model pycolmap adjusts",
 }
 #: the adjustment core's public face: other code imports ``baarda.pipeline.adjustment`` only
