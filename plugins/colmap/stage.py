@@ -15,8 +15,7 @@ from baarda.pipeline.stage import Context, SourceStage, Stage, StageResult
 from baarda.pipeline.adjustment import reprojection_summary
 from baarda.pipeline.camera.convert import COLMAP_PARAMS
 from baarda.pipeline.recording import log_block
-from .reader import read_colmap
-from .writer import write_colmap
+from baarda.pipeline.api import read_colmap, write_colmap
 
 
 @dataclass(frozen=True)
