@@ -41,7 +41,7 @@ from baarda.pipeline.accuracy import check_point_rmse
 from baarda.pipeline.errors import AdjustmentError
 from baarda.pipeline.synthetic.testfield import (FOCAL_MM, SINGLE_MODEL_PHOTOS, STRIPS, TestFieldConfig,
                                         simulate_testfield)
-from baarda.plugins.testfield.control_study import PAPER_TABLE2, PAPER_TABLE3, PAPER_TABLE4
+from .paper_tables import PAPER_TABLE2, PAPER_TABLE3, PAPER_TABLE4
 from baarda.plugins.testfield.study_config import StudyConfig
 
 __all__ = ["MethodStudyConfig", "method_study", "run_realisation", "summarise", "compare",

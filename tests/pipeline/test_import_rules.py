@@ -49,12 +49,25 @@ def _module_name(path: Path) -> str:
     return "baarda." + ".".join(parts)
 
 
-def _imports(path: Path):
-    """(line, imported module, names) of every import in ``path``; relative imports resolved."""
+def _is_type_checking(test: ast.expr) -> bool:
+    return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or \
+        (isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING")
+
+
+def _imports(path: Path, *, runtime: bool = False, expand: bool = True):
+    """(line, imported module, names) of every import in ``path`` (inside functions too); relative
+    imports resolved.  ``runtime``: without the bodies of ``if TYPE_CHECKING:``, which never run.
+    ``expand``: ``from . import x`` as the module ``package.x`` (else as ``package`` with names)."""
     tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
     mod = _module_name(path)
     package = mod if path.name == "__init__.py" else mod.rsplit(".", 1)[0]
-    for node in ast.walk(tree):
+    stack = [tree]
+    while stack:
+        node = stack.pop()
+        if runtime and isinstance(node, ast.If) and _is_type_checking(node.test):
+            stack.extend(node.orelse)
+            continue
+        stack.extend(ast.iter_child_nodes(node))
         if isinstance(node, ast.Import):
             for a in node.names:
                 yield node.lineno, a.name, ()
@@ -66,7 +79,7 @@ def _imports(path: Path):
             else:
                 target = node.module or ""
             names = tuple(a.name for a in node.names)
-            if node.level and not node.module:
+            if expand and node.level and not node.module:
                 for n in names:
                     yield node.lineno, f"{target}.{n}", ()
             else:
@@ -182,37 +195,6 @@ def test_plugins_do_not_reach_into_the_adjustment_problem():
 
 # --- import cycles ------------------------------------------------------------------------------
 
-def _is_type_checking(test: ast.expr) -> bool:
-    return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or \
-        (isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING")
-
-
-def _runtime_imports(path: Path):
-    """Like :func:`_imports`, anywhere in the file (functions included), without the bodies of
-    ``if TYPE_CHECKING:``, which never run."""
-    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
-    mod = _module_name(path)
-    package = mod if path.name == "__init__.py" else mod.rsplit(".", 1)[0]
-    stack = [tree]
-    while stack:
-        node = stack.pop()
-        if isinstance(node, ast.If) and _is_type_checking(node.test):
-            stack.extend(node.orelse)
-            continue
-        if isinstance(node, ast.Import):
-            for a in node.names:
-                yield node.lineno, a.name, ()
-        elif isinstance(node, ast.ImportFrom):
-            if node.level:
-                base = package.split(".")
-                base = base[: len(base) - (node.level - 1)]
-                target = ".".join(base + ([node.module] if node.module else []))
-            else:
-                target = node.module or ""
-            yield node.lineno, target, tuple(a.name for a in node.names)
-        stack.extend(ast.iter_child_nodes(node))
-
-
 def _top_level_names(path: Path) -> set[str]:
     """Names a module binds at its top level (imports, definitions, assignments)."""
     out = set()
@@ -245,7 +227,7 @@ def _module_graph():
         return name or None
 
     for me, path in files.items():
-        for line, target, names in _runtime_imports(path):
+        for line, target, names in _imports(path, runtime=True, expand=False):
             if not target.startswith("baarda."):
                 continue
             hits = [f"{target}.{n}" for n in names
