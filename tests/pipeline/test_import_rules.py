@@ -196,10 +196,15 @@ def test_plugins_do_not_reach_into_the_adjustment_problem():
 # --- import cycles ------------------------------------------------------------------------------
 
 def _top_level_names(path: Path) -> set[str]:
-    """Names a module binds at its top level (imports, definitions, assignments)."""
+    """Names a package's ``__init__`` binds at its top level (imports, definitions, assignments),
+    except its own submodules imported under their own names (``from . import x``): those are
+    the submodules themselves."""
+    me = _module_name(path)
     out = set()
     for node in ast.parse(path.read_text(encoding="utf-8")).body:
-        if isinstance(node, (ast.Import, ast.ImportFrom)):
+        if isinstance(node, ast.ImportFrom) and ((node.level == 1 and not node.module) or node.module == me):
+            out |= {a.asname for a in node.names if a.asname and a.asname != a.name}
+        elif isinstance(node, (ast.Import, ast.ImportFrom)):
             out |= {(a.asname or a.name).split(".")[0] for a in node.names}
         elif isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
             out.add(node.name)
@@ -303,13 +308,15 @@ def test_the_cycle_finder_finds_cycles_hidden_in_functions(tmp_path, monkeypatch
     (pkg / "f.py").write_text("class K:\n    def m(self):\n        from .. import toy\n        from ..toy import e\n")
     (pkg / "g.py").write_text("def h():\n    from baarda.pipeline.toy import h\n")   # toy's h, not toy.h
     (pkg / "h.py").write_text("")
-    (pkg / "__init__.py").write_text("from .g import h\n")
+    (pkg / "__init__.py").write_text("from .g import h\nfrom . import d\n")
+    (pkg / "i.py").write_text("from baarda.pipeline.toy import d\n")          # the module toy.d itself
     (tmp_path / "plugins").mkdir()
     monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)
     graph = _module_graph()
     assert graph["baarda.pipeline.toy.b"] == {"baarda.pipeline.toy.a": ["pipeline/toy/b.py:2"]}
     assert graph["baarda.pipeline.toy.c"] == {}
     assert graph["baarda.pipeline.toy.g"] == {"baarda.pipeline.toy": ["pipeline/toy/g.py:2"]}
+    assert graph["baarda.pipeline.toy.i"] == {"baarda.pipeline.toy.d": ["pipeline/toy/i.py:1"]}
     comps = _strongly_connected(graph)
     assert comps == [["baarda.pipeline.toy", "baarda.pipeline.toy.g"],
                      ["baarda.pipeline.toy.a", "baarda.pipeline.toy.b"],
