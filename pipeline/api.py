@@ -23,6 +23,10 @@ from .recording import (ROLE_COLORS, entity_part, log_block, log_text, log_value
 from .stage import Context, Progress, SourceStage, Stage, StageResult, TableData
 from .stats.snapshot import Snapshot
 
+# libraries and engine modules stages share (independent models, COLMAP models in and out)
+from . import imodels
+from .colmap import block_from_reconstruction, read_colmap, read_reconstruction, reconstruction_from_block, write_colmap
+
 __all__ = [
     # the protocol
     "Stage", "SourceStage", "StageResult", "TableData", "Context", "Progress", "option", "NoOptions",
@@ -33,4 +37,10 @@ __all__ = [
     # recordings
     "ROLE_COLORS", "role_colors", "view_from_photo", "view_vectors", "entity_part", "log_block", "log_text",
     "log_values", "point_ellipsoids", "thin", "viewer_text",
+]
+
+__all__ += [
+    # the independent-model library; COLMAP models ↔ Block (pycolmap imported on use)
+    "imodels", "read_colmap", "read_reconstruction", "block_from_reconstruction", "reconstruction_from_block",
+    "write_colmap",
 ]

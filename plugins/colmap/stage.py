@@ -8,15 +8,10 @@ from typing import Literal
 
 import numpy as np
 
-from baarda.pipeline.errors import InputError
-from baarda.pipeline.options import option
-from baarda.pipeline.stage import Context, SourceStage, Stage, StageResult
-
 from baarda.pipeline.adjustment import reprojection_summary
+from baarda.pipeline.api import (Context, InputError, SourceStage, Stage, StageResult, log_block, option, read_colmap,
+                                 write_colmap)
 from baarda.pipeline.camera.convert import COLMAP_PARAMS
-from baarda.pipeline.recording import log_block
-from .reader import read_colmap
-from .writer import write_colmap
 
 
 @dataclass(frozen=True)

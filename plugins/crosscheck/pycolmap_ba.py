@@ -1,6 +1,6 @@
 """A baarda bundle as a pycolmap problem: reconstruction, solve, covariance, solution read back.
 
-The reconstruction is built by :func:`baarda.plugins.colmap.writer.reconstruction_from_block` (cameras
+The reconstruction is built by :func:`baarda.pipeline.colmap.writer.reconstruction_from_block` (cameras
 with one trivial rig, images with one trivial frame, one keypoint per observation, 3-D points
 with tracks) from a copy of the block in which
 
@@ -28,7 +28,7 @@ from baarda.pipeline.geometry.rotations import rotation_from_rotvec
 from baarda.pipeline.geometry.image import mm_from_pixels
 from baarda.pipeline.geometry.pose import pose_from_cv
 from baarda.pipeline.camera.convert import brown_from_colmap, colmap_from_brown
-from baarda.plugins.colmap import reconstruction_from_block
+from baarda.pipeline.api import reconstruction_from_block
 
 from .plan import CrossCheckPlan, brown_vector
 
@@ -195,7 +195,7 @@ def twin_single_tracks(rec, constant_ids) -> int:
 def block_to_reconstruction(blk, models, size=None):
     """``(reconstruction, RecMap)`` of a block whose cameras are "none"/"brown" with a pixel pitch.
 
-    The writer (:func:`baarda.plugins.colmap.writer.reconstruction_from_block`, on a copy without COLMAP
+    The writer (:func:`baarda.pipeline.colmap.writer.reconstruction_from_block`, on a copy without COLMAP
     meta, so ids are 1, 2, … in block order and each active observation is one keypoint) builds
     cameras, rigs, frames, images and tracks; camera ``j`` then gets the COLMAP model
     ``models[j]`` (None: keep the writer's choice) with :func:`colmap_from_brown`.  ``size``

@@ -21,8 +21,8 @@ import numpy as np
 from baarda.pipeline.errors import InputError
 from baarda.pipeline.geometry import opk_from_rotation
 
-from .relor import relative_orientation
-from .similarity import similarity_closed_form, similarity_transform
+from baarda.pipeline.imodels.relor import relative_orientation
+from baarda.pipeline.imodels.similarity import similarity_closed_form, similarity_transform
 
 __all__ = ["read_relor", "read_resect", "read_3dconf", "relor_example", "conf3d_example",
            "resection_example", "format_examples"]

@@ -14,7 +14,7 @@ import textwrap
 
 import numpy as np
 
-from .control_study import PAPER_TABLE2, PAPER_TABLE3, PAPER_TABLE4
+from .paper_tables import PAPER_TABLE2, PAPER_TABLE3, PAPER_TABLE4
 from .method_study import BUNDLE, BUNDLE_AP, IM, PAPER_TABLE5, SINGLE_AP, VARIANTS
 
 NO_AP, AP, PAPER = "#1f4e9c", "#c0392b", "k"

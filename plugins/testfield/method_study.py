@@ -9,7 +9,7 @@ measurements for every method (common random numbers, so the comparisons are pai
 * ``bundle, APs`` — the bundle with Ebner's 12 parameters selected by the bundle's own rule
   (``baarda.pipeline.adjustment.apselect.select_aps``: remove |ρ| > ``rho_max`` one after another, then the
   insignificant ones by t-tests) — the paper's Table 3 setting and the "bundle" of its Tables 4, 5;
-* ``independent models`` — the independent-model block (``baarda.plugins.independent_models``: relative orientation
+* ``independent models`` — the independent-model block (``baarda.pipeline.imodels``: relative orientation
   of each of the 8 stereo pairs from the same image coordinates, model coordinates, Ackermann's
   7-parameter block adjustment with the same control) — Table 5;
 * ``single model 4.0 m`` — the stereo pair A, B at 4.0 m with the same control, bundle with selected
@@ -41,7 +41,7 @@ from baarda.pipeline.accuracy import check_point_rmse
 from baarda.pipeline.errors import AdjustmentError
 from baarda.pipeline.synthetic.testfield import (FOCAL_MM, SINGLE_MODEL_PHOTOS, STRIPS, TestFieldConfig,
                                         simulate_testfield)
-from baarda.plugins.testfield.control_study import PAPER_TABLE2, PAPER_TABLE3, PAPER_TABLE4
+from .paper_tables import PAPER_TABLE2, PAPER_TABLE3, PAPER_TABLE4
 from baarda.plugins.testfield.study_config import StudyConfig
 
 __all__ = ["MethodStudyConfig", "method_study", "run_realisation", "summarise", "compare",
@@ -158,7 +158,7 @@ def run_realisation(cfg: MethodStudyConfig, seed: int, repetition: int) -> list[
     repetition, Sx, Sy, Sz`` (m), ``pred`` (3,) predicted RMS (m), ``dof``, ``sigma0_hat``,
     ``kept`` (AP names), ``selection``, ``ids``, ``errors`` (k, 3), ``error`` (message or "")."""
     from baarda.pipeline.adjustment import adjust
-    from baarda.plugins.independent_models import independent_model_block
+    from baarda.pipeline.imodels import independent_model_block
 
     settings = _bundle_settings()
     sc = cfg.sigma_control_mm * 1e-3

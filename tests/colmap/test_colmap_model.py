@@ -10,10 +10,10 @@ from baarda.pipeline.model import Block, Cameras, Observations, Photos, Points
 from baarda.pipeline.stage import Context
 from baarda.pipeline.geometry.image import pixels_from_mm
 from baarda.pipeline.adjustment import project_block
-from baarda.plugins.colmap.reader import block_from_reconstruction, read_colmap, read_reconstruction
+from baarda.pipeline.colmap.reader import block_from_reconstruction, read_colmap, read_reconstruction
 from baarda.pipeline.adjustment import reprojection_px
 from baarda.plugins.colmap.stage import ColmapExport, ColmapExportOptions, ColmapSource, ColmapSourceOptions
-from baarda.plugins.colmap.writer import reconstruction_from_block, write_colmap
+from baarda.pipeline.colmap.writer import reconstruction_from_block, write_colmap
 
 
 @pytest.fixture(scope="module")

@@ -20,7 +20,7 @@ from baarda.pipeline.recording import read_recording
 from baarda.pipeline.testing import check_stage, log_stage, run_stage
 from baarda.plugins.bal.bal import bal_reprojection, block_from_bal, read_bal
 from baarda.pipeline.adjustment import BundleSettings, adjust
-from baarda.plugins.colmap.writer import reconstruction_from_block
+from baarda.pipeline.colmap.writer import reconstruction_from_block
 from baarda.pipeline.synthetic.aerial import perturb_start, simulate_convergent
 from baarda.plugins.crosscheck import CrossCheckError, SolverSettings, Tolerances, crosscheck, exceeded
 from baarda.plugins.crosscheck.stage import PycolmapCrossCheck

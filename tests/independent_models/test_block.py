@@ -9,8 +9,8 @@ from baarda.pipeline.errors import AdjustmentError, InputError
 from baarda.pipeline.model import Points
 from baarda.pipeline.stats import data_snooping, iterated_data_snooping
 from baarda.pipeline.accuracy import check_point_rmse
-from baarda.plugins.independent_models.block import ModelCoordinates, adjust_model_block
-from baarda.plugins.independent_models.workflow import form_pairs, independent_model_block
+from baarda.pipeline.imodels.block import ModelCoordinates, adjust_model_block
+from baarda.pipeline.imodels.workflow import form_pairs, independent_model_block
 
 from baarda.pipeline.synthetic.normalcase import make_block
 

@@ -5,10 +5,10 @@ import pytest
 
 from baarda.pipeline.geometry import rotation_from_opk
 from baarda.pipeline.synthetic.normalcase import ideal_projection as project
-from baarda.plugins.independent_models.block import model_observation_jacobian
-from baarda.plugins.independent_models.intersection import project_with_jacobian
-from baarda.plugins.independent_models.relor import _collinearity_rows, coplanarity_condition, pair_poses
-from baarda.plugins.independent_models.similarity import rotation_and_derivatives, similarity_jacobian
+from baarda.pipeline.imodels.block import model_observation_jacobian
+from baarda.pipeline.imodels.intersection import project_with_jacobian
+from baarda.pipeline.imodels.relor import _collinearity_rows, coplanarity_condition, pair_poses
+from baarda.pipeline.imodels.similarity import rotation_and_derivatives, similarity_jacobian
 
 
 def numdiff(f, x, h):

@@ -7,7 +7,7 @@ from baarda.pipeline.errors import AdjustmentError
 from baarda.pipeline.geometry import rotation_from_opk
 from baarda.pipeline.synthetic.normalcase import ideal_projection as project
 from baarda.pipeline.stats import data_snooping, iterated_data_snooping
-from baarda.plugins.independent_models.relor import model_covariance, relative_orientation
+from baarda.pipeline.imodels.relor import model_covariance, relative_orientation
 
 C = 100.0
 COMBOS = [(m, p) for m in ("coplanarity", "collinearity") for p in ("dependent", "independent")]
@@ -190,7 +190,7 @@ def test_near_critical_is_reported():
     except AdjustmentError as e:  # either refused as critical …
         assert "critical surface" in str(e)
     else:  # … or solved with a tiny reciprocal condition the stage warns about
-        from baarda.plugins.independent_models.relor import WEAK_RCOND
+        from baarda.pipeline.imodels.relor import WEAK_RCOND
         assert ro.rcond < WEAK_RCOND
 
 

@@ -6,8 +6,8 @@ import pytest
 from baarda.pipeline.errors import AdjustmentError
 from baarda.pipeline.geometry import rotation_from_opk
 from baarda.pipeline.synthetic.normalcase import ideal_projection as project
-from baarda.plugins.independent_models.intersection import space_intersection
-from baarda.plugins.independent_models.similarity import (apply_similarity, similarity_closed_form,
+from baarda.pipeline.imodels.intersection import space_intersection
+from baarda.pipeline.imodels.similarity import (apply_similarity, similarity_closed_form,
                                          similarity_transform)
 
 TRUE = np.array([2.5, 0.3, -0.4, 2.0, 100.0, -50.0, 20.0])

@@ -89,7 +89,7 @@ def test_degenerate_block_is_reported(tmp_path):
 def test_stage_defaults_are_the_workflow_defaults(tmp_path):
     """The stage's default weights are the documented default ('propagated'), so a study calling
     independent_model_block(block) and a project running the stage get the same numbers."""
-    from baarda.plugins.independent_models import independent_model_block
+    from baarda.pipeline.imodels import independent_model_block
 
     block, _ = make_block(n_strips=2, n_photos=3, noise_mm=0.004, rng=np.random.default_rng(4))
     res = run_stage(IndependentModels, {"block": _weighted(block)}, {}, tmp_path=tmp_path)

@@ -65,7 +65,7 @@ def test_relative_orientation_sample(textbook):
     assert np.isclose(ex["dewitt_right_photo"]["ZL"], 152.113 + dep.p[1])
     # rays meet at the adjusted image coordinates: re-intersect and re-project them
     lhat = ro.xy - ro.v
-    from baarda.plugins.independent_models.relor import coplanarity_condition
+    from baarda.pipeline.imodels.relor import coplanarity_condition
 
     F = coplanarity_condition(lhat, ro.p, "dependent", ro.bx, (152.113, 0, 0))[0]
     assert np.abs(F).max() < 1e-9 * np.abs(ro.bx * 152.113 * 100)

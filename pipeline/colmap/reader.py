@@ -4,7 +4,7 @@ The files are read with pycolmap (``Reconstruction(path)`` reads either format, 
 ``rigs``/``frames`` files of COLMAP ≥ 3.12); the conversion of cameras, poses and pixels is
 :mod:`baarda.pipeline.camera.convert`.  Only registered images and 2-D points that belong to a 3-D
 point become observations; every keypoint is kept in ``block.meta["colmap"]`` so that
-:mod:`baarda.plugins.colmap.writer` can write the images back unchanged.
+:mod:`baarda.pipeline.colmap.writer` can write the images back unchanged.
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 Each model ``m`` has a 7-parameter similarity to the object system, ``X = s_m M_mᵀ x + T_m``
 (``M_m = R3(κ) R2(φ) R1(ω)``, the parameters ordered ``scale, ω, φ, κ, tx, ty, tz`` as in
-:mod:`baarda.plugins.independent_models.similarity`).  The **model coordinates are the observations**:
+:mod:`baarda.pipeline.imodels.similarity`).  The **model coordinates are the observations**:
 
     x_mj + v_mj = M_m (X_j − T_m) / s_m          (residuals observed − computed, model units)
 
@@ -16,7 +16,7 @@ only and without control carries no redundancy; it is left out of the adjustment
 with its model's parameters afterwards (the result is the same).
 
 The datum comes from the control.  Initial values: models are joined one by one through their
-shared points by the closed-form similarity (:func:`~baarda.plugins.independent_models.similarity.similarity_closed_form`),
+shared points by the closed-form similarity (:func:`~baarda.pipeline.imodels.similarity.similarity_closed_form`),
 and each connected group of models is brought into the object system by the control points with
 approximate X, Y and Z.  Then Gauss–Newton to convergence; the final linearisation gives the
 statistics :class:`~baarda.pipeline.stats.snapshot.Snapshot` (rows: model coordinates x, y, z of every

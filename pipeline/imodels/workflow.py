@@ -1,8 +1,8 @@
 """Independent-model block triangulation of a :class:`baarda.pipeline.model.Block`, end to end.
 
 ``independent_model_block(block, ...)`` forms the models (from ``Block.pairs`` or from consecutive
-photos), orients each pair relatively (:mod:`baarda.plugins.independent_models.relor`), intersects the model points
-and the projection centres, and adjusts all models at once (:mod:`baarda.plugins.independent_models.block`) with
+photos), orients each pair relatively (:mod:`baarda.pipeline.imodels.relor`), intersects the model points
+and the projection centres, and adjusts all models at once (:mod:`baarda.pipeline.imodels.block`) with
 the block's control.  It returns everything a report, a study or a recording needs — the check-point
 RMSE is ``result.rmse``.  Pure: no files, no rerun.
 """
@@ -105,7 +105,7 @@ def model_coordinates(ro: RelativeOrientation, model_id: str, photos: tuple[str,
     between points dropped):
 
     * ``propagated`` — image errors propagated through orientation *and* intersection, in the
-      minimum-trace datum of the model (:func:`~baarda.plugins.independent_models.relor.model_covariance`); the
+      minimum-trace datum of the model (:func:`~baarda.pipeline.imodels.relor.model_covariance`); the
       projection centres get theirs the same way;
     * ``intersection`` — each point's covariance from the space intersection with the orientation
       held fixed; a projection centre gets the median point covariance;
@@ -142,7 +142,7 @@ class IndependentModelResult:
 
     pairs : [(model id, left photo id, right photo id)]; relative : the relative orientations
     (same order); models : the model coordinates handed to the block adjustment; block : the
-    :class:`~baarda.plugins.independent_models.block.ModelBlockAdjustment`; notes / warnings : text.
+    :class:`~baarda.pipeline.imodels.block.ModelBlockAdjustment`; notes / warnings : text.
     """
 
     pairs: list
@@ -183,7 +183,7 @@ def independent_model_block(block: Block, *,
     Parameters
     ----------
     method, parameters, initial, min_rcond : relative orientation (see
-        :func:`~baarda.plugins.independent_models.relor.relative_orientation`).  The model scale is the base from
+        :func:`~baarda.pipeline.imodels.relor.relative_orientation`).  The model scale is the base from
         the photos' approximate exterior orientation when known (model ≈ object scale), else the
         mean x-parallax.
     pairing, strips : how models are formed (:func:`form_pairs`).
