@@ -278,3 +278,21 @@ def to_plain(obj: Any) -> Any:
     if isinstance(obj, dict):
         return {str(k): to_plain(v) for k, v in obj.items()}
     return obj
+
+
+def output_problem(value: Any) -> str | None:
+    """Why an output path may not be used (None when it is fine): outputs are written inside the
+    run directory, so the path must be relative and must not climb out of it."""
+    text = str(value or "")
+    if not text:
+        return None
+    p = Path(text)
+    if p.is_absolute() or text.startswith("~"):
+        return (f"an output path must be relative to the run directory (everything a run writes stays "
+                f"inside it); got an absolute path")
+    depth = 0
+    for part in p.parts:
+        depth += -1 if part == ".." else (0 if part == "." else 1)
+        if depth < 0:
+            return "an output path must stay inside the run directory; this one climbs out of it with '..'"
+    return None

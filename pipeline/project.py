@@ -33,8 +33,10 @@ from pathlib import Path
 from typing import Any, get_args, get_origin
 
 from .errors import InputError
-from .options import parse_options
+from .options import output_problem, parse_options, to_plain
+from .plausibility import check_block
 from .plugins import PluginManager
+from .stage import Context
 
 PROJECT_KEYS = {"name", "description", "seed", "object_unit"}
 STAGE_KEYS = {"use", "id", "options", "enabled"}
@@ -68,8 +70,6 @@ class Project:
 
     def resolved(self) -> dict:
         """The project with every option's default filled in (written to the run directory)."""
-        from .options import to_plain
-
         return {
             "project": {"name": self.name, "description": self.description, "seed": self.seed,
                         "object_unit": self.object_unit, "file": str(self.path)},
@@ -239,24 +239,6 @@ def path_roles(cls: type) -> dict[str, str]:
     return roles
 
 
-def output_problem(value: Any) -> str | None:
-    """Why an output path may not be used (None when it is fine): outputs are written inside the
-    run directory, so the path must be relative and must not climb out of it."""
-    text = str(value or "")
-    if not text:
-        return None
-    p = Path(text)
-    if p.is_absolute() or text.startswith("~"):
-        return (f"an output path must be relative to the run directory (everything a run writes stays "
-                f"inside it); got an absolute path")
-    depth = 0
-    for part in p.parts:
-        depth += -1 if part == ".." else (0 if part == "." else 1)
-        if depth < 0:
-            return "an output path must stay inside the run directory; this one climbs out of it with '..'"
-    return None
-
-
 def _missing(value: Any, role: str, base: Path) -> str | None:
     """What is missing of an option's value with ``role`` (None when everything exists)."""
     values = [value] if isinstance(value, (str, Path)) else list(value or [])
@@ -283,8 +265,6 @@ def _missing(value: Any, role: str, base: Path) -> str | None:
 
 def stage_context(project: Project, spec: StageSpec, **kw):
     """The :class:`~baarda.pipeline.stage.Context` of ``spec`` in ``project`` (``kw``: run_dir, progress…)."""
-    from .stage import Context
-
     return Context(stage_id=spec.id, project_dir=project.directory, seed=project.seed,
                    project_file=project.path, object_unit=project.object_unit,
                    option_lines=dict(spec.option_lines), stage_line=spec.line, **kw)
@@ -314,8 +294,6 @@ def validate_inputs(project: Project) -> list[str]:
         ctx = stage_context(project, spec)
         block = spec.cls().validate(spec.options, ctx)
         if block is not None and hasattr(block, "observations"):      # a source's block: the runner's checks
-            from .plausibility import check_block
-
             for w in check_block(block):
                 ctx.warn(w)
         warnings += [f"[{spec.id}] {w}" for w in ctx.warnings]
