@@ -31,7 +31,7 @@ class MethodStudyOptions:
     case: int | None = option(None, "control configuration 1–6 (docs/testfield.md); default: that of the "
                                     "testfield block this stage reads, else the paper's case 5")
     sigma_image_um: float | None = option(None, "image noise per coordinate (µm); default: the testfield "
-                                                "block's, else 40 (the paper's σ̂0 level)")
+                                                "block's, else the simulator's (40, the paper's σ̂0 level)")
     sigma_control_mm: float | None = option(None, "control survey noise per coordinate (mm); default: the "
                                                   "testfield block's, else 0.05")
     with_ap_errors: bool | None = option(None, "simulate the known systematic image errors; default: as the "
@@ -39,8 +39,8 @@ class MethodStudyOptions:
     systematic_scale: float | None = option(None, "factor on the systematic image errors; default: the "
                                                   "testfield block's, else 1")
     rho_max: float = option(0.75, "AP selection of the bundle with APs: remove parameters correlated above "
-                                  "this, one after another (the paper's 0.75)")
-    ap_alpha: float = option(0.05, "then remove APs that are not significant at this level (t-test)")
+                                  "this, one after another (the paper's 0.75)", gt=0, lt=1)
+    ap_alpha: float = option(0.05, "then remove APs that are not significant at this level (t-test)", ge=0, lt=1)
     im_model_weights: Literal["propagated", "intersection", "equal"] = option(
         "propagated", "weights of the independent models' model coordinates (docs/independent-models.md)")
     single_model: bool = option(True, "also adjust the single stereo model at 4.0 m (Table 4)")
@@ -48,21 +48,9 @@ class MethodStudyOptions:
     in_comparison: bool = option(True, "put every method's check-point RMSE in summary['check_points'] so "
                                        "the comparison stage lists and plots them")
 
-    def __post_init__(self):
-        if self.repetitions < 1:
-            raise ValueError("repetitions must be at least 1")
+    def __post_init__(self):       # ranges: declared with option() (pipeline/options.py); here the rest
         if self.case is not None and self.case not in CASES:
             raise ValueError(f"case must be one of {list(CASES)}, got {self.case}")
-        for k in ("sigma_image_um", "sigma_control_mm"):
-            v = getattr(self, k)
-            if v is not None and not v > 0:
-                raise ValueError(f"{k} must be positive")
-        if self.systematic_scale is not None and self.systematic_scale < 0:
-            raise ValueError("systematic_scale must not be negative")
-        if not 0 < self.rho_max < 1:
-            raise ValueError("rho_max must lie between 0 and 1")
-        if not 0 <= self.ap_alpha < 1:
-            raise ValueError("ap_alpha must lie in [0, 1)")
         bad = [m for m in self.methods if m not in VARIANTS]
         if bad or not self.methods:
             raise ValueError(f"methods: expected a non-empty list drawn from {list(VARIANTS)}, got {self.methods}")

@@ -30,8 +30,9 @@ from baarda.pipeline.errors import InputError
 from baarda.pipeline.options import option, parse_options
 from baarda.pipeline.report import markdown_table
 from baarda.pipeline.stage import Context, Stage, StageResult, TableData
+from baarda.pipeline.synthetic.testfield import TestFieldConfig
 
-from .source import DISPLAY_PIXEL_MM, TestFieldOptions, log_testfield, simulate_field
+from .source import DISPLAY_PIXEL_MM, log_testfield, simulate_field
 from .photos import (OBJECT_UNIT_MM, RenderSettings, image_size, layout_block, partial_targets, render_photo,
                      target_radius_px, true_targets, truth_from_meta)
 
@@ -99,7 +100,7 @@ class RenderOptions:
         if raw.get("seed") is None and seed is not None:
             raw["seed"] = int(seed)
         try:
-            return parse_options(TestFieldOptions, raw, prefix="testfield.")
+            return parse_options(TestFieldConfig, raw, prefix="testfield.")
         except InputError as e:
             raise ValueError(f"{e.field}: {e.message}" if e.field and e.field not in e.message else e.message) from None
 
