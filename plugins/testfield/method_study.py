@@ -359,8 +359,6 @@ def method_study(cfg: MethodStudyConfig, seed: int, progress: Callable | None = 
     built-in ``map``, e.g. :func:`baarda.pipeline.montecarlo.mapper`'s, which reports its own
     progress); without one they run here and ``progress(i, total)`` is called after each.  Each
     realisation has its own seed (:func:`run_realisation`), so the result is the same either way."""
-    if cfg.repetitions < 1:
-        raise ValueError("repetitions must be at least 1")
     one = partial(run_realisation, cfg, seed)
     if mapper is None:
         rows = []
