@@ -43,18 +43,12 @@ class GroupedStage(Stage):
         return StageResult(artefacts={"x": options.solver.max_iter})
 
 
-PROJECT = """[project]
-name = "grouped"
-
-[[stage]]
-use = "grouped"
-id = "adj"
-[stage.options]
-sigma_px = 2.0
-{extra}
-[stage.options.solver]
-tol_rel = 1e-8
-"""
+def _text(extra: str = "", tol_rel: str = "1e-8") -> str:
+    """A project of one 'grouped' stage (id 'adj'): sigma_px and ``extra`` at lines 9 and 10, a
+    [stage.options.solver] table at line 11 with tol_rel at line 12."""
+    return "\n".join(['[project]', 'name = "grouped"', '', '[[stage]]', 'use = "grouped"', 'id = "adj"', '',
+                      '[stage.options]', 'sigma_px = 2.0', extra, '[stage.options.solver]', f'tol_rel = {tol_rel}',
+                      ''])
 
 
 @pytest.fixture
@@ -64,7 +58,7 @@ def pm():
 
 def _write(tmp_path, extra=""):
     p = tmp_path / "p.toml"
-    p.write_text(PROJECT.format(extra=extra), encoding="utf-8")
+    p.write_text(_text(extra), encoding="utf-8")
     return p
 
 
@@ -72,7 +66,7 @@ def test_moved_option_is_rejected_with_its_new_place_in_the_file(tmp_path, pm):
     p = _write(tmp_path, "max_iter = 5")
     with pytest.raises(InputError) as e:
         load_project(p, pm)
-    assert str(e.value) == (f"{p}:9, field 'max_iter': max_iter is now written as solver.max_iter "
+    assert str(e.value) == (f"{p}:10, field 'max_iter': max_iter is now written as solver.max_iter "
                             "(in a [stage.options.solver] table)")
 
 
@@ -96,10 +90,10 @@ def test_nested_table_values_and_dotted_set(tmp_path, pm):
     assert proj.stages[0].options.sigma_px == 2.0
     assert load_project(p, pm).stages[0].options.solver == Solver(30, 1e-8)
     # a mistake inside the nested table: the file's line under [stage.options.solver]
-    p.write_text(PROJECT.format(extra="").replace("tol_rel = 1e-8", "tol_rel = -1.0"), encoding="utf-8")
+    p.write_text(_text(tol_rel="-1.0"), encoding="utf-8")
     with pytest.raises(InputError) as e:
         load_project(p, pm)
-    assert str(e.value).startswith(f"{p}:11, field 'solver.tol_rel': must be greater than 0")
+    assert str(e.value).startswith(f"{p}:12, field 'solver.tol_rel': must be greater than 0")
     # ... and an override's own mistake names --set with the full dotted name
     with pytest.raises(InputError) as e:
         load_project(_write(tmp_path), pm, overrides={"adj.solver.max_iterr": 5})
@@ -141,7 +135,7 @@ def test_set_mistakes_in_the_file_name_the_users_file(tmp_path, pm):
     p = _write(tmp_path, "sigma_pxx = 1.0")
     with pytest.raises(InputError) as e:
         load_project(p, pm, overrides={"adj.sigma_px": 3.0})
-    assert str(e.value).startswith(f"{p}:9, field 'sigma_pxx'")
+    assert str(e.value).startswith(f"{p}:10, field 'sigma_pxx'")
     with pytest.raises(InputError, match=r"^--set, field 'adx.sigma_px': no stage 'adx' in p.toml; "
                                          r"did you mean 'adj'\?"):
         load_project(_write(tmp_path), pm, overrides={"adx.sigma_px": 3.0})
