@@ -25,6 +25,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import glob
+import json
 import re
 import tomllib
 import types
@@ -154,7 +155,8 @@ class Overrides:
         return {"path": self.source, "line": line, "field": key}
 
     def describe(self) -> str:
-        return " ".join(f"--set {k}={v!r}" if isinstance(v, str) else f"--set {k}={v}" for k, v in self.values.items())
+        """The overrides as ``--set`` arguments (values as TOML/JSON writes them)."""
+        return " ".join(f"--set {k}={json.dumps(v, default=str)}" for k, v in self.values.items())
 
 
 def _split_key(key: str, ids: list[str]) -> tuple[str, str] | None:

@@ -10,7 +10,7 @@ and :class:`~.method_study.MethodStudyConfig` (one case, the methods compared, T
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Literal
 
 from baarda.pipeline.options import option
@@ -33,10 +33,8 @@ class StudyConfig(SimulatedErrors):
     def field(self, case: int, block: str = "block", ap_model: str = "none",
               calibrate_iop: bool = False) -> TestFieldConfig:
         """The simulator's configuration of one adjusted variant."""
-        return TestFieldConfig(case=case, block=block, with_ap_errors=self.with_ap_errors,
-                               sigma_image_um=self.sigma_image_um, sigma_control_mm=self.sigma_control_mm,
-                               ap_model=ap_model, calibrate_iop=calibrate_iop,
-                               systematic_scale=self.systematic_scale)
+        errors = {f.name: getattr(self, f.name) for f in fields(SimulatedErrors)}     # what both declare once
+        return TestFieldConfig(case=case, block=block, ap_model=ap_model, calibrate_iop=calibrate_iop, **errors)
 
 
 @dataclass(frozen=True)
