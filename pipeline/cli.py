@@ -31,19 +31,13 @@ import traceback
 from pathlib import Path
 from typing import Any
 
-from threadpoolctl import threadpool_limits
-
 from . import __version__
-from .batch import open_batch, plan_batch, run_batch
 from .errors import AdjustmentError, BaardaError, InputError
-from .montecarlo import Engine, Scheduler, using
 from .options import describe, to_plain
-from .plugins import PluginManager
-from .project import Overrides, load_project, toml_value, validate_inputs
-from .recording import read_recording
-from .review import print_review
-from .runner import RunInterrupted, default_run_dir, run_project, viewer_command
-from .stage import set_verbose
+
+# The commands import the engine inside their functions, not here: it brings numpy, threadpoolctl
+# and the entry-point machinery (≈ 0.17 s), which `baarda --help` and a mistyped argument do not
+# need (0.03 s without them).  No import cycle is behind these.
 
 EXIT_STATUS = {"ok": 0, "adjustment": 1, "input": 2, "internal": 3, "interrupted": 130}
 """Exit status of ``baarda`` by outcome (``RunOutcome.failure``; ``"ok"`` for success)."""
@@ -67,6 +61,8 @@ def _set_threads(n: int | None) -> int:
     the dense route's photo-pair products, Monte Carlo and batch workers — the code asks for them
     (``docs/benchmarks.md``, "Threads").
     """
+    from threadpoolctl import threadpool_limits          # lazy: see the imports above
+
     threadpool_limits(limits=1)
     return int(n) if n else max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
                                 else (os.cpu_count() or 1))
@@ -87,15 +83,19 @@ def _print_outcome(outcome) -> None:
 
 def _engine(args):
     """The Dask engine of ``--scheduler`` / ``--workers`` (nothing starts until work needs it)."""
+    from .montecarlo import Engine, Scheduler                   # lazy: see the imports above
+
     log = None if getattr(args, "quiet", False) else (lambda text: print(text, file=sys.stderr, flush=True))
     return Engine(Scheduler.parse(args.scheduler, args.workers), log=log)
 
 
-def parse_sets(sets: list[str]) -> Overrides | None:
+def parse_sets(sets: list[str]) -> "Overrides | None":
     """``--set STAGE.OPTION=VALUE`` arguments (``STAGE.TABLE.OPTION`` into a nested table) as
     :class:`~baarda.pipeline.project.Overrides` (values read as TOML, a bare word as a string);
     :func:`~baarda.pipeline.project.load_project` applies and checks them — stage ids and option
     names ("did you mean …?"), types and ranges — as it checks the file.  None without ``--set``."""
+    from .project import Overrides, toml_value                  # lazy: see the imports above
+
     values: dict[str, Any] = {}
     for item in sets:
         key, eq, value = item.partition("=")
@@ -108,6 +108,9 @@ def parse_sets(sets: list[str]) -> Overrides | None:
 
 
 def _cmd_run(args) -> int:
+    from .montecarlo import using                               # lazy: see the imports above
+    from .runner import RunInterrupted, default_run_dir, run_project
+
     threads = _set_threads(args.threads)
     out = args.out if args.out is not None else default_run_dir(Path(args.project))
     overrides = parse_sets(args.set)
@@ -122,6 +125,8 @@ def _cmd_run(args) -> int:
 
 
 def _cmd_batch(args) -> int:
+    from .batch import open_batch, plan_batch, run_batch        # lazy: see the imports above
+
     _set_threads(args.threads)
     out = open_batch(args.out)
     jobs = plan_batch(args.projects, out, sweep=args.sweep)
@@ -136,6 +141,9 @@ def _cmd_batch(args) -> int:
 
 
 def _cmd_validate(args) -> int:
+    from .plugins import PluginManager                          # lazy: see the imports above
+    from .project import load_project, validate_inputs
+
     project = load_project(args.project, PluginManager(), overrides=parse_sets(args.set))
     warnings = validate_inputs(project)
     for w in warnings:
@@ -153,6 +161,8 @@ def _cmd_validate(args) -> int:
 
 
 def _cmd_stages(args) -> int:
+    from .plugins import PluginManager                          # lazy: see the imports above
+
     pm = PluginManager()
     if args.names:
         for k, name in enumerate(args.names):
@@ -199,6 +209,9 @@ def _print_stage(info, first: bool = True) -> None:
 
 
 def _cmd_review(args) -> int:
+    from .recording import read_recording                       # lazy: see the imports above
+    from .review import print_review
+
     run_dir = Path(args.run_dir)
     if not run_dir.is_dir():
         raise InputError("run directory not found", path=run_dir)
@@ -238,6 +251,8 @@ def run_order(run_dir: Path) -> list[Path]:
 
 
 def _cmd_view(args) -> int:
+    from .runner import viewer_command                          # lazy: see the imports above
+
     run_dir = Path(args.run_dir)
     if not run_dir.is_dir():
         raise InputError("run directory not found", path=run_dir)
@@ -396,6 +411,8 @@ def _merge_noise(args) -> None:
 
 
 def _dispatch(args) -> int:
+    from .stage import set_verbose                              # lazy: see the imports above
+
     try:
         _merge_noise(args)
         set_verbose(bool(getattr(args, "verbose", False)) and not getattr(args, "quiet", False))

@@ -150,9 +150,9 @@ def test_sweep_row_errors_name_table_value_line_and_header_line(tmp_path, pm):
 
 
 def test_cli_validate_and_run_use_the_users_file(tmp_path, pm, monkeypatch, capsys):
-    import baarda.pipeline.cli as cli
+    import baarda.pipeline.plugins as plugins
 
-    monkeypatch.setattr(cli, "PluginManager", lambda: pm)
+    monkeypatch.setattr(plugins, "PluginManager", lambda: pm)          # what `baarda validate` creates
     p = _write(tmp_path)
     assert main(["validate", str(p), "--set", "adj.solver.max_iter=7", "-v"]) == 0
     out = capsys.readouterr().out
