@@ -51,6 +51,8 @@ def option(default: Any, doc: str, *, key: str | None = None, ge: float | None =
            gt: float | None = None, le: float | None = None, lt: float | None = None, **kw) -> Any:
     """A documented option field: ``x: float = option(1.0, "what x does")``.
 
+    A nested table (an option group) takes an instance of its dataclass as the default
+    (``solver: Solver = option(Solver(), "…")``; each instance gets its own copy).
     ``option(REQUIRED, doc)`` declares a required option (it must come before optional ones in
     the dataclass, or the dataclass needs ``kw_only=True``).  ``key`` is the name in the project
     file when it cannot be the field's (a Python keyword: ``from_ = option(..., key="from")``).
@@ -65,6 +67,8 @@ def option(default: Any, doc: str, *, key: str | None = None, ge: float | None =
         return dataclasses.field(metadata=meta, **kw)
     if isinstance(default, (list, dict, set)):
         return dataclasses.field(default_factory=lambda: type(default)(default), metadata=meta, **kw)
+    if dataclasses.is_dataclass(default) and not isinstance(default, type):    # a nested table's defaults
+        return dataclasses.field(default_factory=lambda: dataclasses.replace(default), metadata=meta, **kw)
     return dataclasses.field(default=default, metadata=meta, **kw)
 
 

@@ -103,6 +103,23 @@ def test_nested_table_values_and_dotted_set(tmp_path, pm):
         load_project(_write(tmp_path), pm, overrides={"adj.solver.max_iter": 0})
 
 
+@dataclass
+class Mutable:
+    n: int = option(1, "n")
+
+
+@dataclass(frozen=True)
+class Holder:
+    group: Mutable = option(Mutable(), "a group whose dataclass is not frozen")
+
+
+def test_a_group_default_may_be_a_mutable_dataclass():
+    a, b = Holder(), Holder()
+    assert a.group == Mutable(1) and a.group is not b.group
+    assert parse_options(Holder, {"group": {"n": 3}}).group == Mutable(3)
+    assert describe(Holder)[0]["default"] == Mutable(1)
+
+
 def test_moved_declarations_are_checked():
     @dataclass(frozen=True)
     class Bad:
