@@ -21,12 +21,13 @@ from baarda.pipeline.synthetic.testfield import CASES
 
 from .method_study import KEYS, PAPER_PERCENT, VARIANTS, MethodStudyConfig, method_study, with_options
 from .method_study_report import table4_rows, table5_rows, study_report
+from .study_config import StudyRuns
 
 
 @dataclasses.dataclass(frozen=True)
-class MethodStudyOptions:
-    repetitions: int = option(20, "number of seeded realisations of the simulated field; every method runs "
-                                  "on the same draws, the tables give the RMS over them and the spread")
+class MethodStudyOptions(StudyRuns):
+    """repetitions, rho_max and ap_alpha: :class:`~.study_config.StudyRuns`, declared once."""
+
     seed: int | None = option(None, "seed of the realisations; default: the project's seed for this stage")
     case: int | None = option(None, "control configuration 1–6 (docs/testfield.md); default: that of the "
                                     "testfield block this stage reads, else the paper's case 5")
@@ -38,9 +39,6 @@ class MethodStudyOptions:
                                                "testfield block, else true")
     systematic_scale: float | None = option(None, "factor on the systematic image errors; default: the "
                                                   "testfield block's, else 1")
-    rho_max: float = option(0.75, "AP selection of the bundle with APs: remove parameters correlated above "
-                                  "this, one after another (the paper's 0.75)", gt=0, lt=1)
-    ap_alpha: float = option(0.05, "then remove APs that are not significant at this level (t-test)", ge=0, lt=1)
     im_model_weights: Literal["propagated", "intersection", "equal"] = option(
         "propagated", "weights of the independent models' model coordinates (docs/independent-models.md)")
     single_model: bool = option(True, "also adjust the single stereo model at 4.0 m (Table 4)")
@@ -48,7 +46,8 @@ class MethodStudyOptions:
     in_comparison: bool = option(True, "put every method's check-point RMSE in summary['check_points'] so "
                                        "the comparison stage lists and plots them")
 
-    def __post_init__(self):       # ranges: declared with option() (pipeline/options.py); here the rest
+    def __post_init__(self):
+        super().__post_init__()     # every range: declared with option() or implied by the name
         if self.case is not None and self.case not in CASES:
             raise ValueError(f"case must be one of {list(CASES)}, got {self.case}")
         bad = [m for m in self.methods if m not in VARIANTS]

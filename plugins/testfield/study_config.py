@@ -13,15 +13,16 @@ from __future__ import annotations
 from dataclasses import dataclass, fields
 from typing import Literal
 
-from baarda.pipeline.options import option
+from baarda.pipeline.options import check_bounds, option
 from baarda.pipeline.synthetic.testfield import CASES, SimulatedErrors, TestFieldConfig
 
-__all__ = ["StudyConfig", "ControlStudyConfig"]
+__all__ = ["StudyRuns", "StudyConfig", "ControlStudyConfig"]
 
 
-@dataclass(frozen=True)
-class StudyConfig(SimulatedErrors):
-    """The realisations and the simulated errors, and the AP selection's thresholds."""
+@dataclass(frozen=True, kw_only=True)
+class StudyRuns:
+    """How many realisations, and the AP selection's thresholds: declared once for both studies'
+    configurations and the method study's options (bounds checked on construction)."""
 
     repetitions: int = option(20, "number of simulated realisations (the same noise for every variant); the "
                                   "tables give the RMS over them")
@@ -29,6 +30,14 @@ class StudyConfig(SimulatedErrors):
                                   "(the paper's 0.75)", gt=0, lt=1)
     ap_alpha: float = option(0.05, "then remove parameters not significant at this level (t-test), one after "
                                    "another; 0 keeps every parameter that passed the correlation rule", ge=0, lt=1)
+
+    def __post_init__(self):
+        check_bounds(self)
+
+
+@dataclass(frozen=True)
+class StudyConfig(SimulatedErrors, StudyRuns):
+    """The realisations and the simulated errors, and the AP selection's thresholds."""
 
     def field(self, case: int, block: str = "block", ap_model: str = "none",
               calibrate_iop: bool = False) -> TestFieldConfig:
