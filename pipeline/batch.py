@@ -38,6 +38,12 @@ from typing import Any, Callable
 
 from . import __version__
 from .errors import BaardaError, InputError
+from .html import escape, markdown_html
+from .montecarlo import Engine
+from .plugins import PluginManager
+from .project import Overrides, apply_override, load_project, path_roles, toml_value, with_overrides
+from .report import markdown_table, write_toml
+from .runner import run_project
 
 __all__ = ["BatchJob", "plan_batch", "read_sweep", "run_batch", "run_job", "summary_rows", "write_summary",
            "BATCH_MARKER"]
@@ -96,9 +102,6 @@ def plan_batch(projects: list[str | Path], out: str | Path, sweep: str | Path | 
     """The runs of a batch: every project of ``projects`` (paths or globs), or — with ``sweep`` —
     one run per row of the sweep table applied to the one project.  Checks the projects (and the
     sweep's names and values) and writes the sweep's project files into ``out/projects``."""
-    from .plugins import PluginManager
-    from .project import load_project
-
     plugins = plugins or PluginManager()
     out = Path(out)
     paths = expand_projects([str(p) for p in projects])
@@ -108,7 +111,7 @@ def plan_batch(projects: list[str | Path], out: str | Path, sweep: str | Path | 
     if len(paths) != 1:
         raise InputError(f"a sweep applies to one project; {len(paths)} were given", path=sweep, field="--sweep")
     base = load_project(paths[0], plugins)
-    rows = read_sweep(sweep, base)
+    rows = read_sweep(sweep, base, plugins)
     out = open_batch(out)
     names = _unique_names([r["name"] or f"{paths[0].stem}-{k + 1:03d}" for k, r in enumerate(rows)])
     (out / "projects").mkdir(parents=True, exist_ok=True)
@@ -121,23 +124,12 @@ def plan_batch(projects: list[str | Path], out: str | Path, sweep: str | Path | 
     return jobs
 
 
-def _toml_value(text: str) -> Any:
-    """A CSV cell as a TOML value; a bare word that is not TOML is a string."""
-    text = text.strip()
-    try:
-        return tomllib.loads(f"v = {text}")["v"]
-    except tomllib.TOMLDecodeError:
-        return text
-
-
-def read_sweep(path: str | Path, project) -> list[dict]:
+def read_sweep(path: str | Path, project, plugins: PluginManager | None = None) -> list[dict]:
     """Rows of a sweep table, each ``{"name", "line", "overrides": {"stage.option": value}}``,
-    every column checked against ``project``'s stages and every value against the option's type
-    and range."""
-    import difflib
-
-    from .options import describe, parse_options
-
+    every row applied to ``project`` (:func:`~baarda.pipeline.project.with_overrides`, the check
+    of ``--set``): its columns against the stages and options, its values against their types and
+    ranges."""
+    plugins = plugins or PluginManager()
     path = Path(path)
     if not path.is_file():
         raise InputError("sweep table not found" if not path.exists() else "not a file", path=path)
@@ -187,65 +179,43 @@ def read_sweep(path: str | Path, project) -> list[dict]:
             row = dict(zip(header, cells))
             name = row.pop("name", "").strip()
             rows.append({"name": name, "line": line,
-                         "overrides": {c: _toml_value(v) for c, v in row.items() if v.strip() != ""}})
+                         "overrides": {c: toml_value(v) for c, v in row.items() if v.strip() != ""}})
     if not rows:
         raise InputError("the sweep table has no runs", path=path)
-    stages = {s.id: s for s in project.stages}
     is_toml = path.suffix.lower() == ".toml"
-    for row in rows:
-        name_line = row["line"] if is_toml else 1        # where a column is named
-        per_stage: dict[str, dict] = {}
-        for col, value in row["overrides"].items():
-            sid, dot, opt = col.rpartition(".")
-            if not dot or not sid or not opt:
-                raise InputError(f"column '{col}' must be <stage id>.<option>", path=path, line=name_line, field=col)
-            if sid not in stages:
-                close = difflib.get_close_matches(sid, list(stages), n=1)
-                did = f"did you mean '{close[0]}'? " if close else ""
-                raise InputError(f"no stage '{sid}' in {project.path.name}; {did}its stages: "
-                                 f"{', '.join(stages)}", path=path, line=name_line, field=col)
-            known = [o["name"] for o in describe(stages[sid].cls.Options)]
-            renamed = dict(getattr(stages[sid].cls.Options, "RENAMED", {}) or {})
-            if opt in renamed:
-                raise InputError(f"option '{col}' is now '{sid}.{renamed[opt]}'", path=path, line=name_line, field=col)
-            if opt not in known:
-                close = difflib.get_close_matches(opt, known, n=2, cutoff=0.6)
-                did = f"did you mean {' or '.join(repr(sid + '.' + c) for c in close)}? " if close else ""
-                raise InputError(f"unknown option '{col}'; {did}stage '{sid}' accepts: {', '.join(known)}",
-                                 path=path, line=name_line, field=col)
-            per_stage.setdefault(sid, {})[opt] = value
-        for sid, over in per_stage.items():       # types and ranges: the row's line
-            spec = stages[sid]
-            parse_options(spec.cls.Options, {**spec.raw_options, **over}, path=path, line=row["line"],
-                          prefix=f"{sid}.")
+    for row in rows:       # names, types and ranges as --set checks them: the table, its line, the column
+        with_overrides(project, Overrides(row["overrides"], source=path, line=row["line"],
+                                          name_line=row["line"] if is_toml else 1), plugins)
     return rows
 
 
 def _write_variant(project, overrides: dict, name: str, path: Path) -> None:
-    """The project file of one sweep row: the base project's TOML with the row's options, input
-    paths made absolute (the file lives in the batch directory)."""
-    from .project import path_roles
-    from .report import write_toml
-
-    data = tomllib.loads(project.text)
+    """The project file of one sweep row: the base project's TOML with the row's options (set as
+    :func:`~baarda.pipeline.project.load_project` sets overrides), input paths made absolute (the
+    file lives in the batch directory)."""
+    data = {k: v for k, v in project.data.items() if k != "stage"}
     by_id = {s.id: s for s in project.stages}
-    for st in data.get("stage", []):
+    stages = []
+    for st in project.data.get("stage", []):
         sid = st.get("id", st.get("use"))
         spec = by_id.get(sid)
         if spec is None:                    # a disabled stage: left as it is
+            stages.append(st)
             continue
-        opts = st.setdefault("options", {})
+        opts = dict(st.get("options", {}))
         for col, value in overrides.items():
-            s, _, opt = col.rpartition(".")
-            if s == sid:
-                opts[opt] = value
+            if col.startswith(sid + "."):
+                opts = apply_override(opts, col[len(sid) + 1:], value)
         for opt, role in path_roles(spec.cls).items():
             if role == "output" or opt not in opts:
                 continue
             opts[opt] = _absolute(opts[opt], project.directory)
-    proj = data.setdefault("project", {})
+        stages.append({**st, "options": opts})
+    data["stage"] = stages
+    proj = dict(data.get("project", {}))
     proj["name"] = f"{proj.get('name', project.path.stem)} [{name}]"
     proj["description"] = (str(proj.get("description", "")) + f" (batch sweep of {project.path})").strip()
+    data["project"] = proj
     write_toml(path, data)
 
 
@@ -279,8 +249,6 @@ def open_batch(out: str | Path) -> Path:
 
 def run_job(job: BatchJob) -> dict:
     """Run one project of a batch (on a worker); never raises for a failed run: returns its row."""
-    from .runner import run_project
-
     row = {"name": job.name, "status": "failed", "failure": "", "message": "", "seconds": 0.0, "stages_ok": 0,
            "stages": 0, "run_dir": str(job.out), "project": str(job.project), "source": job.source,
            "overrides": dict(job.overrides), "figures": {}}
@@ -327,8 +295,6 @@ def run_batch(jobs: list[BatchJob], out: str | Path, engine=None,
               progress: Callable[[str], None] | None = None) -> list[dict]:
     """Run every job on ``engine`` (a :class:`~baarda.pipeline.montecarlo.Engine`; default: the
     local scheduler), write the summary as each run ends, return the rows in job order."""
-    from .montecarlo import Engine
-
     out = open_batch(out)
     started = _dt.datetime.now().isoformat(timespec="seconds")
     own = engine is None
@@ -404,8 +370,6 @@ def _atomic(path: Path, text: str) -> None:
 def _html(rows: list[dict], started: str, scheduler: str, seconds: float, total: int | None) -> str:
     """The summary as one self-contained page: the same table, each run's name a link to its own
     ``report.html`` (relative, inside the batch directory)."""
-    from .html import escape, markdown_html
-
     body = markdown_html(_markdown(rows, started, scheduler, seconds, total, links=True))
     return ("<!doctype html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>baarda batch summary</title>"
             "<style>body{font-family:system-ui,sans-serif;margin:2em;max-width:110em}"
@@ -416,8 +380,6 @@ def _html(rows: list[dict], started: str, scheduler: str, seconds: float, total:
 
 def _markdown(rows: list[dict], started: str, scheduler: str, seconds: float, total: int | None,
               links: bool = False) -> str:
-    from .report import markdown_table
-
     ok = sum(r["status"] == "ok" for r in rows)
     n = total if total is not None else len(rows)
     sweep, figs = _columns(rows)

@@ -5,7 +5,8 @@
                                                     run a project, write a run directory
     baarda batch PROJECT… [--sweep TABLE] --out DIR [--scheduler S] [--workers N]
                                                     many runs through Dask, one summary
-    baarda validate PROJECT.toml [--set …]          check a project and every input file without running it
+    baarda validate PROJECT.toml [--set …] [-v]     check a project and every input file without running it;
+                                                    -v: every option's value and range
     baarda stages [NAME …] [--verbose]              list installed stages; with names, each one in full
     baarda review RUN_DIR [--entities]              what was flagged, where to look; the recordings' layout
     baarda view RUN_DIR [--print]                   open the run's recordings in the viewer, in run order
@@ -19,15 +20,24 @@ traceback is in the run directory's ``<stage>.error.txt``); 130 interrupted.
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import os
+import shlex
+import signal
+import subprocess
 import sys
-from contextlib import contextmanager
+import traceback
 from pathlib import Path
 from typing import Any
 
 from . import __version__
 from .errors import AdjustmentError, BaardaError, InputError
+from .options import describe, to_plain
+
+# The commands import the engine inside their functions, not here: it brings numpy, threadpoolctl
+# and the entry-point machinery (≈ 0.17 s), which `baarda --help` and a mistyped argument do not
+# need (0.03 s without them).  No import cycle is behind these.
 
 EXIT_STATUS = {"ok": 0, "adjustment": 1, "input": 2, "internal": 3, "interrupted": 130}
 """Exit status of ``baarda`` by outcome (``RunOutcome.failure``; ``"ok"`` for success)."""
@@ -51,7 +61,7 @@ def _set_threads(n: int | None) -> int:
     the dense route's photo-pair products, Monte Carlo and batch workers — the code asks for them
     (``docs/benchmarks.md``, "Threads").
     """
-    from threadpoolctl import threadpool_limits
+    from threadpoolctl import threadpool_limits          # lazy: see the imports above
 
     threadpool_limits(limits=1)
     return int(n) if n else max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
@@ -73,97 +83,40 @@ def _print_outcome(outcome) -> None:
 
 def _engine(args):
     """The Dask engine of ``--scheduler`` / ``--workers`` (nothing starts until work needs it)."""
-    from .montecarlo import Engine, Scheduler
+    from .montecarlo import Engine, Scheduler                   # lazy: see the imports above
 
     log = None if getattr(args, "quiet", False) else (lambda text: print(text, file=sys.stderr, flush=True))
     return Engine(Scheduler.parse(args.scheduler, args.workers), log=log)
 
 
-def parse_sets(sets: list[str], project) -> dict[str, Any]:
-    """``--set STAGE.OPTION=VALUE`` arguments as ``{"stage.option": value}`` (values read as TOML,
-    a bare word as a string), every stage id and option name checked against ``project`` ("did you
-    mean …?") and every value against the option's type and range."""
-    import difflib
+def parse_sets(sets: list[str]) -> "Overrides | None":
+    """``--set STAGE.OPTION=VALUE`` arguments (``STAGE.TABLE.OPTION`` into a nested table) as
+    :class:`~baarda.pipeline.project.Overrides` (values read as TOML, a bare word as a string);
+    :func:`~baarda.pipeline.project.load_project` applies and checks them — stage ids and option
+    names ("did you mean …?"), types and ranges — as it checks the file.  None without ``--set``."""
+    from .project import Overrides, toml_value                  # lazy: see the imports above
 
-    from .batch import _toml_value
-    from .options import describe, parse_options
-
-    stages = {st.id: st for st in project.stages}
-    over: dict[str, Any] = {}
+    values: dict[str, Any] = {}
     for item in sets:
         key, eq, value = item.partition("=")
         key = key.strip()
-        sid, dot, opt = key.rpartition(".")
+        sid, dot, opt = key.partition(".")
         if not eq or not dot or not sid or not opt:
             raise InputError(f"expected STAGE.OPTION=VALUE, got {item!r}", field="--set")
-        if sid not in stages:
-            close = difflib.get_close_matches(sid, list(stages), n=1, cutoff=0.6)
-            did = f"did you mean '{close[0]}'? " if close else ""
-            raise InputError(f"no stage '{sid}' in {project.path.name}; {did}its stages: {', '.join(stages)}",
-                             field=f"--set {key}")
-        known = [o["name"] for o in describe(stages[sid].cls.Options)]
-        if opt not in known:
-            close = difflib.get_close_matches(opt, known, n=2, cutoff=0.6)
-            did = f"did you mean {' or '.join(repr(sid + '.' + c) for c in close)}? " if close else ""
-            raise InputError(f"unknown option '{key}'; {did}stage '{sid}' accepts: {', '.join(known)}",
-                             field=f"--set {key}")
-        over[key] = _toml_value(value)
-    for sid in {k.rpartition(".")[0] for k in over}:
-        spec = stages[sid]
-        mine = {k.rpartition(".")[2]: v for k, v in over.items() if k.rpartition(".")[0] == sid}
-        parse_options(spec.cls.Options, {**spec.raw_options, **mine}, path="--set", prefix=f"{sid}.")
-    return over
-
-
-@contextmanager
-def _project_with_sets(project_path, sets):
-    """The project file to load: ``project_path`` itself, or with ``--set`` a copy in a temporary
-    folder holding the new values (input paths made absolute, everything else as written)."""
-    if not sets:
-        yield Path(project_path)
-        return
-    import tempfile
-    import tomllib
-
-    from .batch import _absolute
-    from .plugins import PluginManager
-    from .project import load_project, path_roles
-    from .report import write_toml
-
-    project = load_project(project_path, PluginManager())
-    over = parse_sets(sets, project)
-    data = tomllib.loads(project.text)
-    by_id = {st.id: st for st in project.stages}
-    for st in data.get("stage", []):
-        spec = by_id.get(st.get("id", st.get("use")))
-        if spec is None:
-            continue
-        opts = st.setdefault("options", {})
-        for key, value in over.items():
-            sid, _, opt = key.rpartition(".")
-            if sid == spec.id:
-                opts[opt] = value
-        for opt, role in path_roles(spec.cls).items():
-            if role != "output" and opt in opts:
-                opts[opt] = _absolute(opts[opt], project.directory)
-    proj = data.setdefault("project", {})
-    proj["description"] = (str(proj.get("description", "")).strip()
-                           + f"\n\n(run with --set {' --set '.join(sets)})").strip()
-    with tempfile.TemporaryDirectory(prefix="baarda-set-") as tmp:
-        path = Path(tmp) / Path(project_path).name
-        write_toml(path, data)
-        yield path
+        values[key] = toml_value(value)
+    return Overrides(values) if values else None
 
 
 def _cmd_run(args) -> int:
-    from .montecarlo import using
+    from .montecarlo import using                               # lazy: see the imports above
     from .runner import RunInterrupted, default_run_dir, run_project
 
     threads = _set_threads(args.threads)
     out = args.out if args.out is not None else default_run_dir(Path(args.project))
-    with _engine(args) as engine, using(engine), _project_with_sets(args.project, args.set) as path:
+    overrides = parse_sets(args.set)
+    with _engine(args) as engine, using(engine):
         try:
-            outcome = run_project(path, out, verbose=not args.quiet, threads=threads)
+            outcome = run_project(args.project, out, verbose=not args.quiet, threads=threads, overrides=overrides)
         except RunInterrupted as e:
             _print_outcome(e.outcome)
             raise KeyboardInterrupt from None
@@ -172,7 +125,7 @@ def _cmd_run(args) -> int:
 
 
 def _cmd_batch(args) -> int:
-    from .batch import open_batch, plan_batch, run_batch
+    from .batch import open_batch, plan_batch, run_batch        # lazy: see the imports above
 
     _set_threads(args.threads)
     out = open_batch(args.out)
@@ -188,14 +141,19 @@ def _cmd_batch(args) -> int:
 
 
 def _cmd_validate(args) -> int:
-    from .plugins import PluginManager
+    from .plugins import PluginManager                          # lazy: see the imports above
     from .project import load_project, validate_inputs
 
-    with _project_with_sets(args.project, args.set) as path:
-        project = load_project(path, PluginManager())
-        warnings = validate_inputs(project)
+    project = load_project(args.project, PluginManager(), overrides=parse_sets(args.set))
+    warnings = validate_inputs(project)
     for w in warnings:
         print(f"warning {w}", file=sys.stderr)
+    if args.verbose:               # every option as it will run, with its range
+        for spec in project.stages:
+            print(f"{spec.id} ({spec.use}):")
+            for o in describe(spec.cls.Options):
+                value = to_plain(getattr(spec.options, o["field"]))
+                print(f"    {o['name']} = {value!r}" + (f"  ({o['bounds']})" if o["bounds"] else ""))
     print(f"{args.project}: valid — {len(project.stages)} stage(s): "
           + " → ".join(f"{s.id} ({s.use})" for s in project.stages)
           + (f"; with {', '.join(args.set)}" if args.set else ""))
@@ -203,14 +161,13 @@ def _cmd_validate(args) -> int:
 
 
 def _cmd_stages(args) -> int:
-    from .options import describe
-    from .plugins import PluginManager
+    from .plugins import PluginManager                          # lazy: see the imports above
 
     pm = PluginManager()
     if args.names:
         for k, name in enumerate(args.names):
             info = pm.get(name)            # an unknown name: InputError with "did you mean"
-            _print_stage(info, describe, first=(k == 0))
+            _print_stage(info, first=(k == 0))
         return 0
     infos = list(pm)
     width = max((len(i.name) for i in infos), default=4)
@@ -222,15 +179,14 @@ def _cmd_stages(args) -> int:
             print(f"{'':<{width}}  reads: {', '.join(cls.reads) or '—'}; writes: {', '.join(cls.writes) or '—'}")
             for o in describe(cls.Options):
                 dflt = "required" if o["required"] else f"default {o['default']!r}"
-                print(f"{'':<{width}}    {o['name']} ({o['type']}, {dflt}): {o['doc']}")
+                rng = f", {o['bounds']}" if o["bounds"] else ""
+                print(f"{'':<{width}}    {o['name']} ({o['type']}, {dflt}{rng}): {o['doc']}")
     for name, err in sorted(pm.load_errors.items()):
         print(f"{name:<{width}}  (not loaded)  {err}", file=sys.stderr)
     return 0
 
 
-def _print_stage(info, describe, first: bool = True) -> None:
-    import inspect
-
+def _print_stage(info, first: bool = True) -> None:
     cls = info.cls
     if not first:
         print()
@@ -247,12 +203,13 @@ def _print_stage(info, describe, first: bool = True) -> None:
     print("  options:" if opts else "  options: none")
     for o in opts:
         dflt = "required" if o["required"] else f"default {o['default']!r}"
-        print(f"    {o['name']} ({o['type']}, {dflt})")
+        rng = f", {o['bounds']}" if o["bounds"] else ""
+        print(f"    {o['name']} ({o['type']}, {dflt}{rng})")
         print(f"        {o['doc']}")
 
 
 def _cmd_review(args) -> int:
-    from .recording import read_recording
+    from .recording import read_recording                       # lazy: see the imports above
     from .review import print_review
 
     run_dir = Path(args.run_dir)
@@ -294,10 +251,7 @@ def run_order(run_dir: Path) -> list[Path]:
 
 
 def _cmd_view(args) -> int:
-    import shlex
-    import subprocess
-
-    from .runner import viewer_command
+    from .runner import viewer_command                          # lazy: see the imports above
 
     run_dir = Path(args.run_dir)
     if not run_dir.is_dir():
@@ -430,8 +384,6 @@ def _one_line(e: BaseException) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    import signal
-
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command is None:          # `baarda` alone: the help
@@ -459,7 +411,7 @@ def _merge_noise(args) -> None:
 
 
 def _dispatch(args) -> int:
-    from .stage import set_verbose
+    from .stage import set_verbose                              # lazy: see the imports above
 
     try:
         _merge_noise(args)
@@ -472,8 +424,6 @@ def _dispatch(args) -> int:
         print(f"baarda: error: {e}", file=sys.stderr)
         return EXIT_STATUS["input"]
     except BrokenPipeError:  # output piped into e.g. `head`: not an error
-        import os
-
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
     except OSError as e:       # a file the user named cannot be read or written
@@ -487,9 +437,6 @@ def _dispatch(args) -> int:
         print("baarda: interrupted", file=sys.stderr)
         return 130
     except Exception as e:   # a bug: one line here, the traceback on request
-        import os
-        import traceback
-
         if os.environ.get("BAARDA_TRACEBACK"):
             traceback.print_exc()
         print(f"baarda: internal error {type(e).__name__}: {_one_line(e)} (a bug; set BAARDA_TRACEBACK=1 "

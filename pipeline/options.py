@@ -8,13 +8,22 @@ names the project file, the line and the key.
 Nested tables are typed: ``dict[str, float]`` (keys and values checked), or a dataclass (its
 fields, recursively).  Renamed options and values are rejected with their new spelling: an Options
 class may declare ``RENAMED = {"old_name": "new_name"}`` and ``RENAMED_VALUES = {"option": {"old":
-"new"}}`` (class attributes, ``typing.ClassVar``); any other unknown name gets the closest known
-ones ("did you mean …?").
+"new"}}`` (class attributes, ``typing.ClassVar``); an option moved into a nested table is
+declared with ``MOVED = {"max_iter": "solver.max_iter"}`` (flat old name → dotted new path) and
+rejected with "max_iter is now written as solver.max_iter (in a [stage.options.solver] table)";
+any other unknown name gets the closest known ones ("did you mean …?").
 
-Numbers are checked for range as well as type (:func:`option_range`): no option takes NaN or
-infinity, and the vocabulary's names carry their ranges (a ``sigma_…`` is positive, an ``alpha…``
-lies in (0, 1), ``max_iter`` is at least 1 …); ``option(..., ge=, gt=, le=, lt=)`` states or
-overrides a range.
+One mechanism checks every number (:func:`field_range`): no option takes NaN or infinity, and each
+has at most one range — the one declared with ``option(..., ge=, gt=, le=, lt=)``, or by default
+the one its name implies in the vocabulary of ``docs/conventions.md`` (:func:`option_range`: a
+``sigma_…`` is positive, an ``alpha…`` lies in (0, 1), ``max_iter`` is at least 1 …).
+:func:`parse_options` enforces it for a project's values, :func:`check_bounds` for an options
+dataclass built in Python (a library's config calls it in ``__post_init__``), :func:`describe`
+shows it (``baarda stages -v``).  ``__post_init__`` keeps only rules across fields.
+
+Options and library configs are one definition: a library may declare its config dataclass with
+:func:`option` (this module imports only the standard library and :mod:`.errors`), and a stage
+uses that class as its ``Options``.
 """
 
 from __future__ import annotations
@@ -42,6 +51,8 @@ def option(default: Any, doc: str, *, key: str | None = None, ge: float | None =
            gt: float | None = None, le: float | None = None, lt: float | None = None, **kw) -> Any:
     """A documented option field: ``x: float = option(1.0, "what x does")``.
 
+    A nested table (an option group) takes an instance of its dataclass as the default
+    (``solver: Solver = option(Solver(), "…")``; each instance gets its own copy).
     ``option(REQUIRED, doc)`` declares a required option (it must come before optional ones in
     the dataclass, or the dataclass needs ``kw_only=True``).  ``key`` is the name in the project
     file when it cannot be the field's (a Python keyword: ``from_ = option(..., key="from")``).
@@ -56,19 +67,49 @@ def option(default: Any, doc: str, *, key: str | None = None, ge: float | None =
         return dataclasses.field(metadata=meta, **kw)
     if isinstance(default, (list, dict, set)):
         return dataclasses.field(default_factory=lambda: type(default)(default), metadata=meta, **kw)
+    if dataclasses.is_dataclass(default) and not isinstance(default, type):    # a nested table's defaults
+        return dataclasses.field(default_factory=lambda: dataclasses.replace(default), metadata=meta, **kw)
     return dataclasses.field(default=default, metadata=meta, **kw)
 
 
+def options_problems(options_cls: type) -> list[str]:
+    """Mistakes in an options class's declarations (empty when none): a ``MOVED`` name must not
+    be an option any more, and its new dotted path must reach an option of a nested table."""
+    if not dataclasses.is_dataclass(options_cls):
+        return []
+    problems = []
+    fields = {f.metadata.get("key", f.name) for f in dataclasses.fields(options_cls)}
+    for old, new in dict(getattr(options_cls, "MOVED", {}) or {}).items():
+        if old in fields:
+            problems.append(f"{options_cls.__qualname__}.MOVED: '{old}' is still an option")
+        cls, parts = options_cls, new.split(".")
+        for part in parts:
+            hints = typing.get_type_hints(cls) if dataclasses.is_dataclass(cls) else {}
+            named = {f.metadata.get("key", f.name): f.name for f in dataclasses.fields(cls)} \
+                if dataclasses.is_dataclass(cls) else {}
+            if part not in named:
+                problems.append(f"{options_cls.__qualname__}.MOVED: '{old}' → '{new}' names no option")
+                break
+            tp = hints[named[part]]
+            real = [a for a in get_args(tp) if a is not type(None)] if get_origin(tp) in (
+                typing.Union, types.UnionType) else [tp]
+            cls = real[0] if len(real) == 1 else None
+    return problems
+
+
 def describe(options_cls: type) -> list[dict]:
-    """Name, type, default and doc of every option (for ``baarda stages --verbose`` and docs)."""
+    """Name, type, default, doc and range of every option (for ``baarda stages --verbose`` and docs):
+    ``range`` as :func:`field_range` gives it (``{"gt": 0}`` or None), ``bounds`` as text (``> 0``)."""
     hints = typing.get_type_hints(options_cls)
     out = []
     for f in dataclasses.fields(options_cls):
         required = f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
         default = f.default if f.default is not dataclasses.MISSING else (
             f.default_factory() if f.default_factory is not dataclasses.MISSING else None)
-        out.append({"name": f.metadata.get("key", f.name), "type": _type_name(hints[f.name]), "default": default,
-                    "required": required, "doc": f.metadata.get("doc", "")})
+        rng = field_range(f)
+        out.append({"name": f.metadata.get("key", f.name), "field": f.name, "type": _type_name(hints[f.name]), "default": default,
+                    "required": required, "doc": f.metadata.get("doc", ""), "range": rng,
+                    "bounds": range_text(rng)})
     return out
 
 
@@ -109,7 +150,11 @@ _NAME_RANGES: list[tuple[str, Any]] = [
 def option_range(name: str, default: Any = None, declared: dict | None = None) -> dict | None:
     """The range of option ``name`` (``{"gt": 0}`` …): the one declared with :func:`option`, else
     the one its name implies (``sigma…`` and ``tol_…`` positive, ``alpha…``/``beta…`` in (0, 1),
-    ``max_iter`` ≥ 1, ``…_mm``/``…_px``/``…_scale`` positive …; 0 allowed where it is the default)."""
+    ``max_iter`` ≥ 1, ``…_mm``/``…_px``/``…_scale`` positive …; 0 allowed where it is the default).
+
+    The name-implied range is only the default of the declared one: one mechanism, whose result
+    :func:`field_range` gives for a field, :func:`parse_options` and :func:`check_bounds` enforce
+    and :func:`describe` shows."""
     if declared:
         return declared
     base = name.rsplit(".", 1)[-1]
@@ -123,6 +168,40 @@ def option_range(name: str, default: Any = None, declared: dict | None = None) -
             return {"ge": 0} if zero_default else {"gt": 0}
         return rng
     return None
+
+
+def field_range(f: dataclasses.Field) -> dict | None:
+    """The range of an option field: declared (``option(..., gt=0)``), else implied by its name."""
+    default = f.default if f.default is not dataclasses.MISSING else None
+    return option_range(f.metadata.get("key", f.name), default, f.metadata.get("range"))
+
+
+def range_text(rng: dict | None) -> str:
+    """A range as a reader writes it: ``> 0``, ``≥ 1``, ``in (0, 1)``, ``in (0, 1]``; "" for none."""
+    if not rng:
+        return ""
+    lo = ("(", rng["gt"]) if "gt" in rng else (("[", rng["ge"]) if "ge" in rng else None)
+    hi = (")", rng["lt"]) if "lt" in rng else (("]", rng["le"]) if "le" in rng else None)
+    if lo and hi:
+        return f"in {lo[0]}{lo[1]:g}, {hi[1]:g}{hi[0]}"
+    if lo:
+        return f"{'>' if lo[0] == '(' else '≥'} {lo[1]:g}"
+    return f"{'<' if hi[0] == ')' else '≤'} {hi[1]:g}"
+
+
+def check_bounds(obj: Any) -> None:
+    """Every number of the option dataclass ``obj`` finite and inside its field's range
+    (:func:`field_range`), else :class:`ValueError` naming the field.
+
+    :func:`parse_options` checks a project's values (naming file and line); an options dataclass
+    that a library also builds from Python (a config) calls this in its ``__post_init__``, so that
+    both ways in meet the same bounds."""
+    for f in dataclasses.fields(obj):
+        name = f.metadata.get("key", f.name)
+        try:
+            _check_range(getattr(obj, f.name), name, field_range(f), {})
+        except InputError as e:
+            raise ValueError(f"{name}: {e.message}") from None
 
 
 def _check_range(value: Any, name: str, rng: dict | None, where: dict) -> None:
@@ -152,7 +231,8 @@ def _check_range(value: Any, name: str, rng: dict | None, where: dict) -> None:
             raise InputError(f"must be {limits}, got {value:g}", field=name, **where)
 
 
-def _coerce(value: Any, tp, name: str, where: dict) -> Any:
+def _coerce(value: Any, tp, name: str, where: dict, nested=None) -> Any:
+    """``value`` as type ``tp``; ``nested(tp, value)`` parses a table of a dataclass type."""
     origin = get_origin(tp)
     if tp is Any:
         return value
@@ -167,22 +247,19 @@ def _coerce(value: Any, tp, name: str, where: dict) -> Any:
             return None
         real = [a for a in args if a is not type(None)]
         if len(real) == 1:                      # Optional[X]: X's own message is the useful one
-            return _coerce(value, real[0], name, where)
-        errors = []
-        for a in args:
-            if a is type(None):
-                continue
+            return _coerce(value, real[0], name, where, nested)
+        for a in real:
             try:
-                return _coerce(value, a, name, where)
-            except InputError as e:
-                errors.append(e.message)
+                return _coerce(value, a, name, where, nested)
+            except InputError:
+                continue
         raise InputError(f"expected {_type_name(tp)}, got {value!r}", field=name, **where)
     if origin in (list, tuple):
         if not isinstance(value, (list, tuple)):
             raise InputError(f"expected a list, got {value!r}", field=name, **where)
         args = get_args(tp)
         inner = args[0] if args else Any
-        out = [_coerce(v, inner, name, where) for v in value]
+        out = [_coerce(v, inner, name, where, nested) for v in value]
         return tuple(out) if origin is tuple else out
     if origin is dict:
         if not isinstance(value, dict):
@@ -215,56 +292,91 @@ def _coerce(value: Any, tp, name: str, where: dict) -> Any:
     if dataclasses.is_dataclass(tp):
         if not isinstance(value, dict):
             raise InputError(f"expected a table, got {value!r}", field=name, **where)
-        return parse_options(tp, value, prefix=f"{name}.", **where)
+        return nested(tp, value)
     return value
+
+
+class Where(typing.NamedTuple):
+    """Where an option was written, for an error message: the file (a project file, a sweep table,
+    or ``"--set"``), the line, and the prefix its name carries there (``"bundle."`` for
+    ``--set bundle.max_iter=…``; ``""`` inside the stage's ``[stage.options]`` table)."""
+
+    path: Any = None
+    line: int | None = None
+    prefix: str = ""
+    name_line: int | None = None
+    """Where the option's name is written, when elsewhere than its value (a sweep table's header)."""
 
 
 def parse_options(options_cls: type, raw: dict | None, *, path=None, line=None,
                   locate=None, prefix: str = "") -> Any:
     """Validate ``raw`` (a TOML table) against ``options_cls``.
 
-    ``locate(key) -> line`` may be given to point errors at the exact line of a key.
+    ``locate(key)`` may be given to point errors at the exact line of a key: ``key`` is the
+    option's dotted path (``"solver.max_iter"`` inside a nested table; None for the stage's table
+    as a whole); it returns the line, or a :class:`Where` for a key written elsewhere (an
+    override), or None (then ``line``).  ``prefix`` is shown before every name (``"bundle."``).
     """
+    def where(key: str | None) -> Where:
+        got = locate(key) if locate else None
+        return got if isinstance(got, Where) else Where(path, got or line, prefix)
+
+    return _parse(options_cls, raw, where, "")
+
+
+def _parse(options_cls: type, raw: dict | None, where, sub: str) -> Any:
+    """:func:`parse_options` of one table; ``sub`` is its dotted path (``"solver."``, or ``""``)."""
     raw = dict(raw or {})
     hints = typing.get_type_hints(options_cls)
     fields = {f.metadata.get("key", f.name): f for f in dataclasses.fields(options_cls)}
 
-    def where(key):
-        ln = locate(key) if locate else None
-        return {"path": path, "line": ln or line}
+    def at(key: str | None, naming: bool = False) -> tuple[str, dict]:
+        """The name to show for ``key`` and the InputError's path and line (``naming``: a mistake
+        in the name, not the value)."""
+        w = where(sub + key if key is not None else (sub[:-1] or None))
+        line = w.name_line if naming and w.name_line is not None else w.line
+        return w.prefix + sub + (key or ""), {"path": w.path, "line": line}
 
     renamed = dict(getattr(options_cls, "RENAMED", {}) or {})
     for key in sorted(set(raw) & set(renamed)):
-        raise InputError(f"option '{prefix}{key}' is now '{prefix}{renamed[key]}'", field=prefix + key,
-                         **where(key))
+        name, loc = at(key, naming=True)
+        raise InputError(f"option '{name}' is now '{name[:-len(key)]}{renamed[key]}'", field=name, **loc)
+    moved = dict(getattr(options_cls, "MOVED", {}) or {})
+    for key in sorted(set(raw) & set(moved)):
+        name, loc = at(key, naming=True)
+        new = name[:-len(key)] + moved[key]
+        w = where(sub + key)
+        table = f" (in a [stage.options.{sub}{moved[key].rpartition('.')[0]}] table)" if not w.prefix else ""
+        raise InputError(f"{name} is now written as {new}{table}", field=name, **loc)
     unknown = sorted(set(raw) - set(fields))
     if unknown:
         key = unknown[0]
+        name, loc = at(key, naming=True)
+        shown = name[:-len(key)]
         known = ", ".join(sorted(fields)) or "(none)"
         close = difflib.get_close_matches(key, list(fields), n=2, cutoff=0.6)
-        did = f"did you mean {' or '.join(repr(prefix + c) for c in close)}? " if close else ""
-        raise InputError(f"unknown option '{prefix}{key}'; {did}this stage accepts: {known}",
-                         field=prefix + key, **where(key))
+        did = f"did you mean {' or '.join(repr(shown + c) for c in close)}? " if close else ""
+        raise InputError(f"unknown option '{name}'; {did}this stage accepts: {known}", field=name, **loc)
     old_values = dict(getattr(options_cls, "RENAMED_VALUES", {}) or {})
     values = {}
     for key, value in raw.items():
-        moved = old_values.get(key, {})
-        if isinstance(value, str) and value in moved:
-            raise InputError(f"option '{prefix}{key}': the value {value!r} is now {moved[value]!r}",
-                             field=prefix + key, **where(key))
+        name, loc = at(key)
+        old = old_values.get(key, {})
+        if isinstance(value, str) and value in old:
+            raise InputError(f"option '{name}': the value {value!r} is now {old[value]!r}", field=name, **loc)
         f = fields[key]
-        values[f.name] = _coerce(value, hints[f.name], prefix + key, where(key))
-        default = f.default if f.default is not dataclasses.MISSING else None
-        _check_range(values[f.name], prefix + key, option_range(key, default, f.metadata.get("range")), where(key))
+        values[f.name] = _coerce(value, hints[f.name], name, loc,
+                                 lambda tp, v, key=key: _parse(tp, v, where, f"{sub}{key}."))
+        _check_range(values[f.name], name, field_range(f), loc)
     missing = [n for n, f in fields.items() if f.name not in values
                and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING]
     if missing:
-        raise InputError(f"required option '{prefix}{missing[0]}' is missing", field=prefix + missing[0],
-                         **where(None))
+        name, _ = at(missing[0])
+        raise InputError(f"required option '{name}' is missing", field=name, **at(None)[1])
     try:
         return options_cls(**values)
     except (ValueError, TypeError) as e:  # __post_init__ checks of the options class
-        raise InputError(str(e), **where(None)) from None
+        raise InputError(str(e), **at(None)[1]) from None
 
 
 def to_plain(obj: Any) -> Any:
@@ -278,3 +390,21 @@ def to_plain(obj: Any) -> Any:
     if isinstance(obj, dict):
         return {str(k): to_plain(v) for k, v in obj.items()}
     return obj
+
+
+def output_problem(value: Any) -> str | None:
+    """Why an output path may not be used (None when it is fine): outputs are written inside the
+    run directory, so the path must be relative and must not climb out of it."""
+    text = str(value or "")
+    if not text:
+        return None
+    p = Path(text)
+    if p.is_absolute() or text.startswith("~"):
+        return (f"an output path must be relative to the run directory (everything a run writes stays "
+                f"inside it); got an absolute path")
+    depth = 0
+    for part in p.parts:
+        depth += -1 if part == ".." else (0 if part == "." else 1)
+        if depth < 0:
+            return "an output path must stay inside the run directory; this one climbs out of it with '..'"
+    return None

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from importlib.metadata import entry_points
 
 from .errors import BaardaError
+from .options import options_problems
 from .stage import check_stage_class
 
 GROUP = "baarda.stages"
@@ -56,7 +57,7 @@ class PluginManager:
         self._register(name, cls, package, f"{cls.__module__}:{cls.__qualname__}")
 
     def _register(self, name, cls, package, value):
-        problems = check_stage_class(cls, name)
+        problems = check_stage_class(cls, name) + options_problems(getattr(cls, "Options", None))
         if problems:
             self.load_errors[name] = "; ".join(problems)
             return

@@ -23,18 +23,22 @@ file, the line and the key.
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import glob
+import json
 import re
 import tomllib
 import types
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, get_args, get_origin
+from typing import Any, Mapping, get_args, get_origin
 
-from .errors import InputError
-from .options import parse_options
+from .errors import BaardaError, InputError
+from .options import Where, output_problem, parse_options, to_plain
+from .plausibility import check_block
 from .plugins import PluginManager
+from .stage import Context
 
 PROJECT_KEYS = {"name", "description", "seed", "object_unit"}
 STAGE_KEYS = {"use", "id", "options", "enabled"}
@@ -61,6 +65,10 @@ class Project:
     object_unit: str
     stages: list[StageSpec] = field(default_factory=list)
     text: str = ""
+    data: dict = field(default_factory=dict, repr=False)
+    """The file's TOML as parsed (:func:`with_overrides` builds variants from it; never modified)."""
+    overrides: Overrides | None = None
+    """The options set from outside the file (``--set``, a sweep row), already applied."""
 
     @property
     def directory(self) -> Path:
@@ -68,8 +76,6 @@ class Project:
 
     def resolved(self) -> dict:
         """The project with every option's default filled in (written to the run directory)."""
-        from .options import to_plain
-
         return {
             "project": {"name": self.name, "description": self.description, "seed": self.seed,
                         "object_unit": self.object_unit, "file": str(self.path)},
@@ -89,17 +95,36 @@ class _Locator:
         return self.stage_lines[k] if k < len(self.stage_lines) else None
 
     def key(self, k: int, key: str | None) -> int | None:
+        """The line of option ``key`` of the k-th stage: a dotted path (``solver.max_iter``) is
+        found under its table's header (``[stage.options.solver]``) or as a dotted key, else on
+        the line of its table; an option not written, on the ``[[stage]]`` line."""
         start = self.stage(k)
         if start is None:
             return None
         if key is None:
             return start
         end = self.stage_lines[k + 1] if k + 1 < len(self.stage_lines) else len(self.lines) + 1
-        pat = re.compile(rf"\s*[\"']?{re.escape(key)}[\"']?\s*=")
+        return self._find(start, end, key) or start
+
+    def _find(self, start: int, end: int, key: str) -> int | None:
+        parent, _, last = key.rpartition(".")
+        header = re.compile(r"\s*\[\s*stage\s*\.\s*options\s*(\.[^\]]*)?\]")
+        table = ""                                   # the nested table the line is in ("" at the top)
+        want = re.compile(rf"\s*[\"']?{re.escape(last)}[\"']?\s*=")
+        dotted = re.compile(rf"\s*{re.escape(key)}\s*=") if parent else None
         for ln in range(start, end):
-            if pat.match(self.lines[ln - 1]):
+            text = self.lines[ln - 1]
+            m = header.match(text)
+            if m:
+                table = re.sub(r"\s+", "", (m.group(1) or "").lstrip("."))
+                if table == key:
+                    return ln
+                continue
+            if table == parent and want.match(text):
                 return ln
-        return start
+            if dotted is not None and table == "" and dotted.match(text):
+                return ln
+        return self._find(start, end, parent) if parent else None
 
     def top_key(self, key: str) -> int | None:
         pat = re.compile(rf"\s*{re.escape(key)}\s*=")
@@ -109,9 +134,67 @@ class _Locator:
         return None
 
 
-def load_project(path: str | Path, plugins: PluginManager) -> Project:
-    """Read and validate a project file (stages resolved, options parsed, data flow checked)."""
-    path = Path(path)
+@dataclass(frozen=True)
+class Overrides:
+    """Options set from outside the project file: ``--set`` arguments, or a row of a sweep table.
+
+    ``values`` maps ``"<stage id>.<option>"`` — or a dotted path into a nested table,
+    ``"bundle.solver.max_iter"`` — to the value.  Their mistakes name ``source`` (``"--set"``, or
+    the sweep table's path) at ``line`` (a value's) or ``name_line`` (where the names are written:
+    a CSV's header); every other mistake names the project file and its line.
+    """
+
+    values: Mapping[str, Any]
+    source: str | Path = "--set"
+    line: int | None = None
+    name_line: int | None = None
+
+    def where(self, key: str, naming: bool = False) -> dict:
+        """path, line and field of an :class:`InputError` on the override ``key``."""
+        line = self.name_line if naming and self.name_line is not None else self.line
+        return {"path": self.source, "line": line, "field": key}
+
+    def describe(self) -> str:
+        """The overrides as ``--set`` arguments (values as TOML/JSON writes them)."""
+        return " ".join(f"--set {k}={json.dumps(v, default=str)}" for k, v in self.values.items())
+
+
+def _split_key(key: str, ids: list[str]) -> tuple[str, str] | None:
+    """``"<stage id>.<option path>"`` split at the longest stage id it starts with (ids may hold dots)."""
+    for sid in sorted(ids, key=len, reverse=True):
+        if key.startswith(sid + ".") and len(key) > len(sid) + 1:
+            return sid, key[len(sid) + 1:]
+    return None
+
+
+def apply_override(options: dict, path: str, value: Any) -> dict:
+    """A copy of a stage's option table with the option at dotted ``path`` set to ``value`` (the
+    tables on the way created; nothing of ``options`` modified).  ValueError when a name on the
+    way holds a value that is not a table."""
+    out = dict(options)
+    head, dot, rest = path.partition(".")
+    if not dot:
+        out[head] = value
+        return out
+    inner = out.get(head, {})
+    if not isinstance(inner, dict):
+        raise ValueError(f"'{head}' is not a table here, so '{path}' cannot be set")
+    out[head] = apply_override(inner, rest, value)
+    return out
+
+
+def toml_value(text: str) -> Any:
+    """A value written outside a TOML file (``--set``'s, a sweep table's cell) as TOML; a bare word
+    that is not TOML is a string."""
+    text = text.strip()
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def _read(path: Path) -> tuple[str, dict]:
+    """The text of a project file and its TOML data."""
     if not path.is_file():
         raise InputError("project file not found" if not path.exists() else "not a file", path=path)
     try:
@@ -129,8 +212,35 @@ def load_project(path: str | Path, plugins: PluginManager) -> Project:
     except tomllib.TOMLDecodeError as e:
         m = re.search(r"line (\d+)", str(e))
         raise InputError(f"not valid TOML: {e}", path=path, line=int(m.group(1)) if m else None) from None
-    loc = _Locator(text)
+    return text, data
 
+
+def load_project(path: str | Path, plugins: PluginManager | None = None,
+                 overrides: Overrides | Mapping[str, Any] | None = None) -> Project:
+    """Read and validate a project file (stages resolved, options parsed, data flow checked).
+
+    ``overrides`` (``{"stage.option": value}``, or :class:`Overrides` saying where they were
+    written) replace options of the file: applied to the parsed TOML in memory — the file is read
+    and parsed once — and every mistake names the project file and its line, or the override's
+    source (``--set``) for a mistake of an override itself.
+    """
+    path = Path(path)
+    text, data = _read(path)
+    return _build(path, text, data, plugins or PluginManager(), overrides)
+
+
+def with_overrides(project: Project, overrides: Overrides | Mapping[str, Any],
+                   plugins: PluginManager | None = None) -> Project:
+    """``project`` (from :func:`load_project`) with ``overrides`` applied to the TOML data it was
+    built from (nothing is read or parsed again; ``project`` is not modified): a sweep's rows."""
+    return _build(project.path, project.text, project.data, plugins or PluginManager(), overrides)
+
+
+def _build(path: Path, text: str, data: dict, plugins: PluginManager,
+           overrides: Overrides | Mapping[str, Any] | None) -> Project:
+    if overrides is not None and not isinstance(overrides, Overrides):
+        overrides = Overrides(dict(overrides))
+    loc = _Locator(text)
     unknown_top = sorted(set(data) - {"project", "stage"})
     if unknown_top:
         raise InputError(f"unknown table '{unknown_top[0]}' (expected [project] and [[stage]])",
@@ -150,14 +260,17 @@ def load_project(path: str | Path, plugins: PluginManager) -> Project:
     if unit not in ("m", "mm", "cm", "ft"):
         raise InputError(f"object_unit must be one of m, mm, cm, ft; got {unit!r}", path=path,
                          line=loc.top_key("object_unit"), field="project.object_unit")
-    project = Project(path=path.resolve(), name=str(proj.get("name", path.stem)),
-                      description=str(proj.get("description", "")), seed=seed, object_unit=unit, text=text)
+    description = str(proj.get("description", ""))
+    if overrides is not None and overrides.values and overrides.source == "--set":
+        description = (description.strip() + f"\n\n(run with {overrides.describe()})").strip()
+    project = Project(path=path.resolve(), name=str(proj.get("name", path.stem)), description=description,
+                      seed=seed, object_unit=unit, text=text, data=data, overrides=overrides)
 
     stages = data.get("stage", [])
     if not isinstance(stages, list) or not stages:
         raise InputError("the project has no [[stage]] tables", path=path)
     seen_ids: dict[str, int] = {}
-    available: dict[str, str] = {}
+    chosen = []                     # (k, option table, id, StageInfo) of every enabled stage
     for k, st in enumerate(stages):
         line = loc.stage(k)
         bad = sorted(set(st) - STAGE_KEYS)
@@ -173,12 +286,10 @@ def load_project(path: str | Path, plugins: PluginManager) -> Project:
         use = st.get("use")
         if not isinstance(use, str) or not use:
             raise InputError("[[stage]] needs use = \"<stage name>\"", path=path, line=line, field="use")
-        if use not in plugins:
-            try:
-                plugins.get(use)
-            except Exception as e:
-                raise InputError(str(e), path=path, line=loc.key(k, "use"), field="use") from None
-        info = plugins.get(use)
+        try:
+            info = plugins.get(use)
+        except BaardaError as e:
+            raise InputError(str(e), path=path, line=loc.key(k, "use"), field="use") from None
         sid = st.get("id", use)
         if not isinstance(sid, str) or not re.fullmatch(r"[A-Za-z0-9_.-]+", sid):
             raise InputError(f"stage id must be letters, digits, '-', '_' or '.', got {sid!r}", path=path,
@@ -190,12 +301,32 @@ def load_project(path: str | Path, plugins: PluginManager) -> Project:
         raw = st.get("options", {})
         if not isinstance(raw, dict):
             raise InputError("options must be a table ([stage.options])", path=path, line=line, field="options")
-        options = parse_options(info.cls.Options, raw, path=path, line=line,
-                                locate=lambda key, k=k: loc.key(k, key))
+        chosen.append((k, raw, sid, info))
+    by_id = _overrides_by_stage(overrides, [c[2] for c in chosen], path.name) if overrides is not None else {}
+
+    available: dict[str, str] = {}
+    for k, raw, sid, info in chosen:
+        use, line = info.name, loc.stage(k)
+        mine = by_id.get(sid, {})
+        for opt, key in mine.items():
+            try:
+                raw = apply_override(raw, opt, overrides.values[key])
+            except ValueError as e:
+                raise InputError(str(e), **overrides.where(key)) from None
+
+        def locate(key, k=k, sid=sid, mine=mine):
+            """The line of ``key`` in the project file, or a Where in the overrides' source."""
+            if key is not None and any(key == o or key.startswith(o + ".") or o.startswith(key + ".") for o in mine):
+                return Where(overrides.source, overrides.line, f"{sid}.", overrides.name_line)
+            return loc.key(k, key)
+
+        options = parse_options(info.cls.Options, raw, path=path, line=line, locate=locate)
         for name, role in path_roles(info.cls).items():
             problem = output_problem(getattr(options, name)) if role == "output" else None
             if problem:
-                raise InputError(problem, path=path, line=loc.key(k, name), field=name)
+                w = locate(name)
+                w = w if isinstance(w, Where) else Where(path, w)
+                raise InputError(problem, w.path, w.line, w.prefix + name)
         for name in info.cls.reads:
             if name.endswith("?"):
                 continue
@@ -209,6 +340,26 @@ def load_project(path: str | Path, plugins: PluginManager) -> Project:
                                         line=line, package=info.package,
                                         option_lines={key: loc.key(k, key) for key in raw}))
     return project
+
+
+def _overrides_by_stage(overrides: Overrides, ids: list[str], project_name: str) -> dict[str, dict]:
+    """``{stage id: {option path: override key}}``; a key naming no stage of the project is an
+    :class:`InputError` on the override, with the closest stage id."""
+    out: dict[str, dict] = {}
+    for key in overrides.values:
+        split = _split_key(key, ids)
+        if split is None:
+            sid, dot, rest = key.partition(".")
+            if not dot or not sid or not rest:
+                raise InputError(f"'{key}' must be <stage id>.<option>", **overrides.where(key, naming=True))
+            close = difflib.get_close_matches(key.rpartition(".")[0], ids, n=1, cutoff=0.6) or \
+                difflib.get_close_matches(sid, ids, n=1, cutoff=0.6)
+            did = f"did you mean '{close[0]}'? " if close else ""
+            raise InputError(f"no stage '{key.rpartition('.')[0]}' in {project_name}; {did}its stages: "
+                             f"{', '.join(ids)}", **overrides.where(key, naming=True))
+        sid, opt = split
+        out.setdefault(sid, {})[opt] = key
+    return out
 
 
 # -- what the options name -------------------------------------------------------------------------
@@ -239,24 +390,6 @@ def path_roles(cls: type) -> dict[str, str]:
     return roles
 
 
-def output_problem(value: Any) -> str | None:
-    """Why an output path may not be used (None when it is fine): outputs are written inside the
-    run directory, so the path must be relative and must not climb out of it."""
-    text = str(value or "")
-    if not text:
-        return None
-    p = Path(text)
-    if p.is_absolute() or text.startswith("~"):
-        return (f"an output path must be relative to the run directory (everything a run writes stays "
-                f"inside it); got an absolute path")
-    depth = 0
-    for part in p.parts:
-        depth += -1 if part == ".." else (0 if part == "." else 1)
-        if depth < 0:
-            return "an output path must stay inside the run directory; this one climbs out of it with '..'"
-    return None
-
-
 def _missing(value: Any, role: str, base: Path) -> str | None:
     """What is missing of an option's value with ``role`` (None when everything exists)."""
     values = [value] if isinstance(value, (str, Path)) else list(value or [])
@@ -283,8 +416,6 @@ def _missing(value: Any, role: str, base: Path) -> str | None:
 
 def stage_context(project: Project, spec: StageSpec, **kw):
     """The :class:`~baarda.pipeline.stage.Context` of ``spec`` in ``project`` (``kw``: run_dir, progress…)."""
-    from .stage import Context
-
     return Context(stage_id=spec.id, project_dir=project.directory, seed=project.seed,
                    project_file=project.path, object_unit=project.object_unit,
                    option_lines=dict(spec.option_lines), stage_line=spec.line, **kw)
@@ -314,8 +445,6 @@ def validate_inputs(project: Project) -> list[str]:
         ctx = stage_context(project, spec)
         block = spec.cls().validate(spec.options, ctx)
         if block is not None and hasattr(block, "observations"):      # a source's block: the runner's checks
-            from .plausibility import check_block
-
             for w in check_block(block):
                 ctx.warn(w)
         warnings += [f"[{spec.id}] {w}" for w in ctx.warnings]

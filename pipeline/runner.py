@@ -81,12 +81,13 @@ def default_run_dir(project_path: Path) -> Path:
 
 def run_project(project_path: str | Path, out: str | Path | None = None, *,
                 plugins: PluginManager | None = None, verbose: bool = True,
-                stream=None, threads: int = 1) -> RunOutcome:
+                stream=None, threads: int = 1, overrides=None) -> RunOutcome:
     """Load, validate and run a project; write the run directory. Raises InputError for a bad
-    project (nothing is written then) and re-raises KeyboardInterrupt after keeping what was done."""
+    project (nothing is written then) and re-raises KeyboardInterrupt after keeping what was done.
+    ``overrides`` replace options of the file (``--set``; see :func:`~baarda.pipeline.project.load_project`)."""
     stream = stream or sys.stderr
     plugins = plugins or PluginManager()
-    project = load_project(project_path, plugins)
+    project = load_project(project_path, plugins, overrides=overrides)
     run = open_run(Path(out) if out is not None else default_run_dir(Path(project_path)))
     run_dir = run.staging
     recording_id = new_recording_id()

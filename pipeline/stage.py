@@ -30,6 +30,7 @@ generator, progress reporting and a place for warnings.
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 import sys
 import time
@@ -40,7 +41,7 @@ from typing import Any, ClassVar, Iterable, Iterator, Mapping
 import numpy as np
 
 from .errors import InputError
-from .options import NoOptions
+from .options import NoOptions, output_problem
 
 
 @dataclass
@@ -118,7 +119,7 @@ class ProgressBar:
         self._bar = None
         self.postfix: dict = {}
         if progress.enabled and progress.live:
-            from tqdm import tqdm
+            from tqdm import tqdm        # lazy: only a live bar needs it (keeps `baarda --help` fast)
 
             self._bar = tqdm(total=total, desc=f"  [{progress.stage_id}] {what}", unit=unit, file=progress.stream,
                              leave=False, mininterval=0.2,
@@ -302,8 +303,6 @@ class Context:
         Every output stays inside the run directory: an absolute path or one that climbs out of
         it (``..``) is an :class:`InputError` on the option (``load_project`` checks this too).
         """
-        from .project import output_problem
-
         problem = output_problem(value)
         if problem:
             raise self.option_error(problem, key)
@@ -368,8 +367,6 @@ REQUIRED_ATTRS = ("summary", "reads", "writes", "Options", "run")
 
 def check_stage_class(cls: type, name: str) -> list[str]:
     """Problems with a stage class (empty when it follows the protocol)."""
-    import dataclasses
-
     problems = []
     for attr in REQUIRED_ATTRS:
         if not hasattr(cls, attr):

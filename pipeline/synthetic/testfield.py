@@ -25,11 +25,10 @@ The errors
   ideal projected reduced coordinates, see :data:`SYSTEMATIC_ERRORS` and
   :func:`physical_distortion`, plus a small error of the calibrated c, xp, yp.  Up to ≈ 45 µm in
   the corners, ≈ 17 µm RMS over the format.
-* Image measurement noise: white, ``sigma_image_um`` per coordinate (default 4 µm: a
-  Kern MK-2 mono-comparator on well-defined targets).  The paper's σ̂0 of 40–50 µm includes
-  unmodelled effects (film unflatness, target identification, the systematic errors themselves);
-  a user who wants the paper's noise level sets ``sigma_image_um`` to about 40 (the
-  ``control-study`` project does).
+* Image measurement noise: white, ``sigma_image_um`` per coordinate (default 40 µm: the paper's
+  σ̂0 level of 40–50 µm, which includes unmodelled effects — film unflatness, target
+  identification, the systematic errors themselves).  A Kern MK-2 mono-comparator on
+  well-defined targets measures to about 4 µm: set ``sigma_image_um = 4`` for a clean comparator.
 * Control survey noise: ``sigma_control_mm`` per coordinate (theodolite intersection with a
   1" Wild T2 from 5.8 m over a 5 m base: 1" is 0.03 mm at 5.8 m, so with centring and pointing
   ≈ 0.05 mm per coordinate).
@@ -40,12 +39,14 @@ case, so the same ``rng`` seed gives the same noise for every case (a fair compa
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
 
 from baarda.pipeline.geometry import rotation_from_opk_many
+from baarda.pipeline.options import REQUIRED, check_bounds, option
 from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Pairs, Photos, Points
 
 FOCAL_MM = 101.75
@@ -101,46 +102,72 @@ CASES = (1, 2, 3, 4, 5, 6)
 # configuration and truth
 
 
-@dataclass(frozen=True)
-class TestFieldConfig:
-    """What to simulate.
+@dataclass(frozen=True, kw_only=True)
+class SimulatedErrors:
+    """The errors a simulation of the test field adds: one declaration for the ``testfield`` stage
+    (:class:`TestFieldConfig`) and the studies that simulate it (their configs derive from this).
 
-    case : control configuration 1–6 (:func:`control_configuration`).
-    block : ``"block"`` (2 strips × 5 photos at 1.4 m) or ``"single-model"`` (A, B at 4.0 m).
-    with_ap_errors : add the systematic image errors of :data:`SYSTEMATIC_ERRORS`.
-    sigma_image_um : image measurement noise per coordinate (µm); also the a-priori sigma.
-    sigma_control_mm : control survey noise per coordinate (mm); also the a-priori sigma of
-        weighted control.
-    control_weighted : control enters as weighted constraints (True) or fixed (False).
-    ap_model : the AP model the block's camera carries for the adjustment (``"none"``,
-        ``"ebner12"``, ``"brown"``); its parameters start at 0 and are free.
-    calibrate_iop : c, xp, yp free (True) or fixed at the calibrated values (False).
-    blunders : gross errors added to observations: ``({"photo", "point", "dx", "dy"}, …)`` in mm.
-    margin_mm : a target is measured when its true image lies this far inside the format.
-    systematic_scale : factor on every systematic error of :data:`SYSTEMATIC_ERRORS`.
+    Checked on construction (:func:`~baarda.pipeline.options.check_bounds`: the sigmas and the
+    scale positive), from a project file or from Python alike."""
+
+    with_ap_errors: bool = option(True, "add the known systematic image errors (radial, decentring, affinity, "
+                                        "c/xp/yp offsets; docs/testfield.md)")
+    sigma_image_um: float = option(40.0, "image measurement noise per coordinate, µm (also the a-priori sigma); "
+                                         "40 ≈ the paper's σ̂0 level, 4 a clean comparator")
+    sigma_control_mm: float = option(0.05, "control survey noise per coordinate, mm (also the a-priori sigma of "
+                                          "weighted control)")
+    systematic_scale: float = option(1.0, "multiply the systematic image errors by this factor")
+
+    def __post_init__(self):
+        check_bounds(self)
+
+    @property
+    def sigma_image_mm(self) -> float:
+        """``sigma_image_um`` in mm, the image unit of the block (the one conversion of it)."""
+        return self.sigma_image_um * 1e-3
+
+
+@dataclass(frozen=True)
+class Blunder:
+    """A gross error added to one simulated image observation (mm)."""
+
+    photo: str | int = option(REQUIRED, "photo id")
+    point: str | int = option(REQUIRED, "point id")
+    dx: float = option(0.0, "error added to x (mm)")
+    dy: float = option(0.0, "error added to y (mm)")
+
+
+@dataclass(frozen=True)
+class TestFieldConfig(SimulatedErrors):
+    """What to simulate — also the option table of the ``testfield`` stage (one definition).
+
+    Every field is documented in its ``option(...)`` (``baarda stages testfield`` prints them);
+    the systematic errors and the noise come from :class:`SimulatedErrors`.
     """
 
     __test__ = False  # not a pytest class
 
-    case: int = 5
-    block: Literal["block", "single-model"] = "block"
-    with_ap_errors: bool = True
-    sigma_image_um: float = 4.0
-    sigma_control_mm: float = 0.05
-    control_weighted: bool = True
-    ap_model: str = "none"
-    calibrate_iop: bool = False
-    blunders: tuple = ()
-    margin_mm: float = 2.0
-    systematic_scale: float = 1.0
+    case: int = option(5, "control configuration 1–6 (docs/testfield.md): 1 minimal outline, 2 interior "
+                          "stiffening, 3 the same count on the outline, 4–6 many points")
+    block: Literal["block", "single-model"] = option(
+        "block", "'block': 2 strips × 5 photos at 1.4 m; 'single-model': the pair A, B at 4.0 m")
+    control_weighted: bool = option(True, "control points enter as weighted constraints (true) or fixed")
+    ap_model: Literal["none", "ebner12", "brown"] = option(
+        "none", "additional-parameter model the block's camera carries for the adjustment (free, from 0)")
+    calibrate_iop: bool = option(False, "c, xp, yp free in the adjustment (true) or fixed at the "
+                                        "calibrated values")
+    seed: int | None = option(None, "seed of the noise; default: the project's seed for this stage (a Python "
+                                    "caller passes the generator to simulate_testfield)")
+    blunders: tuple[Blunder, ...] = option((), "gross errors added to image observations: a list of tables "
+                                               "{photo, point, dx, dy} (mm)")
+    margin_mm: float = option(2.0, "a target is measured when its true image lies this far inside the format")
 
     def __post_init__(self):
+        super().__post_init__()
         if self.case not in CASES:
-            raise ValueError(f"case must be one of {CASES}, got {self.case}")
+            raise ValueError(f"case must be one of {sorted(CASES)}, got {self.case}")
         if self.block not in ("block", "single-model"):
             raise ValueError(f"block must be 'block' or 'single-model', got {self.block!r}")
-        if not (self.sigma_image_um > 0 and self.sigma_control_mm > 0):
-            raise ValueError("sigma_image_um and sigma_control_mm must be positive")
 
 
 @dataclass(frozen=True, eq=False)
@@ -393,17 +420,15 @@ def simulate_testfield(config: TestFieldConfig, rng: np.random.Generator) -> tup
     systematic = xy_true - xy_ideal[obs_photo, obs_point]
 
     # random draws: survey noise first, then image noise, independent of the control case
-    sig_img = config.sigma_image_um * 1e-3
+    sig_img = config.sigma_image_mm
     survey_noise = rng.normal(0.0, config.sigma_control_mm * 1e-3, size=XYZ.shape)
     noise = rng.normal(0.0, sig_img, size=xy_true.shape)
 
     blunder = np.zeros_like(xy_true)
     for b in config.blunders:
-        try:
-            p, q = str(b["photo"]), str(b["point"])
-            dx, dy = float(b.get("dx", 0.0)), float(b.get("dy", 0.0))
-        except (KeyError, TypeError, ValueError):
-            raise ValueError(f"a blunder needs photo, point, dx, dy (mm); got {b!r}") from None
+        if not isinstance(b, Blunder):
+            raise ValueError(f"a blunder is a Blunder(photo, point, dx, dy) (mm); got {b!r}")
+        p, q, dx, dy = str(b.photo), str(b.point), float(b.dx), float(b.dy)
         rows = np.nonzero((np.asarray(photo_ids)[obs_photo] == p) & (point_ids[obs_point] == q))[0]
         if rows.size == 0:
             raise ValueError(f"blunder: photo {p} does not observe point {q}")
@@ -445,8 +470,9 @@ def simulate_testfield(config: TestFieldConfig, rng: np.random.Generator) -> tup
 
 
 def _config_dict(config: TestFieldConfig) -> dict:
-    d = {k: getattr(config, k) for k in config.__dataclass_fields__}
-    d["blunders"] = [dict(b) for b in config.blunders]
+    """What was simulated, as plain values (the seed is the generator's business, not the field's)."""
+    d = {f.name: getattr(config, f.name) for f in dataclasses.fields(config) if f.name != "seed"}
+    d["blunders"] = [dataclasses.asdict(b) for b in config.blunders]
     return d
 
 

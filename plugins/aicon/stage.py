@@ -32,11 +32,7 @@ class PerturbOptions:
     sigma_c: float = option(0.0, "standard deviation added to the principal distance (mm)")
     sigma_point: float = option(0.0, "standard deviation added to each object-point coordinate (mm)")
     zero_distortion: bool = option(False, "start every additional parameter at 0")
-
-    def __post_init__(self):
-        for k in ("sigma_position", "sigma_angle_deg", "sigma_c", "sigma_point"):
-            if getattr(self, k) < 0:
-                raise ValueError(f"{k} must not be negative")
+    # the sigmas' range (≥ 0, 0 = no perturbation) comes from their names (pipeline/options.py)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,8 +57,6 @@ class AiconOptions:
         bad = [n for n in self.free_ap if n not in AP_NAMES]
         if bad:
             raise ValueError(f"free_ap: {bad[0]!r} is not an AICON parameter ({', '.join(AP_NAMES)})")
-        if self.sigma_image_um is not None and not self.sigma_image_um > 0:
-            raise ValueError("sigma_image_um must be positive")
 
 
 class AiconSource(SourceStage):

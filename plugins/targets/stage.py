@@ -84,9 +84,7 @@ class TargetOptions:
     opencv_reference: bool = option(True, "with a known board: also run cv2.calibrateCamera per camera and report it")
     log_max_size: int = option(800, "longest side of the images logged to rerun, pixels")
 
-    def __post_init__(self):
-        if self.pixel_mm <= 0:
-            raise ValueError("pixel_mm must be > 0")
+    def __post_init__(self):       # pixel_mm > 0: the range its name implies (pipeline/options.py)
         bad = sorted(set(self.unknowns) - set(IOP) - set(BROWN))
         if bad:
             raise ValueError(f"unknown interior parameter(s) {bad} in 'unknowns'; known: {', '.join(IOP + BROWN)}")

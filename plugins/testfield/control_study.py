@@ -14,7 +14,8 @@ the six control configurations are adjusted by the bundle (``baarda.pipeline.adj
   :func:`select_additional_parameters` takes over (weak priors while selecting, correlations
   with the exterior orientations too, c, xp, yp as candidates);
 
-and the single model at 4.0 m is adjusted with the control of ``single_model_case`` and APs —
+and (with ``single_model``) the single model at 4.0 m is adjusted with the control of
+``single_model_case`` and APs —
 Table 4.  Check-point errors are adjusted minus surveyed over the points whose role is
 ``check`` (``Sxy = √((Sx² + Sy²)/2)``, cm).  The tables report the RMS over all realisations;
 :func:`conclusions` tests each of the paper's statements on the paired realisations.
@@ -25,7 +26,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 from dataclasses import dataclass, field
-from typing import Callable, Literal
+from typing import Callable
 
 import numpy as np
 
@@ -33,11 +34,10 @@ from baarda.pipeline.accuracy import check_point_rmse
 from baarda.pipeline.adjustment import BundleSettings, adjust, select_aps
 from baarda.pipeline import montecarlo
 from baarda.pipeline.errors import AdjustmentError
-from baarda.pipeline.options import option
 from baarda.pipeline.report import markdown_table
 from baarda.pipeline.stage import Context, Stage, StageResult, TableData
 
-from baarda.pipeline.synthetic.testfield import CASES, simulate_testfield
+from baarda.pipeline.synthetic.testfield import simulate_testfield
 
 from .paper_tables import PAPER_TABLE2, PAPER_TABLE3, PAPER_TABLE4
 from .study_config import ControlStudyConfig
@@ -95,7 +95,7 @@ def realisation_rows(cfg: ControlStudyConfig, seed: int, rep: int) -> list[dict]
     for every case, with and without APs): one row each (see :func:`control_study`)."""
     rows = []
     jobs = [("block", c) for c in cfg.cases]
-    if cfg.single_model_case is not None:
+    if cfg.single_model:
         jobs.append(("single-model", cfg.single_model_case))
     for kind, case in jobs:
         for with_aps in ((False, True) if kind == "block" else (True,)):
@@ -223,7 +223,7 @@ def conclusions(rows, cfg: ControlStudyConfig) -> list[dict]:
     for c in cfg.cases:
         out.append(_claim(rows, f"self-calibration improves case {c}", blk(c, True), blk(c, False)))
     sm = cfg.single_model_case
-    if sm is not None and sm in cases:
+    if cfg.single_model and sm in cases:
         out.append(_claim(rows, f"the block at 1.4 m beats the single model at 4.0 m (case {sm}, with APs; "
                                 "paper: by about 10 %)", blk(sm, True),
                           {"block": "single-model", "case": sm, "aps": True}))
@@ -234,59 +234,15 @@ def conclusions(rows, cfg: ControlStudyConfig) -> list[dict]:
 # the stage
 
 
-@dataclasses.dataclass(frozen=True)
-class ControlStudyOptions:
-    repetitions: int = option(10, "number of simulated realisations (the same noise for every case and "
-                                  "with/without APs); the tables give the RMS over them")
-    seed: int | None = option(None, "seed of the simulations; default: the project's seed for this stage")
-    sigma_image_um: float = option(40.0, "image noise per coordinate (µm); 40 ≈ the paper's σ̂0, 4 a comparator")
-    sigma_control_mm: float = option(0.05, "control survey noise per coordinate (mm)")
-    with_ap_errors: bool = option(True, "simulate the known systematic image errors")
-    systematic_scale: float = option(1.0, "multiply the systematic image errors by this factor")
-    ap_model: str = option("ebner12", "AP model of the self-calibrating runs ('ebner12' as the paper, or 'brown')")
-    calibrate_iop: bool = option(False, "with APs, c, xp, yp (the paper's dc, dxp, dyp) are free too (the "
-                                        "bundle's selection keeps them; the study's treats them as candidates)")
-    ap_selection: Literal["bundle", "study"] = option(
-        "bundle", "AP selection: the bundle's (pipeline/adjustment/apselect.py; the study's own when the block is "
-                  "singular with every AP free) or always the study's (correlations with the orientations too)")
-    rho_max: float = option(0.75, "AP selection: remove parameters correlated above this, one after another")
-    ap_alpha: float = option(0.05, "then remove parameters not significant at this level (t-test), one after "
-                                   "another; 0 keeps every parameter that passed the correlation rule")
-    cases: list[int] = option([1, 2, 3, 4, 5, 6], "control cases to run")
-    single_model: bool = option(True, "also adjust the single model at 4.0 m (Table 4)")
-    single_model_case: int = option(5, "control case of the single-model comparison (the paper: 5)")
-
-    def __post_init__(self):
-        if self.repetitions < 1:
-            raise ValueError("repetitions must be at least 1")
-        bad = [c for c in self.cases if c not in CASES]
-        if bad or not self.cases:
-            raise ValueError(f"cases must be a non-empty list drawn from {list(CASES)}, got {self.cases}")
-        if self.single_model_case not in CASES:
-            raise ValueError(f"single_model_case must be one of {list(CASES)}")
-        if not 0 < self.rho_max < 1:
-            raise ValueError("rho_max must lie between 0 and 1")
-        if not 0 <= self.ap_alpha < 1:
-            raise ValueError("ap_alpha must lie in [0, 1)")
-        if self.ap_model not in ("ebner12", "brown"):
-            raise ValueError("ap_model must be 'ebner12' or 'brown'")
-
-
 class ControlStudy(Stage):
     formerly = ("control-study",)
     summary = "Paper 001's control-configuration study (Tables 2–4) on the simulated test field"
     reads = ()
     writes = ("study",)
-    Options = ControlStudyOptions
+    Options = ControlStudyConfig            # the study's configuration is the option table
 
-    def run(self, inputs, options: ControlStudyOptions, ctx: Context) -> StageResult:
-        cfg = ControlStudyConfig(repetitions=options.repetitions, sigma_image_um=options.sigma_image_um,
-                          sigma_control_mm=options.sigma_control_mm, with_ap_errors=options.with_ap_errors,
-                          systematic_scale=options.systematic_scale, ap_model=options.ap_model,
-                          calibrate_iop=options.calibrate_iop, rho_max=options.rho_max, ap_alpha=options.ap_alpha,
-                          ap_selection=options.ap_selection,
-                          cases=tuple(sorted(set(options.cases))),
-                          single_model_case=options.single_model_case if options.single_model else None)
+    def run(self, inputs, options: ControlStudyConfig, ctx: Context) -> StageResult:
+        cfg = options
         seed = options.seed if options.seed is not None else int(ctx.rng.integers(2**31))
         bar = iter(ctx.progress.track(range(cfg.repetitions), total=cfg.repetitions, what="realisation"))
         step = lambda i, n: next(bar, None)  # noqa: E731

@@ -93,6 +93,7 @@ class MethodStudyConfig(StudyConfig):
     methods: tuple = VARIANTS
 
     def __post_init__(self):
+        super().__post_init__()
         bad = [m for m in self.methods if m not in VARIANTS]
         if bad:
             raise ValueError(f"unknown method {bad[0]!r}; the study runs {', '.join(VARIANTS)}")
@@ -225,7 +226,7 @@ def field_geometry(cfg: MethodStudyConfig) -> dict:
         H = float(block.meta["testfield"]["geometry"]["distance_m"])
         B = float(np.mean(bases))
         scale = H / (FOCAL_MM * 1e-3)
-        sig = cfg.sigma_image_um * 1e-6   # m in the image
+        sig = cfg.sigma_image_mm * 1e-3   # m in the image
         chk = np.flatnonzero(block.points.role == "check")
         rays = [int((block.observations.point == k).sum()) for k in chk]
         out[kind] = {"H_m": H, "B_m": B, "B_over_H": B / H, "scale": scale, "photos": len(ids),
@@ -358,8 +359,6 @@ def method_study(cfg: MethodStudyConfig, seed: int, progress: Callable | None = 
     built-in ``map``, e.g. :func:`baarda.pipeline.montecarlo.mapper`'s, which reports its own
     progress); without one they run here and ``progress(i, total)`` is called after each.  Each
     realisation has its own seed (:func:`run_realisation`), so the result is the same either way."""
-    if cfg.repetitions < 1:
-        raise ValueError("repetitions must be at least 1")
     one = partial(run_realisation, cfg, seed)
     if mapper is None:
         rows = []

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from baarda.pipeline.model import Block, Observations
+from baarda.pipeline.options import check_bounds, option
 from baarda.plugins.testfield.drawing import projected_targets, render_targets
 from baarda.pipeline.synthetic.testfield import Truth
 
@@ -36,27 +37,28 @@ OBJECT_UNIT_MM = {"m": 1000.0, "cm": 10.0, "mm": 1.0, "ft": 304.8}
 """Millimetres per object unit."""
 
 
-@dataclass(frozen=True)
-class RenderSettings:
-    """How to render: pixel pitch (mm), target radius (object units), supersampling per pixel side,
-    grey-level noise σ (0: noise-free), background and target grey levels."""
+@dataclass(frozen=True, kw_only=True)
+class ImageSettings:
+    """The rendered images' pitch, sampling and noise: one declaration for the ``testfield-render``
+    stage's options and :class:`RenderSettings` (bounds checked on construction)."""
 
-    pixel_mm: float = 0.025
-    target_radius: float = 0.005
-    supersample: int = 8
-    sigma_noise: float = 2.0
-    background: float = 20.0
-    foreground: float = 235.0
+    pixel_mm: float = option(0.025, "pixel pitch of the rendered images, mm (0.025: 4680 × 3320 pixels over the "
+                                    "117 × 83 mm format)")
+    supersample: int = option(8, "samples per pixel side when rendering (8: 64 per pixel)", ge=1)
+    sigma_noise: float = option(2.0, "grey-level noise σ (targets 235 on a background of 20); 0: noise-free")
 
     def __post_init__(self):
-        if not self.pixel_mm > 0:
-            raise ValueError(f"pixel_mm must be positive, got {self.pixel_mm}")
-        if not self.target_radius > 0:
-            raise ValueError(f"target_radius must be positive, got {self.target_radius}")
-        if self.supersample < 1:
-            raise ValueError(f"supersample must be at least 1, got {self.supersample}")
-        if self.sigma_noise < 0:
-            raise ValueError(f"sigma_noise must not be negative, got {self.sigma_noise}")
+        check_bounds(self)
+
+
+@dataclass(frozen=True, kw_only=True)
+class RenderSettings(ImageSettings):
+    """How to render: :class:`ImageSettings`, the target radius (object units), background and
+    target grey levels."""
+
+    target_radius: float = option(0.005, "target radius, object units", gt=0)
+    background: float = option(20.0, "grey level of the background", ge=0, le=255)
+    foreground: float = option(235.0, "grey level of the targets", ge=0, le=255)
 
 
 def image_size(format_mm, pixel_mm: float) -> tuple[int, int]:

@@ -30,9 +30,10 @@ from baarda.pipeline.errors import InputError
 from baarda.pipeline.options import option, parse_options
 from baarda.pipeline.report import markdown_table
 from baarda.pipeline.stage import Context, Stage, StageResult, TableData
+from baarda.pipeline.synthetic.testfield import TestFieldConfig
 
-from .source import DISPLAY_PIXEL_MM, TestFieldOptions, log_testfield, simulate_field
-from .photos import (OBJECT_UNIT_MM, RenderSettings, image_size, layout_block, partial_targets, render_photo,
+from .source import DISPLAY_PIXEL_MM, log_testfield, simulate_field
+from .photos import (OBJECT_UNIT_MM, ImageSettings, RenderSettings, image_size, layout_block, partial_targets, render_photo,
                      target_radius_px, true_targets, truth_from_meta)
 
 __all__ = ["TestFieldRender", "RenderOptions", "RenderedImages", "SIMULATION_DEFAULTS"]
@@ -71,27 +72,23 @@ class RenderedImages:
 
 
 @dataclass(frozen=True)
-class RenderOptions:
+class RenderOptions(ImageSettings):
     RENAMED: ClassVar[dict[str, str]] = {"noise_sigma": "sigma_noise"}
     testfield: dict[str, Any] = option(
         {}, "options of the simulated test field, as the testfield stage takes them (case, block, with_ap_errors, "
             "sigma_control_mm, control_weighted, ap_model, calibrate_iop, seed, margin_mm, systematic_scale); "
             "here ap_model defaults to 'brown' and calibrate_iop to true. Not used when an earlier stage wrote a "
             "simulated block")
-    pixel_mm: float = option(0.025, "pixel pitch of the rendered images, mm (0.025: 4680 × 3320 pixels over the "
-                                    "117 × 83 mm format)")
     target_radius_mm: float = option(5.0, "radius of the circular targets on the object, mm")
-    supersample: int = option(8, "samples per pixel side when rendering (8: 64 per pixel)")
-    sigma_noise: float = option(2.0, "grey-level noise σ (targets 235 on a background of 20); 0: noise-free")
     folder: str = option("images", "folder for the PNG files, inside the run directory (a relative path that "
                                    "does not climb out of it)")
 
     def __post_init__(self):
+        super().__post_init__()      # the bounds of every option
         bad = sorted(set(self.testfield) & set(NOT_FOR_IMAGES))
         if bad:
             raise ValueError(f"testfield.{bad[0]} does not apply to rendered photos: {NOT_FOR_IMAGES[bad[0]]}")
         self.simulation()            # validates the table
-        RenderSettings(self.pixel_mm, self.target_radius_mm, self.supersample, self.sigma_noise)
 
     def simulation(self, seed: int | None = None):
         """The ``testfield`` stage's options for the simulation (``seed`` used when none is given)."""
@@ -99,7 +96,7 @@ class RenderOptions:
         if raw.get("seed") is None and seed is not None:
             raw["seed"] = int(seed)
         try:
-            return parse_options(TestFieldOptions, raw, prefix="testfield.")
+            return parse_options(TestFieldConfig, raw, prefix="testfield.")
         except InputError as e:
             raise ValueError(f"{e.field}: {e.message}" if e.field and e.field not in e.message else e.message) from None
 
@@ -124,8 +121,9 @@ class TestFieldRender(Stage):
         if len(block.cameras) != 1:
             raise InputError(f"the simulated block has {len(block.cameras)} cameras; one is rendered",
                              path=ctx.project_file)
-        settings = RenderSettings(options.pixel_mm, options.target_radius_mm / OBJECT_UNIT_MM[block.object_unit],
-                                  options.supersample, options.sigma_noise)
+        settings = RenderSettings(pixel_mm=options.pixel_mm, supersample=options.supersample,
+                                  sigma_noise=options.sigma_noise,
+                                  target_radius=options.target_radius_mm / OBJECT_UNIT_MM[block.object_unit])
         size = image_size(block.cameras.format_mm[0], settings.pixel_mm)
         folder = self._folder(options, ctx)
         targets = true_targets(truth, settings.pixel_mm, size)

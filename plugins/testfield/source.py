@@ -1,81 +1,29 @@
 """Source stage ``testfield``: the simulated test field of paper 001 as a block.
 
-Numerics in :mod:`baarda.pipeline.synthetic.testfield`; :func:`simulate_field` maps the options onto
+Numerics in :mod:`baarda.pipeline.synthetic.testfield`, whose :class:`TestFieldConfig` is the stage's
+option table; :func:`simulate_field` runs
 :func:`~baarda.pipeline.synthetic.testfield.simulate_testfield` (the stage and ``testfield-render`` call it);
 writes the geometry summary and logs cameras and targets to the recording.
 """
 
 from __future__ import annotations
 
-import dataclasses
-from typing import Literal
-
 import numpy as np
 
 from baarda.pipeline.errors import InputError
 from baarda.pipeline.geometry import rotation_from_opk_many
-from baarda.pipeline.options import REQUIRED, option
 from baarda.pipeline.report import markdown_table
 from baarda.pipeline.recording import role_colors
 from baarda.pipeline.stage import Context, SourceStage, Stage, StageResult, TableData
 
-from baarda.pipeline.synthetic.testfield import (CONTROL_CASES, TestFieldConfig, constraint_count, control_configuration,
-                       degrees_of_freedom, simulate_testfield)
+from baarda.pipeline.synthetic.testfield import (TestFieldConfig, constraint_count, control_configuration,
+                                                degrees_of_freedom, simulate_testfield)
 
 
-
-@dataclasses.dataclass(frozen=True)
-class BlunderOptions:
-    """A gross error added to one simulated image observation."""
-
-    photo: str | int = option(REQUIRED, "photo id")
-    point: str | int = option(REQUIRED, "point id")
-    dx: float = option(0.0, "error added to x (mm)")
-    dy: float = option(0.0, "error added to y (mm)")
-
-
-@dataclasses.dataclass(frozen=True)
-class TestFieldOptions:
-    __test__ = False
-
-    case: int = option(5, "control configuration 1–6 (docs/testfield.md): 1 minimal outline, 2 interior "
-                          "stiffening, 3 the same count on the outline, 4–6 many points")
-    block: Literal["block", "single-model"] = option(
-        "block", "'block': 2 strips × 5 photos at 1.4 m; 'single-model': the pair A, B at 4.0 m")
-    with_ap_errors: bool = option(True, "add the known systematic image errors (radial, decentring, "
-                                        "affinity, c/xp/yp offsets; docs/testfield.md)")
-    sigma_image_um: float = option(4.0, "image measurement noise per coordinate, µm (also the a-priori "
-                                        "sigma); ≈ 40 reproduces the paper's σ̂0 level")
-    sigma_control_mm: float = option(0.05, "control survey noise per coordinate, mm (also the a-priori "
-                                          "sigma of weighted control)")
-    control_weighted: bool = option(True, "control points enter as weighted constraints (true) or fixed")
-    ap_model: Literal["none", "ebner12", "brown"] = option(
-        "none", "additional-parameter model the block's camera carries for the adjustment (free, from 0)")
-    calibrate_iop: bool = option(False, "c, xp, yp free in the adjustment (true) or fixed at the "
-                                        "calibrated values")
-    seed: int | None = option(None, "seed of the noise; default: the project's seed for this stage")
-    blunders: list[BlunderOptions] = option([], "gross errors added to image observations: a list of tables "
-                                                "{photo, point, dx, dy} (mm)")
-    margin_mm: float = option(2.0, "a target is measured when its image lies this far inside the format")
-    systematic_scale: float = option(1.0, "multiply the systematic image errors by this factor")
-
-    def __post_init__(self):
-        if self.case not in CONTROL_CASES:
-            raise ValueError(f"case must be one of {sorted(CONTROL_CASES)}, got {self.case}")
-        if not (self.sigma_image_um > 0 and self.sigma_control_mm > 0):
-            raise ValueError("sigma_image_um and sigma_control_mm must be positive")
-
-
-def simulate_field(options: TestFieldOptions, rng: np.random.Generator, project_file=None):
-    """``(block, truth)`` of the test field the options describe (the ``testfield`` stage's work,
-    also the ``testfield-render`` stage's when it has no input block).  Mistakes in the options
-    are :class:`InputError` naming ``project_file``."""
-    config = TestFieldConfig(
-        case=options.case, block=options.block, with_ap_errors=options.with_ap_errors,
-        sigma_image_um=options.sigma_image_um, sigma_control_mm=options.sigma_control_mm,
-        control_weighted=options.control_weighted, ap_model=options.ap_model,
-        calibrate_iop=options.calibrate_iop, blunders=tuple(dataclasses.asdict(b) for b in options.blunders),
-        margin_mm=options.margin_mm, systematic_scale=options.systematic_scale)
+def simulate_field(config: TestFieldConfig, rng: np.random.Generator, project_file=None):
+    """``(block, truth)`` of the test field ``config`` describes (the ``testfield`` stage's work,
+    also the ``testfield-render`` stage's when it has no input block).  A blunder naming an
+    observation that does not exist is an :class:`InputError` naming ``project_file``."""
     try:
         return simulate_testfield(config, rng)
     except ValueError as e:
@@ -88,9 +36,9 @@ class TestFieldSource(SourceStage):
     summary = "Simulate the test field of paper 001 (P31, 2 strips × 5 photos or the 4 m pair) as a block"
     reads = ()
     writes = ("block",)
-    Options = TestFieldOptions
+    Options = TestFieldConfig             # the simulator's configuration is the option table
 
-    def run(self, inputs, options: TestFieldOptions, ctx: Context) -> StageResult:
+    def run(self, inputs, options: TestFieldConfig, ctx: Context) -> StageResult:
         rng = np.random.default_rng(options.seed) if options.seed is not None else ctx.rng
         block, truth = simulate_field(options, rng, project_file=ctx.project_file)
         geo = block.meta["testfield"]["geometry"]

@@ -88,7 +88,7 @@ def test_control_study_identical_on_the_cluster(clients):
     from baarda.plugins.testfield.control_study import control_study
     from baarda.plugins.testfield.study_config import ControlStudyConfig
 
-    cfg = ControlStudyConfig(repetitions=2, cases=(4,), single_model_case=None)
+    cfg = ControlStudyConfig(repetitions=2, cases=(4,), single_model=False)
     here = control_study(cfg, 8)
     with mc.Engine(client=clients[2]) as eng:
         there = control_study(cfg, 8, mapper=eng)

@@ -49,7 +49,7 @@ def test_selection_removes_correlated_parameters():
 
 
 def test_study_small_run_and_claim_arithmetic():
-    st = control_study(ControlStudyConfig(repetitions=1, cases=(1, 2, 3), single_model_case=None), seed=3)
+    st = control_study(ControlStudyConfig(repetitions=1, cases=(1, 2, 3), single_model=False), seed=3)
     t2, t3 = st["tables"]["table2"], st["tables"]["table3"]
     assert [r["case"] for r in t2] == [1, 2, 3] and [r["dof"] for r in t2] == [40, 52, 52]
     # the bundle's selection runs where the block is regular with every AP free; case 1 is not

@@ -137,7 +137,7 @@ def test_other_files_in_the_folder_are_kept_and_named(tmp_path):
     ({"testfield": {"case": "five"}}, "testfield.case"),
     ({"testfield": {"case": 9}}, "case must be one of"),
     ({"pixel_mm": 0.0}, "pixel_mm.: must be greater than 0"),
-    ({"supersample": 0}, "supersample must be at least 1"),
+    ({"supersample": 0}, "field .supersample.: must be at least 1, got 0"),
     ({"folder": "../../x"}, "climbs out of it"),
     ({"folder": "/tmp/x"}, "must be relative to the run directory"),
     ({"sigma_noise": -1.0}, "sigma_noise.: must be at least 0"),

@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from baarda.pipeline.synthetic.testfield import (BLOCK_PHOTOS, CASES, FOCAL_MM, FORMAT_MM, SYSTEMATIC_ERRORS, TABLE1,
+from baarda.pipeline.synthetic.testfield import (BLOCK_PHOTOS, Blunder, CASES, FOCAL_MM, FORMAT_MM, SYSTEMATIC_ERRORS, TABLE1,
                                         TestFieldConfig, constraint_count, control_configuration,
                                         degrees_of_freedom, inside_format, physical_distortion, project_truth,
                                         simulate_testfield, single_model, target_field)
@@ -156,7 +156,7 @@ def test_systematic_errors_off_and_on():
 
 
 def test_blunders():
-    cfg = TestFieldConfig(blunders=({"photo": "12", "point": "8", "dx": 0.1, "dy": -0.05},))
+    cfg = TestFieldConfig(blunders=(Blunder(photo="12", point="8", dx=0.1, dy=-0.05),))
     block, truth = simulate_testfield(cfg, np.random.default_rng(1))
     clean, _ = simulate_testfield(TestFieldConfig(), np.random.default_rng(1))
     diff = block.observations.xy - clean.observations.xy
@@ -164,7 +164,10 @@ def test_blunders():
     np.testing.assert_allclose(diff[k[0]], [0.1, -0.05])
     assert np.count_nonzero(diff) == 2
     with pytest.raises(ValueError, match="does not observe"):
-        simulate_testfield(dataclasses.replace(cfg, blunders=({"photo": "11", "point": "1", "dx": 1},)),
+        simulate_testfield(dataclasses.replace(cfg, blunders=(Blunder(photo="11", point="1", dx=1),)),
+                           np.random.default_rng(1))
+    with pytest.raises(ValueError, match="a blunder is a Blunder"):          # no dict records
+        simulate_testfield(dataclasses.replace(cfg, blunders=({"photo": "12", "point": "8"},)),
                            np.random.default_rng(1))
 
 
@@ -178,6 +181,12 @@ def test_ap_model_columns_and_ebner_base():
 def test_bad_config():
     with pytest.raises(ValueError):
         TestFieldConfig(case=7)
+    # the option table's bounds hold for a config built in Python too (one mechanism)
+    with pytest.raises(ValueError, match="sigma_image_um: must be greater than 0"):
+        TestFieldConfig(sigma_image_um=0.0)
+    with pytest.raises(ValueError, match="margin_mm: must be greater than 0"):
+        TestFieldConfig(margin_mm=-1.0)
+    assert TestFieldConfig().sigma_image_mm == pytest.approx(0.040)
     with pytest.raises(ValueError):
         simulate_testfield(TestFieldConfig(ap_model="nonsense"), np.random.default_rng(0))
 
