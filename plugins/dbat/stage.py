@@ -56,9 +56,9 @@ class DbatSource(SourceStage):
                    "photos_found": sum(v is not None for v in d["images"].values()),
                    "estimated": [k for k, v in d["estimate_io"].items() if v]}
         report = _report(block)
-        if "crs" in block.meta:
+        if block.crs is not None:
             summary["crs"] = options.crs
-            o = summary["origin_lon_lat_h"] = list(block.meta["crs"]["origin"])
+            o = summary["origin_lon_lat_h"] = list(block.crs.origin)
             report += (f"\n\nCoordinates in {options.crs}: adjusted in a local frame (east, north, up; m) with its origin "
                        f"at lon {o[0]:.8f}°, lat {o[1]:.8f}°, h {o[2]:.3f} m (ellipsoidal); `docs/crs.md`.")
         return StageResult(artefacts={"block": block, "dbat_marks": block}, summary=summary, report=report,
@@ -107,8 +107,7 @@ def _in_crs(block, crs: str, ctx: Context):
         ok = np.isfinite(opk[has]).all(axis=1)
         R = rotation_from_opk_many(np.where(ok[:, None], opk[has], 0.0)) @ frame.rotation_from_local(X0[has])
         opk[has] = np.where(ok[:, None], opk_from_rotation_many(R), opk[has])
-    meta = {**block.meta, "crs": frame.to_meta()}
-    return block.replace(points=pts.replace(XYZ=XYZ), photos=ph.replace(X0=X0, opk=opk), meta=meta)
+    return block.replace(points=pts.replace(XYZ=XYZ), photos=ph.replace(X0=X0, opk=opk), crs=frame.info())
 
 
 def _fmt_sigma(s):
@@ -228,12 +227,12 @@ class DbatReport(Stage):
             summary["camera_vs_earlier"] = {k: (q["camera"][k][0] - earlier["camera"][k][0]) for k in q["camera"]
                                             if k in earlier["camera"]}
         summary["headline"] = _quality_headline(q, earlier)
-        meta = res.block_in.meta.get("dbat", {})
+        dbat = res.block_in.meta.get("dbat", {})
         return StageResult(artefacts={"dbat_report": q}, summary=summary, report=report,
                            tables=_quality_tables(q),
                            data={"quality": q, "earlier": earlier, "rho_high": options.rho_high,
-                                 "script": meta.get("script"),
-                                 "marks": sum(int(m["count"]) for m in meta.get("marks", [])) or None})
+                                 "script": dbat.get("script"),
+                                 "marks": sum(int(m["count"]) for m in dbat.get("marks", [])) or None})
 
     def plots(self, result: StageResult, ctx: Context) -> dict:
         """Figures for report.html: the camera against DBAT's published report and an earlier
@@ -263,12 +262,12 @@ def _quality(res) -> dict:
     v = res.residuals[act]
     rays = np.bincount(obs.point[act], minlength=len(pts))
     ang = np.rad2deg(intersection_angles(st.XYZ, st.X0, obs.photo[act], obs.point[act], len(pts)))
-    meta = block.meta.get("dbat", {})
+    dbat = block.meta.get("dbat", {})
     camera = {}
     names = res.cam_param_names[0]
     table = res.camera_table(0)
-    if meta.get("camera"):
-        cam = DbatCamera(**{k: (tuple(x) if isinstance(x, list) else x) for k, x in meta["camera"].items()})
+    if dbat.get("camera"):
+        cam = DbatCamera(**{k: (tuple(x) if isinstance(x, list) else x) for k, x in dbat["camera"].items()})
         vals = dbat_from_baarda(st.cam_params[0, 0], st.cam_params[0, 1], st.cam_params[0, 2], st.cam_params[0, 3:], cam)
         for key, bn in zip(("cc", "px", "py", "K1", "K2", "K3", "P1", "P2", "as", "sk"), names):
             row = next(r for r in table if r["parameter"] == bn)
@@ -295,12 +294,12 @@ def _quality(res) -> dict:
         "rms_px": float(np.sqrt(np.mean(np.sum(v ** 2, axis=1)))) / pix,
         "rms_mm": float(np.sqrt(np.mean(np.sum(v ** 2, axis=1)))),
         "rms_px_corrected": float(np.sqrt(np.mean(np.sum(rc[ok] ** 2, axis=1)))) / pix if ok.any() else float("nan"),
-        "camera": {k: (float(a), float(b)) for k, (a, b, _, _) in camera.items()}, "dbat_camera": bool(meta.get("camera")),
+        "camera": {k: (float(a), float(b)) for k, (a, b, _, _) in camera.items()}, "dbat_camera": bool(dbat.get("camera")),
         "camera_rows": camera, "correlation": res.correlation_camera(0), "names": names,
         "control": point_comparison(pts, ctrl, st.XYZ, res.cov_points),
         "check": point_comparison(pts, chk, st.XYZ, res.cov_points),
         "rays": rays, "angles_deg": ang, "ids": pts.ids, "role": pts.role, "tie": tie,
-        "labels": meta.get("labels", {}), "object_unit": block.object_unit,
+        "labels": dbat.get("labels", {}), "object_unit": block.object_unit,
         "angle_stats": {"control": stats(ctrl), "check": stats(chk), "tie": stats(tie)},
         "ray_stats": {k: (v_["rays_hist"] if v_ else {}) for k, v_ in
                       (("control", stats(ctrl)), ("check", stats(chk)), ("tie", stats(tie)))},

@@ -20,7 +20,7 @@ import numpy as np
 
 from baarda.pipeline.errors import InputError
 from baarda.pipeline.geometry import rotation_from_opk
-from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Pairs, Photos, Points
+from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Pairs, Photos, Points, SourceInfo
 from baarda.pipeline.options import option
 from baarda.pipeline.stage import Context, Stage, StageResult, TableData
 
@@ -395,13 +395,12 @@ class TargetDetection(Stage):
             obs_point += [pindex[i] for i in det.ids]
             obs_xy.append(mm_from_pixels(det.uv, size, p, "opencv"))
         photos = Photos.make([pid for pid, _, _, _ in kept], camera=[cam_ids.index(c) for _, c, _, _ in kept],
-                             X0=X0, opk=opk)
+                             X0=X0, opk=opk, image_path=[str(d.extra.get("file", "")) for _, _, _, d in kept])
         cameras = self._cameras(cam_ids, size_of, f_px, options)
         obs = Observations.make(obs_photo, obs_point, np.concatenate(obs_xy), sigma=sigma_px * p)
         block = Block(cameras=cameras, photos=photos, points=points, observations=obs, object_unit=options.unit,
-                      meta={"targets": {"target": options.target, "images": {pid: str(d.extra.get("file", ""))
-                                                                             for pid, _, _, d in kept},
-                                        "pixel_convention": "opencv"}})
+                      meta={"targets": {"target": options.target, "pixel_convention": "opencv"}},
+                      source=SourceInfo(format="OpenCV targets", pixel_format="OpenCV"))
         return block, {"size_mismatch": mismatch,
                        "cameras_px": {c: {"f_px_start": f_px[c], "size": list(size_of[c])} for c in cam_ids}}
 
@@ -434,11 +433,13 @@ class TargetDetection(Stage):
             obs_xy.append(mm_from_pixels(det.uv, size, pitch, "opencv"))
             sig += [sigma_px * pitch] * len(det)
         obs = Observations.make(obs_photo, obs_point, np.concatenate(obs_xy), sigma=np.array(sig))
-        meta = dict(layout.meta)
-        meta["targets"] = {"target": "circles", "pixel_convention": "opencv",
-                           "images": {pid: str(d.extra.get("file", "")) for pid, _, _, d in kept}}
-        block = Block(cameras=cams, photos=layout.photos.take(ph_idx), points=layout.points.take(pt_idx),
-                      observations=obs, object_unit=layout.object_unit, meta=meta)
+        meta = {**layout.meta, "targets": {"target": "circles", "pixel_convention": "opencv"}}
+        photos = layout.photos.take(ph_idx)
+        photos = photos.replace(image_path=[str(d.extra.get("file", "")) for _, _, _, d in kept])
+        block = Block(cameras=cams, photos=photos, points=layout.points.take(pt_idx),
+                      observations=obs, object_unit=layout.object_unit, meta=meta, crs=layout.crs,
+                      ap_meta=layout.ap_meta, scale_bars=layout.scale_bars,
+                      source=SourceInfo(path=layout.source.path, format="OpenCV targets", pixel_format="OpenCV"))
         return block.replace(pairs=pairs_of_layout(layout, block))
 
     def _report(self, options, files, rows, block, ref, sigma_px) -> str:

@@ -191,7 +191,12 @@ def test_opencv_style_values_and_sigmas():
     assert opencv_style(c, 0, 0, "ebner12", np.zeros(12), np.eye(15), size, p) is None
     # OpenCV's RMS is per image point: √2 × the RMS per coordinate for equal components
     assert opencv_rms(np.full((5, 2), 0.3)) == pytest.approx(0.3 * np.sqrt(2))
-    assert pixel_source({"colmap": {}}) == "COLMAP" and pixel_source({"source": "x"}) is None
+    from baarda.pipeline.model import SourceInfo
+    from baarda.pipeline.testing import make_block
+
+    blk = make_block(3, 10)
+    assert pixel_source(blk.replace(source=SourceInfo(path="x", format="COLMAP", pixel_format="COLMAP"))) == "COLMAP"
+    assert pixel_source(blk.replace(source=SourceInfo(path="x"))) is None
 
 
 def test_pixel_source_is_reported_in_pixels(tmp_path):
