@@ -64,8 +64,9 @@ def test_beside_an_earlier_bundle(run, tmp_path):
     with_bundle = run_stage(IndependentModels, {"block": block, "bundle": res}, {}, tmp_path=tmp_path)
     ctx = Context(stage_id="independent-models", project_dir=tmp_path,
                   findings=(Finding.of("adjust", "bundle", StageResult(summary={"headline": "x"})),))
-    figs = IndependentModels().plots(with_bundle, ctx)
-    assert "beside the bundle's (adjust)" in figs["checkpoints"][1]
+    assert "beside the bundle's (adjust)" in IndependentModels().plots(with_bundle, ctx)["checkpoints"][1]
+    figs = IndependentModels().plots(with_bundle, None)          # no findings: labelled plain "bundle"
+    assert "beside the bundle's (bundle)" in figs["checkpoints"][1]
     assert "beside" not in IndependentModels().plots(out, ctx)["checkpoints"][1]     # no bundle artefact read
     plan, bx, by, bz = figs["checkpoints"][0].axes
     ids = [t.get_text() for t in bz.get_xticklabels()]
