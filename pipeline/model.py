@@ -16,8 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from types import MappingProxyType
-from typing import Any, ClassVar, Mapping
+from typing import Any, ClassVar, Iterator, Mapping
 
 import numpy as np
 
@@ -378,8 +377,36 @@ class CrsInfo:
         object.__setattr__(self, "f", float(self.f))
 
 
+class FrozenMap(Mapping):
+    """A read-only mapping (a copy of the one given) that pickles, unlike ``MappingProxyType``:
+    blocks travel to worker processes (``pipeline/montecarlo.py``, ``baarda batch``)."""
+
+    __slots__ = ("_data",)
+
+    def __init__(self, data=()):
+        object.__setattr__(self, "_data", dict(data))
+
+    def __getitem__(self, key):
+        return self._data[key]
+
+    def __iter__(self) -> Iterator:
+        return iter(self._data)
+
+    def __len__(self) -> int:
+        return len(self._data)
+
+    def __setattr__(self, name, value):
+        raise AttributeError("FrozenMap is read-only")
+
+    def __reduce__(self):
+        return (FrozenMap, (self._data,))
+
+    def __repr__(self) -> str:
+        return f"FrozenMap({self._data!r})"
+
+
 def _frozen_mapping(m) -> Mapping:
-    return MappingProxyType(dict(m or {}))
+    return FrozenMap(m or {})
 
 
 @dataclass(frozen=True)
@@ -433,8 +460,8 @@ class Block:
     ap_meta: Mapping = field(default_factory=dict)
 
     def __post_init__(self):
-        object.__setattr__(self, "ap_meta", MappingProxyType({str(k): _frozen_mapping(v)
-                                                              for k, v in dict(self.ap_meta or {}).items()}))
+        object.__setattr__(self, "ap_meta", FrozenMap({str(k): _frozen_mapping(v)
+                                                       for k, v in dict(self.ap_meta or {}).items()}))
         g = self.gnss.photo
         if len(g):
             if g.min() < 0 or g.max() >= len(self.photos):

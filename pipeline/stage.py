@@ -36,12 +36,12 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import MappingProxyType
 from typing import Any, ClassVar, Iterable, Iterator, Mapping
 
 import numpy as np
 
 from .errors import InputError
+from .model import FrozenMap
 from .options import NoOptions
 
 
@@ -279,8 +279,7 @@ class Finding:
     @classmethod
     def of(cls, stage: str, use: str, result: StageResult) -> "Finding":
         summary = result.summary if isinstance(result.summary, dict) else {}
-        return cls(stage, use, headline_of(result), MappingProxyType(dict(summary)),
-                   MappingProxyType(dict(result.tables)))
+        return cls(stage, use, headline_of(result), FrozenMap(summary), FrozenMap(result.tables))
 
 
 @dataclass

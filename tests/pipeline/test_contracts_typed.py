@@ -23,6 +23,7 @@ the keys of a dict literal given as ``meta=`` or bound to a name ``meta``, and `
 from __future__ import annotations
 
 import ast
+import dataclasses
 from collections import defaultdict
 from pathlib import Path
 
@@ -207,3 +208,39 @@ def test_the_context_offers_findings_not_previous_results():
     assert (f.stage, f.use, f.headline, f.summary["n"], list(f.tables)) == ("a", "bundle", "The finding", 1, ["t"])
     with pytest.raises(TypeError):
         f.summary["n"] = 2                      # read-only: a later stage cannot change what was found
+
+
+def test_typed_block_fields_are_frozen_survive_selection_and_pickle():
+    """The typed fields travel with the block: ``take`` keeps each photo's image, ``replace`` keeps
+    the rest, nothing can be changed in place, and a block pickles (worker processes)."""
+    import pickle
+
+    import numpy as np
+
+    from baarda.pipeline.crs import LocalFrame, frame_of_block, local_frame
+    from baarda.pipeline.model import CrsInfo, ScaleBars, SourceInfo
+    from baarda.pipeline.testing import make_block
+
+    blk = make_block(3, 10)
+    frame = local_frame("EPSG:32632", [[500000.0, 5000000.0, 100.0]])
+    blk = blk.replace(photos=blk.photos.replace(image_path=["a.png", "", "c.png"]), crs=frame.info(),
+                      scale_bars=ScaleBars.make([(blk.points.ids[0], blk.points.ids[1], 2.5, 0.01)]),
+                      source=SourceInfo(path="x.txt", format="test", lines={(0, 1): ("x.txt", 7)}),
+                      ap_meta={"cam": {"b": 8.0}})
+    assert blk.photos.images() == {blk.photos.ids[0]: "a.png", blk.photos.ids[2]: "c.png"}
+    assert blk.photos.take([2]).image_path.tolist() == ["c.png"]
+    again = pickle.loads(pickle.dumps(blk))
+    assert isinstance(again.crs, CrsInfo) and again.crs == blk.crs
+    assert np.allclose(frame_of_block(again).to_local([[500010.0, 5000000.0, 100.0]]),
+                       frame.to_local([[500010.0, 5000000.0, 100.0]]))
+    assert LocalFrame.from_info(None).is_identity and LocalFrame(None).info() is None
+    assert again.scale_bars.rows() == blk.scale_bars.rows() and again.source.lines[(0, 1)] == ("x.txt", 7)
+    assert again.ap_meta["cam"]["b"] == 8.0
+    with pytest.raises(TypeError):
+        blk.ap_meta["cam"]["b"] = 1.0
+    with pytest.raises(TypeError):
+        blk.source.lines[(0, 2)] = ("x.txt", 8)
+    with pytest.raises(ValueError):
+        blk.photos.image_path[0] = "b.png"
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        blk.source.path = "y"
