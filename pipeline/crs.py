@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from baarda.pipeline.errors import InputError
+from baarda.pipeline.model import CrsInfo
 
 __all__ = ["ecef_from_geodetic", "geodetic_from_ecef", "R_enu_from_ecef", "parse_crs", "LocalFrame",
            "local_frame", "frame_of_block", "use_grid_directories", "crs_label"]
@@ -308,15 +309,18 @@ class LocalFrame:
         U, _, Vt = np.linalg.svd(self.jacobian(enu))
         return U @ Vt
 
-    def to_meta(self) -> dict:
-        return {"crs": self.crs, "origin": list(self.origin), "a": self.a, "f": self.f, "frame": "enu"}
+    def info(self) -> CrsInfo | None:
+        """The block's typed record of this frame (``Block.crs``; None for the identity)."""
+        if self.is_identity:
+            return None
+        return CrsInfo(self.crs, tuple(self.origin), self.a, self.f)
 
     @classmethod
-    def from_meta(cls, meta: dict | None) -> "LocalFrame":
-        if not meta or meta.get("crs") is None:
+    def from_info(cls, info: CrsInfo | None) -> "LocalFrame":
+        """The frame of a block's ``crs`` (the identity for None)."""
+        if info is None:
             return cls(None)
-        return cls(meta["crs"], tuple(float(v) for v in meta["origin"]), float(meta.get("a", WGS84_A)),
-                   float(meta.get("f", WGS84_F)))
+        return cls(info.crs, tuple(info.origin), info.a, info.f)
 
     def axis_names(self) -> tuple[str, str, str]:
         """Column names of coordinates in the user's CRS (``E N h``, ``lon lat h``, ``X Y Z``)."""
@@ -361,5 +365,5 @@ def local_frame(crs_text: str | None, xyz, *, path=None, line=None, field="crs")
 
 
 def frame_of_block(block) -> LocalFrame:
-    """The block's frame (``block.meta["crs"]``, written by source stages that read a CRS)."""
-    return LocalFrame.from_meta(block.meta.get("crs"))
+    """The block's frame (``block.crs``, set by source stages that read a CRS)."""
+    return LocalFrame.from_info(block.crs)

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Iterator, Mapping
 
 import numpy as np
 
@@ -152,7 +152,9 @@ class Photos(Table):
 
     ids (m,) str; camera (m,) index into :class:`Cameras`; X0 (m, 3) projection centre (nan when
     unknown); opk (m, 3) ω, φ, κ radians (nan when unknown); sigma_eo (m, 6) a-priori sigmas of
-    X0, Y0, Z0, ω, φ, κ (``inf`` free, ``0`` fixed, else a weighted constraint).
+    X0, Y0, Z0, ω, φ, κ (``inf`` free, ``0`` fixed, else a weighted constraint); image_path (m,)
+    the image file of the photo as the source found it (``""`` when unknown or not found), for
+    figures drawn over the photo.
     """
 
     ids: np.ndarray
@@ -160,14 +162,24 @@ class Photos(Table):
     X0: np.ndarray
     opk: np.ndarray
     sigma_eo: np.ndarray
+    image_path: np.ndarray = None  # type: ignore[assignment]   # None: "" for every photo
 
     _columns: ClassVar = {
         "ids": (str, ()), "camera": (int, ()), "X0": (float, (3,)), "opk": (float, (3,)),
-        "sigma_eo": (float, (6,)),
+        "sigma_eo": (float, (6,)), "image_path": (str, ()),
     }
 
+    def __post_init__(self):
+        paths = self.image_path
+        if paths is None:
+            paths = [""] * len(np.atleast_1d(self.ids))
+        paths = np.array(["" if p is None else str(p) for p in np.asarray(paths, dtype=object).reshape(-1)],
+                         dtype=str)
+        object.__setattr__(self, "image_path", paths)
+        super().__post_init__()
+
     @classmethod
-    def make(cls, ids, camera=0, X0=None, opk=None, sigma_eo=None) -> "Photos":
+    def make(cls, ids, camera=0, X0=None, opk=None, sigma_eo=None, image_path=None) -> "Photos":
         ids = [str(i) for i in np.atleast_1d(ids)]
         m = len(ids)
         return cls(
@@ -176,7 +188,12 @@ class Photos(Table):
             X0=np.broadcast_to(np.asarray(np.nan if X0 is None else X0, float), (m, 3)),
             opk=np.broadcast_to(np.asarray(np.nan if opk is None else opk, float), (m, 3)),
             sigma_eo=np.broadcast_to(np.asarray(FREE if sigma_eo is None else sigma_eo, float), (m, 6)),
+            image_path=image_path,
         )
+
+    def images(self) -> dict[str, str]:
+        """Photo id → image file, for the photos whose file is known."""
+        return {str(i): str(p) for i, p in zip(self.ids.tolist(), self.image_path.tolist()) if p}
 
     @property
     def has_orientation(self) -> np.ndarray:
@@ -315,13 +332,118 @@ class Gnss(Table):
 
 
 @dataclass(frozen=True, eq=False)
+class ScaleBars(Table):
+    """Scale bars (measured distances between two object points): one row per bar.
+
+    a, b (s,) point ids of the ends; distance (s,) in the block's object unit; sigma (s,) its
+    a-priori standard deviation (same unit).  The bundle adjusts them as observations of the
+    distance (``docs/bundle.md``)."""
+
+    a: np.ndarray
+    b: np.ndarray
+    distance: np.ndarray
+    sigma: np.ndarray
+
+    _columns: ClassVar = {"a": (str, ()), "b": (str, ()), "distance": (float, ()), "sigma": (float, ())}
+
+    @classmethod
+    def make(cls, rows=()) -> "ScaleBars":
+        """From ``(id_a, id_b, distance, sigma)`` tuples."""
+        rows = [tuple(r)[:4] for r in rows]
+        return cls(a=np.array([str(r[0]) for r in rows], dtype=str), b=np.array([str(r[1]) for r in rows], dtype=str),
+                   distance=np.array([float(r[2]) for r in rows]), sigma=np.array([float(r[3]) for r in rows]))
+
+    def rows(self) -> list[tuple[str, str, float, float]]:
+        """``(id_a, id_b, distance, sigma)`` per bar."""
+        return list(zip(self.a.tolist(), self.b.tolist(), self.distance.tolist(), self.sigma.tolist()))
+
+
+@dataclass(frozen=True)
+class CrsInfo:
+    """The user's coordinate reference system of a block whose coordinates were read in one and
+    turned into a local east-north-up frame (``docs/crs.md``): ``crs`` the CRS as WKT, ``origin``
+    (longitude °, latitude °, height) of the frame's origin on the CRS's ellipsoid (semi-major
+    axis ``a`` m, flattening ``f``).  ``baarda.pipeline.crs.frame_of_block`` turns it into the
+    frame that transforms coordinates."""
+
+    crs: str
+    origin: tuple[float, float, float]
+    a: float
+    f: float
+
+    def __post_init__(self):
+        object.__setattr__(self, "origin", tuple(float(v) for v in self.origin))
+        object.__setattr__(self, "a", float(self.a))
+        object.__setattr__(self, "f", float(self.f))
+
+
+class FrozenMap(Mapping):
+    """A read-only mapping (a copy of the one given) that pickles, unlike ``MappingProxyType``:
+    blocks travel to worker processes (``pipeline/montecarlo.py``, ``baarda batch``)."""
+
+    __slots__ = ("_data",)
+
+    def __init__(self, data=()):
+        object.__setattr__(self, "_data", dict(data))
+
+    def __getitem__(self, key):
+        return self._data[key]
+
+    def __iter__(self) -> Iterator:
+        return iter(self._data)
+
+    def __len__(self) -> int:
+        return len(self._data)
+
+    def __setattr__(self, name, value):
+        raise AttributeError("FrozenMap is read-only")
+
+    def __reduce__(self):
+        return (FrozenMap, (self._data,))
+
+    def __repr__(self) -> str:
+        return f"FrozenMap({self._data!r})"
+
+
+def _frozen_mapping(m) -> Mapping:
+    return FrozenMap(m or {})
+
+
+@dataclass(frozen=True)
+class SourceInfo:
+    """Where a block was read from, for messages and reports.
+
+    ``path`` the main file read (None for a simulated block); ``format`` the reader's name of it;
+    ``pixel_format`` the name of a source whose image measurements are pixels (``"COLMAP"``,
+    ``"BAL"``, ``"libmv"``, ``"OpenCV"``; None for sources measured in mm); ``lines``
+    ``(photo index, point index)`` of an observation → ``(file, line)`` where a reader knows it
+    (may be empty); ``pair_lines`` ``(file, line)`` of each stereo pair."""
+
+    path: str | None = None
+    format: str | None = None
+    pixel_format: str | None = None
+    lines: Mapping = field(default_factory=dict)
+    pair_lines: tuple = ()
+
+    def __post_init__(self):
+        object.__setattr__(self, "path", None if self.path is None else str(self.path))
+        object.__setattr__(self, "lines", _frozen_mapping(self.lines))
+        object.__setattr__(self, "pair_lines", tuple(tuple(p) for p in self.pair_lines))
+
+
+@dataclass(frozen=True, eq=False)
 class Block:
     """Everything one adjustment needs, plus provenance.
 
-    ``meta`` records the object unit, the source file of each photo (for error messages and
-    reports) and anything a source stage wants later stages to know (e.g. comparator
-    interior-orientation results).  ``source_lines`` maps ``(photo index, point index)`` of an
-    observation to ``(file, line)`` for messages; it may be empty.
+    Typed fields carry what more than one stage uses: ``crs`` the user's CRS the coordinates were
+    read in (:class:`CrsInfo`, None for a local system), ``scale_bars`` (:class:`ScaleBars`),
+    ``source`` (:class:`SourceInfo`: the file read, its format, the line of each observation),
+    ``ap_meta`` camera id → the AP model's constants (``r0`` of the AICON model, ``b`` of Ebner's),
+    and the image file of each photo (``photos.image_path``).
+
+    ``meta`` is a namespace private to the plugin that wrote the block: a key is read only by the
+    plugin that writes it (``tests/pipeline/test_contracts_typed.py`` checks this), never used to
+    hand data to another plugin.
     """
 
     cameras: Cameras
@@ -332,8 +454,14 @@ class Block:
     object_unit: str = "m"
     meta: dict = field(default_factory=dict)
     gnss: Gnss = field(default_factory=lambda: Gnss.empty())
+    crs: CrsInfo | None = None
+    scale_bars: ScaleBars = field(default_factory=lambda: ScaleBars.make())
+    source: SourceInfo = field(default_factory=SourceInfo)
+    ap_meta: Mapping = field(default_factory=dict)
 
     def __post_init__(self):
+        object.__setattr__(self, "ap_meta", FrozenMap({str(k): _frozen_mapping(v)
+                                                       for k, v in dict(self.ap_meta or {}).items()}))
         g = self.gnss.photo
         if len(g):
             if g.min() < 0 or g.max() >= len(self.photos):

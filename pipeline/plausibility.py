@@ -50,11 +50,10 @@ def _first_duplicate(ids) -> str | None:
 def check_block(block: Block, path=None) -> list[str]:
     """Raise :class:`InputError` for what makes ``block`` unusable; return warnings (text)."""
     if path is None:
-        src = block.meta.get("source")
-        path = src.get("path") if isinstance(src, dict) else src
+        path = block.source.path
     cams, ph, pts, obs = block.cameras, block.photos, block.points, block.observations
 
-    lines = block.meta.get("source_lines") or {}     # (photo, point) → (file, line), where a reader knows
+    lines = block.source.lines     # (photo, point) → (file, line), where a reader knows
 
     def fail(message, field=None, obs_index=None):
         where, line = path, None

@@ -39,7 +39,7 @@ from .project import Project, load_project, stage_context
 from .recording import log_text, log_values, new_recording_id, open_recording
 from .report import jsonable, write_json, write_table, write_toml
 from .rundir import RUN_MARKER, close_run, list_files, open_run
-from .stage import EarlierStage, Progress, StageResult
+from .stage import Finding, Progress, StageResult
 
 
 @dataclass
@@ -94,7 +94,7 @@ def run_project(project_path: str | Path, out: str | Path | None = None, *,
     started = _dt.datetime.now().isoformat(timespec="seconds")
     records = [StageRecord(s.id, s.use, s.package) for s in project.stages]
     store: dict[str, Any] = {}
-    previous: list[EarlierStage] = []
+    findings: list[Finding] = []
     ok, message, failure = True, "", ""
     interrupted = False
     try:
@@ -103,7 +103,7 @@ def run_project(project_path: str | Path, out: str | Path | None = None, *,
         for k, (spec, rec) in enumerate(zip(project.stages, records)):
             if verbose:
                 print(f"[{k + 1}/{n}] {spec.id} ({spec.use}) …", file=stream, flush=True)
-            ctx = stage_context(project, spec, run_dir=run_dir, previous=list(previous), threads=threads,
+            ctx = stage_context(project, spec, run_dir=run_dir, findings=tuple(findings), threads=threads,
                                 progress=Progress(spec.id, stream=stream, enabled=verbose))
             inputs = {name.rstrip("?"): store[name.rstrip("?")] for name in spec.cls.reads
                       if name.rstrip("?") in store}
@@ -148,7 +148,7 @@ def run_project(project_path: str | Path, out: str | Path | None = None, *,
                 break
             store.update(result.artefacts)
             rec.status, rec.summary, rec.report = "ok", jsonable(result.summary), result.report
-            previous.append(EarlierStage(spec.id, spec.use, result))
+            findings.append(Finding.of(spec.id, spec.use, result))
             _write_outputs(run_dir, spec, stage, result, ctx, rec, recording_id)
             rec.seconds = time.perf_counter() - t0      # all of the stage's work: its tables, recording, figures
             _write_report(run_dir, project, records, recording_id, started, shown=run.target)

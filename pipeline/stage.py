@@ -31,6 +31,7 @@ generator, progress reporting and a place for warnings.
 from __future__ import annotations
 
 import dataclasses
+import re
 import shutil
 import sys
 import time
@@ -41,6 +42,7 @@ from typing import Any, ClassVar, Iterable, Iterator, Mapping
 import numpy as np
 
 from .errors import InputError
+from .model import FrozenMap
 from .options import NoOptions, output_problem
 
 
@@ -248,21 +250,46 @@ class Progress:
                 b.update()
 
 
-@dataclass(frozen=True)
-class EarlierStage:
-    """What an earlier stage of the run produced (``Context.previous``)."""
+def headline_of(result: StageResult) -> str:
+    """A stage's one-line finding: ``summary["headline"]``, else the first line of its report that
+    is not a table row (at most 240 characters)."""
+    h = result.summary.get("headline") if isinstance(result.summary, dict) else None
+    if h:
+        return str(h)
+    for line in (result.report or "").splitlines():
+        line = line.strip().lstrip("-*# ").strip()
+        if line and not line.startswith("|"):
+            return re.sub(r"\s+", " ", line)[:240]
+    return "(no report)"
 
-    id: str
+
+@dataclass(frozen=True)
+class Finding:
+    """What an earlier stage of the run found, as any later stage may read it
+    (``Context.findings``): its id and plugin name, its one-line finding, its ``summary`` (the
+    dict written to ``results.json``, read-only) and its tables.  A stage that needs another's
+    *artefacts* declares them in ``reads``; findings are for stages that summarise a whole run
+    (e.g. ``comparison``)."""
+
+    stage: str
     use: str
-    result: StageResult
+    headline: str
+    summary: Mapping[str, Any]
+    tables: Mapping[str, TableData]
+
+    @classmethod
+    def of(cls, stage: str, use: str, result: StageResult) -> "Finding":
+        summary = result.summary if isinstance(result.summary, dict) else {}
+        return cls(stage, use, headline_of(result), FrozenMap(summary), FrozenMap(result.tables))
 
 
 @dataclass
 class Context:
     """What the runner gives a stage besides its inputs and options.
 
-    ``previous`` lists the earlier stages of the run in order, with their results, for stages
-    that summarise a whole run (e.g. ``comparison``); ordinary stages use their ``inputs``.
+    ``findings`` lists what the earlier stages of the run found, in order (:class:`Finding`), for
+    stages that summarise a whole run (e.g. ``comparison``); a stage that needs another's output
+    declares the artefact in ``reads`` and gets it in its ``inputs``.
     """
 
     stage_id: str
@@ -273,7 +300,7 @@ class Context:
     warnings: list[str] = field(default_factory=list)
     project_file: Path | None = None
     object_unit: str = "m"
-    previous: list = field(default_factory=list)
+    findings: tuple[Finding, ...] = ()
     option_lines: dict[str, int] = field(default_factory=dict)
     """Line of each option the project sets, in ``project_file`` (for :meth:`option_error`)."""
     stage_line: int | None = None

@@ -85,10 +85,10 @@ def check_unique(ids, what: str) -> None:
 
 
 def camera_meta(block: Block, settings: BundleSettings) -> list[dict]:
-    """AP-model meta per camera: block.meta['ap_meta'][id] updated by settings.ap_meta[id];
+    """AP-model meta per camera: block.ap_meta[id] updated by settings.ap_meta[id];
     ebner12 without ``b`` gets ``b = 0.4 × format width`` (the base of 60 % forward overlap)."""
     cams = block.cameras
-    base = block.meta.get("ap_meta", {}) if isinstance(block.meta, dict) else {}
+    base = block.ap_meta
     out = []
     for j, cid in enumerate(cams.ids.tolist()):
         m = dict(base.get(cid, {}))
@@ -102,14 +102,5 @@ def camera_meta(block: Block, settings: BundleSettings) -> list[dict]:
 
 
 def block_distances(block: Block) -> list[Distance]:
-    """Scale bars stored with the block (``block.meta['distances']``) as :class:`Distance`."""
-    out = []
-    for d in (block.meta.get("distances", []) if isinstance(block.meta, dict) else []):
-        if isinstance(d, Distance):
-            out.append(d)
-        elif isinstance(d, Mapping):
-            out.append(Distance(str(d["from"]), str(d["to"]), float(d["distance"]), float(d["sigma"])))
-        else:                                   # (id_a, id_b, distance, sigma), e.g. the AICON reader's
-            a, b, dist, sig = tuple(d)[:4]
-            out.append(Distance(str(a), str(b), float(dist), float(sig)))
-    return out
+    """Scale bars stored with the block (``block.scale_bars``) as :class:`Distance`."""
+    return [Distance(a, b, d, s) for a, b, d, s in block.scale_bars.rows()]

@@ -39,7 +39,7 @@ from typing import Any, Sequence
 import numpy as np
 from scipy import stats as sps
 
-from baarda.pipeline.model import Block
+from baarda.pipeline.model import Block, ScaleBars
 
 from .adjust import BundleResult, adjust
 from .settings import BundleSettings, Distance
@@ -151,8 +151,8 @@ def image_group_labels(block: Block, by: str | Sequence | np.ndarray = "camera",
                        photo_groups: dict | None = None) -> np.ndarray:
     """A group name per observation: ``"all"``, ``"camera"`` (``image camera <id>``), ``"photo"``
     (``image photo <id>``), ``"source"`` (``image source <file name>``: the file a reader took the
-    observation from, ``block.meta["source_lines"]`` (photo, point) → (file, line), else
-    ``block.meta["source"]``), or an array of names (one per observation).  ``photo_groups``
+    observation from, ``block.source.lines`` (photo, point) → (file, line), else
+    ``block.source.path``), or an array of names (one per observation).  ``photo_groups``
     (name → photo ids) overrides the photos it lists (``image <name>``)."""
     obs, photos = block.observations, block.photos
     k = len(obs)
@@ -166,9 +166,8 @@ def image_group_labels(block: Block, by: str | Sequence | np.ndarray = "camera",
             pid = photos.ids.astype(str)[obs.photo]
             lab = np.array(["image photo " + p for p in pid.tolist()], dtype=object)
         elif by == "source":
-            meta = block.meta if isinstance(block.meta, dict) else {}
-            lines = meta.get("source_lines") or {}
-            default = meta.get("source")
+            lines = block.source.lines
+            default = block.source.path
             lab = np.empty(k, dtype=object)
             for i, (ph, pt) in enumerate(zip(obs.photo.tolist(), obs.point.tolist())):
                 src = lines.get((ph, pt), (default,))[0]
@@ -272,8 +271,7 @@ def scale_block(block: Block, settings: BundleSettings, factors: dict, image_lab
     bars = tuple(settings.distances) + tuple(block_distances(block))
     if bars:
         f = factors.get("scale bars", 1.0)
-        meta = {k: v for k, v in block.meta.items() if k != "distances"} if isinstance(block.meta, dict) else {}
-        out = out.replace(meta=meta)
+        out = out.replace(scale_bars=ScaleBars.make())
         settings = dataclasses.replace(settings, distances=tuple(
             Distance(d.a, d.b, d.distance, d.sigma * f) for d in bars))
     return out, settings

@@ -153,19 +153,11 @@ def colmap_from_brown(c, xp, yp, ap, size, pixel_mm, model: str = "auto") -> tup
 # Reporting a camera in the units of its source (pixels, OpenCV's coefficients)
 # --------------------------------------------------------------------------------------------
 
-PIXEL_SOURCES = {"colmap": "COLMAP", "bal": "BAL", "libmv": "libmv", "targets": "OpenCV"}
-"""``Block.meta`` keys of the sources whose image measurements are pixels, and their names."""
-
-
-def pixel_source(meta) -> str | None:
-    """Name of the pixel source (``"COLMAP"``, ``"BAL"``, ``"libmv"``, ``"OpenCV"``) a block's
-    ``meta`` records, or None for a source measured in mm (comparator, AICON, DBAT, test field)."""
-    if not isinstance(meta, dict):
-        return None
-    for key, name in PIXEL_SOURCES.items():
-        if key in meta:
-            return name
-    return None
+def pixel_source(block) -> str | None:
+    """Name of the pixel source (``"COLMAP"``, ``"BAL"``, ``"libmv"``, ``"OpenCV"``) a block was
+    read from (``block.source.pixel_format``), or None for a source measured in mm (comparator,
+    AICON, DBAT, test field)."""
+    return block.source.pixel_format
 
 
 OPENCV_NAMES = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from baarda.pipeline.errors import InputError, quote
-from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points
+from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points, SourceInfo
 
 from baarda.pipeline.geometry.image import mm_from_pixels
 from baarda.pipeline.geometry.pose import pose_from_cv
@@ -157,7 +157,6 @@ def block_from_reconstruction(rec, *, pixel_mm: float = 0.001, sensor_width_mm: 
                                      active=first)
 
     meta = {
-        "source": source,
         "colmap": {
             "camera_ids": cam_ids, "camera_models": [c[4] for c in cams],
             "image_ids": img_ids, "keypoints_px": keypoints, "point2D_idx": np.array(obs_idx, int),
@@ -166,7 +165,8 @@ def block_from_reconstruction(rec, *, pixel_mm: float = 0.001, sensor_width_mm: 
         },
     }
     block = Block(cameras=cameras, photos=photos, points=points, observations=observations,
-                  object_unit=object_unit, meta=meta)
+                  object_unit=object_unit, meta=meta,
+                  source=SourceInfo(path=source or None, format="COLMAP", pixel_format="COLMAP"))
     info = {"inexact_cameras": inexact, "unregistered_images": skipped_images,
             "duplicate_observations": int((~first).sum())}
     return block, info

@@ -73,7 +73,7 @@ def make_block(n_photos=8, n_points=40, model="brown", noise_mm=0.0, rng=None, n
     role[:n_control] = "full"
     points = Points.make([str(100 + i) for i in range(n_points)], XYZ, role)
     obs = Observations.make(ph, pt, xy, sigma=sigma_mm)
-    block = Block(cams, photos, points, obs, meta={"ap_meta": {"cam": dict(meta)}})
+    block = Block(cams, photos, points, obs, ap_meta={"cam": dict(meta)})
     return block, {"X0": X0, "opk": opk, "XYZ": XYZ, "cam": cam}
 
 

@@ -462,11 +462,10 @@ def simulate_testfield(config: TestFieldConfig, rng: np.random.Generator) -> tup
     geometry = geometry_summary(block, truth)
     meta = {
         "truth": truth.as_dict(),
-        "ap_meta": {CAMERA_ID: {"b": image_base_mm(truth, geometry["distance_m"])}},
         "testfield": {"config": _config_dict(config), "geometry": geometry,
                       "constraints": constraint_count(roles)},
     }
-    return block.replace(meta=meta), truth
+    return block.replace(meta=meta, ap_meta={CAMERA_ID: {"b": image_base_mm(truth, geometry["distance_m"])}}), truth
 
 
 def _config_dict(config: TestFieldConfig) -> dict:

@@ -27,7 +27,7 @@ import numpy as np
 
 from baarda.pipeline.errors import InputError, quote
 from baarda.pipeline.errors import finite_number as _num
-from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points
+from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points, ScaleBars, SourceInfo
 
 SUFFIXES = ("ior", "eor", "obc", "phc", "scale")
 AP_NAMES = ("A1", "A2", "A3", "B1", "B2", "C1", "C2")
@@ -305,14 +305,14 @@ def aicon_block(export: AiconExport, *, sigma_image_um: float | None = None, sel
 
     * camera: ``c = −c_AICON`` (positive), ``xp, yp = x0, y0``, ``ap_model = "aicon"`` with
       ``ap = (A1, A2, A3, B1, B2, C1, C2)``; ``r0`` in ``meta["aicon"]["r0"][camera]`` and
-      ``meta["ap_meta"][camera]["r0"]``.  With ``self_calibration`` c, xp, yp and the APs named in
+      ``Block.ap_meta[camera]["r0"]``.  With ``self_calibration`` c, xp, yp and the APs named in
       ``free_ap`` are free (default :data:`VENDOR_FREE_AP`: A1 A2 B1 B2, as AICON ran it; A3, C1, C2
       stay fixed at the exported values); ``free_ap = None`` frees every AP that is not exactly 0 in
       the file.  Without ``self_calibration`` everything is fixed.
     * photos: ω φ κ as exported, all free.  Points: role ``tie``, XYZ from the ``.obc``.
     * observations: cov ``diag(sx², sy²)`` from the file, or ``sigma_image_um`` for all;
       ``active = False`` for disabled measurements.
-    * ``meta["distances"]``: ``[(id_a, id_b, distance_mm, sigma_mm)]`` of the active scale bars.
+    * ``Block.scale_bars``: the active scale bars (ids of the ends, distance and σ in mm).
 
     Unless ``keep_unused``, points without coordinates in the ``.obc`` and points with fewer than
     two active measurements are left out with their measurements (listed in
@@ -378,8 +378,6 @@ def aicon_block(export: AiconExport, *, sigma_image_um: float | None = None, sel
                                  path=Path(export.files["scale"]), line=ln, field="point_a" if q == a else "point_b")
     phc_file = export.files["phc"]
     meta = {
-        "distances": distances,
-        "ap_meta": {c.id: {"r0": c.r0} for c in cams},
         "aicon": {
             "prefix": str(export.prefix), "files": dict(export.files),
             "r0": {c.id: c.r0 for c in cams}, "c_file": {c.id: c.c for c in cams},
@@ -391,11 +389,12 @@ def aicon_block(export: AiconExport, *, sigma_image_um: float | None = None, sel
             "disabled_measurements": int((~active[rows]).sum()),
             "point_sigma_file": pt["sigma"][[k for k, p in enumerate(pt["id"]) if p in pidx]],
         },
-        "source_lines": {(int(o), int(q)): (phc_file, int(ms["line"][k]))
-                         for o, q, k in zip(obs.photo, obs.point, rows)},
     }
-    meta.setdefault("source", str(phc_file))
-    return Block(cameras=cameras, photos=photos, points=points, observations=obs, object_unit="mm", meta=meta)
+    source = SourceInfo(path=str(phc_file), format="AICON 3D Studio",
+                        lines={(int(o), int(q)): (phc_file, int(ms["line"][k]))
+                               for o, q, k in zip(obs.photo, obs.point, rows)})
+    return Block(cameras=cameras, photos=photos, points=points, observations=obs, object_unit="mm", meta=meta,
+                 scale_bars=ScaleBars.make(distances), ap_meta={c.id: {"r0": c.r0} for c in cams}, source=source)
 
 
 def perturb_initial_values(block: Block, rng: np.random.Generator, *, sigma_position: float = 0.0,

@@ -92,7 +92,7 @@ class AiconSource(SourceStage):
                    "disabled_measurements": a["disabled_measurements"],
                    "dropped_measurements": a["dropped_measurements"],
                    "dropped_points": sum(len(v) for v in a["dropped_points"].values()),
-                   "distances": len(block.meta["distances"]),
+                   "distances": len(block.scale_bars),
                    "perturbed": options.perturb is not None}
         return StageResult(artefacts={"block": block}, summary=summary,
                            report=_report(block, exported, options), tables=_tables(block),
@@ -108,7 +108,7 @@ class AiconSource(SourceStage):
         ok = np.isfinite(pts.XYZ).all(axis=1)
         rec.log("world/points", rr.Points3D(pts.XYZ[ok], labels=pts.ids[ok].tolist(), colors=[150, 150, 150],
                                             radii=rr.Radius.ui_points(3.0)), static=True)
-        bars = [(a, b) for a, b, *_ in block.meta["distances"]]
+        bars = [(a, b) for a, b, *_ in block.scale_bars.rows()]
         if bars:
             idx = {p: k for k, p in enumerate(pts.ids)}
             rec.log("world/scale_bars", rr.LineStrips3D([[pts.XYZ[idx[a]], pts.XYZ[idx[b]]] for a, b in bars],
@@ -134,7 +134,7 @@ def _report(block, exported, options) -> str:
     cam = exported.cameras
     lines = [f"Read `{a['prefix']}.*`: {s['cameras']} camera(s), {s['photos']} images, {s['points']} object "
              f"points, {s['observations']} image measurements ({a['disabled_measurements']} disabled in the "
-             f"export → inactive), {len(block.meta['distances'])} scale bar(s). Object unit mm.", ""]
+             f"export → inactive), {len(block.scale_bars)} scale bar(s). Object unit mm.", ""]
     dp = a["dropped_points"]
     if any(dp.values()):
         lines += [f"Left out: {len(dp['without_coordinates'])} point(s) without .obc coordinates and "
@@ -145,7 +145,7 @@ def _report(block, exported, options) -> str:
         rows.append([cid, f"{cam.c[k]:.5f}", f"{a['c_file'][cid]:.5f}", f"{cam.xp[k]:.5f}", f"{cam.yp[k]:.5f}",
                      f"{a['r0'][cid]:g}"] + [f"{v:.5e}" for v in exported.cameras.ap[k]])
     lines += [markdown_table(["camera", "c (baarda) = −c (AICON)", "c (AICON)", "xp", "yp", "r0", *AP_NAMES], rows), ""]
-    for a_, b_, d, sg in block.meta["distances"]:
+    for a_, b_, d, sg in block.scale_bars.rows():
         lines.append(f"Scale bar {a_}–{b_}: {d:.4f} ± {sg:.4f} mm.")
     if options.perturb is not None:
         p = options.perturb

@@ -41,7 +41,7 @@ def _check_ids(ids, what: str) -> None:
 
 def write_aicon(block, prefix: str | Path, *, residuals=None, point_sigma=None) -> dict:
     """Write ``block`` as ``prefix.ior/.eor/.obc/.phc`` (and ``.scale`` when
-    ``block.meta["distances"]`` holds scale bars).  ``residuals (k, 2)`` baarda's v (observed −
+    ``block.scale_bars`` holds scale bars).  ``residuals (k, 2)`` baarda's v (observed −
     computed, mm) for the ``.phc`` (0 without), ``point_sigma (n, 3)`` for the ``.obc`` (0 without).
     Raises :class:`InputError` for ids that are not whole numbers, a camera model AICON cannot
     express, or photos/points without coordinates."""
@@ -50,7 +50,7 @@ def write_aicon(block, prefix: str | Path, *, residuals=None, point_sigma=None) 
     s = 1000.0 if block.object_unit == "m" else 1.0
     for ids, what in ((cams.ids, "camera"), (ph.ids, "photo"), (pts.ids, "point")):
         _check_ids(ids, what)
-    ap_meta = block.meta.get("ap_meta", {})
+    ap_meta = block.ap_meta
     lines = []
     for j, cid in enumerate(cams.ids):
         model = str(cams.ap_model[j])
@@ -89,7 +89,7 @@ def write_aicon(block, prefix: str | Path, *, residuals=None, point_sigma=None) 
     files["phc"] = _write(prefix, "phc", [
         f"{ph.ids[obs.photo[k]]} {pts.ids[obs.point[k]]} {_g(obs.xy[k, 0])} {_g(obs.xy[k, 1])} {_g(sxy[k, 0])} "
         f"{_g(sxy[k, 1])} {_g(vxy[k, 0])} {_g(vxy[k, 1])} 1 {int(bool(obs.active[k]))} 1" for k in range(len(obs))])
-    dist = block.meta.get("distances", [])
+    dist = block.scale_bars.rows()
     if dist:
         files["scale"] = _write(prefix, "scale", [
             f'{k} "Scalebar{k}" {a} {b} {_g(d * s)} {_g(sg * s)} 1' for k, (a, b, d, sg) in enumerate(dist)])

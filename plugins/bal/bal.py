@@ -28,7 +28,7 @@ from baarda.pipeline.geometry.rotations import rotation_from_rotvec
 
 from baarda.pipeline.errors import InputError, quote
 from baarda.pipeline.geometry import opk_from_rotation
-from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points
+from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points, SourceInfo
 
 from baarda.pipeline.camera.convert import BROWN
 
@@ -219,7 +219,8 @@ def block_from_bal(problem: BalProblem, *, pixel_mm: float = 0.001, sigma_px: fl
     points = Points.make([str(j) for j in range(len(problem.points))], XYZ=problem.points, role="tie")
     obs = Observations.make(problem.cam, problem.pt, problem.xy * pixel_mm, sigma=sigma_px * pixel_mm)
     return Block(cameras=cameras, photos=photos, points=points, observations=obs, object_unit=object_unit,
-                 meta={"source": problem.path, "bal": {"format": "bal", "pixel_mm": pixel_mm}})
+                 meta={"bal": {"format": "bal", "pixel_mm": pixel_mm}},
+                 source=SourceInfo(path=problem.path, format="BAL", pixel_format="BAL"))
 
 
 def bal_reprojection(problem: BalProblem) -> np.ndarray:

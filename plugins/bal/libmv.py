@@ -27,7 +27,7 @@ import numpy as np
 from baarda.pipeline.geometry.rotations import nearest_rotation
 
 from baarda.pipeline.errors import InputError
-from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points
+from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points, SourceInfo
 
 from baarda.pipeline.geometry.image import mm_from_pixels
 from baarda.pipeline.geometry.pose import pose_from_cv
@@ -193,7 +193,8 @@ def block_from_libmv(problem: LibmvProblem, *, pixel_mm: float = 0.001, sigma_px
     xy = mm_from_pixels(problem.marker_xy[keep], size, pixel_mm, "colmap")
     obs = Observations.make(ph, pt, xy, sigma=sigma_px * pixel_mm)
     block = Block(cameras=cameras, photos=photos, points=points, observations=obs, object_unit=object_unit,
-                  meta={"source": problem.path, "libmv": {"resolution": size, "pixel_mm": pixel_mm}})
+                  meta={"libmv": {"resolution": size, "pixel_mm": pixel_mm}},
+                  source=SourceInfo(path=problem.path, format="libmv", pixel_format="libmv"))
     return block, {"dropped_markers": int((~keep).sum()), "resolution": size}
 
 

@@ -251,32 +251,10 @@ def distortion(res, j: int, n: int = 60):
     return fig
 
 
-def photo_images(block, previous=()) -> dict:
-    """Photo id → image file: from the block (``meta["targets"]["images"]``, opencv-targets;
-    ``meta["dbat"]["images"]``, a DBAT project's images that were found) or from
-    an earlier stage's ``images`` artefact with ``paths`` and ``photo_ids`` (testfield-render)."""
-    out = {}
-    meta = block.meta if isinstance(block.meta, dict) else {}
-    t = meta.get("targets")
-    if isinstance(t, dict) and isinstance(t.get("images"), dict):
-        out.update({str(k): v for k, v in t["images"].items() if v})
-    d = meta.get("dbat")                        # image files by DBAT's image number; photo id → number
-    if isinstance(d, dict) and isinstance(d.get("images"), dict) and isinstance(d.get("image_numbers"), dict):
-        for pid, num in d["image_numbers"].items():
-            f = d["images"].get(str(num))
-            if f and str(pid) not in out:
-                out[str(pid)] = f
-    for st in previous:
-        art = getattr(st.result, "artefacts", {}).get("images")
-        if art is not None and hasattr(art, "paths") and hasattr(art, "photo_ids"):
-            out.update({str(pid): path for pid, path in zip(art.photo_ids, art.paths) if str(pid) not in out})
-    return out
-
-
-def bundle_figures(res, decision=None, previous=()) -> dict:
+def bundle_figures(res, decision=None) -> dict:
     """Every figure of a bundle result: name → (figure, caption)."""
     out = {}
-    images = photo_images(res.block_in, previous)
+    images = res.block_in.photos.images()     # photo id → image file (``Photos.image_path``), where a source found it
     out["residuals"] = (residual_vectors(res, decision, images),
                         "Residual vectors per photo over the format" + (" and the photo" if images else ""))
     snap = res.snapshot

@@ -32,7 +32,7 @@ PER_PHOTO_MOST = 30
 
 def image_units(block) -> tuple[str, float, str | None]:
     """``(unit, scale from mm, pixel source)``: px for a pixel source with one pixel pitch, else µm."""
-    src = pixel_source(block.meta)
+    src = pixel_source(block)
     pitch = np.asarray(block.cameras.pixel_mm, float)
     if src and pitch.size and np.all(np.isfinite(pitch)) and np.all(pitch == pitch[0]) and pitch[0] > 0:
         return "px", 1.0 / float(pitch[0]), src

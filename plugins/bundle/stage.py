@@ -352,7 +352,7 @@ class BundleAdjustment:
         """Figures for report.html (drawn by the engine; see plugins/bundle/figures.py)."""
         from .figures import bundle_figures
 
-        return bundle_figures(result.data["result"], result.data["decision"], ctx.previous)
+        return bundle_figures(result.data["result"], result.data["decision"])
 
     def log(self, result: StageResult, rec, ctx: Context) -> None:
         from .rrlog import log_bundle
@@ -400,7 +400,7 @@ def _state_tables(st, block: Block) -> dict:
 
 
 def _crs_columns(res: BundleResult, block: Block) -> dict:
-    """The adjusted points and their σ in the user's CRS (``block.meta["crs"]``, written by a source
+    """The adjusted points and their σ in the user's CRS (``block.crs``, set by a source
     that read coordinates in a CRS; the adjustment itself runs in the local east-north-up frame):
     ``<axis>_crs`` and ``s<axis>_crs``, the covariance carried over as ``J C Jᵀ``.  None without a CRS."""
     from baarda.pipeline.crs import frame_of_block
@@ -883,7 +883,7 @@ def _gnss(res: BundleResult, o) -> dict | None:
     G = len(gs.index)
     w, mdb = ds.w.reshape(G, 3), ds.mdb.reshape(G, 3)
     flagged = ds.flagged.reshape(G, 3).any(axis=1)
-    ax = ("E", "N", "U") if isinstance(blk.meta, dict) and blk.meta.get("crs") else ("X", "Y", "Z")
+    ax = ("E", "N", "U") if blk.crs is not None else ("X", "Y", "Z")
     ids = blk.photos.ids[blk.gnss.photo[gs.index]].astype(str).tolist()
     u = blk.object_unit
     cols = {"photo": ids}

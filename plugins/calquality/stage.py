@@ -67,7 +67,7 @@ class CalibrationQuality(Stage):
         if not todo:
             raise ctx.option_error("no camera with estimated parameters to assess", "cameras")
         out, tables, summary, lines = {}, {}, {"cameras": {}}, []
-        src = pixel_source(res.block_in.meta)
+        src = pixel_source(res.block_in)
         for j in ctx.progress.track(todo, what="cameras"):
             cid = ids[j]
             pix = float(cams.pixel_mm[j])

@@ -87,17 +87,18 @@ class ColmapExportOptions:
             raise ValueError(f"camera_model must be 'keep', 'auto' or one of {', '.join(COLMAP_PARAMS)}")
 
 
-def block_to_export(inputs) -> tuple[object, str]:
-    """The block to write: the adjusted block of an ``adjustment`` artefact (anything with ``.block``
-    and ``.block_in``) when it was computed from the current ``block``, else ``block`` itself."""
-    block = inputs["block"]
-    adj = inputs.get("adjustment")
-    if adj is not None and getattr(adj, "block_in", None) is block and hasattr(adj, "block"):
-        return adj.block, "adjusted"
-    done = getattr(getattr(adj, "model", adj), "block", None)       # a bundle's adjusted block
-    if done is not None and (done is block or (
+def block_to_export(block, bundle=None) -> tuple[object, str]:
+    """The block to write: the adjusted block of the run's ``bundle`` (a BundleResult) when it was
+    computed from ``block``, ``block`` itself when it is that adjusted block (the bundle hands it on,
+    rejected observations switched off), else ``block`` as given."""
+    if bundle is None:
+        return block, "as given"
+    if bundle.block_in is block:
+        return bundle.block, "adjusted"
+    done = bundle.block
+    if done is block or (
             np.array_equal(done.points.XYZ, block.points.XYZ, equal_nan=True)
-            and np.array_equal(done.photos.X0, block.photos.X0, equal_nan=True))):
+            and np.array_equal(done.photos.X0, block.photos.X0, equal_nan=True)):
         return block, "adjusted"            # the bundle hands it on (rejected observations switched off)
     return block, "as given"
 
@@ -105,8 +106,8 @@ def block_to_export(inputs) -> tuple[object, str]:
 class ColmapExport(Stage):
     """Write the block (adjusted, if a bundle ran before) as a COLMAP model."""
 
-    summary = "block (adjusted if an adjustment of it exists) → COLMAP model folder (text or binary)"
-    reads = ("block", "adjustment?")
+    summary = "block (adjusted if a bundle of it ran) → COLMAP model folder (text or binary)"
+    reads = ("block", "bundle?")
     writes = ()
     paths = {"path": "output"}            # the folder written (not checked by validate)
     Options = ColmapExportOptions
@@ -115,7 +116,7 @@ class ColmapExport(Stage):
         if not str(options.path) or str(options.path) == ".":
             raise InputError("option 'path' (the output folder) is required", field="path", path=ctx.project_file)
         out = ctx.output_path(options.path, "path")
-        block, which = block_to_export(inputs)
+        block, which = block_to_export(inputs["block"], inputs.get("bundle"))
         info = write_colmap(block, out, fmt=options.format, camera_model=options.camera_model)
         info["block"] = which
         if info["skipped_photos"]:

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from baarda.pipeline.errors import InputError
-from baarda.pipeline.model import Block, Cameras, Observations, Pairs, Photos, Points
+from baarda.pipeline.model import Block, Cameras, Observations, Pairs, Photos, Points, SourceInfo
 
 from .interior import MIN_FIDUCIALS, InteriorFit, fit_interior
 from .parser import ComparatorFile
@@ -163,14 +163,13 @@ def build_block(parsed: ComparatorFile, interior: dict[str, InteriorResult]) -> 
     photo_index = {p.id: i for i, p in enumerate(photos_l)}
     pairs = Pairs(left=np.array([photo_index[p.left] for p in parsed.pairs], int),
                   right=np.array([photo_index[p.right] for p in parsed.pairs], int))
-    meta = {
-        "source": {"path": str(parsed.path), "format": "baarda-comparator", "mode": parsed.mode,
-                   "unit": parsed.unit,
-                   "transform": next(iter(interior.values())).fit.kind if interior else None},
-        "source_lines": lines,
+    meta = {"comparator": {
+        "mode": parsed.mode, "unit": parsed.unit,
+        "transform": next(iter(interior.values())).fit.kind if interior else None,
         "photo_lines": {p.id: (str(parsed.path), p.line) for p in photos_l},
-        "pair_lines": [(str(parsed.path), p.line) for p in parsed.pairs],
         "interior_orientation": {k: r.report() for k, r in interior.items()},
-    }
+    }}
+    source = SourceInfo(path=str(parsed.path), format="baarda-comparator", lines=lines,
+                        pair_lines=[(str(parsed.path), p.line) for p in parsed.pairs])
     return Block(cameras=cameras, photos=photos, points=points, observations=obs, pairs=pairs,
-                 object_unit=parsed.object_unit, meta=meta)
+                 object_unit=parsed.object_unit, meta=meta, source=source)

@@ -170,7 +170,7 @@ def _tables(block, interior, tol_mm) -> dict:
         tables["interior"] = TableData(cols, "fiducial residuals of the interior orientation "
                                              "(calibrated − transformed, µm)")
     obs = block.observations
-    lines = block.meta.get("source_lines", {})
+    lines = block.source.lines
     tables["observations"] = TableData({
         "photo": block.photos.ids[obs.photo].tolist(),
         "point": block.points.ids[obs.point].tolist(),

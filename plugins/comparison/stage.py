@@ -6,13 +6,14 @@ one per variant, for a stage that runs several) and a table ``check_points`` wit
 ``point, dX, dY, dZ`` (adjusted minus surveyed). A study that pools several realisations adds
 ``"realisations"`` to its dict; ``n`` stays the check points of one realisation and the report shows
 ``n × realisations``. A one-line finding comes from
-``summary["headline"]`` or else from the first line of the stage's report.
+``summary["headline"]`` or else from the first line of the stage's report
+(:func:`baarda.pipeline.stage.headline_of`).  The stage reads no artefact: the engine offers every
+earlier stage's finding as a typed record (``ctx.findings``, :class:`~baarda.pipeline.stage.Finding`).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import re
 
 import numpy as np
 
@@ -23,17 +24,6 @@ from baarda.pipeline.stage import Stage, StageResult, TableData
 from .plot import checkpoint_chart, png_bytes
 
 KEYS = ("Sx", "Sy", "Sxy", "Sz")
-
-
-def headline(result) -> str:
-    h = result.summary.get("headline") if isinstance(result.summary, dict) else None
-    if h:
-        return str(h)
-    for line in (result.report or "").splitlines():
-        line = line.strip().lstrip("-*# ").strip()
-        if line and not line.startswith("|"):
-            return re.sub(r"\s+", " ", line)[:240]
-    return "(no report)"
 
 
 def _count(m) -> str:
@@ -56,19 +46,20 @@ def _is_rmse(d) -> bool:
     return isinstance(d, dict) and all(k in d for k in ("Sx", "Sy", "Sz"))
 
 
-def collect_methods(previous) -> list[dict]:
-    """Check-point RMSE (and per-point errors) of every earlier stage that has them."""
+def collect_methods(findings) -> list[dict]:
+    """Check-point RMSE (and per-point errors) of every earlier stage that has them
+    (``findings``: the run's :class:`~baarda.pipeline.stage.Finding` records, ``ctx.findings``)."""
     methods = []
-    for st in previous:
-        cp = st.result.summary.get("check_points") if isinstance(st.result.summary, dict) else None
+    for st in findings:
+        cp = st.summary.get("check_points")
         if cp is None:
             continue
-        variants = {st.id: cp} if _is_rmse(cp) else {f"{st.id}: {k}": v for k, v in cp.items() if _is_rmse(v)}
-        table = st.result.tables.get("check_points")
+        variants = {st.stage: cp} if _is_rmse(cp) else {f"{st.stage}: {k}": v for k, v in cp.items() if _is_rmse(v)}
+        table = st.tables.get("check_points")
         for name, d in variants.items():
             if not d.get("n") or not any(np.isfinite(float(d.get(k, np.nan) or np.nan)) for k in ("Sx", "Sy", "Sz")):
                 continue  # an adjustment without check points
-            m = {"name": name, "stage": st.id, "use": st.use, "n": d.get("n"),
+            m = {"name": name, "stage": st.stage, "use": st.use, "n": d.get("n"),
                  "realisations": d.get("realisations"), "unit": d.get("unit", "")}
             for k in KEYS:
                 v = d.get(k)
@@ -96,8 +87,8 @@ class Comparison(Stage):
                                      "or 'cm' etc. when you set scale)")
 
     def run(self, inputs, options, ctx):
-        found = [(st.id, st.use, headline(st.result)) for st in ctx.previous]
-        methods = collect_methods(ctx.previous)
+        found = [(st.stage, st.use, st.headline) for st in ctx.findings]
+        methods = collect_methods(ctx.findings)
         unit = options.unit_label or (methods[0]["unit"] if methods and methods[0]["unit"] else ctx.object_unit)
         for m in methods:
             for k in KEYS:

@@ -146,7 +146,7 @@ def start_block(result, plan: CrossCheckPlan, start, *, xy=None):
     XYZ = np.where(plan.point_held[:, None], adj.points.XYZ, start.points.XYZ)
     obs = start.observations
     obs = obs.replace(active=plan.obs_used, xy=obs.xy if xy is None else xy)
-    meta = {k: v for k, v in start.meta.items() if k != "colmap"} if isinstance(start.meta, dict) else {}
+    meta = {}       # no source's private data: the COLMAP writer numbers cameras, images and points afresh
     return start.replace(cameras=cameras, photos=ph.replace(X0=X0, opk=opk), points=start.points.replace(XYZ=XYZ),
                          observations=obs, meta=meta), size
 
@@ -195,8 +195,8 @@ def twin_single_tracks(rec, constant_ids) -> int:
 def block_to_reconstruction(blk, models, size=None):
     """``(reconstruction, RecMap)`` of a block whose cameras are "none"/"brown" with a pixel pitch.
 
-    The writer (:func:`baarda.pipeline.colmap.writer.reconstruction_from_block`, on a copy without COLMAP
-    meta, so ids are 1, 2, … in block order and each active observation is one keypoint) builds
+    The writer (:func:`baarda.pipeline.colmap.writer.reconstruction_from_block`, on a copy without the
+    source's private ``meta``, so ids are 1, 2, … in block order and each active observation is one keypoint) builds
     cameras, rigs, frames, images and tracks; camera ``j`` then gets the COLMAP model
     ``models[j]`` (None: keep the writer's choice) with :func:`colmap_from_brown`.  ``size``
     (K, 2) overrides the cameras' resolution (the pixel grid).
@@ -205,8 +205,7 @@ def block_to_reconstruction(blk, models, size=None):
 
     if size is not None:
         blk = blk.replace(cameras=blk.cameras.replace(resolution=np.asarray(size, int)))
-    if isinstance(blk.meta, dict) and "colmap" in blk.meta:
-        blk = blk.replace(meta={k: v for k, v in blk.meta.items() if k != "colmap"})
+    blk = blk.replace(meta={})      # no source's private data (a COLMAP model's ids): ids 1, 2, … in block order
     size = np.asarray(blk.cameras.resolution, int)
     rec, info = reconstruction_from_block(blk, camera_model="auto")
     cams, photos, obs = blk.cameras, blk.photos, blk.observations

@@ -15,6 +15,7 @@ from typing import ClassVar, Literal
 
 import numpy as np
 
+from baarda.pipeline.adjustment import BundleResult
 from baarda.pipeline.errors import InputError
 from baarda.pipeline.options import option
 from baarda.pipeline.report import markdown_table
@@ -101,10 +102,9 @@ class PycolmapCrossCheck(Stage):
 
             ctx.warn("no 'bundle' artefact: the block was adjusted here with the bundle's default settings")
             result = adjust(block, BundleSettings())
-        for attr in ("state", "problem", "block_in", "residuals", "cov_cameras"):
-            if not hasattr(result, attr):
-                raise InputError(f"the 'bundle' artefact is a {type(result).__name__}, not a bundle result "
-                                 f"(no '{attr}')", path=ctx.project_file, field="bundle")
+        if not isinstance(result, BundleResult):
+            raise InputError(f"the 'bundle' artefact is a {type(result).__name__}, not a bundle result",
+                             path=ctx.project_file, field="bundle")
         solver = SolverSettings(max_iter=options.max_iter, num_threads=options.num_threads,
                                 covariance=options.covariance)
         ctx.progress.message("solving with pycolmap …")

@@ -45,7 +45,7 @@ import numpy as np
 from baarda.pipeline.errors import InputError, quote
 from baarda.pipeline.errors import finite_number as _num
 from baarda.pipeline.geometry import mm_from_pixels
-from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points
+from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points, SourceInfo
 
 AP_NAMES = ("K1", "K2", "K3", "P1", "P2", "aspect", "skew")
 """Order of the parameters in ``Cameras.ap`` (the ``brown-backward`` model)."""
@@ -807,7 +807,8 @@ def dbat_block(script: DbatScript) -> Block:
     xy = mm_from_pixels(uv, (W, H), p, convention="colmap")
     obs = Observations.make(np.asarray(ob_img, int)[keep_obs], [index[q] for q in ob_pt_arr[keep_obs]], xy,
                             sigma=np.asarray(ob_s, float)[keep_obs] * p)
-    photos = Photos.make(photo_ids(script.images), camera=0)
+    photos = Photos.make(photo_ids(script.images), camera=0,
+                         image_path=[str(script.image_files.get(k) or "") for k in script.images])
     if script.eo_initial == "loaded" and script.prior_eo:
         X0 = np.full((len(photos), 3), np.nan)
         opk = np.full((len(photos), 3), np.nan)
@@ -834,6 +835,6 @@ def dbat_block(script: DbatScript) -> Block:
             "control_files": [str(s.file) for s in script.control],
             "check_files": [str(s.file) for s in script.check],
         },
-        "ap_meta": {},
     }
-    return Block(cameras, photos, points, obs, object_unit=script.object_unit, meta=meta)
+    return Block(cameras, photos, points, obs, object_unit=script.object_unit, meta=meta,
+                 source=SourceInfo(path=str(script.path), format="DBAT"))

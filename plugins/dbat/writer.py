@@ -73,7 +73,7 @@ def _io_flags(est: dict) -> list[tuple[str, bool]]:
 
 def in_user_crs(block):
     """``block`` with its points, projection centres and attitudes back in the user's CRS when a
-    source read them in one (``block.meta["crs"]``; the adjustment's local east-north-up frame,
+    source read them in one (``block.crs``; the adjustment's local east-north-up frame,
     ``docs/crs.md``), else ``block`` itself: a DBAT script has no CRS, so its coordinates are the
     user's (the ``dbat`` source's ``crs`` option reads them back).  σ stay metres E/N/U."""
     from baarda.pipeline.crs import frame_of_block
@@ -94,9 +94,7 @@ def in_user_crs(block):
         R = rotation_from_opk_many(np.where(ok[:, None], opk[has], 0.0)) @ np.transpose(Rl, (0, 2, 1))
         opk[has] = np.where(ok[:, None], opk_from_rotation_many(R), opk[has])
         X0[has] = frame.from_local(X0[has])
-    meta = {k: v for k, v in block.meta.items() if k != "crs"}
-    meta["written_in_crs"] = frame.crs
-    return block.replace(points=pts.replace(XYZ=XYZ), photos=ph.replace(X0=X0, opk=opk), meta=meta)
+    return block.replace(points=pts.replace(XYZ=XYZ), photos=ph.replace(X0=X0, opk=opk), crs=None)
 
 
 def dbat_files(block, *, name: str = "baarda", prior=None) -> tuple[dict[str, str], dict]:
@@ -172,9 +170,9 @@ def dbat_files(block, *, name: str = "baarda", prior=None) -> tuple[dict[str, st
         files["reference/check.txt"] = head + "# id, label, x, y, z\n" + "".join(
             f"{pts.ids[k]}, {pts.ids[k]}, {_g(XYZp[k, 0])}, {_g(XYZp[k, 1])}, {_g(XYZp[k, 2])}\n" for k in chk)
     # images: DBAT's numbers (those the block was read with, else 1 … m), the photo id as file name
-    meta = block.meta.get("dbat") or {}
-    numbers = meta.get("image_numbers") or {}
-    paths = meta.get("image_paths") or {}
+    dbat = block.meta.get("dbat") or {}
+    numbers = dbat.get("image_numbers") or {}
+    paths = dbat.get("image_paths") or {}
     used = {str(v) for v in numbers.values()}
     nums, nxt = [], 1
     for pid in ph.ids.tolist():
@@ -207,7 +205,7 @@ def dbat_files(block, *, name: str = "baarda", prior=None) -> tuple[dict[str, st
         + "".join(f"{nums[obs.photo[r]]}, {pts.ids[obs.point[r]]}, {_g(u)}, {_g(v)}, {_g(s)}\n"
                   for r, (u, v), s in zip(act, uv, sxy))
     # the script
-    min_rays = int(meta.get("min_rays", 2))
+    min_rays = int(dbat.get("min_rays", 2))
     io = "".join(f"          <{t}>{'true' if v else 'false'}</{t}>\n" for t, v in _io_flags(est))
     ctrl_fmt = "id,label,x,y,z,sx,sy,sz" if weighted else "id,label,x,y,z"
     eo_xml = ("\n    <prior_eo>\n      <file format=\"id,x,y,z,omega,phi,kappa\" units=\"degrees\">prior/eo.txt</file>\n"

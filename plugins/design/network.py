@@ -81,7 +81,7 @@ def plan_block(camera: PlannedCamera, station_ids, X0, opk, target_ids, XYZ, rol
     points = Points.make(list(map(str, target_ids)), XYZ, role, sigma=sig)
     photos = Photos.make(list(map(str, station_ids)), 0, X0, opk)
     empty = Block(cams, photos, points, Observations.make(np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2))),
-                  object_unit=object_unit, meta={"ap_meta": {"cam": dict(camera.ap_meta or {})}, "design": True})
+                  object_unit=object_unit, meta={"design": True}, ap_meta={"cam": dict(camera.ap_meta or {})})
     meta = camera_meta(empty, BundleSettings())
     params = np.r_[cams.c[0], cams.xp[0], cams.yp[0], cams.ap[0]][None]
     pr = project_observations(ph, pt, XYZ, X0, opk, np.zeros(m, int), params, [camera.ap_model], meta,

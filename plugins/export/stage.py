@@ -1,7 +1,7 @@
 """Stage ``export``: adjusted points with their standard deviations as PLY and CSV in the user's CRS.
 
 The block's points (adjusted, after a bundle) go back from the local frame to the CRS they were
-read in (``block.meta["crs"]``; ``docs/crs.md``), or to another CRS given as ``crs``; their
+read in (``block.crs``; ``docs/crs.md``), or to another CRS given as ``crs``; their
 covariance from the bundle is propagated with the conversion's Jacobian (``docs/export.md``).
 """
 
@@ -78,7 +78,7 @@ class PointExport:
             written.append(write_csv(out.with_name(out.name + ".csv"), ex))
         fin = np.isfinite(ex.sigma).all(axis=1)
         summary = {"points": int(len(ex.ids)), "files": [p.name for p in written],
-                   "crs": "local" if ex.crs is None else (options.crs or block.meta.get("crs", {}).get("crs", "")[:80]),
+                   "crs": "local" if ex.crs is None else (options.crs or block.crs.crs[:80]),
                    "axes": list(ex.names), "with_sigma": int(fin.sum())}
         med = np.median(ex.sigma[fin], axis=0) if fin.any() else [np.nan] * 3
         to_mm = 1000.0 if ex.unit == "m" else 1.0

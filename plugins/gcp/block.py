@@ -17,7 +17,7 @@ import numpy as np
 
 from baarda.pipeline.errors import InputError
 from baarda.pipeline.geometry import mm_from_pixels, rotation_from_opk_many
-from baarda.pipeline.model import FREE, Block, Cameras, Gnss, Observations, Photos, Points
+from baarda.pipeline.model import FREE, Block, Cameras, Gnss, Observations, Photos, Points, SourceInfo
 
 
 @dataclass(frozen=True)
@@ -97,18 +97,19 @@ def gcp_block(gcp, camera: CameraSpec, frame, *, sigma_px: float = 1.0, sigma_co
     # points seen in no kept photo stay in the block (their coordinates are reported) but have no rays
     points = Points.make(names, XYZ, role.astype(str), sigma=sig)
     photos = Photos.make(keep_images, 0)
+    source = SourceInfo(
+        path=str(gcp.path), format="gcp_list",
+        lines={(int(ph_index[gcp.image[k]]), int(pt_index[gcp.name[k]])): (str(gcp.path), int(gcp.line[k]))
+               for k in rows})
     meta = {
-        "crs": frame.to_meta(),
-        "source": str(gcp.path),
-        "source_lines": {(int(ph_index[gcp.image[k]]), int(pt_index[gcp.name[k]])): (str(gcp.path), int(gcp.line[k]))
-                         for k in rows},
         "gcp": {"path": str(gcp.path), "crs": gcp.crs, "user_xyz": geo, "dropped_photos": dropped,
                 "measurements": int(len(gcp.image)), "used_measurements": int(len(rows))},
     }
     info = {"targets": len(names), "photos": len(keep_images), "dropped_photos": dropped,
             "measurements": len(gcp.image), "used_measurements": int(len(rows)),
             "control": int((role == "full").sum()), "check": int((role == "check").sum())}
-    return Block(camera.cameras(), photos, points, obs, object_unit="m", meta=meta), info
+    return Block(camera.cameras(), photos, points, obs, object_unit="m", meta=meta, crs=frame.info(),
+                 source=source), info
 
 
 def apply_gnss(block: Block, photo_ids, X_antenna, sigma, *, lever_arm=None, opk_default=None) -> tuple[Block, dict]:

@@ -14,15 +14,6 @@ def _plt():
     return plt
 
 
-def earlier_bundle(previous):
-    """The last earlier stage's bundle result with check points (``(stage id, result)``), or None."""
-    for st in reversed(list(previous or ())):
-        res = getattr(getattr(st, "result", None), "artefacts", {}).get("bundle")
-        if res is not None and hasattr(res, "check") and res.check.get("ids"):
-            return getattr(st, "id", "bundle"), res
-    return None
-
-
 def check_point_sets(result, bundle=None) -> list:
     """The sets :func:`baarda.pipeline.plots.point_errors` draws: the model block's check-point errors
     (adjusted − surveyed) at the surveyed positions, and the bundle's where ``bundle`` is given."""
@@ -135,9 +126,10 @@ def model_residuals(table, unit: str):
     return fig
 
 
-def independent_model_figures(result, stats, tables, unit: str, previous=()) -> dict:
+def independent_model_figures(result, stats, tables, unit: str, bundle=None) -> dict:
+    """Every figure: name → (figure, caption).  ``bundle`` ``(stage id, BundleResult)`` of the run's
+    bundle with check points (the ``bundle`` artefact the stage reads), or None."""
     out = {}
-    bundle = earlier_bundle(previous)
     if len(result.block.check["ids"]):
         out["checkpoints"] = (check_points(result, unit, bundle),
                               "Check-point errors (adjusted − surveyed) of the independent-model block"

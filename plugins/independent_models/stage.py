@@ -79,7 +79,7 @@ class IndependentModelsOptions:
 class IndependentModels(Stage):
     summary = ("Independent-model block triangulation: relative orientation per pair, model "
                "coordinates, 7-parameter block adjustment, data snooping, check-point RMSE")
-    reads = ("block",)
+    reads = ("block", "bundle?")
     writes = ("independent-models", "adjustment")
     Options = IndependentModelsOptions
 
@@ -135,17 +135,19 @@ class IndependentModels(Stage):
                            report=im_report.report(result, stats, summary, block)
                            + "\n".join(im_reliability.report_lines(ext, block.object_unit))
                            + im_report.robust_report(robust), tables=tables,
-                           data={"result": result, "stats": stats, "block": block,
+                           data={"result": result, "stats": stats, "block": block, "bundle": inputs.get("bundle"),
                                  "arrow_scale": o.arrow_scale})
 
     def plots(self, result: StageResult, ctx: Context) -> dict:
-        """Figures for report.html: check-point errors (beside an earlier bundle's), y-parallaxes,
-        model-point residuals (plugins/independent_models/figures.py)."""
+        """Figures for report.html: check-point errors (beside those of the run's bundle, the
+        ``bundle`` artefact it reads when there is one), y-parallaxes, model-point residuals
+        (plugins/independent_models/figures.py)."""
         from .figures import independent_model_figures
 
         d = result.data
-        return independent_model_figures(d["result"], d["stats"], result.tables, d["block"].object_unit,
-                                         ctx.previous if ctx is not None else ())
+        name = next((f.stage for f in reversed(ctx.findings) if f.use == "bundle"), "bundle") if ctx else "bundle"
+        bundle = (name, d["bundle"]) if d.get("bundle") is not None and d["bundle"].check.get("ids") else None
+        return independent_model_figures(d["result"], d["stats"], result.tables, d["block"].object_unit, bundle)
 
     def log(self, result: StageResult, rec, ctx: Context) -> None:
         log_independent_models(rec, result.data["result"], result.data["stats"],

@@ -118,8 +118,8 @@ class HelmertScreening:
     def run(self, inputs, options: ScreeningOptions, ctx: Context) -> StageResult:
         block = inputs["block"]
         settings = options.settings()
-        src = block.meta.get("source", {}).get("path")
-        pair_lines = block.meta.get("pair_lines", [])
+        src = block.source.path
+        pair_lines = block.source.pair_lines
         if len(block.pairs) == 0:
             raise InputError("the block has no stereo pairs to screen (declare them, e.g. 'pair L R')",
                              src, None, "pair")

@@ -5,6 +5,7 @@ Per image: read (grayscale), detect, convert pixels to mm with the camera's pitc
 sigma of the target type.  A known board gives full control points (Z = 0) and approximate photo
 orientations (``cv2.solvePnP``).  A problem with one image (unreadable, nothing found, too few
 points, other size) is a warning and the image is skipped; only "no usable image at all" fails.
+The block of the detections is built in :mod:`.blocks`, the report text in :mod:`.report`.
 """
 
 from __future__ import annotations
@@ -20,30 +21,20 @@ import numpy as np
 
 from baarda.pipeline.errors import InputError
 from baarda.pipeline.geometry import rotation_from_opk
-from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Pairs, Photos, Points
 from baarda.pipeline.options import option
 from baarda.pipeline.stage import Context, Stage, StageResult, TableData
 
-from baarda.pipeline.geometry.image import mm_from_pixels, pixels_from_mm
+from baarda.pipeline.geometry.image import pixels_from_mm
 from baarda.pipeline.adjustment import project_block
 from baarda.pipeline.camera.convert import BROWN
 from baarda.pipeline.recording import entity_part, log_block
 
-from .boards import BoardGeometry, aruco_dictionary, object_points
-from .calib import initial_focal_px, opencv_calibration, resect
+from .blocks import IOP, detection_block
+from .boards import BoardGeometry, aruco_dictionary
+from .calib import opencv_calibration
 from .detect import (DEFAULT_SIGMA_PX, Detection, detect_aruco, detect_blobs, detect_charuco, detect_chessboard,
                      detect_circles_grid, detector_parameters, match_to_predicted)
-
-IOP = ("c", "xp", "yp")
-
-
-def _pitch_note(options, sigma_px: float) -> str:
-    """The pixel pitch beside a σ in px only when it is a real one (given, or from a render stage):
-    the default 1 µm is a nominal scale for pixel sources, and µm at that pitch would mean nothing."""
-    default = next(f.default for f in dataclasses.fields(options) if f.name == "pixel_mm")
-    if options.pixel_mm == default:
-        return ""
-    return f" = {sigma_px * options.pixel_mm * 1000:g} µm at pitch {options.pixel_mm:g} mm"
+from .report import detection_report, headline
 
 
 @dataclass(frozen=True)
@@ -107,16 +98,6 @@ class TargetOptions:
                              dictionary=self.dictionary, legacy_pattern=self.legacy_pattern)
 
 
-def pairs_of_layout(layout: Block, block: Block) -> Pairs:
-    """The layout's stereo pairs whose two photos are both in ``block`` (by photo id), re-indexed to
-    ``block``'s photos: a detection that skips a photo drops its pairs, keeps the others."""
-    pos = {str(p): k for k, p in enumerate(block.photos.ids)}
-    ids = layout.photos.ids
-    keep = [(pos[str(ids[a])], pos[str(ids[b])]) for a, b in zip(layout.pairs.left, layout.pairs.right)
-            if str(ids[a]) in pos and str(ids[b]) in pos]
-    return Pairs(left=np.array([a for a, _ in keep], int), right=np.array([b for _, b in keep], int))
-
-
 def find_images(patterns: list[str], base: Path) -> list[Path]:
     """Files matching the patterns (sorted per pattern, first occurrence kept)."""
     out, seen = [], set()
@@ -146,13 +127,6 @@ def _photo_ids(files: list[Path]) -> list[str]:
     if len(set(stems)) == len(stems):
         return stems
     return [str(f) for f in files]
-
-
-def _points_origin(options, block) -> str:
-    """Where the object points of the detection's block come from, for the report."""
-    if options.target == "circles":
-        return "ids and coordinates from the input block's layout"
-    return "control, board frame" if (block.points.role == "full").any() else "tie"
 
 
 def _downscale(gray: np.ndarray, max_size: int) -> tuple[np.ndarray, float]:
@@ -291,7 +265,7 @@ class TargetDetection(Stage):
         if not dets:
             raise InputError(f"no usable detection in {len(files)} image(s) (see the warnings)", field="images",
                              path=ctx.project_file)
-        block, info = self._block(dets, geom, options, sigma_px, layout, ctx)
+        block, info = detection_block(dets, geom, options, sigma_px, layout, ctx.warn)
         for r in rows:
             if r["photo"] in info["size_mismatch"]:
                 r["status"], r["message"] = "skipped", "image size differs from the camera's first image"
@@ -310,8 +284,8 @@ class TargetDetection(Stage):
             summary["opencv_calibration"] = ref
         table = TableData({k: [r[k] for r in rows] for k in ("file", "photo", "camera", "points", "status", "message")},
                           "detections per image")
-        report = self._report(options, files, rows, block, ref, sigma_px)
-        summary["headline"] = _headline(options.target, rows, block, ref)
+        report = detection_report(options, files, rows, block, ref, sigma_px)
+        summary["headline"] = headline(options.target, rows, block, ref)
         return StageResult(artefacts={"block": block}, summary=summary, report=report, tables={"detections": table},
                            data={"images": logged, "block": block})
 
@@ -347,114 +321,6 @@ class TargetDetection(Stage):
         inside = (pred[:, 0] >= 0) & (pred[:, 1] >= 0) & (pred[:, 0] <= size[0] - 1) & (pred[:, 1] <= size[1] - 1)
         return match_to_predicted(uv, pred[inside], [str(i) for i in pts.ids[known[inside]]], options.match_radius_px)
 
-    # -- block ----------------------------------------------------------------------------------
-    def _block(self, dets, geom, options, sigma_px, layout, ctx):
-        size_of: dict[str, tuple[int, int]] = {}
-        mismatch = set()
-        kept = []
-        for pid, cam, size, det in dets:
-            if size_of.setdefault(cam, size) != size:
-                mismatch.add(pid)
-                ctx.warn(f"{pid}: image size {size[0]}×{size[1]} differs from camera '{cam}' "
-                         f"({size_of[cam][0]}×{size_of[cam][1]}); skipped")
-                continue
-            kept.append((pid, cam, size, det))
-        if layout is not None:
-            return self._block_from_layout(kept, layout, options, sigma_px), {"size_mismatch": mismatch,
-                                                                               "cameras_px": {}}
-        board_ids, board_xyz = object_points(geom)
-        xyz_of = dict(zip(board_ids, board_xyz))
-        cam_ids = list(dict.fromkeys(cam for _, cam, _, _ in kept))
-        p = options.pixel_mm
-        # principal distance per camera: option, else from the board's homographies, else the image width
-        f_px = {}
-        for cam in cam_ids:
-            guess = options.principal_distance_mm / p if options.principal_distance_mm > 0 else None
-            if guess is None and geom.has_geometry:
-                views = [(np.array([xyz_of[i] for i in d.ids]), d.uv) for _, c, _, d in kept if c == cam]
-                guess = initial_focal_px([v[0] for v in views], [v[1] for v in views], size_of[cam])
-            f_px[cam] = guess or float(max(size_of[cam]))
-        point_ids = list(dict.fromkeys(i for _, _, _, d in kept for i in d.ids))
-        if geom.has_geometry:
-            points = Points.make([f"{i}" for i in point_ids], XYZ=np.array([xyz_of[i] for i in point_ids]).reshape(-1, 3),
-                                 role="full")
-        else:
-            points = Points.make(point_ids, role="tie")
-        pindex = {i: k for k, i in enumerate(point_ids)}
-        X0 = np.full((len(kept), 3), np.nan)
-        opk = np.full((len(kept), 3), np.nan)
-        obs_photo, obs_point, obs_xy = [], [], []
-        for k, (pid, cam, size, det) in enumerate(kept):
-            if geom.has_geometry:
-                pose = resect(np.array([xyz_of[i] for i in det.ids]), det.uv, f_px[cam], size)
-                if pose is not None:
-                    X0[k], opk[k] = pose
-            obs_photo += [k] * len(det)
-            obs_point += [pindex[i] for i in det.ids]
-            obs_xy.append(mm_from_pixels(det.uv, size, p, "opencv"))
-        photos = Photos.make([pid for pid, _, _, _ in kept], camera=[cam_ids.index(c) for _, c, _, _ in kept],
-                             X0=X0, opk=opk)
-        cameras = self._cameras(cam_ids, size_of, f_px, options)
-        obs = Observations.make(obs_photo, obs_point, np.concatenate(obs_xy), sigma=sigma_px * p)
-        block = Block(cameras=cameras, photos=photos, points=points, observations=obs, object_unit=options.unit,
-                      meta={"targets": {"target": options.target, "images": {pid: str(d.extra.get("file", ""))
-                                                                             for pid, _, _, d in kept},
-                                        "pixel_convention": "opencv"}})
-        return block, {"size_mismatch": mismatch,
-                       "cameras_px": {c: {"f_px_start": f_px[c], "size": list(size_of[c])} for c in cam_ids}}
-
-    def _cameras(self, cam_ids, size_of, f_px, options) -> Cameras:
-        p = options.pixel_mm
-        unknown = set(options.unknowns)
-        n_ap = len(BROWN) if options.ap_model == "brown" else 0
-        sig_iop = [FREE if name in unknown else FIXED for name in IOP]
-        sig_ap = [FREE if name in unknown else FIXED for name in BROWN[:n_ap]]
-        k = len(cam_ids)
-        res = np.array([size_of[c] for c in cam_ids], int).reshape(k, 2)
-        return Cameras.make(cam_ids, [f_px[c] * p for c in cam_ids], 0.0, 0.0, ap_model=options.ap_model,
-                            ap=np.zeros((k, n_ap)), sigma_iop=sig_iop,
-                            sigma_ap=np.tile(np.array(sig_ap, float), (k, 1)).reshape(k, n_ap),
-                            format_mm=res * p, pixel_mm=p, resolution=res)
-
-    def _block_from_layout(self, kept, layout, options, sigma_px) -> Block:
-        """'circles': the input block's cameras, the detected photos and points, new observations."""
-        ph_idx = layout.photos.index_of([pid for pid, _, _, _ in kept])
-        used_points = list(dict.fromkeys(i for _, _, _, d in kept for i in d.ids))
-        pt_idx = layout.points.index_of(used_points)
-        pindex = {i: k for k, i in enumerate(used_points)}
-        cams = layout.cameras
-        obs_photo, obs_point, obs_xy, sig = [], [], [], []
-        for k, (pid, _, size, det) in enumerate(kept):
-            ci = layout.photos.camera[ph_idx[k]]
-            pitch = cams.pixel_mm[ci] if np.isfinite(cams.pixel_mm[ci]) else options.pixel_mm
-            obs_photo += [k] * len(det)
-            obs_point += [pindex[i] for i in det.ids]
-            obs_xy.append(mm_from_pixels(det.uv, size, pitch, "opencv"))
-            sig += [sigma_px * pitch] * len(det)
-        obs = Observations.make(obs_photo, obs_point, np.concatenate(obs_xy), sigma=np.array(sig))
-        meta = dict(layout.meta)
-        meta["targets"] = {"target": "circles", "pixel_convention": "opencv",
-                           "images": {pid: str(d.extra.get("file", "")) for pid, _, _, d in kept}}
-        block = Block(cameras=cams, photos=layout.photos.take(ph_idx), points=layout.points.take(pt_idx),
-                      observations=obs, object_unit=layout.object_unit, meta=meta)
-        return block.replace(pairs=pairs_of_layout(layout, block))
-
-    def _report(self, options, files, rows, block, ref, sigma_px) -> str:
-        used = [r for r in rows if r["status"] == "ok"]
-        lines = [f"Target type **{options.target}**: {len(used)} of {len(files)} image(s) used, "
-                 f"{len(block.observations)} image points, {len(block.points)} object points "
-                 f"({_points_origin(options, block)}); a-priori sigma "
-                 f"{sigma_px:g} px{_pitch_note(options, sigma_px)}.", "",
-                 "| image | camera | points | status | note |", "|---|---|---:|---|---|"]
-        for r in rows:
-            lines.append(f"| {Path(r['file']).name} | {r['camera']} | {r['points']} | {r['status']} | {r['message']} |")
-        for cid, cal in ref.items():
-            d = ", ".join(f"{v:.5g}" for v in cal["dist"])
-            lines += ["", f"cv2.calibrateCamera reference, camera {cid} ({len(cal['views'])} views): fx {cal['fx']:.3f}, "
-                          f"fy {cal['fy']:.3f}, cx {cal['cx']:.3f}, cy {cal['cy']:.3f} px; (k1, k2, p1, p2, k3) = ({d}); "
-                          f"RMS {cal['rms_px']:.4f} px."]
-        return "\n".join(lines)
-
     def log(self, result, rec, ctx) -> None:
         import rerun as rr
 
@@ -465,18 +331,3 @@ class TargetDetection(Stage):
                 rec.log(f"{path}/points", rr.Points2D(uv, labels=list(ids), colors=[[255, 60, 40]],
                                                       radii=rr.Radius.ui_points(3.0)), static=True)
         log_block(rec, result.data["block"], root=f"{ctx.stage_id}/block")
-
-
-def _headline(target: str, rows: list[dict], block, ref: dict) -> str:
-    """One line for ``baarda review``: images used and skipped, the targets detected (image points,
-    object points, fewest and most per used image) and cv2.calibrateCamera's RMS per camera."""
-    used = [r["points"] for r in rows if r["status"] == "ok"]
-    skipped = len(rows) - len(used)
-    out = (f"{target}: {len(used)} of {len(rows)} image(s) used" + (f", {skipped} skipped" if skipped else "")
-           + f"; {len(block.observations)} image points of {len(block.points)} object points")
-    if used:
-        out += f" ({min(used)} per image)" if min(used) == max(used) else f" ({min(used)}–{max(used)} per image)"
-    if ref:
-        out += "; cv2.calibrateCamera RMS " + ", ".join(
-            (f"{cid} " if len(ref) > 1 else "") + f"{cal['rms_px']:.4f}" for cid, cal in ref.items()) + " px"
-    return out

@@ -156,7 +156,9 @@ class TestFieldRender(Stage):
                           "target_radius": settings.target_radius, "sigma_noise": settings.sigma_noise,
                           "supersample": settings.supersample, "files": dict(zip(photo_ids, paths)),
                           "targets": images.targets, "partial": partial}
-        out = out.replace(meta=meta)
+        files = dict(zip(photo_ids, paths))
+        out = out.replace(meta=meta, photos=out.photos.replace(
+            image_path=[files.get(str(pid), "") for pid in out.photos.ids.tolist()]))
         radii = np.array([r[3] for r in rows])
         summary = {
             "headline": f"{len(paths)} photos of {size[0]} × {size[1]} px rendered, {len(rows)} targets "

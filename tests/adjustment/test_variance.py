@@ -5,6 +5,8 @@ and on a simulated two-camera bundle, and the identities Σ r_g = dof, Σ Ω_g =
 from __future__ import annotations
 
 import numpy as np
+
+from baarda.pipeline.model import SourceInfo
 import pytest
 from scipy import optimize
 
@@ -94,9 +96,8 @@ def _two_camera_block(seed, sig_a, sig_b, prior, n_photos=8, n_points=40):
     s = np.where(cam_of_photo[obs.photo] == 0, sig_a, sig_b)
     xy = obs.xy + s[:, None] * rng.standard_normal(obs.xy.shape)
     obs = obs.replace(xy=xy, cov=np.broadcast_to(np.eye(2) * prior ** 2, obs.cov.shape).copy())
-    meta = dict(blk.meta)
-    meta["ap_meta"] = {"A": blk.meta["ap_meta"]["cam"], "B": blk.meta["ap_meta"]["cam"]}
-    return blk.replace(cameras=two, photos=photos, observations=obs, meta=meta)
+    ap_meta = {"A": blk.ap_meta["cam"], "B": blk.ap_meta["cam"]}
+    return blk.replace(cameras=two, photos=photos, observations=obs, ap_meta=ap_meta)
 
 
 def test_group_shares_add_up_to_dof_and_vtpv():
@@ -220,7 +221,7 @@ def test_image_groups_by_source_photo_and_user():
     obs = blk.observations
     half = len(obs) // 2
     lines = {(int(obs.photo[i]), int(obs.point[i])): ("/data/run1/left.txt", i + 1) for i in range(half)}
-    blk = blk.replace(meta={**blk.meta, "source_lines": lines, "source": "/data/right.txt"})
+    blk = blk.replace(source=SourceInfo(path="/data/right.txt", lines=lines))
     lab = image_group_labels(blk, "source")
     assert set(lab[:half]) == {"image source left.txt"} and set(lab[half:]) == {"image source right.txt"}
     lab = image_group_labels(blk, "photo", photo_groups={"pair": ["P1", "P2"]})

@@ -88,7 +88,7 @@ def test_block_conventions_reproduce_phc(block):
     cam = block.cameras
     assert cam.ap_model[0] == "aicon" and cam.c[0] == pytest.approx(28.78507)
     A1, A2, A3, B1, B2, C1, C2 = cam.ap[0]
-    r0 = block.meta["ap_meta"][cam.ids[0]]["r0"]
+    r0 = block.ap_meta[cam.ids[0]]["r0"]
     assert r0 == block.meta["aicon"]["r0"][cam.ids[0]] == 13.488
     obs = block.observations
     act = obs.active
@@ -113,7 +113,7 @@ def test_bundle_aicon_model_agrees(block):
     xb = np.array([-15.0, 3.0, 12.0])
     yb = np.array([9.0, -11.0, 0.5])
     p = np.broadcast_to(block.cameras.ap[0], (3, 7))
-    dx, dy = model.distortion(xb, yb, p, np.full(3, block.cameras.c[0]), block.meta["ap_meta"]["1"])
+    dx, dy = model.distortion(xb, yb, p, np.full(3, block.cameras.c[0]), block.ap_meta["1"])
     A1, A2, A3, B1, B2, C1, C2 = block.cameras.ap[0]
     r2, r0 = xb**2 + yb**2, 13.488
     dr = A1 * (r2 - r0**2) + A2 * (r2**2 - r0**4)
@@ -126,7 +126,7 @@ def test_counts_flags_and_scale(block, export_dir):
     assert (s["photos"], s["points"]) == (115, 150)
     assert s["observations"] == 10030 and s["active_observations"] == 9972
     assert block.meta["aicon"]["disabled_measurements"] == 58
-    assert block.meta["distances"] == [("506", "507", 1389.688, 0.01)]
+    assert block.scale_bars.rows() == [("506", "507", 1389.688, 0.01)]
     assert block.object_unit == "mm"
     # as AICON ran it: A1 A2 B1 B2 free, A3 (= 0), C1, C2 fixed at the file's values; IOP free
     assert list(np.isinf(block.cameras.sigma_ap[0])) == [True, True, False, True, True, False, False]

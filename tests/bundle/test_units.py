@@ -8,6 +8,8 @@ and external-reliability lines against the adjustment's mm numbers divided by th
 from types import SimpleNamespace
 
 import numpy as np
+
+from baarda.pipeline.model import SourceInfo
 import pytest
 
 from baarda.pipeline.camera import get_ap_model
@@ -25,7 +27,7 @@ def _fake_result(model: str, params, sigma, meta, pixel_source: bool):
     rows = [{"camera": "cam", "parameter": n, "value": float(v), "sigma": float(s), "status": "free",
              "apriori_sigma": float("inf")} for n, v, s in zip(names, params, sigma)]
     cams = SimpleNamespace(ap_model=np.array([model]), pixel_mm=np.array([PITCH]))
-    block = SimpleNamespace(cameras=cams, meta={"colmap": {}} if pixel_source else {})
+    block = SimpleNamespace(cameras=cams, source=SourceInfo(pixel_format="COLMAP" if pixel_source else None))
     return SimpleNamespace(block_in=block, camera_table=lambda j: rows)
 
 
@@ -74,7 +76,7 @@ def test_a_mm_source_keeps_mm_and_an_unknown_model_its_own_units():
 def _pixel_block(model="brown"):
     blk, _ = make_block(model=model, n_photos=8, n_points=40, noise_mm=0.001, rng=np.random.default_rng(5))
     cams = blk.cameras
-    return blk.replace(meta={**blk.meta, "colmap": {}},
+    return blk.replace(source=SourceInfo(path="x", format="COLMAP", pixel_format="COLMAP"),
                        cameras=cams.replace(pixel_mm=np.full(len(cams), PITCH),
                                             resolution=np.tile([8000, 5333], (len(cams), 1))))
 

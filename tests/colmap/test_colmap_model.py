@@ -266,16 +266,16 @@ def test_bundle_on_colmap_model_and_export_adjusted(model_dir, tmp_path):
           f"{result.iterations} iterations, dof {result.dof}; RMS {before['rms_px']:.4f} → {after['rms_px']:.4f} px")
     assert 0.8 < result.sigma0_hat < 1.2
     assert after["rms_px"] <= before["rms_px"]
-    chosen, which = block_to_export({"block": block, "adjustment": result})
+    chosen, which = block_to_export(block, result)
     assert which == "adjusted"
     # the block a bundle hands on (its adjusted block) is written as it is, and named adjusted
     adjusted = result.block                     # (a property: a new Block each time)
-    handed_on, which = block_to_export({"block": adjusted, "adjustment": result})
+    handed_on, which = block_to_export(adjusted, result)
     assert handed_on is adjusted and which == "adjusted"
-    given, which = block_to_export({"block": block, "adjustment": None})
+    given, which = block_to_export(block, None)
     assert given is block and which == "as given"
     ctx = Context("export", project_dir=tmp_path, run_dir=tmp_path)
-    ColmapExport().run({"block": block, "adjustment": result}, ColmapExportOptions(path=Path("adj")), ctx)
+    ColmapExport().run({"block": block, "bundle": result}, ColmapExportOptions(path=Path("adj")), ctx)
     rec = pycolmap.Reconstruction(str(tmp_path / "adj"))
     rec.update_point_3d_errors()
     XYZ = np.array([rec.points3D[int(i)].xyz for i in result.block.points.ids])

@@ -76,7 +76,7 @@ def test_good_file_builds_the_block(tmp_path):
     assert b.cameras.format_mm[0].tolist() == [230.0, 230.0]
     # default sigma 5 µm, propagated through the (unit-scale) similarity
     assert np.sqrt(b.observations.cov[0, 0, 0]) == pytest.approx(0.005)
-    assert b.meta["source_lines"][(0, 0)][1] == 14
+    assert b.source.lines[(0, 0)][1] == 14
 
 
 def test_fiducial_fixture_reproduces_table3(tmp_path):

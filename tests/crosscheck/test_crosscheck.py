@@ -167,7 +167,7 @@ def test_not_equivalent_model_is_reported(tmp_path):
     start, _ = _block("brown", ("c", "xp", "yp"), seed=6)
     cams = start.cameras.replace(ap_model=np.array(["ebner12"]), ap=np.zeros((1, 12)),
                                  sigma_ap=np.full((1, 12), np.inf))
-    blk = start.replace(cameras=cams, meta={"ap_meta": {"cam": {"b": 8.0}}})
+    blk = start.replace(cameras=cams, ap_meta={"cam": {"b": 8.0}})
     res = adjust(blk, BundleSettings())
     out = run_stage(PycolmapCrossCheck, {"block": blk, "bundle": res}, {}, tmp_path=tmp_path)
     s = out.summary

@@ -35,7 +35,7 @@ import pytest
 
 from baarda.pipeline.plugins import PluginManager
 from baarda.pipeline.project import load_project, stage_context
-from baarda.pipeline.stage import EarlierStage
+from baarda.pipeline.stage import Finding
 from baarda.plugins.crosscheck import SolverSettings, crosscheck
 
 from conftest import SHARED_BESIDE, needs_shared_beside
@@ -78,13 +78,13 @@ def run_to_bundles(path: Path, run_dir: Path) -> dict:
     the context), without writing their outputs."""
     project = load_project(path, PluginManager())
     last = max(k for k, s in enumerate(project.stages) if s.use == "bundle")
-    store, previous, out = {}, [], {}
+    store, findings, out = {}, [], {}
     for spec in project.stages[:last + 1]:
-        ctx = stage_context(project, spec, run_dir=run_dir, previous=list(previous))
+        ctx = stage_context(project, spec, run_dir=run_dir, findings=tuple(findings))
         inputs = {n.rstrip("?"): store[n.rstrip("?")] for n in spec.cls.reads if n.rstrip("?") in store}
         result = spec.cls().run(inputs, spec.options, ctx)
         store.update(result.artefacts)
-        previous.append(EarlierStage(spec.id, spec.use, result))
+        findings.append(Finding.of(spec.id, spec.use, result))
         if spec.use == "bundle":
             out[spec.id] = result.artefacts["bundle"]
     return out

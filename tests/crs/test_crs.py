@@ -70,7 +70,7 @@ def test_geographic_and_identity_frames():
     assert fr.axis_names() == ("lon", "lat", "h")
     ident = local_frame(None, lonlat)
     assert ident.is_identity and np.array_equal(ident.to_local(lonlat), lonlat)
-    again = LocalFrame.from_meta(fr.to_meta())
+    again = LocalFrame.from_info(fr.info())
     assert np.allclose(again.to_local(lonlat), enu)
 
 

@@ -130,9 +130,7 @@ def test_residual_figure_finds_the_projects_photos(shared_data):
     photo id → its own file, for every photo of sxb (the files are named by the photo ids)."""
     from pathlib import Path
 
-    from baarda.plugins.bundle.figures import photo_images
-
     block = dbat_block(read_dbat(shared_data / "dbat-sxb" / "sxb.xml"))
-    files = photo_images(block)
+    files = block.photos.images()
     assert set(files) == set(block.photos.ids.tolist())
     assert all(Path(f).is_file() and Path(f).stem == pid for pid, f in files.items())

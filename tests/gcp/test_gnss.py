@@ -34,7 +34,7 @@ def _scene(seed=3):
     sigma = np.where((role == "full")[:, None], np.full((len(role), 3), 0.01), np.inf)
     # the control is surveyed with σ 1 cm: its given coordinates carry that error
     XYZ = np.where((role == "full")[:, None], pts.XYZ + rng.normal(0, 0.01, pts.XYZ.shape), pts.XYZ)
-    noisy = noisy.replace(points=pts.replace(role=role, sigma=sigma, XYZ=XYZ), meta={**noisy.meta, "crs": frame.to_meta()})
+    noisy = noisy.replace(points=pts.replace(role=role, sigma=sigma, XYZ=XYZ), crs=frame.info())
     # start from nothing: no orientation, tie points unknown
     noisy = noisy.replace(photos=noisy.photos.replace(X0=np.full_like(noisy.photos.X0, np.nan),
                                                       opk=np.full_like(noisy.photos.opk, np.nan)),

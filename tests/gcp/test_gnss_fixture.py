@@ -170,10 +170,10 @@ def test_dbat_source_in_a_crs(tmp_path):
                                              sigma=np.where(control[:, None], np.full((len(pts), 3), 0.02), np.inf)))
     write_dbat(block, tmp_path / "p", name="utm")
     plain = run_stage(DbatSource, {}, {"path": str(tmp_path / "p" / "utm.xml")}, tmp_path=tmp_path)
-    assert "crs" not in plain.artefacts["block"].meta
+    assert plain.artefacts["block"].crs is None
     out = run_stage(DbatSource, {}, {"path": str(tmp_path / "p" / "utm.xml"), "crs": "EPSG:32632"}, tmp_path=tmp_path)
     blk = out.artefacts["block"]
-    frame = LocalFrame.from_meta(blk.meta["crs"])
+    frame = LocalFrame.from_info(blk.crs)
     assert out.summary["crs"] == "EPSG:32632"
     k = blk.points.index_of([str(int(i)) for i in pts.ids[role != "tie"]])   # DBAT ids read as numbers
     assert np.allclose(blk.points.XYZ[k], frame.to_local(utm_pts[role != "tie"]), atol=1e-6)
@@ -199,7 +199,7 @@ def test_dbat_source_in_a_crs(tmp_path):
     assert "Coordinates in EPSG:32632" in (tmp_path / "back" / "again.xml").read_text()
     back = run_stage(DbatSource, {}, {"path": str(tmp_path / "back" / "again.xml"), "crs": "EPSG:32632"},
                      tmp_path=tmp_path).artefacts["block"]
-    assert np.allclose(LocalFrame.from_meta(back.meta["crs"]).from_local(back.points.XYZ[k]), utm_pts[role != "tie"],
+    assert np.allclose(LocalFrame.from_info(back.crs).from_local(back.points.XYZ[k]), utm_pts[role != "tie"],
                        atol=1e-6)
     assert np.allclose(back.points.XYZ[k], blk.points.XYZ[k], atol=1e-6)
     assert np.allclose(back.photos.X0, blk.photos.X0, atol=1e-6)

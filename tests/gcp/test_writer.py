@@ -80,7 +80,7 @@ def test_adjusted_points_and_refusals(odm, tmp_path):
     with pytest.raises(InputError, match="needs a bundle") as e:
         run_stage(GcpExport, {"block": block}, {"points": "adjusted"}, tmp_path=tmp_path)
     assert e.value.field == "points"
-    local = block.replace(meta={k: v for k, v in block.meta.items() if k != "crs"})
+    local = block.replace(crs=None)
     with pytest.raises(InputError, match="no coordinate reference system"):
         gcp_lines(local)
     # inactive measurements are left out and counted

@@ -14,7 +14,7 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 from baarda.pipeline.adjustment import BundleSettings, adjust  # noqa: E402
-from baarda.pipeline.stage import Context, EarlierStage, StageResult  # noqa: E402
+from baarda.pipeline.stage import Context, Finding, StageResult  # noqa: E402
 from baarda.pipeline.synthetic.normalcase import make_block  # noqa: E402
 from baarda.pipeline.testing import run_stage  # noqa: E402
 from baarda.plugins.independent_models.figures import model_residual_rms, y_parallax_points  # noqa: E402
@@ -61,10 +61,13 @@ def test_keys_and_check_points_alone(run):
 def test_beside_an_earlier_bundle(run, tmp_path):
     block, _, out = run
     res = adjust(block, BundleSettings())
+    with_bundle = run_stage(IndependentModels, {"block": block, "bundle": res}, {}, tmp_path=tmp_path)
     ctx = Context(stage_id="independent-models", project_dir=tmp_path,
-                  previous=[EarlierStage("bundle", "bundle", StageResult(artefacts={"bundle": res}))])
-    figs = IndependentModels().plots(out, ctx)
-    assert "beside the bundle" in figs["checkpoints"][1]
+                  findings=(Finding.of("adjust", "bundle", StageResult(summary={"headline": "x"})),))
+    assert "beside the bundle's (adjust)" in IndependentModels().plots(with_bundle, ctx)["checkpoints"][1]
+    figs = IndependentModels().plots(with_bundle, None)          # no findings: labelled plain "bundle"
+    assert "beside the bundle's (bundle)" in figs["checkpoints"][1]
+    assert "beside" not in IndependentModels().plots(out, ctx)["checkpoints"][1]     # no bundle artefact read
     plan, bx, by, bz = figs["checkpoints"][0].axes
     ids = [t.get_text() for t in bz.get_xticklabels()]
     got = {ids[round(p.get_x() + p.get_width() / 2)]: p.get_height() for p in _bars(bz, "bundle")}

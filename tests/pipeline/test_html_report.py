@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from baarda.pipeline.model import SourceInfo
 from baarda.pipeline.html import fmt
 from baarda.pipeline.runner import run_project
 
@@ -191,7 +192,11 @@ def test_opencv_style_values_and_sigmas():
     assert opencv_style(c, 0, 0, "ebner12", np.zeros(12), np.eye(15), size, p) is None
     # OpenCV's RMS is per image point: √2 × the RMS per coordinate for equal components
     assert opencv_rms(np.full((5, 2), 0.3)) == pytest.approx(0.3 * np.sqrt(2))
-    assert pixel_source({"colmap": {}}) == "COLMAP" and pixel_source({"source": "x"}) is None
+    from baarda.pipeline.testing import make_block
+
+    blk = make_block(3, 10)
+    assert pixel_source(blk.replace(source=SourceInfo(path="x", format="COLMAP", pixel_format="COLMAP"))) == "COLMAP"
+    assert pixel_source(blk.replace(source=SourceInfo(path="x"))) is None
 
 
 def test_pixel_source_is_reported_in_pixels(tmp_path):
@@ -208,7 +213,7 @@ def test_pixel_source_is_reported_in_pixels(tmp_path):
     mm = bundle_protocol(res, extras, alpha0=0.001, beta0=0.8)
     cams = res.block_in.cameras
     p = 0.005
-    block = res.block_in.replace(meta={**res.block_in.meta, "colmap": {}},
+    block = res.block_in.replace(source=SourceInfo(path="x", format="COLMAP", pixel_format="COLMAP"),
                                  cameras=cams.replace(pixel_mm=np.full(len(cams), p)))
     px = bundle_protocol(dataclasses.replace(res, block_in=block), extras, alpha0=0.001, beta0=0.8)
     assert mm["unit"] == "µm" and px["unit"] == "px" and px["pixel_source"] == "COLMAP"

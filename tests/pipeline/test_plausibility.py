@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import numpy as np
+
+from baarda.pipeline.model import SourceInfo
 import pytest
 
 from baarda.pipeline.errors import InputError
@@ -11,12 +13,12 @@ from baarda.pipeline.plausibility import check_block
 
 
 def block(xy=((1.0, 1.0), (2.0, 2.0), (3.0, 3.0)), photo=(0, 0, 1), point=(0, 1, 0), active=True, c=100.0,
-          pixel_mm=np.nan, pairs=None, point_ids=("a", "b"), sigma=0.01, meta=None):
+          pixel_mm=np.nan, pairs=None, point_ids=("a", "b"), sigma=0.01, source=None):
     cams = Cameras.make(["cam"], c, format_mm=[[20.0, 20.0]], pixel_mm=pixel_mm)
     obs = Observations.make(list(photo), list(point), np.array(xy, float), sigma=sigma, active=active)
     p = Pairs(left=np.array([a for a, _ in pairs or []], int), right=np.array([b for _, b in pairs or []], int))
     return Block(cams, Photos.make(["L", "R"], camera=0), Points.make(list(point_ids)), obs, pairs=p,
-                 meta=meta or {"source": "obs.txt"})
+                 source=source or SourceInfo(path="obs.txt"))
 
 
 def test_a_good_block_passes_and_a_film_camera_has_no_pixels():
@@ -47,7 +49,7 @@ def test_a_switched_off_copy_is_no_duplicate_and_an_idle_photo_is_a_warning():
 
 
 def test_the_reader_line_is_named_where_the_reader_knows_it():
-    meta = {"source": "x.phc", "source_lines": {(0, 1): ("x.phc", 17)}}
+    source = SourceInfo(path="x.phc", lines={(0, 1): ("x.phc", 17)})
     with pytest.raises(InputError) as e:
-        check_block(block(xy=((1.0, 1.0), (1e9, 2.0), (3.0, 3.0)), meta=meta))
+        check_block(block(xy=((1.0, 1.0), (1e9, 2.0), (3.0, 3.0)), source=source))
     assert (e.value.path, e.value.line) == ("x.phc", 17)

@@ -249,7 +249,7 @@ def test_circles_matched_to_layout_block(tmp_path):
     assert b.photos.ids.tolist() == ["shot1"] and len(b.observations) == n
     assert any("other.png" in w and "not in the input block" in w for w in ctx.warnings)
     # the photo's file travels with the block (the bundle's residual figure draws it behind the arrows)
-    assert b.meta["targets"]["images"] == {"shot1": str(tmp_path / "shot1.png")}
+    assert b.photos.images() == {"shot1": str(tmp_path / "shot1.png")}
     uv = pixels_from_mm(b.observations.xy, (640, 480), 0.005, "opencv")
     idx = layout.points.index_of(b.points.ids[b.observations.point])
     err = uv - truth[idx]

@@ -2,11 +2,12 @@
 
 import dataclasses
 
-from baarda.plugins.targets.stage import TargetOptions, _pitch_note
+from baarda.plugins.targets.report import pitch_note
+from baarda.plugins.targets.stage import TargetOptions
 
 
 def test_sigma_in_px_without_a_nominal_pitch():
     opts = TargetOptions(target="chessboard", squares=[10, 7], square_size=25.0)
-    assert _pitch_note(opts, 0.2) == ""
+    assert pitch_note(opts, 0.2) == ""
     real = dataclasses.replace(opts, pixel_mm=0.0039)
-    assert _pitch_note(real, 0.2) == " = 0.78 µm at pitch 0.0039 mm"
+    assert pitch_note(real, 0.2) == " = 0.78 µm at pitch 0.0039 mm"

@@ -15,7 +15,7 @@ from baarda.pipeline.adjustment import project_block
 from baarda.plugins.testfield.photos import image_size, partial_targets, true_targets, truth_from_meta
 from baarda.plugins.testfield.render import RenderedImages, TestFieldRender
 from baarda.pipeline.synthetic.testfield import TestFieldConfig, simulate_testfield
-from baarda.plugins.targets.stage import pairs_of_layout
+from baarda.plugins.targets.blocks import pairs_of_layout
 from baarda.plugins.testfield.source import TestFieldSource
 
 COARSE = {"pixel_mm": 0.1, "supersample": 2}     # 1170 × 830 pixels: fast

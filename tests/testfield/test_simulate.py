@@ -175,7 +175,7 @@ def test_ap_model_columns_and_ebner_base():
     block, _ = simulate_testfield(TestFieldConfig(ap_model="ebner12", calibrate_iop=True), np.random.default_rng(0))
     assert block.cameras.ap.shape == (1, 12) and np.isinf(block.cameras.sigma_ap).all()
     assert np.isinf(block.cameras.sigma_iop).all()
-    assert block.meta["ap_meta"]["P31"]["b"] == pytest.approx(0.6 * FOCAL_MM / 1.4, rel=0.03)
+    assert block.ap_meta["P31"]["b"] == pytest.approx(0.6 * FOCAL_MM / 1.4, rel=0.03)
 
 
 def test_bad_config():
