@@ -23,7 +23,7 @@ def _weighted(block, s=0.0003):
 
 def test_protocol():
     check_stage(IndependentModels)
-    assert IndependentModels.reads == ("block",)
+    assert IndependentModels.reads == ("block", "bundle?")
     assert set(IndependentModels.writes) == {"independent-models", "adjustment"}
 
 

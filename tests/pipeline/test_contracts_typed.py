@@ -31,10 +31,12 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 
-LIBRARY_KEYS = {"truth", "testfield"}
-"""The only ``meta`` keys the engine's libraries write for a plugin to read: the test-field
-simulator's truth and configuration (``pipeline/synthetic/testfield.py``, read by ``testfield``'s
-stages; ``baarda.pipeline.testing.make_block`` writes ``truth`` too).  Any other key a plugin reads
+LIBRARY_KEYS = {"truth", "testfield", "colmap"}
+"""The only ``meta`` keys the engine writes for a plugin to read: the test-field simulator's truth
+and configuration (``pipeline/synthetic/testfield.py``, read by ``testfield``'s stages;
+``baarda.pipeline.testing.make_block`` writes ``truth`` too), and the COLMAP conversion's model ids
+and keypoints (``pipeline/colmap/reader.py``, read back by ``pipeline/colmap/writer.py`` and the
+``colmap-export`` stage).  Any other key a plugin reads
 it must write itself."""
 
 
