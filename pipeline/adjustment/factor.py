@@ -152,7 +152,7 @@ def _solve_sparse(prob, red, st):
     Ds = sp.diags(d)
     Ks = (Ds @ Kk @ Ds).tocsc()
     try:
-        F = SupernodalCholesky(prob.symbolic(keep if n_c else None), Ks, threads=prob.settings.threads)
+        F = SupernodalCholesky(prob.symbolic(keep if n_c else None), Ks)
     except NotPositiveDefinite as e:
         _sparse_singular(prob, red, st, int(kidx[e.column]))
     dx = np.zeros(n_g + n_c)
