@@ -5,12 +5,14 @@ from __future__ import annotations
 import dataclasses
 import time
 from dataclasses import dataclass, field
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 
 from baarda.pipeline.accuracy import check_point_rmse
 from baarda.pipeline.model import Block
+from baarda.pipeline.stats.robust import scale_covariance
 from baarda.pipeline.stats.snapshot import GroupBlocks, Snapshot
 
 from .collinearity import EO_NAMES
@@ -150,6 +152,27 @@ class BundleResult:
         if snap is None:
             return snap
         return dataclasses.replace(snap, meta={**snap.meta, "result": res})
+
+    def weighted_refit(self, *, redundancy: bool = False):
+        """``(refit(weights), how)`` for :func:`baarda.pipeline.stats.weighted_refit`: each image
+        point's covariance scaled by its rows' robust weights (:func:`~baarda.pipeline.stats.scale_covariance`),
+        adjusted again from this solution (no covariances; with ``redundancy`` the redundancy
+        numbers too, ``.r``).  ``refit(w)`` returns ``v`` (2k,), ``r``, the new ``result`` and its
+        ``block``; this result is never changed."""
+        block = self.block_in
+        obs = block.observations
+        row_active = np.asarray(self.row_active, bool)
+        settings, state = self.settings, self.state
+
+        def refit(weights):
+            cov = scale_covariance(obs.cov, weights)
+            b = block.replace(observations=obs.replace(cov=cov))
+            res = adjust(b, settings, row_active=row_active, start=state, compute_initial=False,
+                         covariance=redundancy)
+            v = np.where(row_active, np.nan_to_num(res.residuals), 0.0).reshape(-1)
+            return SimpleNamespace(v=v, r=res.redundancy.reshape(-1), result=res, block=b)
+
+        return refit, "bundle, adjusted again from its solution"
 
     def cofactor_columns(self, cols) -> np.ndarray:
         """Columns ``cols`` of the cofactor matrix of the global unknowns (n_g, len(cols)), either
