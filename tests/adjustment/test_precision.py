@@ -213,8 +213,8 @@ def test_schur_strategies_agree(monkeypatch, datum):
     out = {}
     for mode, route in (("dense", "chunks"), ("pairs", "pairs"), ("sparse", "chunks"), ("dense", "pairs"),
                         ("pairs", "chunks")):
-        monkeypatch.setattr(BundleProblem, "gram_mode", lambda self, m=mode: m)
-        monkeypatch.setattr(BundleProblem, "precision_route", lambda self, r=route: r)
+        monkeypatch.setattr(BundleProblem, "gram_mode", property(lambda self, m=mode: m))
+        monkeypatch.setattr(BundleProblem, "points_by_pairs", property(lambda self, r=route: r == "pairs"))
         out[mode, route] = adjust(blk, st)
     ref = out["dense", "chunks"]
     for key in list(out)[1:]:
