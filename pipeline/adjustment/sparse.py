@@ -31,6 +31,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import pymetis
 import scipy.linalg as sla
 import scipy.sparse as sp
 from scipy.linalg import lapack
@@ -55,8 +56,6 @@ def nested_dissection(adj: sp.csr_matrix) -> np.ndarray:
     n = adj.shape[0]
     if n < 8 or adj.nnz == 0:
         return np.arange(n)
-    import pymetis
-
     graph = pymetis.CSRAdjacency(adj.indptr.astype(np.int64), adj.indices.astype(np.int64))
     perm, _ = pymetis.nested_dissection(adjacency=graph)
     return np.asarray(perm, dtype=np.intp)

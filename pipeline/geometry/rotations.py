@@ -6,6 +6,7 @@
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 
 def rotation_from_opk(omega: float, phi: float, kappa: float) -> np.ndarray:
@@ -85,8 +86,6 @@ def opk_from_rotation_many(R) -> np.ndarray:
 def rotation_from_rotvec(r) -> np.ndarray:
     """Rotation matrices ``(m, 3, 3)`` of angle-axis (Rodrigues) vectors ``r (m, 3)``: the rotation
     by ``|r|`` about ``r / |r|`` (``P = R X``), as BAL, OpenCV and COLMAP use them."""
-    from scipy.spatial.transform import Rotation
-
     return Rotation.from_rotvec(np.asarray(r, float).reshape(-1, 3)).as_matrix()
 
 
