@@ -277,7 +277,7 @@ def final_system(prob: BundleProblem, route: Route, st: BundleState, proj=None) 
 
 def _pred(prob, lin, dx, dp) -> np.ndarray:
     """Whitened change J̃Δ of every observation (k, 2)."""
-    return kernels.linear_change(lin.Jc, prob.cidx, dx[:prob.n_g], lin.Jp, prob.pidx,
+    return kernels.linear_change(lin.Jc, prob.layout.cidx, dx[:prob.n_g], lin.Jp, prob.layout.pidx,
                                  dp if prob.n_e else None)
 
 

@@ -86,16 +86,16 @@ class NormalEquations:
             self.projector.jacobians(proj)
         parts = self.residual_parts(st, proj)
         v, e, dg, dpv, dd, _ = parts
-        sc, se, spt = self.jac_cols
+        sc, se, spt = self.layout.jac_cols
         Jc, Jp = kernels.whitened(self.L, proj.J_cam, proj.J_eo, se, proj.J_point, spt)   # L [J_cam J_eo J_pt]
-        if not self.col_mask_all:
-            Jc *= self.col_mask[:, None, :]
-        if not self.pt_mask_all:
-            Jp *= self.pt_mask[:, None, :]
+        if not self.layout.mask_all:
+            Jc *= self.layout.mask[:, None, :]
+        if not self.layout.pt_mask_all:
+            Jp *= self.layout.pt_mask[:, None, :]
         proj.J_cam = proj.J_eo = proj.J_point = None      # whitened copies above; recomputed if needed again
         U, g = self.gram_U(Jc, e, sparse=sparse)
         ng1 = self.n_g + 1
-        V, bp = kernels.point_normals(Jp, e, self.pidx, self.n_e)
+        V, bp = kernels.point_normals(Jp, e, self.layout.pidx, self.n_e)
         # priors
         U = U + _triplets(self.prior_g_idx, self.prior_g_idx, self.prior_g_w, ng1, sparse=sparse)
         np.add.at(g, self.prior_g_idx, self.prior_g_w * dg)
@@ -125,27 +125,27 @@ class NormalEquations:
         observations of global points.  Dense (n_g, n_g), or scipy CSR on the sparse route."""
         ng1 = self.n_g + 1
         gp = np.zeros(ng1)
-        q_ph = self.q_ph
-        whole = q_ph == self.q
+        q_ph = self.layout.q_ph
+        whole = q_ph == self.layout.q
         A = Jc if whole else Jc[:, :, :q_ph]
-        blocks = segment_sums(A, self.seg_start, self.seg_end, self.settings.threads)
+        blocks = segment_sums(A, self.layout.seg_start, self.layout.seg_end, self.settings.threads)
         if e is not None:
-            for s0, s1, idx in zip(self.seg_start.tolist(), self.seg_end.tolist(), self.seg_cols):
+            for s0, s1, idx in zip(self.layout.seg_start.tolist(), self.layout.seg_end.tolist(), self.layout.seg_cols):
                 gp[idx] += A[s0:s1].reshape(-1, q_ph).T @ e[s0:s1].reshape(-1)
-        sc = self.seg_cols
+        sc = self.layout.seg_cols
         U = _triplets(np.broadcast_to(sc[:, :, None], blocks.shape), np.broadcast_to(sc[:, None, :], blocks.shape),
                       blocks, ng1, sparse=sparse)
-        if len(self.gp_obs):
-            J = Jc[self.gp_obs]
+        if len(self.layout.gp_obs):
+            J = Jc[self.layout.gp_obs]
             outer = bmm(np.transpose(J, (0, 2, 1)), J)
             outer[:, :q_ph, :q_ph] = 0.0          # counted above
-            gc = self.cidx[self.gp_obs]
+            gc = self.layout.cidx[self.layout.gp_obs]
             U = U + _triplets(np.broadcast_to(gc[:, :, None], outer.shape), np.broadcast_to(gc[:, None, :], outer.shape),
                               outer, ng1, sparse=sparse)
             if e is not None:
-                eg = e[self.gp_obs]
+                eg = e[self.layout.gp_obs]
                 gv = J[:, 0, q_ph:] * eg[:, 0, None] + J[:, 1, q_ph:] * eg[:, 1, None]
-                gp += np.bincount(self.cidx[self.gp_obs, q_ph:].ravel(), gv.ravel(), minlength=ng1)
+                gp += np.bincount(self.layout.cidx[self.layout.gp_obs, q_ph:].ravel(), gv.ravel(), minlength=ng1)
         if e is None:
             return U
         return U, gp[:-1]
@@ -155,17 +155,17 @@ class NormalEquations:
         """Cheapest way to form ``B Bᵀ`` on the dense route (cost model in flops-equivalents):
         ``"dense"``, ``"pairs"`` or ``"sparse"`` (:class:`BMatrix`)."""
         n_e = self.n_e
-        cnt = np.bincount(self.pidx[self.obs_elim], minlength=n_e).astype(float)
-        q = self.q_ph
+        cnt = np.bincount(self.layout.pidx[self.layout.obs_elim], minlength=n_e).astype(float)
+        q = self.layout.q_ph
         n_pairs = float(np.sum(cnt * (cnt - 1) / 2))
-        n_seg = len(self.seg_start)
+        n_seg = len(self.layout.seg_start)
         photo_pairs = min(n_pairs, n_seg * (n_seg - 1) / 2)
         # pairs: one small BLAS product per photo pair (≈ 30 µs-equivalents of overhead each),
         # the gathered blocks and the per-photo diagonal
         pairs = (2 * 3 * q * q / 4 + 2 * 3 * q * 2) * n_pairs + 3e4 * photo_pairs + len(self.oi) * 3 * q * q / 4
-        nnz_col = np.minimum(cnt * self.q, self.n_g)
+        nnz_col = np.minimum(cnt * self.layout.q, self.n_g)
         sparse = 3.0 * float(np.sum(nnz_col ** 2)) * 4.0
-        dense = float(self.n_g + self.n_c) ** 2 * 3 * n_e / 10.0 + 3.0 * len(self.oi) * self.q
+        dense = float(self.n_g + self.n_c) ** 2 * 3 * n_e / 10.0 + 3.0 * len(self.oi) * self.layout.q
         dense_bytes = 8.0 * (self.n_g + 1) * 3 * n_e
         pair_bytes = 16.0 * n_pairs + 8.0 * photo_pairs * q * q
         costs = {"sparse": sparse, "pairs": pairs if pair_bytes < 6e8 else np.inf,
@@ -180,11 +180,11 @@ class NormalEquations:
         tracks, e.g. aerial blocks, BAL) — or by chunks — K⁻¹ B for blocks of points, n_x² per
         point (few points seen by many photos, e.g. close range).  By pairs gathers the blocks of
         all points of one track length at once; past 2e8 bytes it is not used."""
-        cnt = np.bincount(self.pidx[self.obs_elim], minlength=self.n_e).astype(float)
-        tq = cnt * self.q
+        cnt = np.bincount(self.layout.pidx[self.layout.obs_elim], minlength=self.n_e).astype(float)
+        tq = cnt * self.layout.q
         n_x = self.n_g + self.n_c
         pairs = float(np.sum(4.0 * tq * tq * 3 + 3.0 * tq * self.n_c))
-        chunks = 3.0 * n_x * n_x * self.n_e + 3.0 * len(self.oi) * self.q * 3
+        chunks = 3.0 * n_x * n_x * self.n_e + 3.0 * len(self.oi) * self.layout.q * 3
         lengths, inverse = np.unique(cnt, return_inverse=True) if self.n_e else (np.zeros(0), np.zeros(0, int))
         group_bytes = np.bincount(inverse, 8.0 * tq * tq, minlength=len(lengths)) if self.n_e else np.zeros(1)
         fits = float(group_bytes.max(initial=0.0)) < 2e8
@@ -194,9 +194,9 @@ class NormalEquations:
     def track_groups(self) -> list:
         """Observations of each eliminated point grouped by track length: list of
         ``(obs_mat (N_t, t), None)``."""
-        sel = np.flatnonzero(self.obs_elim)
-        order = sel[np.argsort(self.pidx[sel], kind="stable")]
-        cnt = np.bincount(self.pidx[sel], minlength=self.n_e)
+        sel = np.flatnonzero(self.layout.obs_elim)
+        order = sel[np.argsort(self.layout.pidx[sel], kind="stable")]
+        cnt = np.bincount(self.layout.pidx[sel], minlength=self.n_e)
         start = np.r_[0, np.cumsum(cnt)[:-1]]
         groups = []
         for t in np.unique(cnt[cnt > 0]):
@@ -216,8 +216,8 @@ class NormalEquations:
         ``chunks`` (photo-pair ranges gathered together, ≤ ``chunk_pairs`` pairs unless one photo
         pair alone has more)."""
         chunk_pairs = PAIR_CHUNK
-        n_seg = len(self.seg_start)
-        seg_of = np.repeat(np.arange(n_seg), self.seg_len)
+        n_seg = len(self.layout.seg_start)
+        seg_of = np.repeat(np.arange(n_seg), self.layout.seg_len)
         oa_l, ob_l = [np.zeros(0, np.intp)], [np.zeros(0, np.intp)]
         for obs_mat, _ in self.track_groups:
             t = obs_mat.shape[1]
@@ -238,10 +238,10 @@ class NormalEquations:
         ge = np.r_[gs[1:], len(key)].astype(int)
         ng1 = self.n_g + 1
         itype = np.int32 if ng1 * ng1 < 2 ** 31 else np.int64
-        ra = self.seg_cols[sa[gs]].astype(itype)
-        rb = self.seg_cols[sb[gs]].astype(itype)
+        ra = self.layout.seg_cols[sa[gs]].astype(itype)
+        rb = self.layout.seg_cols[sb[gs]].astype(itype)
         flat = (ra[:, :, None] * itype(ng1) + rb[:, None, :]).ravel()
-        rd = self.seg_cols.astype(itype)
+        rd = self.layout.seg_cols.astype(itype)
         flat_diag = (rd[:, :, None] * itype(ng1) + rd[:, None, :]).ravel()
         chunks = []
         g0 = 0
@@ -300,7 +300,7 @@ class NormalEquations:
             V = V + lam * np.einsum("pii->pi", V)[:, :, None] * np.eye(3)
         Li = _chol3_inv(V, self)                                   # (n_e, 3, 3) lower, L⁻¹ with V = L Lᵀ
         # B_k = W_k L⁻ᵀ = Jcᵀ (Jp L⁻ᵀ), held transposed: BkT (k, 3, q)
-        BkT = kernels.schur_blocks(Jc, Jp, Li, self.pidx)
+        BkT = kernels.schur_blocks(Jc, Jp, Li, self.layout.pidx)
         Cg, Cp = self.constraint_rows(st)
         if n_c:                                                     # (n_e, n_c, 3) = Cpᵀ L⁻ᵀ (Cp = 0 unless
             Bc = np.einsum("pac,pba->pcb", Cp, Li) if self.datum_on_elim else np.zeros((n_e, n_c, 3))   # on points)
@@ -349,13 +349,13 @@ class NormalEquations:
         their cameras, photo pairs that share a point, observations of scale-bar points, priors and
         the observations on global unknowns (distances, GNSS antennas)."""
         ng1 = self.n_g + 1
-        sc = self.seg_cols
+        sc = self.layout.seg_cols
         q = sc.shape[1]
         sh = (len(sc), q, q)
         pat = _triplets(np.broadcast_to(sc[:, :, None], sh), np.broadcast_to(sc[:, None, :], sh), np.ones(sh),
                         ng1, sparse=True)
-        if len(self.gp_obs):
-            gc = self.cidx[self.gp_obs]
+        if len(self.layout.gp_obs):
+            gc = self.layout.cidx[self.layout.gp_obs]
             sh = (len(gc), gc.shape[1], gc.shape[1])
             pat = pat + _triplets(np.broadcast_to(gc[:, :, None], sh), np.broadcast_to(gc[:, None, :], sh),
                                   np.ones(sh), ng1, sparse=True)
@@ -508,8 +508,8 @@ class BMatrix:
             out[:] = D @ D.T
             return out
         ng1 = n_g + 1
-        q = prob.q_ph
-        X = self.BkT if q == prob.q else np.ascontiguousarray(self.BkT[:, :, :q])
+        q = prob.layout.q_ph
+        X = self.BkT if q == prob.layout.q else np.ascontiguousarray(self.BkT[:, :, :q])
         if self.mode == "pairs":
             pl = prob.pair_plan
             S, Dg = self.pair_blocks(X)
@@ -522,9 +522,9 @@ class BMatrix:
             if prob.datum_on_elim:
                 # cross terms with the constraint rows, Σ_k B_k Bc_pᵀ, per photo
                 BcT1 = np.concatenate([np.swapaxes(self.Bc, 1, 2), np.zeros((1, 3, n_c))], axis=0)
-                Z = BcT1[prob.pidx]                                             # (k, 3, n_c)
+                Z = BcT1[prob.layout.pidx]                                             # (k, 3, n_c)
                 cross = np.zeros((ng1, n_c))
-                for s0, s1, idx in zip(prob.seg_start.tolist(), prob.seg_end.tolist(), prob.seg_cols):
+                for s0, s1, idx in zip(prob.layout.seg_start.tolist(), prob.layout.seg_end.tolist(), prob.layout.seg_cols):
                     cross[idx] += X[s0:s1].reshape(-1, q).T @ Z[s0:s1].reshape(-1, n_c)
                 out[:n_g, n_g:] = cross[:-1]
                 out[n_g:, :n_g] = cross[:-1].T
@@ -536,9 +536,9 @@ class BMatrix:
         """``S_ab = Σ_p B_ap B_bpᵀ`` of every photo pair (a < b) of :meth:`BundleProblem.pair_plan` and
         ``Y_aᵀ Y_a`` of every photo: (n_pairs, q, q), (n_photos, q, q) over the photo columns."""
         prob = self.prob
-        q = prob.q_ph
+        q = prob.layout.q_ph
         if X is None:
-            X = self.BkT if q == prob.q else np.ascontiguousarray(self.BkT[:, :, :q])
+            X = self.BkT if q == prob.layout.q else np.ascontiguousarray(self.BkT[:, :, :q])
         pl = prob.pair_plan
         gs, ge, oa, ob = pl.gs, pl.ge, pl.oa, pl.ob
         S = np.empty((len(gs), q, q))
@@ -549,7 +549,7 @@ class BMatrix:
             kernels.pair_products(X, oa, ob, gs, ge, g0, g1, S)
 
         parallel_for(len(pl.chunks), chunk, prob.settings.threads)
-        return S, segment_sums(X, prob.seg_start, prob.seg_end, prob.settings.threads)
+        return S, segment_sums(X, prob.layout.seg_start, prob.layout.seg_end, prob.settings.threads)
 
     def gram_sparse(self) -> sp.csr_matrix:
         """``B Bᵀ`` of the global unknowns (n_g, n_g) as scipy CSR (no constraint rows)."""
@@ -571,8 +571,8 @@ class BMatrix:
         """``B z`` for z (n_e, 3)."""
         prob = self.prob
         out = np.zeros(self.n_x)
-        out[:prob.n_g] = kernels.b_matvec(self.BkT, z.reshape(-1, 3), prob.pidx, prob.seg_start, prob.seg_end,
-                                          prob.seg_cols, prob.n_g)
+        out[:prob.n_g] = kernels.b_matvec(self.BkT, z.reshape(-1, 3), prob.layout.pidx, prob.layout.seg_start, prob.layout.seg_end,
+                                          prob.layout.seg_cols, prob.n_g)
         if prob.datum_on_elim:                    # (else Bc = 0)
             out[prob.n_g:] = np.einsum("pca,pa->c", self.Bc, z.reshape(-1, 3))
         return out
@@ -580,7 +580,7 @@ class BMatrix:
     def rmatvec(self, x):
         """``Bᵀ x`` as (n_e, 3)."""
         prob = self.prob
-        out = kernels.b_rmatvec(self.BkT, x[:prob.n_g], prob.pidx, prob.seg_start, prob.seg_end, prob.seg_cols,
+        out = kernels.b_rmatvec(self.BkT, x[:prob.n_g], prob.layout.pidx, prob.layout.seg_start, prob.layout.seg_end, prob.layout.seg_cols,
                                 prob.n_e)
         if prob.datum_on_elim:
             out += np.einsum("pca,c->pa", self.Bc, x[prob.n_g:])
@@ -592,10 +592,10 @@ class BMatrix:
         prob = self.prob
         n_g, n_c = prob.n_g, prob.n_c
         nc = p1 - p0
-        sel = (prob.pidx >= p0) & (prob.pidx < p1)
-        rows = prob.cidx[sel]
+        sel = (prob.layout.pidx >= p0) & (prob.layout.pidx < p1)
+        rows = prob.layout.cidx[sel]
         ncol = 3 * nc
-        cols = 3 * (prob.pidx[sel] - p0)
+        cols = 3 * (prob.layout.pidx[sel] - p0)
         flat = (rows[:, :, None] * ncol + cols[:, None, None] + np.arange(3)).ravel()
         D = np.bincount(flat, self.Bk[sel].ravel(), minlength=(n_g + 1) * ncol).reshape(n_g + 1, ncol)
         out = np.empty((self.n_x, ncol))
@@ -609,7 +609,7 @@ class BMatrix:
     def sparse(self):
         prob = self.prob
         Bk = self.Bk
-        rows = np.broadcast_to(prob.cidx[:, :, None], Bk.shape)
-        cols = np.broadcast_to(3 * prob.pidx[:, None, None] + np.arange(3), Bk.shape)
+        rows = np.broadcast_to(prob.layout.cidx[:, :, None], Bk.shape)
+        cols = np.broadcast_to(3 * prob.layout.pidx[:, None, None] + np.arange(3), Bk.shape)
         S = sp.csr_matrix((Bk.ravel(), (rows.ravel(), cols.ravel())), shape=(prob.n_g + 1, 3 * (prob.n_e + 1)))
         return S[:, :3 * prob.n_e]

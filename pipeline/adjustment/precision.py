@@ -57,13 +57,13 @@ def dense_precision(prob: BundleProblem, lin, red, by_pairs: bool, chunk_bytes: 
     Jc, Jp = lin.Jc, lin.Jp
     Qg = np.zeros((n_g + 1, n_g + 1))
     Qg[:n_g, :n_g] = Qx[:n_g, :n_g]
-    cidx = prob.cidx
+    cidx = prob.layout.cidx
     # camera–camera part, photo by photo (the photo-constant columns share one Q block)
     H = np.zeros((k, 2, 2))
-    q_ph = prob.q_ph
-    _photo_terms(prob, range(len(prob.seg_start)), lambda idx: Qg[np.ix_(idx, idx)], Jc, H)
-    if len(prob.gp_obs):
-        ob = prob.gp_obs
+    q_ph = prob.layout.q_ph
+    _photo_terms(prob, range(len(prob.layout.seg_start)), lambda idx: Qg[np.ix_(idx, idx)], Jc, H)
+    if len(prob.layout.gp_obs):
+        ob = prob.layout.gp_obs
         Qk = Qg[cidx[ob][:, :, None], cidx[ob][:, None, :]]
         Qk[:, :q_ph, :q_ph] = 0.0
         J = Jc[ob]
@@ -102,11 +102,11 @@ def _global_blocks(prob, gather):
 
 def _add_point_terms(prob, ob, Mk, Li, Jc, Jp, H, Qpp):
     """H_k += 2 sym(Jc Qcp Jpᵀ) + Jp Qpp Jpᵀ for observations ``ob`` given ``Mk = (K⁻¹ B_p)[cidx_k]``."""
-    Qcp = -bmm(Mk, Li[prob.pidx[ob]])                                         # (kb, q, 3)
+    Qcp = -bmm(Mk, Li[prob.layout.pidx[ob]])                                         # (kb, q, 3)
     JQ = np.matmul(Jc[ob], Qcp)                                                # (kb, 2, 3)
     X = bmm(JQ, np.transpose(Jp[ob], (0, 2, 1)))
     H[ob] += X + np.transpose(X, (0, 2, 1))
-    JpQ = bmm(Jp[ob], Qpp[prob.pidx[ob]])
+    JpQ = bmm(Jp[ob], Qpp[prob.layout.pidx[ob]])
     H[ob] += bmm(JpQ, np.transpose(Jp[ob], (0, 2, 1)))
 
 
@@ -114,9 +114,9 @@ def _points_by_chunks(prob, Qx, B, Li, Jc, Jp, H, Qpp, chunk_bytes):
     """Dense route: ``K⁻¹ B`` for chunks of points (few points seen by many photos)."""
     n_g, n_e = prob.n_g, prob.n_e
     n_x = Qx.shape[0]
-    cidx = prob.cidx
-    order = np.argsort(prob.pidx, kind="stable")
-    pts_sorted = prob.pidx[order]
+    cidx = prob.layout.cidx
+    order = np.argsort(prob.layout.pidx, kind="stable")
+    pts_sorted = prob.layout.pidx[order]
     c = max(1, int(chunk_bytes / (24.0 * max(n_x, 1))))
     for p0 in range(0, n_e, c):
         p1 = min(n_e, p0 + c)
@@ -132,7 +132,7 @@ def _points_by_chunks(prob, Qx, B, Li, Jc, Jp, H, Qpp, chunk_bytes):
         if ob.size == 0:
             continue
         Mpad = np.vstack([M[:n_g], np.zeros((1, 3 * nc))])
-        loc = prob.pidx[ob] - p0
+        loc = prob.layout.pidx[ob] - p0
         Mk = Mpad[cidx[ob][:, :, None], 3 * loc[:, None, None] + np.arange(3)]   # (kb, q, 3)
         _add_point_terms(prob, ob, Mk, Li, Jc, Jp, H, Qpp)
 
@@ -150,7 +150,7 @@ def _points_by_pairs(prob, Qx, B, Li, Jc, Jp, H, Qpp):
         cons = (Qgc, Qx[n_g:, n_g:])
     for obs_mat, _ in prob.track_groups:
         N, t = obs_mat.shape
-        C = prob.cidx[obs_mat].reshape(N, t * prob.q)                          # (N, tq)
+        C = prob.layout.cidx[obs_mat].reshape(N, t * prob.layout.q)                          # (N, tq)
         _track_terms(prob, Qg[C[:, :, None], C[:, None, :]], C, obs_mat, B, Li, Jc, Jp, H, Qpp, cons)
 
 
@@ -161,10 +161,10 @@ def _track_terms(prob, Qsub, C, obs_mat, B, Li, Jc, Jp, H, Qpp, cons=None):
     ``M_k = Σ_l K⁻¹[cidx_k, cidx_l] B_l (+ K⁻¹[cidx_k, λ] Bc_p)``,
     ``Qpp_p = L_p⁻ᵀ (I + Σ_k B_kᵀ M_k (+ Bc_pᵀ K⁻¹[λ, ·] B_p)) L_p⁻¹``; then the observations' H."""
     N, t = obs_mat.shape
-    q = prob.q
+    q = prob.layout.q
     X = B.Bk[obs_mat].reshape(N, t * q, 3)
     M = np.matmul(Qsub, X)                                                     # (N, tq, 3)
-    pts = prob.pidx[obs_mat[:, 0]]
+    pts = prob.layout.pidx[obs_mat[:, 0]]
     if cons is not None:
         Qgc, Qcc = cons
         Bcp = B.Bc[pts]                                                        # (N, n_c, 3)
@@ -181,11 +181,11 @@ def _track_terms(prob, Qsub, C, obs_mat, B, Li, Jc, Jp, H, Qpp, cons=None):
 
 def _photo_terms(prob, segs, gather, Jc, H):
     """H_k += Jc_k Q Jc_kᵀ over the photo-constant columns, for the photo segments ``segs``."""
-    q_ph = prob.q_ph
+    q_ph = prob.layout.q_ph
     for j in segs:
-        s0, s1 = int(prob.seg_start[j]), int(prob.seg_end[j])
+        s0, s1 = int(prob.layout.seg_start[j]), int(prob.layout.seg_end[j])
         J = Jc[s0:s1, :, :q_ph]
-        T = (J.reshape(-1, q_ph) @ gather(prob.seg_cols[j])).reshape(s1 - s0, 2, q_ph)
+        T = (J.reshape(-1, q_ph) @ gather(prob.layout.seg_cols[j])).reshape(s1 - s0, 2, q_ph)
         H[s0:s1] += (T[:, :, None, :] * J[:, None, :, :]).sum(axis=3)
 
 
@@ -222,11 +222,11 @@ def sparse_precision(prob, lin, red, st) -> Precision:
         return order, bounds
 
     items = {}
-    items["seg"] = by_owner(owners(prob.seg_cols))
-    tracks = [(obs_mat, prob.cidx[obs_mat].reshape(len(obs_mat), -1)) for obs_mat, _ in prob.track_groups]
+    items["seg"] = by_owner(owners(prob.layout.seg_cols))
+    tracks = [(obs_mat, prob.layout.cidx[obs_mat].reshape(len(obs_mat), -1)) for obs_mat, _ in prob.track_groups]
     items["trk"] = [by_owner(owners(C)) for _, C in tracks]
-    gpo = prob.gp_obs
-    items["gp"] = by_owner(owners(prob.cidx[gpo]))
+    gpo = prob.layout.gp_obs
+    items["gp"] = by_owner(owners(prob.layout.cidx[gpo]))
     blk_cols = {"eo": np.where(prob.g_eo >= 0, prob.g_eo, n_g)}
     blk_cols["cam"] = [np.where(prob.g_cam[j, :3 + m.n_params] >= 0, prob.g_cam[j, :3 + m.n_params], n_g)
                        for j, m in enumerate(prob.models)]
@@ -263,8 +263,8 @@ def sparse_precision(prob, lin, red, st) -> Precision:
                 _track_terms(prob, Zx[Cl[:, :, None], Cl[:, None, :]], None, obs_mat[sel], B, Li, Jc, Jp, H, Qpp)
         ob = gpo[take("gp", s)]
         if ob.size:
-            Qk = gather(prob.cidx[ob])
-            Qk[:, :prob.q_ph, :prob.q_ph] = 0.0
+            Qk = gather(prob.layout.cidx[ob])
+            Qk[:, :prob.layout.q_ph, :prob.layout.q_ph] = 0.0
             H[ob] += np.einsum("kiq,kqr,kjr->kij", Jc[ob], Qk, Jc[ob])
         sel = take("eo", s)
         if sel.size:
@@ -461,7 +461,7 @@ def predicted_variance_sparse(prob, st, red, obs_idx, chunk: int = 256):
     sel, J, C, Jp, e = _prediction_rows(prob, st, obs_idx)
     n_g = prob.n_g
     Li, B = red.Li, red.B
-    csr = prob.obs_to_point.tocsr()
+    csr = prob.layout.obs_to_point.tocsr()
     var = np.zeros((len(sel), 2))
     for c0 in range(0, len(sel), chunk):
         rows = range(c0, min(c0 + chunk, len(sel)))
@@ -473,7 +473,7 @@ def predicted_variance_sparse(prob, st, red, obs_idx, chunk: int = 256):
                 z = Li[e[r]] @ Jp[r].T                                  # L⁻¹ a_pᵀ (3, 2)
                 zp[r] = z
                 ol = csr.indices[csr.indptr[e[r]]:csr.indptr[e[r] + 1]]
-                np.add.at(R[:, 2 * j:2 * j + 2], prob.cidx[ol], -np.matmul(B.Bk[ol], z))
+                np.add.at(R[:, 2 * j:2 * j + 2], prob.layout.cidx[ol], -np.matmul(B.Bk[ol], z))
         X = red.factor.solve(R[:n_g])
         Xp = np.vstack([X, np.zeros((1, X.shape[1]))])
         for j, r in enumerate(rows):
@@ -481,7 +481,7 @@ def predicted_variance_sparse(prob, st, red, obs_idx, chunk: int = 256):
             v = np.einsum("iq,qi->i", J[r], x[C[r]])
             if r in zp:
                 ol = csr.indices[csr.indptr[e[r]]:csr.indptr[e[r] + 1]]
-                Btx = np.einsum("kaq,kqi->ai", B.BkT[ol], x[prob.cidx[ol]])      # B_pᵀ x (3, 2)
+                Btx = np.einsum("kaq,kqi->ai", B.BkT[ol], x[prob.layout.cidx[ol]])      # B_pᵀ x (3, 2)
                 y = Li[e[r]].T @ (zp[r] - Btx)
                 v = v + np.einsum("ia,ai->i", Jp[r], y)
             var[r] = v

@@ -259,7 +259,7 @@ def own_effects(res, delta0: float = 4.13, bias=None, chunk_bytes: float = 3.2e7
     st = res.state
     k_all = len(res.residuals)
     bias = row_mdb(res, delta0) if bias is None else np.asarray(bias, float).reshape(k_all, 2)
-    n_g, n_e, n_c, q = prob.n_g, prob.n_e, prob.n_c, prob.q
+    n_g, n_e, n_c, q = prob.n_g, prob.n_e, prob.n_c, prob.layout.q
     Jc, Jp, L = lin.Jc, lin.Jp, prob.L
     Li, B = red.Li, red.B
     k = len(prob.oi)
@@ -279,8 +279,8 @@ def own_effects(res, delta0: float = 4.13, bias=None, chunk_bytes: float = 3.2e7
     def tracks(obs_mat, Qsub):
         """Rows of the points whose observations are ``obs_mat`` (N, t); ``Qsub`` (N, tq, tq)."""
         N, t = obs_mat.shape
-        C = prob.cidx[obs_mat].reshape(N, t * q)
-        pts = prob.pidx[obs_mat[:, 0]]
+        C = prob.layout.cidx[obs_mat].reshape(N, t * q)
+        pts = prob.layout.pidx[obs_mat[:, 0]]
         Bk = B.Bk[obs_mat]                                                     # (N, t, q, 3)
         z = np.einsum("nab,ntbc->ntac", Li[pts], Ap_all[obs_mat])              # L⁻¹ a_p  (N, t, 3, 2)
         R = -np.einsum("nlqa,nsac->nlqsc", Bk, z)                              # (N, t, q, t, 2)
@@ -312,12 +312,12 @@ def own_effects(res, delta0: float = 4.13, bias=None, chunk_bytes: float = 3.2e7
     def _store(rows, own, y):
         eo_eff[rows] = np.transpose(_pick(own, eo_pos), (0, 2, 1))
         if y is not None:
-            pt_eff[rows] = np.transpose(y, (0, 2, 1)) * prob.pt_mask[rows][:, None, :]
+            pt_eff[rows] = np.transpose(y, (0, 2, 1)) * prob.layout.pt_mask[rows][:, None, :]
         else:
             pt_eff[rows] = np.transpose(_pick(own, pt_pos), (0, 2, 1))
 
     groups = [obs_mat for obs_mat, _ in prob.track_groups] if n_e else []
-    single = np.flatnonzero(prob.pidx == n_e)
+    single = np.flatnonzero(prob.layout.pidx == n_e)
     if sparse:
         _sparse_visit(prob, red, groups, single, tracks, singles, chunk_bytes)
     else:
@@ -328,25 +328,25 @@ def own_effects(res, delta0: float = 4.13, bias=None, chunk_bytes: float = 3.2e7
             c = max(1, int(chunk_bytes / (8.0 * 6 * (t * q) ** 2)))
             for a in range(0, N, c):
                 om = obs_mat[a:a + c]
-                C = prob.cidx[om].reshape(len(om), -1)
+                C = prob.layout.cidx[om].reshape(len(om), -1)
                 tracks(om, Qg[C[:, :, None], C[:, None, :]])
         for a in range(0, len(single), 4096):
             ob = single[a:a + 4096]
-            Ck = prob.cidx[ob]
+            Ck = prob.layout.cidx[ob]
             singles(ob, Qg[Ck[:, :, None], Ck[:, None, :]])
     if datum is not None:
         Gg, Gp, T, Yg, Yp = datum
         Yx = np.vstack([Yg, np.zeros((1, n_c))])
-        CtD = np.einsum("kqc,kqd->kcd", Yx[prob.cidx], G_all)                  # (k, n_c, 2)
-        ep = prob.pidx < n_e
+        CtD = np.einsum("kqc,kqd->kcd", Yx[prob.layout.cidx], G_all)                  # (k, n_c, 2)
+        ep = prob.layout.pidx < n_e
         if ep.any():
-            CtD[ep] += np.einsum("kac,kad->kcd", Yp[prob.pidx[ep]], Ap_all[ep])
+            CtD[ep] += np.einsum("kac,kad->kcd", Yp[prob.layout.pidx[ep]], Ap_all[ep])
         TC = np.einsum("cd,kdr->kcr", T, CtD)
         Gx = np.vstack([Gg, np.zeros((1, n_c))])
         geo = np.where(prob.g_eo[prob.obs_photo] >= 0, prob.g_eo[prob.obs_photo], n_g)
         eo_eff -= np.einsum("kac,kcr->kra", Gx[geo], TC)
         if ep.any():
-            pt_eff[ep] -= np.einsum("kac,kcr->kra", Gp[prob.pidx[ep]], TC[ep]) * prob.pt_mask[ep][:, None, :]
+            pt_eff[ep] -= np.einsum("kac,kcr->kra", Gp[prob.layout.pidx[ep]], TC[ep]) * prob.layout.pt_mask[ep][:, None, :]
         gpt = np.where(prob.g_pt[prob.obs_point] >= 0, prob.g_pt[prob.obs_point], n_g)
         if (~ep).any():
             pt_eff[~ep] -= np.einsum("kac,kcr->kra", Gx[gpt[~ep]], TC[~ep])
@@ -372,10 +372,10 @@ def _layout(prob):
     P = 3 + prob.pmax
     off = {}
     o = 0
-    for name, w in prob.col_groups:
+    for name, w in prob.layout.groups:
         off[name] = o
         o += w
-    where = {int(c): j for j, c in enumerate(prob.col_keep)}
+    where = {int(c): j for j, c in enumerate(prob.layout.keep)}
     eo = np.array([where.get(off["eo"] + a, -1) for a in range(6)]) if "eo" in off else np.full(6, -1)
     pt = np.array([where.get(off["pt"] + a, -1) for a in range(3)]) if "pt" in off else np.full(3, -1)
     del P
@@ -405,9 +405,9 @@ def _sparse_visit(prob, red, groups, single, tracks, singles, chunk_bytes):
         order = np.argsort(own, kind="stable")
         return order, np.searchsorted(own[order], np.arange(-1, sym.n_super + 1))
 
-    Cs = [prob.cidx[om].reshape(len(om), -1) for om in groups]
+    Cs = [prob.layout.cidx[om].reshape(len(om), -1) for om in groups]
     own_t = [by_owner(C) for C in Cs]
-    Csg = prob.cidx[single]
+    Csg = prob.layout.cidx[single]
     own_s = by_owner(Csg)
 
     def take(ob, s):
@@ -464,8 +464,8 @@ def effect_vectors(res, rows, delta0: float = 4.13, bias=None) -> dict:
     a_p = np.zeros((prob.n_e + 1, 3, r))
     for j, (kk, c) in enumerate(zip(kl, coord)):
         u = L[kk][:, c]
-        np.add.at(a_g[:, j], prob.cidx[kk], Jc[kk].T @ u)
-        a_p[prob.pidx[kk], :, j] += Jp[kk].T @ u
+        np.add.at(a_g[:, j], prob.layout.cidx[kk], Jc[kk].T @ u)
+        a_p[prob.layout.pidx[kk], :, j] += Jp[kk].T @ u
     xg, y = _apply_Q(prob, red, Qx, res.state, a_g[:-1], a_p[:-1])
     b = bias[obs_i, coord]
     xg = xg * b[None, :]
@@ -617,13 +617,13 @@ def linearised_model(res, max_entries: float = DENSE_LIMIT):
     Jc = np.einsum("kij,kjq->kiq", Linv, lin.Jc)
     Jp = np.einsum("kij,kja->kia", Linv, lin.Jp)
     rows = 2 * prob.oi[:, None] + np.arange(2)[None, :]                       # (k, 2)
-    cc = gcol[prob.cidx]                                                      # (k, q)
+    cc = gcol[prob.layout.cidx]                                                      # (k, q)
     for c in (0, 1):
         r = np.broadcast_to(rows[:, c, None], cc.shape)
         ok = cc >= 0
         np.add.at(A, (r[ok], cc[ok]), Jc[:, c, :][ok])
-        ep = prob.pidx < prob.n_e
-        pc = pcol[prob.pidx[ep]]                                              # (k', 3)
+        ep = prob.layout.pidx < prob.n_e
+        pc = pcol[prob.layout.pidx[ep]]                                              # (k', 3)
         rp = np.broadcast_to(rows[ep, c, None], pc.shape)
         okp = pc >= 0
         np.add.at(A, (rp[okp], pc[okp]), Jp[ep, c, :][okp])
