@@ -76,7 +76,7 @@ def solve_bundle(block: Block, settings: BundleSettings | None = None, *, obs_ac
     eps_cost = 1e-12 * max(1, prob.n_obs_rows)
     nu = 2.0
     for it in range(1, settings.max_iter + 1):
-        lin = prob.linearize(st, parts[-1], sparse=route.sparse_normals)   # the accepted step's projection
+        lin = prob.normals.linearize(st, parts[-1], sparse=route.sparse_normals)   # the accepted step's projection
         timings["linearize"] += lin.t
         while True:
             ts = time.perf_counter()
@@ -271,7 +271,7 @@ def _wrap(a):
 
 def final_system(prob: BundleProblem, route: Route, st: BundleState, proj=None) -> tuple:
     """Linearisation and undamped reduced system on ``route`` at the solution (for the precision)."""
-    lin = prob.linearize(st, proj, sparse=route.sparse_normals)
+    lin = prob.normals.linearize(st, proj, sparse=route.sparse_normals)
     return lin, route.reduced_system(prob, lin, st, 0.0)
 
 

@@ -71,7 +71,14 @@ PAIR_CHUNK = 1 << 13
 
 
 class NormalEquations:
-    """Linearisation and reduced system of a :class:`~.problem.BundleProblem`."""
+    """The normal equations of a :class:`~.problem.BundleProblem` (its :attr:`~.problem.BundleProblem.normals`):
+    the whitened linearisation, the Schur complement's pieces, the inner-constraint rows, and what
+    they reuse (photo-pair plan, track groups, the sparsity pattern and its symbolic analysis, the
+    cost models that choose the strategies), each computed once."""
+
+    def __init__(self, prob):
+        self.prob = prob
+        self.layout = prob.layout
 
     def linearize(self, st: BundleState, proj=None, *, sparse: bool = False) -> Linearisation:
         """Whitened Jacobians and normal-equation pieces at ``st``.
@@ -81,29 +88,29 @@ class NormalEquations:
         scipy CSR (the sparse route's :attr:`~.route.Route.sparse_normals`), else dense."""
         t0 = time.perf_counter()
         if proj is None or proj._d is None:
-            proj = self.project(st, False)
+            proj = self.prob.project(st, False)
         if proj.J_eo is None:
-            self.projector.jacobians(proj)
-        parts = self.residual_parts(st, proj)
+            self.prob.projector.jacobians(proj)
+        parts = self.prob.residual_parts(st, proj)
         v, e, dg, dpv, dd, _ = parts
         sc, se, spt = self.layout.jac_cols
-        Jc, Jp = kernels.whitened(self.L, proj.J_cam, proj.J_eo, se, proj.J_point, spt)   # L [J_cam J_eo J_pt]
+        Jc, Jp = kernels.whitened(self.prob.L, proj.J_cam, proj.J_eo, se, proj.J_point, spt)   # L [J_cam J_eo J_pt]
         if not self.layout.mask_all:
             Jc *= self.layout.mask[:, None, :]
         if not self.layout.pt_mask_all:
             Jp *= self.layout.pt_mask[:, None, :]
         proj.J_cam = proj.J_eo = proj.J_point = None      # whitened copies above; recomputed if needed again
         U, g = self.gram_U(Jc, e, sparse=sparse)
-        ng1 = self.n_g + 1
-        V, bp = kernels.point_normals(Jp, e, self.layout.pidx, self.n_e)
+        ng1 = self.prob.n_g + 1
+        V, bp = kernels.point_normals(Jp, e, self.layout.pidx, self.prob.n_e)
         # priors
-        U = U + _triplets(self.prior_g_idx, self.prior_g_idx, self.prior_g_w, ng1, sparse=sparse)
-        np.add.at(g, self.prior_g_idx, self.prior_g_w * dg)
-        if len(self.prior_p_idx):
-            np.add.at(V, (self.prior_p_idx, self.prior_p_coord, self.prior_p_coord), self.prior_p_w)
-            np.add.at(bp, (self.prior_p_idx, self.prior_p_coord), self.prior_p_w * dpv)
+        U = U + _triplets(self.prob.prior_g_idx, self.prob.prior_g_idx, self.prob.prior_g_w, ng1, sparse=sparse)
+        np.add.at(g, self.prob.prior_g_idx, self.prob.prior_g_w * dg)
+        if len(self.prob.prior_p_idx):
+            np.add.at(V, (self.prob.prior_p_idx, self.prob.prior_p_coord, self.prob.prior_p_coord), self.prob.prior_p_w)
+            np.add.at(bp, (self.prob.prior_p_idx, self.prob.prior_p_coord), self.prob.prior_p_w * dpv)
         # observations on global unknowns only (scale bars, GNSS antennas): whitened rows J̃, ẽ = dd
-        Jd, dcols, _ = self.global_rows_linear(st)
+        Jd, dcols, _ = self.prob.global_rows_linear(st)
         if len(dd):
             w = dcols.shape[1]
             sh = (len(dcols), w, w)
@@ -111,8 +118,8 @@ class NormalEquations:
                               Jd[:, :, None] * Jd[:, None, :], ng1, sparse=sparse)
             g = g + np.bincount(dcols.ravel(), (Jd * dd[:, None]).ravel(), minlength=ng1)[:-1]
         # free coordinates that no observation touches stay fixed
-        if self.n_e:
-            fixed = ~self.elim_free
+        if self.prob.n_e:
+            fixed = ~self.prob.elim_free
             pi, ci = np.nonzero(fixed)
             V[pi, ci, ci] = 1.0
             bp[fixed] = 0.0
@@ -123,12 +130,12 @@ class NormalEquations:
         """``Σ_k Jc_kᵀ Jc_k`` over the global unknowns (and ``Σ_k Jc_kᵀ e_k`` when ``e`` is given):
         per photo with BLAS for the photo-constant columns, per observation for the few
         observations of global points.  Dense (n_g, n_g), or scipy CSR on the sparse route."""
-        ng1 = self.n_g + 1
+        ng1 = self.prob.n_g + 1
         gp = np.zeros(ng1)
         q_ph = self.layout.q_ph
         whole = q_ph == self.layout.q
         A = Jc if whole else Jc[:, :, :q_ph]
-        blocks = segment_sums(A, self.layout.seg_start, self.layout.seg_end, self.settings.threads)
+        blocks = segment_sums(A, self.layout.seg_start, self.layout.seg_end, self.prob.settings.threads)
         if e is not None:
             for s0, s1, idx in zip(self.layout.seg_start.tolist(), self.layout.seg_end.tolist(), self.layout.seg_cols):
                 gp[idx] += A[s0:s1].reshape(-1, q_ph).T @ e[s0:s1].reshape(-1)
@@ -154,7 +161,7 @@ class NormalEquations:
     def gram_mode(self) -> str:
         """Cheapest way to form ``B Bᵀ`` on the dense route (cost model in flops-equivalents):
         ``"dense"``, ``"pairs"`` or ``"sparse"`` (:class:`BMatrix`)."""
-        n_e = self.n_e
+        n_e = self.prob.n_e
         cnt = np.bincount(self.layout.pidx[self.layout.obs_elim], minlength=n_e).astype(float)
         q = self.layout.q_ph
         n_pairs = float(np.sum(cnt * (cnt - 1) / 2))
@@ -162,11 +169,11 @@ class NormalEquations:
         photo_pairs = min(n_pairs, n_seg * (n_seg - 1) / 2)
         # pairs: one small BLAS product per photo pair (≈ 30 µs-equivalents of overhead each),
         # the gathered blocks and the per-photo diagonal
-        pairs = (2 * 3 * q * q / 4 + 2 * 3 * q * 2) * n_pairs + 3e4 * photo_pairs + len(self.oi) * 3 * q * q / 4
-        nnz_col = np.minimum(cnt * self.layout.q, self.n_g)
+        pairs = (2 * 3 * q * q / 4 + 2 * 3 * q * 2) * n_pairs + 3e4 * photo_pairs + len(self.prob.oi) * 3 * q * q / 4
+        nnz_col = np.minimum(cnt * self.layout.q, self.prob.n_g)
         sparse = 3.0 * float(np.sum(nnz_col ** 2)) * 4.0
-        dense = float(self.n_g + self.n_c) ** 2 * 3 * n_e / 10.0 + 3.0 * len(self.oi) * self.layout.q
-        dense_bytes = 8.0 * (self.n_g + 1) * 3 * n_e
+        dense = float(self.prob.n_g + self.prob.n_c) ** 2 * 3 * n_e / 10.0 + 3.0 * len(self.prob.oi) * self.layout.q
+        dense_bytes = 8.0 * (self.prob.n_g + 1) * 3 * n_e
         pair_bytes = 16.0 * n_pairs + 8.0 * photo_pairs * q * q
         costs = {"sparse": sparse, "pairs": pairs if pair_bytes < 6e8 else np.inf,
                  "dense": dense if dense_bytes < 4e8 else np.inf}
@@ -180,13 +187,13 @@ class NormalEquations:
         tracks, e.g. aerial blocks, BAL) — or by chunks — K⁻¹ B for blocks of points, n_x² per
         point (few points seen by many photos, e.g. close range).  By pairs gathers the blocks of
         all points of one track length at once; past 2e8 bytes it is not used."""
-        cnt = np.bincount(self.layout.pidx[self.layout.obs_elim], minlength=self.n_e).astype(float)
+        cnt = np.bincount(self.layout.pidx[self.layout.obs_elim], minlength=self.prob.n_e).astype(float)
         tq = cnt * self.layout.q
-        n_x = self.n_g + self.n_c
-        pairs = float(np.sum(4.0 * tq * tq * 3 + 3.0 * tq * self.n_c))
-        chunks = 3.0 * n_x * n_x * self.n_e + 3.0 * len(self.oi) * self.layout.q * 3
-        lengths, inverse = np.unique(cnt, return_inverse=True) if self.n_e else (np.zeros(0), np.zeros(0, int))
-        group_bytes = np.bincount(inverse, 8.0 * tq * tq, minlength=len(lengths)) if self.n_e else np.zeros(1)
+        n_x = self.prob.n_g + self.prob.n_c
+        pairs = float(np.sum(4.0 * tq * tq * 3 + 3.0 * tq * self.prob.n_c))
+        chunks = 3.0 * n_x * n_x * self.prob.n_e + 3.0 * len(self.prob.oi) * self.layout.q * 3
+        lengths, inverse = np.unique(cnt, return_inverse=True) if self.prob.n_e else (np.zeros(0), np.zeros(0, int))
+        group_bytes = np.bincount(inverse, 8.0 * tq * tq, minlength=len(lengths)) if self.prob.n_e else np.zeros(1)
         fits = float(group_bytes.max(initial=0.0)) < 2e8
         return bool(fits and pairs < chunks)
 
@@ -196,7 +203,7 @@ class NormalEquations:
         ``(obs_mat (N_t, t), None)``."""
         sel = np.flatnonzero(self.layout.obs_elim)
         order = sel[np.argsort(self.layout.pidx[sel], kind="stable")]
-        cnt = np.bincount(self.layout.pidx[sel], minlength=self.n_e)
+        cnt = np.bincount(self.layout.pidx[sel], minlength=self.prob.n_e)
         start = np.r_[0, np.cumsum(cnt)[:-1]]
         groups = []
         for t in np.unique(cnt[cnt > 0]):
@@ -236,7 +243,7 @@ class NormalEquations:
         oa, ob, key, sa, sb = oa[o], ob[o], key[o], sa[o], sb[o]
         gs = np.flatnonzero(np.r_[True, key[1:] != key[:-1]]) if len(key) else np.zeros(0, int)
         ge = np.r_[gs[1:], len(key)].astype(int)
-        ng1 = self.n_g + 1
+        ng1 = self.prob.n_g + 1
         itype = np.int32 if ng1 * ng1 < 2 ** 31 else np.int64
         ra = self.layout.seg_cols[sa[gs]].astype(itype)
         rb = self.layout.seg_cols[sb[gs]].astype(itype)
@@ -255,18 +262,18 @@ class NormalEquations:
     # ------------------------------------------------------------------------------------------
     def constraint_rows(self, st: BundleState):
         """Inner constraints Gᵀ Δ = 0: (Cg (n_g, n_c), Cp (n_e, 3, n_c))."""
-        n_c = self.n_c
-        Cg = np.zeros((self.n_g, n_c))
-        Cp = np.zeros((self.n_e, 3, n_c))
+        n_c = self.prob.n_c
+        Cg = np.zeros((self.prob.n_g, n_c))
+        Cp = np.zeros((self.prob.n_e, 3, n_c))
         if n_c == 0:
             return Cg, Cp
         pos, where = [], []
-        if len(self.datum_photos):
-            pos.append(st.X0[self.datum_photos])
-        if len(self.datum_elim):
-            pos.append(st.XYZ[self.elim_points[self.datum_elim]])
-        if len(self.datum_glob_pts):
-            pos.append(st.XYZ[self.datum_glob_pts])
+        if len(self.prob.datum_photos):
+            pos.append(st.X0[self.prob.datum_photos])
+        if len(self.prob.datum_elim):
+            pos.append(st.XYZ[self.prob.elim_points[self.prob.datum_elim]])
+        if len(self.prob.datum_glob_pts):
+            pos.append(st.XYZ[self.prob.datum_glob_pts])
         allpos = np.concatenate(pos)
         ctr = allpos.mean(axis=0)
         scale = np.sqrt(np.mean(np.sum((allpos - ctr) ** 2, axis=1))) or 1.0
@@ -274,14 +281,14 @@ class NormalEquations:
         def G(X):
             return similarity_motions((X - ctr) / scale, n_c)
 
-        if len(self.datum_photos):
-            Gx = G(st.X0[self.datum_photos])
-            Cg[self.g_eo[self.datum_photos, :3].ravel()] = Gx.reshape(-1, n_c)
-        if len(self.datum_glob_pts):
-            Gx = G(st.XYZ[self.datum_glob_pts])
-            Cg[self.g_pt[self.datum_glob_pts].ravel()] = Gx.reshape(-1, n_c)
-        if len(self.datum_elim):
-            Cp[self.datum_elim] = G(st.XYZ[self.elim_points[self.datum_elim]])
+        if len(self.prob.datum_photos):
+            Gx = G(st.X0[self.prob.datum_photos])
+            Cg[self.prob.g_eo[self.prob.datum_photos, :3].ravel()] = Gx.reshape(-1, n_c)
+        if len(self.prob.datum_glob_pts):
+            Gx = G(st.XYZ[self.prob.datum_glob_pts])
+            Cg[self.prob.g_pt[self.prob.datum_glob_pts].ravel()] = Gx.reshape(-1, n_c)
+        if len(self.prob.datum_elim):
+            Cp[self.prob.datum_elim] = G(st.XYZ[self.prob.elim_points[self.prob.datum_elim]])
         return Cg, Cp
 
     # ------------------------------------------------------------------------------------------
@@ -292,18 +299,18 @@ class NormalEquations:
         and the inner-constraint rows."""
         U, g, V, bp = lin.U, lin.g, lin.V, lin.bp
         Jc, Jp = lin.Jc, lin.Jp
-        n_e, n_c = self.n_e, self.n_c
+        n_e, n_c = self.prob.n_e, self.prob.n_c
         if not sparse and sp.issparse(U):
             U = U.toarray()
         if lam > 0:
             U = U + lam * (sp.diags(U.diagonal()) if sp.issparse(U) else np.diag(np.diag(U)))
             V = V + lam * np.einsum("pii->pi", V)[:, :, None] * np.eye(3)
-        Li = _chol3_inv(V, self)                                   # (n_e, 3, 3) lower, L⁻¹ with V = L Lᵀ
+        Li = _chol3_inv(V, self.prob)                                   # (n_e, 3, 3) lower, L⁻¹ with V = L Lᵀ
         # B_k = W_k L⁻ᵀ = Jcᵀ (Jp L⁻ᵀ), held transposed: BkT (k, 3, q)
         BkT = kernels.schur_blocks(Jc, Jp, Li, self.layout.pidx)
         Cg, Cp = self.constraint_rows(st)
         if n_c:                                                     # (n_e, n_c, 3) = Cpᵀ L⁻ᵀ (Cp = 0 unless
-            Bc = np.einsum("pac,pba->pcb", Cp, Li) if self.datum_on_elim else np.zeros((n_e, n_c, 3))   # on points)
+            Bc = np.einsum("pac,pba->pcb", Cp, Li) if self.prob.datum_on_elim else np.zeros((n_e, n_c, 3))   # on points)
         else:
             Bc = None
         B = BMatrix(self, BkT, Bc, sparse=sparse)
@@ -317,26 +324,26 @@ class NormalEquations:
         :data:`SPARSE_MIN_UNKNOWNS` global unknowns on, when the symbolic analysis finds a factor
         with less than half the entries of the dense triangle).  :func:`.route.choose_route`
         decides, with the free network's conditions."""
-        want = self.settings.solver
+        want = self.prob.settings.solver
         if want == "sparse":
             return True
-        if want == "auto" and self.n_g >= SPARSE_MIN_UNKNOWNS:
-            return self.symbolic_all.nnz_factor <= 0.5 * self.n_g * (self.n_g + 1) / 2
+        if want == "auto" and self.prob.n_g >= SPARSE_MIN_UNKNOWNS:
+            return self.symbolic_all.nnz_factor <= 0.5 * self.prob.n_g * (self.prob.n_g + 1) / 2
         return False
 
     def node_of_global(self) -> tuple[np.ndarray, list[int]]:
         """The node of every global unknown (a camera's parameters, a photo's orientation, a
         scale-bar point's coordinates) and the camera nodes (ordered last by the sparse route)."""
-        node = np.full(self.n_g, -1)
+        node = np.full(self.prob.n_g, -1)
         k = 0
         cams = []
-        for j in range(self.K):
-            c = self.g_cam[j][self.g_cam[j] >= 0]
+        for j in range(self.prob.K):
+            c = self.prob.g_cam[j][self.prob.g_cam[j] >= 0]
             if c.size:
                 node[c] = k
                 cams.append(k)
                 k += 1
-        for table in (self.g_eo, self.g_pt):
+        for table in (self.prob.g_eo, self.prob.g_pt):
             rows = np.flatnonzero((table >= 0).any(axis=1))
             for i in rows.tolist():
                 node[table[i][table[i] >= 0]] = k
@@ -348,7 +355,7 @@ class NormalEquations:
         """Sparsity of the reduced system of the global unknowns (n_g, n_g): the photo blocks with
         their cameras, photo pairs that share a point, observations of scale-bar points, priors and
         the observations on global unknowns (distances, GNSS antennas)."""
-        ng1 = self.n_g + 1
+        ng1 = self.prob.n_g + 1
         sc = self.layout.seg_cols
         q = sc.shape[1]
         sh = (len(sc), q, q)
@@ -359,12 +366,12 @@ class NormalEquations:
             sh = (len(gc), gc.shape[1], gc.shape[1])
             pat = pat + _triplets(np.broadcast_to(gc[:, :, None], sh), np.broadcast_to(gc[:, None, :], sh),
                                   np.ones(sh), ng1, sparse=True)
-        if self.n_grow_rows:                  # scale bars, GNSS antennas
-            cols = self.grow_cols
+        if self.prob.n_grow_rows:                  # scale bars, GNSS antennas
+            cols = self.prob.grow_cols
             sh = (len(cols), cols.shape[1], cols.shape[1])
             pat = pat + _triplets(np.broadcast_to(cols[:, :, None], sh), np.broadcast_to(cols[:, None, :], sh),
                                   np.ones(sh), ng1, sparse=True)
-        if self.n_e:
+        if self.prob.n_e:
             pl = self.pair_plan
             rows, cols = np.divmod(pl.flat, ng1)
             pat = pat + _triplets(rows, cols, np.ones(len(rows)), ng1, sparse=True)
@@ -480,15 +487,16 @@ class BMatrix:
     ``gram() = B Bᵀ`` is computed by the cheapest of three strategies:
     ``dense`` (BLAS on the dense n_g × 3n_e matrix: few points, many photos per point),
     ``pairs`` (one BLAS product per photo pair over the blocks of their common points, see
-    :meth:`BundleProblem.pair_plan`: many points with short tracks, e.g. BAL),
+    :attr:`NormalEquations.pair_plan`: many points with short tracks, e.g. BAL),
     ``sparse`` (scipy CSR product).
     """
 
-    def __init__(self, prob: BundleProblem, BkT, Bc, sparse: bool = False):
-        self.prob = prob
+    def __init__(self, normals: NormalEquations, BkT, Bc, sparse: bool = False):
+        self.normals = normals
+        self.prob = prob = normals.prob
         self.BkT, self.Bc = BkT, Bc
         self.n_x = prob.n_g + prob.n_c
-        self.mode = prob.gram_mode
+        self.mode = normals.gram_mode
         if sparse:
             self.mode = "pairs"
 
@@ -511,7 +519,7 @@ class BMatrix:
         q = prob.layout.q_ph
         X = self.BkT if q == prob.layout.q else np.ascontiguousarray(self.BkT[:, :, :q])
         if self.mode == "pairs":
-            pl = prob.pair_plan
+            pl = self.normals.pair_plan
             S, Dg = self.pair_blocks(X)
             kernels.add_blocks(out, pl.flat, S, ng1, True)          # S_ab and S_abᵀ
             kernels.add_blocks(out, pl.flat_diag, Dg, ng1, False)
@@ -533,13 +541,13 @@ class BMatrix:
         return out
 
     def pair_blocks(self, X=None):
-        """``S_ab = Σ_p B_ap B_bpᵀ`` of every photo pair (a < b) of :meth:`BundleProblem.pair_plan` and
+        """``S_ab = Σ_p B_ap B_bpᵀ`` of every photo pair (a < b) of :attr:`NormalEquations.pair_plan` and
         ``Y_aᵀ Y_a`` of every photo: (n_pairs, q, q), (n_photos, q, q) over the photo columns."""
         prob = self.prob
         q = prob.layout.q_ph
         if X is None:
             X = self.BkT if q == prob.layout.q else np.ascontiguousarray(self.BkT[:, :, :q])
-        pl = prob.pair_plan
+        pl = self.normals.pair_plan
         gs, ge, oa, ob = pl.gs, pl.ge, pl.oa, pl.ob
         S = np.empty((len(gs), q, q))
         gs, ge = np.asarray(gs, np.intp), np.asarray(ge, np.intp)
@@ -557,7 +565,7 @@ class BMatrix:
         n_g = prob.n_g
         ng1 = n_g + 1
         if self.mode == "pairs":
-            pl = prob.pair_plan
+            pl = self.normals.pair_plan
             S, Dg = self.pair_blocks()
             r, c = np.divmod(pl.flat, ng1)
             A = _triplets(r, c, S.ravel(), ng1, sparse=True)

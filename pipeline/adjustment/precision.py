@@ -148,7 +148,7 @@ def _points_by_pairs(prob, Qx, B, Li, Jc, Jp, H, Qpp):
         Qgc = np.zeros((n_g + 1, n_c))
         Qgc[:n_g] = Qx[:n_g, n_g:]
         cons = (Qgc, Qx[n_g:, n_g:])
-    for obs_mat, _ in prob.track_groups:
+    for obs_mat, _ in prob.normals.track_groups:
         N, t = obs_mat.shape
         C = prob.layout.cidx[obs_mat].reshape(N, t * prob.layout.q)                          # (N, tq)
         _track_terms(prob, Qg[C[:, :, None], C[:, None, :]], C, obs_mat, B, Li, Jc, Jp, H, Qpp, cons)
@@ -223,7 +223,7 @@ def sparse_precision(prob, lin, red, st) -> Precision:
 
     items = {}
     items["seg"] = by_owner(owners(prob.layout.seg_cols))
-    tracks = [(obs_mat, prob.layout.cidx[obs_mat].reshape(len(obs_mat), -1)) for obs_mat, _ in prob.track_groups]
+    tracks = [(obs_mat, prob.layout.cidx[obs_mat].reshape(len(obs_mat), -1)) for obs_mat, _ in prob.normals.track_groups]
     items["trk"] = [by_owner(owners(C)) for _, C in tracks]
     gpo = prob.layout.gp_obs
     items["gp"] = by_owner(owners(prob.layout.cidx[gpo]))

@@ -27,6 +27,7 @@ Everything is vectorised over observations; the reduced system is dense (``cho_f
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import scipy.sparse as sp
@@ -69,11 +70,13 @@ class GlobalRows:
         return len(self.cols) * self.r
 
 
-class BundleProblem(NormalEquations):
+class BundleProblem:
     """Index bookkeeping of one adjustment: which parameters are unknown, observed or fixed,
     where every unknown sits in the global vector, the whitening of each observation.
 
-    Built once per (block, active set, settings); the iteration only changes the state.
+    Built once per (block, active set, settings); the iteration only changes the state.  The
+    normal equations are :attr:`normals` (:class:`~.normal.NormalEquations`), the solver route
+    :func:`~.route.choose_route`'s.
     """
 
     def __init__(self, block: Block, settings: BundleSettings, obs_active: np.ndarray | None = None,
@@ -421,6 +424,11 @@ class BundleProblem(NormalEquations):
                                   "coordinates (option datum_points)")
         self.datum_elim = self.elim_of[sel & (self.elim_of >= 0)]
         self.datum_glob_pts = np.flatnonzero(sel & (self.g_pt >= 0).all(axis=1))
+
+    @cached_property
+    def normals(self) -> NormalEquations:
+        """The normal equations of this problem (and what they reuse between iterations)."""
+        return NormalEquations(self)
 
     # ------------------------------------------------------------------------------------------
     def initial_state(self, block: Block | None = None) -> BundleState:

@@ -316,7 +316,7 @@ def own_effects(res, delta0: float = 4.13, bias=None, chunk_bytes: float = 3.2e7
         else:
             pt_eff[rows] = np.transpose(_pick(own, pt_pos), (0, 2, 1))
 
-    groups = [obs_mat for obs_mat, _ in prob.track_groups] if n_e else []
+    groups = [obs_mat for obs_mat, _ in prob.normals.track_groups] if n_e else []
     single = np.flatnonzero(prob.layout.pidx == n_e)
     if sparse:
         _sparse_visit(prob, red, groups, single, tracks, singles, chunk_bytes)

@@ -151,7 +151,7 @@ class DenseRoute(Route):
     sparse_normals: ClassVar[bool] = False
 
     def reduced_system(self, prob, lin, st, lam=0.0):
-        U, rhs, Li, z, B, Cg, Cp = prob.schur(lin, st, lam, sparse=False)
+        U, rhs, Li, z, B, Cg, Cp = prob.normals.schur(lin, st, lam, sparse=False)
         n_g, n_c = prob.n_g, prob.n_c
         n_x = n_g + n_c
         K = np.zeros((n_x, n_x))
@@ -202,10 +202,10 @@ class SparseRoute(Route):
         if held is not None:
             keep = np.ones(prob.n_g, bool)
             keep[held] = False
-        return cls(held, prob.symbolic(keep))
+        return cls(held, prob.normals.symbolic(keep))
 
     def reduced_system(self, prob, lin, st, lam=0.0):
-        U, rhs, Li, z, B, Cg, Cp = prob.schur(lin, st, lam, sparse=True)
+        U, rhs, Li, z, B, Cg, Cp = prob.normals.schur(lin, st, lam, sparse=True)
         K = sp.csr_matrix(U) - B.gram_sparse() if prob.n_e else sp.csr_matrix(U)
         if prob.n_c:
             rhs[prob.n_g:] = 0.0
@@ -272,10 +272,10 @@ def choose_route(prob, st: BundleState) -> Route:
     :attr:`~.normal.NormalEquations.wants_sparse`, unless a free network's datum cannot be held by
     ``n_c`` photo parameters (:func:`.factor.minimal_datum`) or is constrained by control as well
     (:func:`datum_is_null_space`); else dense."""
-    if prob.wants_sparse:
+    if prob.normals.wants_sparse:
         if not prob.n_c:
             return SparseRoute.of(prob, None)
         held = minimal_datum(prob, st)
         if held is not None and datum_is_null_space(prob, st):
             return SparseRoute.of(prob, held)
-    return DenseRoute(by_pairs=prob.points_by_pairs)
+    return DenseRoute(by_pairs=prob.normals.points_by_pairs)

@@ -195,7 +195,7 @@ def test_distance_jacobian_matches_finite_differences():
     prob = BundleProblem(blk, BundleSettings(datum="free", distances=(Distance("103", "111", d, sd),)))
     st = prob.initial_state()
     st.XYZ[11] += [0.004, -0.003, 0.002]             # the bar is now ≈ 30 σ off
-    lin = prob.linearize(st)
+    lin = prob.normals.linearize(st)
     Jd, cols = lin.Jd[0], lin.dcols[0]
     assert list(cols) == list(prob.g_pt[3]) + list(prob.g_pt[11])
     zero_p = np.zeros((prob.n_e, 3))
