@@ -1,8 +1,10 @@
-"""Normal equations of the bundle: whitened Jacobians, the reduced camera system (object points
-eliminated by the Schur complement), its constraint rows and the back-substitution.
+"""Normal equations of the bundle: whitened Jacobians (:class:`Linearisation`), the pieces of the
+reduced camera system (object points eliminated by the Schur complement) and its constraint rows.
 
-:class:`NormalEquations` is a part of :class:`~.problem.BundleProblem` (a mix-in: it uses the
-problem's index bookkeeping); :class:`BMatrix` holds ``B = W V^{-1/2}`` per observation.
+:class:`NormalEquations` belongs to one :class:`~.problem.BundleProblem` (``problem.normals``: it
+uses the problem's index bookkeeping and column layout); :mod:`.route` assembles and solves the
+reduced system on the dense or the sparse route.  :class:`BMatrix` holds ``B = W V^{-1/2}`` per
+observation.
 """
 
 from __future__ import annotations

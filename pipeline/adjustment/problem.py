@@ -1,7 +1,8 @@
 """The bundle adjustment problem: which parameters are unknown, observed or fixed, where every
 unknown sits in the global vector, the whitening of each observation, residuals and vᵀPv.
 
-The normal equations are :mod:`.normal`, their solution :mod:`.factor`, the iteration :mod:`.lm`.
+The normal equations are :mod:`.normal`, the routes :mod:`.route`, their solution :mod:`.factor`,
+the iteration :mod:`.lm`.
 
 Unknowns
     global (the "reduced camera system"): free camera parameters ``[c, xp, yp, ap…]`` per
@@ -19,8 +20,9 @@ Datum
     centres, appended as Lagrange rows to the reduced system; the scale comes from a distance when
     one is given.
 
-Everything is vectorised over observations; the reduced system is dense (``cho_factor`` /
-``lu_factor``).  See ``docs/bundle.md``.
+Everything is vectorised over observations.  The column layout of the unknowns is
+:class:`~.layout.ColumnLayout`, the normal equations :attr:`BundleProblem.normals`, the reduced
+system's route (dense or sparse) :func:`.route.choose_route`'s.  See ``docs/bundle.md``.
 """
 
 
