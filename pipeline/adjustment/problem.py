@@ -398,7 +398,7 @@ class BundleProblem:
         self.datum_photos = np.zeros(0, int)
         if st.datum != "free":
             return
-        if any(k.kind == "gnss" for k in getattr(self, "grows", ())):
+        if any(k.kind == "gnss" for k in self.grows):
             # antennas observe position, orientation and scale of the block: inner constraints on top
             # would pull against them (σ̂0 4.6 instead of 1.0 on the test block of docs/bundle.md)
             raise InputError("GNSS antenna observations fix the datum (position, orientation and scale); a free "
