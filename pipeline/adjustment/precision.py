@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .collinearity import bmm, bmv, project_observations
+from .collinearity import bmm, project_observations
 from .problem import BundleProblem
 
 __all__ = ["Precision", "DenseCofactors", "SparseCofactors", "dense_precision", "sparse_precision",

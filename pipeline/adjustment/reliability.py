@@ -43,7 +43,6 @@ from baarda.pipeline.stats.snapshot import Snapshot
 
 from .collinearity import EO_NAMES
 from .lm import final_system
-from .precision import front_cofactors
 
 __all__ = ["OwnEffects", "own_effects", "effect_vectors", "parameter_covariance", "parameter_names_of",
            "row_mdb", "bar_delta0", "linearised_model", "GlobalRowStats", "global_rows"]
@@ -80,8 +79,9 @@ def _apply_Q(prob, red, Qx, st, a_g: np.ndarray, a_p: np.ndarray):
         for c in range(j):
             y[:, :, c] = np.einsum("pba,pb->pa", Li, z[:, :, c] - B.rmatvec(x[:, c]))
     xg = x[:n_g]
-    if Qx is None and n_c:                 # sparse route: minimal datum → inner constraints
-        Gg, Gp, T, Yg, Yp = red.datum_Y()
+    datum = red.route.datum_transform(red)     # sparse route: minimal datum → inner constraints
+    if datum is not None:
+        Gg, Gp, T, Yg, Yp = datum
         CtD = red.Cg.T @ xg + np.einsum("pac,paj->cj", red.Cp, y)
         xg = xg - Gg @ (T @ CtD)
         y = y - np.einsum("pac,cj->paj", Gp, T @ CtD)
@@ -268,13 +268,8 @@ def own_effects(res, delta0: float = 4.13, bias=None, chunk_bytes: float = 3.2e7
     eo_pos, pt_pos = _layout(prob)
     G_all = np.einsum("kiq,kic->kqc", Jc, L)                 # a_g of row c: J̃cᵀ L e_c   (k, q, 2)
     Ap_all = np.einsum("kia,kic->kac", Jp, L)                # a_p                       (k, 3, 2)
-    sparse = Qx is None                   # the selected inversion's fronts instead of K⁻¹
-    cons = None
-    if not sparse and n_c:
-        Qgc = np.zeros((n_g + 1, n_c))
-        Qgc[:n_g] = Qx[:n_g, n_g:]
-        cons = (Qgc, Qx[n_g:, n_g:])
-    datum = red.datum_Y() if sparse and n_c else None
+    cons = red.route.constraint_cofactors(red, Qx)
+    datum = red.route.datum_transform(red)
 
     def tracks(obs_mat, Qsub):
         """Rows of the points whose observations are ``obs_mat`` (N, t); ``Qsub`` (N, tq, tq)."""
@@ -318,22 +313,7 @@ def own_effects(res, delta0: float = 4.13, bias=None, chunk_bytes: float = 3.2e7
 
     groups = [obs_mat for obs_mat, _ in prob.normals.track_groups] if n_e else []
     single = np.flatnonzero(prob.layout.pidx == n_e)
-    if sparse:
-        _sparse_visit(prob, red, groups, single, tracks, singles, chunk_bytes)
-    else:
-        Qg = np.zeros((n_g + 1, n_g + 1))
-        Qg[:n_g, :n_g] = Qx[:n_g, :n_g]
-        for obs_mat in groups:
-            N, t = obs_mat.shape
-            c = max(1, int(chunk_bytes / (8.0 * 6 * (t * q) ** 2)))
-            for a in range(0, N, c):
-                om = obs_mat[a:a + c]
-                C = prob.layout.cidx[om].reshape(len(om), -1)
-                tracks(om, Qg[C[:, :, None], C[:, None, :]])
-        for a in range(0, len(single), 4096):
-            ob = single[a:a + 4096]
-            Ck = prob.layout.cidx[ob]
-            singles(ob, Qg[Ck[:, :, None], Ck[:, None, :]])
+    red.route.hand_blocks(red, Qx, groups, single, tracks, singles, chunk_bytes)
     if datum is not None:
         Gg, Gp, T, Yg, Yp = datum
         Yx = np.vstack([Yg, np.zeros((1, n_c))])
@@ -386,58 +366,6 @@ def _pick(X, pos):
     """X (r, q, 2) → (r, len(pos), 2) with zeros where ``pos`` is −1."""
     Xp = np.concatenate([X, np.zeros((X.shape[0], 1, X.shape[2]))], axis=1)
     return Xp[:, np.where(pos >= 0, pos, X.shape[1]), :]
-
-
-def _sparse_visit(prob, red, groups, single, tracks, singles, chunk_bytes):
-    """Hand every track (and every scale-bar-point observation) the block of ``K⁻¹`` on its columns
-    from the selected inversion, in the front of its first column in the elimination order (the
-    columns form a clique of the filled graph, so that front holds them all)."""
-    F, d, kidx = red.factor.F, red.factor.d, red.factor.kidx
-    sym = F.sym
-    n_g, n = prob.n_g, sym.n
-    posg = np.full(n_g + 1, n)
-    posg[kidx] = sym.ipos
-    sn_of_pos = np.repeat(np.arange(sym.n_super), np.diff(sym.start))
-
-    def by_owner(C):
-        m = posg[C].reshape(len(C), -1).min(axis=1) if len(C) else np.zeros(0, int)
-        own = np.where(m < n, sn_of_pos[np.minimum(m, n - 1)], -1)
-        order = np.argsort(own, kind="stable")
-        return order, np.searchsorted(own[order], np.arange(-1, sym.n_super + 1))
-
-    Cs = [prob.layout.cidx[om].reshape(len(om), -1) for om in groups]
-    own_t = [by_owner(C) for C in Cs]
-    Csg = prob.layout.cidx[single]
-    own_s = by_owner(Csg)
-
-    def take(ob, s):
-        order, bounds = ob
-        return order[bounds[s + 1]:bounds[s + 2]]
-
-    def visit(s, front, Z):
-        Zx, loc = front_cofactors(front, Z, d, sym.ipos, posg)
-        _hand(s, Zx, loc)
-
-    def _hand(s, Zx, loc):
-        for g, om in enumerate(groups):
-            sel = take(own_t[g], s)
-            if sel.size:
-                w = Cs[g].shape[1]
-                c = max(1, int(chunk_bytes / (8.0 * 6 * w * w)))
-                for a in range(0, sel.size, c):
-                    ss = sel[a:a + c]
-                    Cl = loc(Cs[g][ss]) if Zx is not None else None
-                    Qsub = Zx[Cl[:, :, None], Cl[:, None, :]] if Zx is not None else np.zeros((ss.size, w, w))
-                    tracks(om[ss], Qsub)
-        sel = take(own_s, s)
-        if sel.size:
-            Cl = loc(Csg[sel]) if Zx is not None else None
-            w = Csg.shape[1]
-            singles(single[sel], Zx[Cl[:, :, None], Cl[:, None, :]] if Zx is not None
-                    else np.zeros((sel.size, w, w)))
-
-    F.selected_inverse(visit)
-    _hand(-1, None, None)                       # tracks whose columns are all fixed
 
 
 # --------------------------------------------------------------------------------------------------

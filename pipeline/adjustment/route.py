@@ -29,8 +29,8 @@ from .collinearity import bmv
 from .diagnose import datum_motions, parameter_names
 from .factor import SingularAt, datum_basis, minimal_datum, solve_dense, solve_sparse
 from .normal import Linearisation
-from .precision import Precision, dense_precision, predicted_variance_dense, predicted_variance_sparse, \
-    sparse_precision
+from .precision import (Precision, dense_precision, front_cofactors, predicted_variance_dense,
+                        predicted_variance_sparse, sparse_precision)
 from .settings import BundleState
 from .sparse import Symbolic
 
@@ -139,6 +139,22 @@ class Route(ABC):
     def held_datum(self, prob, st) -> np.ndarray | None:
         """The photo parameters that hold a free network's datum in the linearised model."""
 
+    @abstractmethod
+    def constraint_cofactors(self, red: ReducedSystem, Qx) -> tuple | None:
+        """``(Qgc (n_g + 1, n_c), Qcc)``: the cofactors of the bordered constraint rows (dense
+        free network), else ``None``."""
+
+    @abstractmethod
+    def datum_transform(self, red: ReducedSystem) -> tuple | None:
+        """``(Gg, Gp, T, Yg, Yp)`` of :meth:`ReducedSystem.datum_Y` when the route's solutions are
+        minimal-datum ones to be S-transformed onto the inner constraints, else ``None``."""
+
+    @abstractmethod
+    def hand_blocks(self, red: ReducedSystem, Qx, groups, single, tracks, singles, chunk_bytes: float) -> None:
+        """Hand every point's track (``groups``: observation matrices by track length) and every
+        observation of no eliminated point (``single``) the block of ``K⁻¹`` on its columns:
+        ``tracks(obs_mat, Qsub)``, ``singles(obs, Qk)``."""
+
 
 @dataclass(frozen=True, eq=False)
 class DenseRoute(Route):
@@ -183,6 +199,35 @@ class DenseRoute(Route):
 
     def held_datum(self, prob, st):
         return minimal_datum(prob, st) if prob.n_c else np.zeros(0, int)
+
+    def constraint_cofactors(self, red, Qx):
+        n_g, n_c = red.prob.n_g, red.prob.n_c
+        if not n_c:
+            return None
+        Qgc = np.zeros((n_g + 1, n_c))
+        Qgc[:n_g] = Qx[:n_g, n_g:]
+        return Qgc, Qx[n_g:, n_g:]
+
+    def datum_transform(self, red):
+        return None
+
+    def hand_blocks(self, red, Qx, groups, single, tracks, singles, chunk_bytes):
+        """Gathered from ``K⁻¹``, points of one track length in chunks."""
+        prob = red.prob
+        n_g, q = prob.n_g, prob.layout.q
+        Qg = np.zeros((n_g + 1, n_g + 1))
+        Qg[:n_g, :n_g] = Qx[:n_g, :n_g]
+        for obs_mat in groups:
+            N, t = obs_mat.shape
+            c = max(1, int(chunk_bytes / (8.0 * 6 * (t * q) ** 2)))
+            for a in range(0, N, c):
+                om = obs_mat[a:a + c]
+                C = prob.layout.cidx[om].reshape(len(om), -1)
+                tracks(om, Qg[C[:, :, None], C[:, None, :]])
+        for a in range(0, len(single), 4096):
+            ob = single[a:a + 4096]
+            Ck = prob.layout.cidx[ob]
+            singles(ob, Qg[Ck[:, :, None], Ck[:, None, :]])
 
 
 @dataclass(frozen=True, eq=False)
@@ -249,6 +294,64 @@ class SparseRoute(Route):
 
     def held_datum(self, prob, st):
         return self.held if self.held is not None else np.zeros(0, int)
+
+    def constraint_cofactors(self, red, Qx):
+        return None
+
+    def datum_transform(self, red):
+        return red.datum_Y() if red.prob.n_c else None
+
+    def hand_blocks(self, red, Qx, groups, single, tracks, singles, chunk_bytes):
+        """Hand every track (and every scale-bar-point observation) the block of ``K⁻¹`` on its columns
+        from the selected inversion, in the front of its first column in the elimination order (the
+        columns form a clique of the filled graph, so that front holds them all)."""
+        prob = red.prob
+        F, d, kidx = red.factor.F, red.factor.d, red.factor.kidx
+        sym = F.sym
+        n_g, n = prob.n_g, sym.n
+        posg = np.full(n_g + 1, n)
+        posg[kidx] = sym.ipos
+        sn_of_pos = np.repeat(np.arange(sym.n_super), np.diff(sym.start))
+
+        def by_owner(C):
+            m = posg[C].reshape(len(C), -1).min(axis=1) if len(C) else np.zeros(0, int)
+            own = np.where(m < n, sn_of_pos[np.minimum(m, n - 1)], -1)
+            order = np.argsort(own, kind="stable")
+            return order, np.searchsorted(own[order], np.arange(-1, sym.n_super + 1))
+
+        Cs = [prob.layout.cidx[om].reshape(len(om), -1) for om in groups]
+        own_t = [by_owner(C) for C in Cs]
+        Csg = prob.layout.cidx[single]
+        own_s = by_owner(Csg)
+
+        def take(ob, s):
+            order, bounds = ob
+            return order[bounds[s + 1]:bounds[s + 2]]
+
+        def visit(s, front, Z):
+            Zx, loc = front_cofactors(front, Z, d, sym.ipos, posg)
+            _hand(s, Zx, loc)
+
+        def _hand(s, Zx, loc):
+            for g, om in enumerate(groups):
+                sel = take(own_t[g], s)
+                if sel.size:
+                    w = Cs[g].shape[1]
+                    c = max(1, int(chunk_bytes / (8.0 * 6 * w * w)))
+                    for a in range(0, sel.size, c):
+                        ss = sel[a:a + c]
+                        Cl = loc(Cs[g][ss]) if Zx is not None else None
+                        Qsub = Zx[Cl[:, :, None], Cl[:, None, :]] if Zx is not None else np.zeros((ss.size, w, w))
+                        tracks(om[ss], Qsub)
+            sel = take(own_s, s)
+            if sel.size:
+                Cl = loc(Csg[sel]) if Zx is not None else None
+                w = Csg.shape[1]
+                singles(single[sel], Zx[Cl[:, :, None], Cl[:, None, :]] if Zx is not None
+                        else np.zeros((sel.size, w, w)))
+
+        F.selected_inverse(visit)
+        _hand(-1, None, None)                       # tracks whose columns are all fixed
 
 
 def datum_is_null_space(prob, st) -> bool:
