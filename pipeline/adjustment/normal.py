@@ -489,7 +489,8 @@ class BMatrix:
     ``dense`` (BLAS on the dense n_g × 3n_e matrix: few points, many photos per point),
     ``pairs`` (one BLAS product per photo pair over the blocks of their common points, see
     :attr:`NormalEquations.pair_plan`: many points with short tracks, e.g. BAL),
-    ``sparse`` (scipy CSR product).
+    ``sparse`` (scipy CSR product); chosen once by :attr:`NormalEquations.gram_mode` (the sparse
+    route always forms its CSR ``B Bᵀ`` by pairs: :meth:`gram_sparse`).
     """
 
     def __init__(self, normals: NormalEquations, BkT, Bc, sparse: bool = False):
@@ -497,36 +498,50 @@ class BMatrix:
         self.prob = prob = normals.prob
         self.BkT, self.Bc = BkT, Bc
         self.n_x = prob.n_g + prob.n_c
-        self.mode = normals.gram_mode
-        if sparse:
-            self.mode = "pairs"
+        self.mode = "pairs" if sparse else normals.gram_mode
+        self._gram = {"dense": self._gram_dense, "pairs": self._gram_pairs, "sparse": self._gram_csr}[self.mode]
 
     @property
     def Bk(self):
         return np.swapaxes(self.BkT, 1, 2)
 
     # -- the Schur product ---------------------------------------------------------------------
-    def gram(self):
-        prob = self.prob
-        n_g, n_e, n_c = prob.n_g, prob.n_e, prob.n_c
+    def gram(self) -> np.ndarray:
+        """``B Bᵀ`` (n_x, n_x), dense, by the strategy of :attr:`mode`."""
         out = np.zeros((self.n_x, self.n_x))
-        if n_e == 0:
-            return out
-        if self.mode == "dense":
-            D = self.dense_cols(0, n_e)
-            out[:] = D @ D.T
-            return out
+        if self.prob.n_e:
+            self._gram(out)
+        return out
+
+    def _gram_dense(self, out):
+        D = self.dense_cols(0, self.prob.n_e)
+        out[:] = D @ D.T
+
+    def _photo_cols(self):
+        q = self.prob.layout.q_ph
+        return self.BkT if q == self.prob.layout.q else np.ascontiguousarray(self.BkT[:, :, :q])
+
+    def _gram_pairs(self, out):
+        X = self._photo_cols()
+        pl = self.normals.pair_plan
+        S, Dg = self.pair_blocks(X)
+        ng1 = self.prob.n_g + 1
+        kernels.add_blocks(out, pl.flat, S, ng1, True)          # S_ab and S_abᵀ
+        kernels.add_blocks(out, pl.flat_diag, Dg, ng1, False)
+        self._constraint_terms(out, X)
+
+    def _gram_csr(self, out):
+        n_g = self.prob.n_g
+        S = self.sparse()[:n_g]
+        out[:n_g, :n_g] = (S @ S.T).toarray()
+        self._constraint_terms(out, self._photo_cols())
+
+    def _constraint_terms(self, out, X):
+        """The rows and columns of the inner constraints in ``B Bᵀ`` (``X`` the photo columns of ``BkT``)."""
+        prob = self.prob
+        n_g, n_c = prob.n_g, prob.n_c
         ng1 = n_g + 1
         q = prob.layout.q_ph
-        X = self.BkT if q == prob.layout.q else np.ascontiguousarray(self.BkT[:, :, :q])
-        if self.mode == "pairs":
-            pl = self.normals.pair_plan
-            S, Dg = self.pair_blocks(X)
-            kernels.add_blocks(out, pl.flat, S, ng1, True)          # S_ab and S_abᵀ
-            kernels.add_blocks(out, pl.flat_diag, Dg, ng1, False)
-        else:
-            S = self.sparse()[:n_g]
-            out[:n_g, :n_g] = (S @ S.T).toarray()
         if n_c:
             if prob.datum_on_elim:
                 # cross terms with the constraint rows, Σ_k B_k Bc_pᵀ, per photo
@@ -539,7 +554,6 @@ class BMatrix:
                 out[n_g:, :n_g] = cross[:-1].T
             Bcf = np.transpose(self.Bc, (1, 0, 2)).reshape(n_c, -1)
             out[n_g:, n_g:] = Bcf @ Bcf.T
-        return out
 
     def pair_blocks(self, X=None):
         """``S_ab = Σ_p B_ap B_bpᵀ`` of every photo pair (a < b) of :attr:`NormalEquations.pair_plan` and
@@ -561,19 +575,14 @@ class BMatrix:
         return S, segment_sums(X, prob.layout.seg_start, prob.layout.seg_end, prob.settings.threads)
 
     def gram_sparse(self) -> sp.csr_matrix:
-        """``B Bᵀ`` of the global unknowns (n_g, n_g) as scipy CSR (no constraint rows)."""
-        prob = self.prob
-        n_g = prob.n_g
-        ng1 = n_g + 1
-        if self.mode == "pairs":
-            pl = self.normals.pair_plan
-            S, Dg = self.pair_blocks()
-            r, c = np.divmod(pl.flat, ng1)
-            A = _triplets(r, c, S.ravel(), ng1, sparse=True)
-            rd, cd = np.divmod(pl.flat_diag, ng1)
-            return (A + A.T + _triplets(rd, cd, Dg.ravel(), ng1, sparse=True)).tocsr()
-        S = self.sparse()[:n_g]
-        return (S @ S.T).tocsr()
+        """``B Bᵀ`` of the global unknowns (n_g, n_g) as scipy CSR (no constraint rows), by pairs."""
+        ng1 = self.prob.n_g + 1
+        pl = self.normals.pair_plan
+        S, Dg = self.pair_blocks()
+        r, c = np.divmod(pl.flat, ng1)
+        A = _triplets(r, c, S.ravel(), ng1, sparse=True)
+        rd, cd = np.divmod(pl.flat_diag, ng1)
+        return (A + A.T + _triplets(rd, cd, Dg.ravel(), ng1, sparse=True)).tocsr()
 
     # -- products with vectors -----------------------------------------------------------------
     def matvec(self, z):
