@@ -132,7 +132,7 @@ class Route(ABC):
         """``K⁻¹`` (dense route; ``pre_Qx`` when the precision has it) or ``None`` (sparse)."""
 
     @abstractmethod
-    def apply_inverse(self, red: ReducedSystem, Qx, r: np.ndarray, a_p_y=None) -> np.ndarray:
+    def apply_inverse(self, red: ReducedSystem, Qx, r: np.ndarray) -> np.ndarray:
         """``K⁻¹ r`` for right-hand sides ``r`` (n_x, j) (sparse: the minimal-datum solution)."""
 
     @abstractmethod
@@ -194,7 +194,7 @@ class DenseRoute(Route):
             return np.zeros((0, 0))
         return red.factor.inverse()
 
-    def apply_inverse(self, red, Qx, r, a_p_y=None):
+    def apply_inverse(self, red, Qx, r):
         return Qx @ r
 
     def held_datum(self, prob, st):
@@ -287,7 +287,7 @@ class SparseRoute(Route):
     def inverse(self, red, pre_Qx=None):
         return None
 
-    def apply_inverse(self, red, Qx, r, a_p_y=None):
+    def apply_inverse(self, red, Qx, r):
         x = np.zeros(r.shape)
         x[:red.prob.n_g] = red.factor.solve(r[:red.prob.n_g])
         return x
