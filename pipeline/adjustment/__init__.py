@@ -2,8 +2,10 @@
 
 Modules, in the order of the mathematics: :mod:`.settings` (what is asked), :mod:`.collinearity`
 (the observation equations and their Jacobians), :mod:`.problem` (set-up: unknowns, whitening,
-priors, datum), :mod:`.normal` (normal equations, reduced camera system), :mod:`.factor` (its
-solution), :mod:`.lm` (the Levenberg–Marquardt iteration), :mod:`.precision` (cofactors,
+priors, datum), :mod:`.layout` (the column layout of the unknowns), :mod:`.normal` (normal
+equations, the reduced camera system's pieces), :mod:`.route` (the dense and the sparse route,
+one interface, chosen once), :mod:`.factor` (the solution), :mod:`.sparse` (the sparse route's
+Cholesky), :mod:`.lm` (the Levenberg–Marquardt iteration), :mod:`.precision` (cofactors,
 redundancy numbers), :mod:`.diagnose` (a singular system named), :mod:`.initial` (resection,
 intersection, initial values), :mod:`.apselect` (additional-parameter selection), :mod:`.adjust`
 (the entry point and its result), :mod:`.reproject` (a block's reprojection errors),

@@ -5,19 +5,23 @@ from __future__ import annotations
 import dataclasses
 import time
 from dataclasses import dataclass, field
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 
 from baarda.pipeline.accuracy import check_point_rmse
 from baarda.pipeline.model import Block
+from baarda.pipeline.stats.robust import scale_covariance
 from baarda.pipeline.stats.snapshot import GroupBlocks, Snapshot
 
-from .collinearity import EO_NAMES
+from ..camera import get_ap_model
+from .collinearity import EO_NAMES, project_observations
 from .initial import initial_values
-from .precision import precision, predicted_variance, reliability_rows
 from .lm import final_system, solve_bundle
+from .precision import reliability_rows
 from .problem import BundleProblem
+from .route import Route
 from .settings import BundleSettings, BundleState
 
 __all__ = ["adjust", "BundleResult", "padded_ap", "result_of"]
@@ -26,8 +30,6 @@ __all__ = ["adjust", "BundleResult", "padded_ap", "result_of"]
 def padded_ap(cameras) -> tuple[np.ndarray, np.ndarray]:
     """``(ap, sigma_ap)`` copies widened to the largest parameter count of the cameras' models;
     added columns get the model's default sigma (0 beyond a camera's own parameter count)."""
-    from ..camera import get_ap_model
-
     models = [get_ap_model(m) for m in cameras.ap_model.tolist()]
     p = max([m.n_params for m in models] + [cameras.ap.shape[1]])
     k = len(cameras)
@@ -75,6 +77,7 @@ class BundleResult:
     warnings: list
     Qx: np.ndarray | None = field(default=None, repr=False)   # cofactors of the global unknowns (dense route)
     cofactors: object = field(default=None, repr=False)       # DenseCofactors / SparseCofactors
+    route: Route | None = field(default=None, repr=False)      # the solver route the adjustment used
     extras: dict = field(default_factory=dict, repr=False)     # stage-level results (tests, AP selection)
 
     # -- derived -------------------------------------------------------------------------------
@@ -151,6 +154,27 @@ class BundleResult:
             return snap
         return dataclasses.replace(snap, meta={**snap.meta, "result": res})
 
+    def weighted_refit(self, *, redundancy: bool = False):
+        """``(refit(weights), how)`` for :func:`baarda.pipeline.stats.weighted_refit`: each image
+        point's covariance scaled by its rows' robust weights (:func:`~baarda.pipeline.stats.scale_covariance`),
+        adjusted again from this solution (no covariances; with ``redundancy`` the redundancy
+        numbers too, ``.r``).  ``refit(w)`` returns ``v`` (2k,), ``r``, the new ``result`` and its
+        ``block``; this result is never changed."""
+        block = self.block_in
+        obs = block.observations
+        row_active = np.asarray(self.row_active, bool)
+        settings, state = self.settings, self.state
+
+        def refit(weights):
+            cov = scale_covariance(obs.cov, weights)
+            b = block.replace(observations=obs.replace(cov=cov))
+            res = adjust(b, settings, row_active=row_active, start=state, compute_initial=False,
+                         covariance=redundancy)
+            v = np.where(row_active, np.nan_to_num(res.residuals), 0.0).reshape(-1)
+            return SimpleNamespace(v=v, r=res.redundancy.reshape(-1), result=res, block=b)
+
+        return refit, "bundle, adjusted again from its solution"
+
     def cofactor_columns(self, cols) -> np.ndarray:
         """Columns ``cols`` of the cofactor matrix of the global unknowns (n_g, len(cols)), either
         route (the sparse route solves for them)."""
@@ -163,7 +187,7 @@ class BundleResult:
     @property
     def solver_route(self) -> str:
         """How the reduced camera system was solved: ``"dense"`` or ``"sparse"``."""
-        return self.problem.solver_route()
+        return self.route.name
 
     @property
     def point_used(self) -> np.ndarray:
@@ -282,7 +306,7 @@ def adjust(block: Block, settings: BundleSettings | None = None, *, row_active=N
     t_prob = time.perf_counter() - t_prob
     st0 = start if start is not None else prob.initial_state(work)
     prob, st, info = solve_bundle(block, settings, start=st0, problem=prob, final=False)
-    timings = dict(info["timings"])
+    timings = dict(info.timings)
     timings["setup"] += t_prob                    # building the problem is set-up too
     timings["initial_values"] = t_init
     t1 = time.perf_counter()
@@ -290,7 +314,7 @@ def adjust(block: Block, settings: BundleSettings | None = None, *, row_active=N
     k_all = len(block.observations)
     v_all = block.observations.xy - _project_all(prob, st)
     dof = prob.dof
-    vtpv = info["vtpv"]
+    vtpv = info.vtpv
     var = variance_factor(vtpv, dof, settings)
     P = 3 + prob.pmax
     names = [["c", "xp", "yp"] + list(m.params) for m in prob.models]
@@ -303,20 +327,21 @@ def adjust(block: Block, settings: BundleSettings | None = None, *, row_active=N
     Qx = None
     cofactors = None
     if want_cov:
-        lin, red = final_system(prob, st, info["proj"])     # the precision's normal equations
-        pre = precision(prob, lin, red, st)
-        Qx = pre["Qx"]
-        cofactors = pre["cofactors"]
-        cov_cams = [var * Q for Q in pre["Q_cam"]]
-        cov_eo = var * pre["Q_eo"]
+        route = info.route
+        lin, red = final_system(prob, route, st, info.proj)     # the precision's normal equations
+        pre = route.precision(prob, lin, red, st)
+        Qx = pre.Qx
+        cofactors = pre.cofactors
+        cov_cams = [var * Q for Q in pre.Q_cam]
+        cov_eo = var * pre.Q_eo
         cov_pts[~prob.point_used] = np.nan
         cov_pts[prob.point_used] = 0.0
         if prob.n_e:
-            cov_pts[prob.elim_points] = var * pre["Qpp"]
+            cov_pts[prob.elim_points] = var * pre.Qpp
         gp = np.flatnonzero((prob.g_pt >= 0).any(axis=1))
         if gp.size:
-            cov_pts[gp] = var * pre["Q_gpt"][gp]
-        r, PQ = reliability_rows(prob, pre["H"])
+            cov_pts[gp] = var * pre.Q_gpt[gp]
+        r, PQ = reliability_rows(prob, pre.H)
         red_all[prob.oi] = r
         PQ_all[prob.oi] = PQ
         # predicted residuals of the rows left out (for tests of removed observations)
@@ -324,7 +349,7 @@ def adjust(block: Block, settings: BundleSettings | None = None, *, row_active=N
         sv_pred = np.full((k_all, 2), np.nan)
         out_obs = np.flatnonzero(out_rows.any(axis=1))
         if out_obs.size:
-            aq = predicted_variance(prob, st, red, Qx, pre["Qpp"], out_obs)
+            aq = route.predicted_variance(prob, st, red, pre, out_obs)
             var_l = np.einsum("kii->ki", block.observations.cov[out_obs])
             sv_pred[out_obs] = np.sqrt(var_l + settings.sigma0 ** 2 * aq)
         sv_pred[~out_rows] = np.nan
@@ -337,16 +362,14 @@ def adjust(block: Block, settings: BundleSettings | None = None, *, row_active=N
     check = check_point_rmse(st.XYZ[chk], pts.XYZ[chk])
     check["ids"] = pts.ids[chk].tolist()
     return BundleResult(block_in=block, settings=settings, state=st, problem=prob, sigma0=settings.sigma0,
-                        vtpv=vtpv, dof=dof, iterations=info["iterations"], history=info["history"],
+                        vtpv=vtpv, dof=dof, iterations=info.iterations, history=info.history,
                         residuals=v_all, obs_active=prob.obs_active.copy(), row_active=prob.row_active.copy(),
                         snapshot=snapshot, cam_param_names=names, cov_cameras=cov_cams, cov_eo=cov_eo,
                         cov_points=cov_pts, redundancy=red_all, PQvvP=PQ_all, check=check, timings=timings,
-                        warnings=list(prob.warnings), Qx=Qx, cofactors=cofactors)
+                        warnings=list(prob.warnings), Qx=Qx, cofactors=cofactors, route=info.route)
 
 
 def _project_all(prob: BundleProblem, st: BundleState) -> np.ndarray:
-    from .collinearity import project_observations
-
     obs = prob.block.observations
     ok = np.isfinite(st.X0[obs.photo]).all(axis=1) & np.isfinite(st.XYZ[obs.point]).all(axis=1) \
         & np.isfinite(st.opk[obs.photo]).all(axis=1)

@@ -32,9 +32,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from baarda.pipeline.geometry.rotations import rotation_from_opk_many
+from baarda.pipeline.geometry.rotations import rotation_from_opk_many, rotation_from_rotvec
 
 from ..camera import get_ap_model
+from .adjust import adjust
 
 __all__ = ["project_camera", "unproject", "format_grid", "joint_covariance", "projection_jacobians",
            "projection_covariance", "worst_sigma", "ProjectionUncertainty", "projection_uncertainty",
@@ -314,8 +315,6 @@ def cross_validate(res, j: int, *, split: str = "even-odd", distance: float = 1.
     """Adjust the block of ``res`` twice, once with each half of camera ``j``'s photos (the other
     half's observations left out, every other camera's kept), with ``res``'s settings and active
     observations, and compare camera ``j`` of the two solutions (see the module)."""
-    from .adjust import adjust
-
     photos = camera_photos(res, j)
     sets = split_photos(photos, split)
     if min(len(s) for s in sets) < 2:
@@ -353,8 +352,6 @@ def _rotation_fit(xy, p, results, j, model, b1, b2, fin):
     """mrcal's ``projection_diff`` with a fitted implied rotation: ``Δq(ω) = q(R(ω) p; b₂) − q``
     with ω minimising ``Σ |Δq|²`` over the valid cells (Gauss–Newton), and the prediction of the
     fitted differences, ``(I − H) (J₁Σ₁J₁ᵀ + J₂Σ₂J₂ᵀ) (I − H)ᵀ`` with ``H`` the rotation's hat matrix."""
-    from baarda.pipeline.geometry.rotations import rotation_from_rotvec
-
     meta2 = results[1].camera_meta[j]
     pv = p[fin]
     n = len(pv)

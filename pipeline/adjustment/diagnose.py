@@ -99,7 +99,7 @@ def datum_motions(prob, st) -> np.ndarray:
 
 def raise_rank_defect(prob, red, st):
     """Analyse the singular reduced system and raise :class:`AdjustmentError` saying what is missing."""
-    K = red["K"]
+    K = red.K
     n_g, n_c = prob.n_g, prob.n_c
     names = parameter_names(prob)
     dg = np.abs(np.diag(K)[:n_g])

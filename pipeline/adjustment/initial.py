@@ -22,12 +22,12 @@ import numpy as np
 
 from baarda.pipeline.errors import AdjustmentError
 from baarda.pipeline.geometry import opk_from_rotation, rotation_from_opk_many
+from baarda.pipeline.geometry.rotations import nearest_rotation, rotation_and_derivatives
 from baarda.pipeline.model import Block
 
 from ..camera import get_ap_model
-from baarda.pipeline.geometry.rotations import nearest_rotation, rotation_and_derivatives
-
 from .collinearity import project_observations
+from .settings import BundleSettings, camera_meta
 
 __all__ = ["resection", "intersection", "initial_values", "ResectionResult"]
 
@@ -333,8 +333,6 @@ def initial_values(block: Block, *, ap_meta=None, max_rounds: int = 50, warn=Non
     photos, alternately until nothing changes.  Raises :class:`AdjustmentError` naming the photos
     or points that stay undetermined.
     """
-    from .settings import BundleSettings, camera_meta
-
     photos, points, obs, cams = block.photos, block.points, block.observations, block.cameras
     metas = camera_meta(block, BundleSettings(ap_meta=ap_meta or {}))
     X0 = np.array(photos.X0, float)

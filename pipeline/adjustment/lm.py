@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextvars
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -18,30 +19,51 @@ from baarda.pipeline.geometry import (opk_from_rotation_many, rotation_and_deriv
 from baarda.pipeline.model import Block
 
 from . import kernels
-from .factor import solve_reduced
+from .normal import Linearisation
 from .problem import BundleProblem
+from .route import ReducedSystem, Route, choose_route
 from .settings import BundleSettings, BundleState
 
-__all__ = ["solve_bundle", "final_system", "SimilarityGauge", "ITERATION_CALLBACK"]
+__all__ = ["solve_bundle", "SolveInfo", "final_system", "SimilarityGauge", "ITERATION_CALLBACK"]
 
 ITERATION_CALLBACK = contextvars.ContextVar("iteration_callback", default=None)
 """An optional observer ``callback(info)`` of each iteration (its history entry, ``max_iter``, ``seconds``
 since the start), set by a stage for its progress display; it never changes the iteration."""
 
 
+@dataclass(frozen=True, slots=True, eq=False)
+class SolveInfo:
+    """What :func:`solve_bundle` reports besides the problem and the state: the ``history`` (one
+    entry per iteration, iteration 0 the start), ``iterations``, ``timings`` (s), the final
+    ``vtpv``, the solution's projection ``proj``, the :class:`~.route.Route` chosen at the start
+    and — with ``final`` — the linearisation ``lin`` and undamped reduced system ``red`` at the
+    solution (what the precision needs)."""
+
+    history: list
+    iterations: int
+    timings: dict
+    vtpv: float
+    proj: object
+    route: Route
+    lin: Linearisation | None = None
+    red: ReducedSystem | None = None
+
+
 def solve_bundle(block: Block, settings: BundleSettings | None = None, *, obs_active=None, row_active=None,
                  start: BundleState | None = None, problem: BundleProblem | None = None, final: bool = True):
     """Run the adjustment (see :func:`baarda.pipeline.adjustment.adjust` for the public entry point).
 
-    Returns ``(problem, state, info)``; ``info`` holds the history, timings and — with ``final``
-    (the default) — the linearisation and reduced system at the solution (``lin``, ``red``, what
-    the precision needs; ``info["proj"]`` is the solution's projection either way).
+    Returns ``(problem, state, info)``; ``info`` (:class:`SolveInfo`) holds the history, timings,
+    the route and — with ``final`` (the default) — the linearisation and reduced system at the
+    solution (``info.lin``, ``info.red``, what the precision needs; ``info.proj`` is the solution's
+    projection either way).
     """
     settings = settings or BundleSettings()
     t0 = time.perf_counter()
     prob = problem or BundleProblem(block, settings, obs_active=obs_active, row_active=row_active)
     st = (start or prob.initial_state()).copy()
     _check_initial(prob, st)
+    route = choose_route(prob, st)
     gauge = SimilarityGauge.of(prob)
     parts = prob.residual_parts(st)
     cost = prob.cost(st, parts)
@@ -54,13 +76,13 @@ def solve_bundle(block: Block, settings: BundleSettings | None = None, *, obs_ac
     eps_cost = 1e-12 * max(1, prob.n_obs_rows)
     nu = 2.0
     for it in range(1, settings.max_iter + 1):
-        lin = prob.linearize(st, parts[-1])            # the accepted step's projection, Jacobians added
-        timings["linearize"] += lin["t"]
+        lin = prob.normals.linearize(st, parts[-1], sparse=route.sparse_normals)   # the accepted step's projection
+        timings["linearize"] += lin.t
         while True:
             ts = time.perf_counter()
-            red = prob.reduced_system(lin, st, lam)
-            dx, fac = solve_reduced(prob, red, st, diagnose=(it == 1 and lam == 0.0))
-            dp = prob.back_substitute(red, dx)
+            red = route.reduced_system(prob, lin, st, lam)
+            dx = red.solution[0]
+            dp = red.back_substitute(dx)
             pred = _pred(prob, lin, dx, dp)        # J̃Δ: change of each observation in units of its σ
             max_step = float(np.max(np.abs(pred))) if pred.size else 0.0
             gain = cost - _linear_cost(prob, lin, pred, dx, dp)
@@ -115,11 +137,10 @@ def solve_bundle(block: Block, settings: BundleSettings | None = None, *, obs_ac
             "raise max_iter, check the initial values, or look for gross errors", state=st)
         err.history = history
         raise err
-    info = dict(history=history, iterations=it, timings=timings, vtpv=cost, proj=parts[-1])
+    lin = red = None
     if final:
-        lin, red = final_system(prob, st, parts[-1])
-        info.update(lin=lin, red=red)
-    return prob, st, info
+        lin, red = final_system(prob, route, st, parts[-1])
+    return prob, st, SolveInfo(history, it, timings, cost, parts[-1], route, lin, red)
 
 
 class SimilarityGauge:
@@ -248,27 +269,27 @@ def _wrap(a):
     return (a + np.pi) % (2 * np.pi) - np.pi
 
 
-def final_system(prob: BundleProblem, st: BundleState, proj=None):
-    """Linearisation and undamped reduced system at the solution (for the precision)."""
-    lin = prob.linearize(st, proj)
-    return lin, prob.reduced_system(lin, st, 0.0)
+def final_system(prob: BundleProblem, route: Route, st: BundleState, proj=None) -> tuple:
+    """Linearisation and undamped reduced system on ``route`` at the solution (for the precision)."""
+    lin = prob.normals.linearize(st, proj, sparse=route.sparse_normals)
+    return lin, route.reduced_system(prob, lin, st, 0.0)
 
 
 def _pred(prob, lin, dx, dp) -> np.ndarray:
     """Whitened change J̃Δ of every observation (k, 2)."""
-    return kernels.linear_change(lin["Jc"], prob.cidx, dx[:prob.n_g], lin["Jp"], prob.pidx,
+    return kernels.linear_change(lin.Jc, prob.layout.cidx, dx[:prob.n_g], lin.Jp, prob.layout.pidx,
                                  dp if prob.n_e else None)
 
 
 def _linear_cost(prob, lin, pred, dx, dp) -> float:
     """vᵀPv of the linearised model after the step Δ (for the gain ratio of the damping)."""
-    v, e, dg, dpv, dd, _ = lin["parts"]
+    v, e, dg, dpv, dd, _ = lin.parts
     c = float(np.sum((e - pred) ** 2))
     c += float(np.sum(prob.prior_g_w * (dg - dx[prob.prior_g_idx]) ** 2))
     if len(prob.prior_p_idx):
         c += float(np.sum(prob.prior_p_w * (dpv - dp[prob.prior_p_idx, prob.prior_p_coord]) ** 2))
     if len(dd):                  # rows on global unknowns (scale bars, GNSS antennas), whitened
-        step = (lin["Jd"] * np.append(dx[:prob.n_g], 0.0)[lin["dcols"]]).sum(axis=1)
+        step = (lin.Jd * np.append(dx[:prob.n_g], 0.0)[lin.dcols]).sum(axis=1)
         c += float(np.sum((dd - step) ** 2))
     return c
 

@@ -16,67 +16,70 @@ bounded (n_x × 3·chunk).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from .collinearity import bmm, bmv
-from .factor import solve_reduced, solve_factored
+from .collinearity import bmm, project_observations
 from .problem import BundleProblem
 
-
-def reduced_inverse(prob: BundleProblem, red, st) -> np.ndarray:
-    """``K⁻¹`` (n_x × n_x) from the scaled factorisation."""
-    n_x = prob.n_g + prob.n_c
-    if n_x == 0:
-        return np.zeros((0, 0))
-    if "factor" not in red:
-        solve_reduced(prob, red, st)
-    s = red["scale"]
-    Ki = solve_factored(red["factor"], np.eye(n_x))
-    Ki = 0.5 * (Ki + Ki.T)
-    return Ki * s[:, None] * s[None, :]
+__all__ = ["Precision", "DenseCofactors", "SparseCofactors", "dense_precision", "sparse_precision",
+           "reliability_rows", "predicted_variance_dense", "predicted_variance_sparse", "front_cofactors"]
 
 
-def precision(prob: BundleProblem, lin, red, st, chunk_bytes: float = 6.4e7):
-    """Cofactors and per-observation hat-matrix blocks.
+@dataclass(frozen=True, slots=True, eq=False)
+class Precision:
+    """Cofactors and per-observation hat-matrix blocks of a converged bundle (a route's
+    :meth:`~.route.Route.precision`).
 
-    Returns dict with ``Qpp`` (n_e, 3, 3), ``H`` (k, 2, 2) for the active observations (whitened),
-    the cofactor blocks ``Q_cam`` (per camera, over ``[c, xp, yp, ap…]``), ``Q_eo`` (m, 6, 6) and
-    ``Q_gpt`` (n, 3, 3; the global points' rows, zero elsewhere), and — dense route only — ``Qx``
-    (n_x × n_x, global part incl. constraint rows).
-    """
-    if red.get("route") == "sparse":
-        return _precision_sparse(prob, lin, red, st)
-    Qx = reduced_inverse(prob, red, st)
+    ``Qpp`` (n_e, 3, 3) the eliminated points', ``H`` (k, 2, 2) the whitened hat-matrix blocks of
+    the active observations, ``Q_cam`` (per camera, over ``[c, xp, yp, ap…]``), ``Q_eo`` (m, 6, 6),
+    ``Q_gpt`` (n, 3, 3; the global points' rows, zero elsewhere), ``cofactors`` the global
+    unknowns' (:class:`DenseCofactors` / :class:`SparseCofactors`) and — dense route only — ``Qx``
+    (n_x × n_x, global part incl. constraint rows)."""
+
+    Qx: np.ndarray | None
+    Qpp: np.ndarray
+    H: np.ndarray
+    Q_cam: list
+    Q_eo: np.ndarray
+    Q_gpt: np.ndarray
+    cofactors: object
+
+
+def dense_precision(prob: BundleProblem, lin, red, by_pairs: bool, chunk_bytes: float = 6.4e7) -> Precision:
+    """Dense route: ``K⁻¹`` from the factor, the points' terms by pairs (short tracks) or by
+    chunks of points (``by_pairs``)."""
+    Qx = red.route.inverse(red)
     n_g, n_e = prob.n_g, prob.n_e
     n_x = Qx.shape[0]
     k = len(prob.oi)
-    Jc, Jp = lin["Jc"], lin["Jp"]
+    Jc, Jp = lin.Jc, lin.Jp
     Qg = np.zeros((n_g + 1, n_g + 1))
     Qg[:n_g, :n_g] = Qx[:n_g, :n_g]
-    cidx = prob.cidx
+    cidx = prob.layout.cidx
     # camera–camera part, photo by photo (the photo-constant columns share one Q block)
     H = np.zeros((k, 2, 2))
-    q_ph = prob.q_ph
-    _photo_terms(prob, range(len(prob.seg_start)), lambda idx: Qg[np.ix_(idx, idx)], Jc, H)
-    if len(prob.gp_obs):
-        ob = prob.gp_obs
+    q_ph = prob.layout.q_ph
+    _photo_terms(prob, range(len(prob.layout.seg_start)), lambda idx: Qg[np.ix_(idx, idx)], Jc, H)
+    if len(prob.layout.gp_obs):
+        ob = prob.layout.gp_obs
         Qk = Qg[cidx[ob][:, :, None], cidx[ob][:, None, :]]
         Qk[:, :q_ph, :q_ph] = 0.0
         J = Jc[ob]
         H[ob] += np.einsum("kiq,kqr,kjr->kij", J, Qk, J)
     Qpp = np.zeros((n_e, 3, 3))
     if n_e:
-        Li = red["Li"]
-        B = red["B"]
-        if prob.precision_route() == "pairs":
+        Li = red.Li
+        B = red.B
+        if by_pairs:
             _points_by_pairs(prob, Qx, B, Li, Jc, Jp, H, Qpp)
         else:
             _points_by_chunks(prob, Qx, B, Li, Jc, Jp, H, Qpp, chunk_bytes)
         # fixed coordinates of partly controlled points are not unknowns
         Qpp *= prob.elim_free[:, :, None] & prob.elim_free[:, None, :]
-    out = dict(Qx=Qx, Qpp=Qpp, H=H, cofactors=DenseCofactors(Qx[:n_g, :n_g]))
-    out.update(_global_blocks(prob, lambda idx: Qg[idx[..., :, None], idx[..., None, :]]))
-    return out
+    Q_cam, Q_eo, Q_gpt = _global_blocks(prob, lambda idx: Qg[idx[..., :, None], idx[..., None, :]])
+    return Precision(Qx, Qpp, H, Q_cam, Q_eo, Q_gpt, DenseCofactors(Qx[:n_g, :n_g]))
 
 
 def _global_blocks(prob, gather):
@@ -94,16 +97,16 @@ def _global_blocks(prob, gather):
     if gp.size:
         Q_gpt[gp] = gather(np.where(prob.g_pt[gp] >= 0, prob.g_pt[gp], n_g))
     del P
-    return dict(Q_cam=Q_cam, Q_eo=Q_eo, Q_gpt=Q_gpt)
+    return Q_cam, Q_eo, Q_gpt
 
 
 def _add_point_terms(prob, ob, Mk, Li, Jc, Jp, H, Qpp):
     """H_k += 2 sym(Jc Qcp Jpᵀ) + Jp Qpp Jpᵀ for observations ``ob`` given ``Mk = (K⁻¹ B_p)[cidx_k]``."""
-    Qcp = -bmm(Mk, Li[prob.pidx[ob]])                                         # (kb, q, 3)
+    Qcp = -bmm(Mk, Li[prob.layout.pidx[ob]])                                         # (kb, q, 3)
     JQ = np.matmul(Jc[ob], Qcp)                                                # (kb, 2, 3)
     X = bmm(JQ, np.transpose(Jp[ob], (0, 2, 1)))
     H[ob] += X + np.transpose(X, (0, 2, 1))
-    JpQ = bmm(Jp[ob], Qpp[prob.pidx[ob]])
+    JpQ = bmm(Jp[ob], Qpp[prob.layout.pidx[ob]])
     H[ob] += bmm(JpQ, np.transpose(Jp[ob], (0, 2, 1)))
 
 
@@ -111,9 +114,9 @@ def _points_by_chunks(prob, Qx, B, Li, Jc, Jp, H, Qpp, chunk_bytes):
     """Dense route: ``K⁻¹ B`` for chunks of points (few points seen by many photos)."""
     n_g, n_e = prob.n_g, prob.n_e
     n_x = Qx.shape[0]
-    cidx = prob.cidx
-    order = np.argsort(prob.pidx, kind="stable")
-    pts_sorted = prob.pidx[order]
+    cidx = prob.layout.cidx
+    order = np.argsort(prob.layout.pidx, kind="stable")
+    pts_sorted = prob.layout.pidx[order]
     c = max(1, int(chunk_bytes / (24.0 * max(n_x, 1))))
     for p0 in range(0, n_e, c):
         p1 = min(n_e, p0 + c)
@@ -129,7 +132,7 @@ def _points_by_chunks(prob, Qx, B, Li, Jc, Jp, H, Qpp, chunk_bytes):
         if ob.size == 0:
             continue
         Mpad = np.vstack([M[:n_g], np.zeros((1, 3 * nc))])
-        loc = prob.pidx[ob] - p0
+        loc = prob.layout.pidx[ob] - p0
         Mk = Mpad[cidx[ob][:, :, None], 3 * loc[:, None, None] + np.arange(3)]   # (kb, q, 3)
         _add_point_terms(prob, ob, Mk, Li, Jc, Jp, H, Qpp)
 
@@ -145,9 +148,9 @@ def _points_by_pairs(prob, Qx, B, Li, Jc, Jp, H, Qpp):
         Qgc = np.zeros((n_g + 1, n_c))
         Qgc[:n_g] = Qx[:n_g, n_g:]
         cons = (Qgc, Qx[n_g:, n_g:])
-    for obs_mat, _ in prob.track_groups():
+    for obs_mat, _ in prob.normals.track_groups:
         N, t = obs_mat.shape
-        C = prob.cidx[obs_mat].reshape(N, t * prob.q)                          # (N, tq)
+        C = prob.layout.cidx[obs_mat].reshape(N, t * prob.layout.q)                          # (N, tq)
         _track_terms(prob, Qg[C[:, :, None], C[:, None, :]], C, obs_mat, B, Li, Jc, Jp, H, Qpp, cons)
 
 
@@ -158,10 +161,10 @@ def _track_terms(prob, Qsub, C, obs_mat, B, Li, Jc, Jp, H, Qpp, cons=None):
     ``M_k = Σ_l K⁻¹[cidx_k, cidx_l] B_l (+ K⁻¹[cidx_k, λ] Bc_p)``,
     ``Qpp_p = L_p⁻ᵀ (I + Σ_k B_kᵀ M_k (+ Bc_pᵀ K⁻¹[λ, ·] B_p)) L_p⁻¹``; then the observations' H."""
     N, t = obs_mat.shape
-    q = prob.q
+    q = prob.layout.q
     X = B.Bk[obs_mat].reshape(N, t * q, 3)
     M = np.matmul(Qsub, X)                                                     # (N, tq, 3)
-    pts = prob.pidx[obs_mat[:, 0]]
+    pts = prob.layout.pidx[obs_mat[:, 0]]
     if cons is not None:
         Qgc, Qcc = cons
         Bcp = B.Bc[pts]                                                        # (N, n_c, 3)
@@ -178,31 +181,28 @@ def _track_terms(prob, Qsub, C, obs_mat, B, Li, Jc, Jp, H, Qpp, cons=None):
 
 def _photo_terms(prob, segs, gather, Jc, H):
     """H_k += Jc_k Q Jc_kᵀ over the photo-constant columns, for the photo segments ``segs``."""
-    q_ph = prob.q_ph
+    q_ph = prob.layout.q_ph
     for j in segs:
-        s0, s1 = int(prob.seg_start[j]), int(prob.seg_end[j])
+        s0, s1 = int(prob.layout.seg_start[j]), int(prob.layout.seg_end[j])
         J = Jc[s0:s1, :, :q_ph]
-        T = (J.reshape(-1, q_ph) @ gather(prob.seg_cols[j])).reshape(s1 - s0, 2, q_ph)
+        T = (J.reshape(-1, q_ph) @ gather(prob.layout.seg_cols[j])).reshape(s1 - s0, 2, q_ph)
         H[s0:s1] += (T[:, :, None, :] * J[:, None, :, :]).sum(axis=3)
 
 
-def _precision_sparse(prob, lin, red, st):
+def sparse_precision(prob, lin, red, st) -> Precision:
     """Sparse route: the selected inversion of the reduced system's factor visits every front
     (:meth:`.sparse.SupernodalCholesky.selected_inverse`); each photo, point and scale-bar
     observation is handled in the front of its first column in the elimination order, which holds
     the cofactors of all the columns it touches (they form a clique of the filled graph).  A free
     network's minimal-constraint cofactors are S-transformed onto the inner constraints (H, and so
     the redundancy numbers, are datum-invariant; the orientations' and points' cofactors are not)."""
-    from .factor import solve_reduced
-
-    if "factor" not in red:
-        solve_reduced(prob, red, st)
-    F, d, kidx = red["factor"][1]
+    fac = red.factor
+    F, d, kidx = fac.F, fac.d, fac.kidx
     sym = F.sym
     n_g, n_e = prob.n_g, prob.n_e
     n = sym.n
-    Jc, Jp = lin["Jc"], lin["Jp"]
-    Li, B = red["Li"], red["B"]
+    Jc, Jp = lin.Jc, lin.Jp
+    Li, B = red.Li, red.B
     k = len(prob.oi)
     H = np.zeros((k, 2, 2))
     Qpp = np.zeros((n_e, 3, 3))
@@ -222,11 +222,11 @@ def _precision_sparse(prob, lin, red, st):
         return order, bounds
 
     items = {}
-    items["seg"] = by_owner(owners(prob.seg_cols))
-    tracks = [(obs_mat, prob.cidx[obs_mat].reshape(len(obs_mat), -1)) for obs_mat, _ in prob.track_groups()]
+    items["seg"] = by_owner(owners(prob.layout.seg_cols))
+    tracks = [(obs_mat, prob.layout.cidx[obs_mat].reshape(len(obs_mat), -1)) for obs_mat, _ in prob.normals.track_groups]
     items["trk"] = [by_owner(owners(C)) for _, C in tracks]
-    gpo = prob.gp_obs
-    items["gp"] = by_owner(owners(prob.cidx[gpo]))
+    gpo = prob.layout.gp_obs
+    items["gp"] = by_owner(owners(prob.layout.cidx[gpo]))
     blk_cols = {"eo": np.where(prob.g_eo >= 0, prob.g_eo, n_g)}
     blk_cols["cam"] = [np.where(prob.g_cam[j, :3 + m.n_params] >= 0, prob.g_cam[j, :3 + m.n_params], n_g)
                        for j, m in enumerate(prob.models)]
@@ -263,8 +263,8 @@ def _precision_sparse(prob, lin, red, st):
                 _track_terms(prob, Zx[Cl[:, :, None], Cl[:, None, :]], None, obs_mat[sel], B, Li, Jc, Jp, H, Qpp)
         ob = gpo[take("gp", s)]
         if ob.size:
-            Qk = gather(prob.cidx[ob])
-            Qk[:, :prob.q_ph, :prob.q_ph] = 0.0
+            Qk = gather(prob.layout.cidx[ob])
+            Qk[:, :prob.layout.q_ph, :prob.layout.q_ph] = 0.0
             H[ob] += np.einsum("kiq,kqr,kjr->kij", Jc[ob], Qk, Jc[ob])
         sel = take("eo", s)
         if sel.size:
@@ -283,11 +283,10 @@ def _precision_sparse(prob, lin, red, st):
             obs_mat, C = tracks[sub]
             Z0 = np.zeros((len(sel), C.shape[1], C.shape[1]))
             _track_terms(prob, Z0, None, obs_mat[sel], B, Li, Jc, Jp, H, Qpp)
-    datum = _s_transform(prob, red, st, Q_eo, Q_gpt, gpt, Qpp, Q_diag) if prob.n_c else None
+    datum = _s_transform(prob, red, Q_eo, Q_gpt, gpt, Qpp, Q_diag) if prob.n_c else None
     if n_e:
         Qpp *= prob.elim_free[:, :, None] & prob.elim_free[:, None, :]
-    return dict(Qx=None, Qpp=Qpp, H=H, Q_cam=Q_cam, Q_eo=Q_eo, Q_gpt=Q_gpt,
-                cofactors=SparseCofactors(red["factor"][1], Q_diag, datum))
+    return Precision(None, Qpp, H, Q_cam, Q_eo, Q_gpt, SparseCofactors(fac, Q_diag, datum))
 
 
 def front_cofactors(front, Z, d, ipos, posg):
@@ -309,26 +308,13 @@ def front_cofactors(front, Z, d, ipos, posg):
     return Zx, loc
 
 
-def _s_transform(prob, red, st, Q_eo, Q_gpt, gpt, Qpp, Q_diag):
+def _s_transform(prob, red, Q_eo, Q_gpt, gpt, Qpp, Q_diag):
     """Minimal-constraint cofactors → inner constraints: ``Q = S Q₀ Sᵀ``, ``S = I − G T Cᵀ``,
     ``T = (Cᵀ G)⁻¹``; per block ``Q_a − G_a T Y_aᵀ − Y_a Tᵀ G_aᵀ + G_a T (Cᵀ Y) Tᵀ G_aᵀ`` with
     ``Y = Q₀ C`` (n_c solves).  Camera parameters do not move with the datum (G = 0 there)."""
-    from .factor import datum_basis, sparse_solve
-
     n_g, n_c = prob.n_g, prob.n_c
-    Gg, Gp, T = datum_basis(prob, red, st)
-    Cg, Cp = red["Cg"], red["Cp"]
-    B, Li = red["B"], red["Li"]
-    LiT = np.transpose(Li, (0, 2, 1))
-    rhs = np.empty((n_g, n_c))
-    zc = [bmv(Li, Cp[:, :, c]) for c in range(n_c)]
-    for c in range(n_c):
-        rhs[:, c] = Cg[:, c] - (B.matvec(zc[c])[:n_g] if prob.n_e else 0.0)
-    Yg = sparse_solve(red, rhs)
-    Yp = np.zeros_like(Gp)
-    for c in range(n_c):
-        if prob.n_e:
-            Yp[:, :, c] = bmv(LiT, zc[c] - B.rmatvec(np.r_[Yg[:, c], np.zeros(n_c)]))
+    Gg, Gp, T, Yg, Yp = red.datum_Y()
+    Cg, Cp = red.Cg, red.Cp
     CY = Cg.T @ Yg + np.einsum("pac,pad->cd", Cp, Yp)
 
     def correct(Q, G, Y):
@@ -377,13 +363,11 @@ class SparseCofactors:
         return self.diag.copy()
 
     def columns(self, cols) -> np.ndarray:
-        F, d, kidx = self.factor
         cols = np.asarray(cols, int)
         n_g = len(self.diag)
         E = np.zeros((n_g, len(cols)))
         E[cols, np.arange(len(cols))] = 1.0
-        Q = np.zeros_like(E)
-        Q[kidx] = F.solve(E[kidx] * d[:, None]) * d[:, None]
+        Q = self.factor.solve(E)
         if self.datum is not None:
             G, T, Y, CY = self.datum
             GT, YT = G @ T, Y @ T.T
@@ -410,14 +394,10 @@ def reliability_rows(prob: BundleProblem, H: np.ndarray):
     return r, PQ
 
 
-def predicted_variance(prob: BundleProblem, st, red, Qx: np.ndarray, Qpp: np.ndarray, obs_idx: np.ndarray):
+def predicted_variance_dense(prob: BundleProblem, st, red, Qx: np.ndarray, Qpp: np.ndarray, obs_idx: np.ndarray):
     """``diag(a Qxx aᵀ)`` (len, 2) of block observations ``obs_idx`` that are *not* in the
     adjustment (inactive): the cofactor of their prediction from all the others (nan where the
-    photo or the point is not adjusted)."""
-    from .collinearity import project_observations
-
-    if red.get("route") == "sparse":
-        return _predicted_variance_sparse(prob, st, red, obs_idx)
+    photo or the point is not adjusted).  Dense route (``Qx`` = K⁻¹)."""
     obs = prob.block.observations
     idx = np.asarray(obs_idx, int)
     out = np.full((len(idx), 2), np.nan)
@@ -440,8 +420,8 @@ def predicted_variance(prob: BundleProblem, st, red, Qx: np.ndarray, Qpp: np.nda
     H = np.einsum("kiq,kqr,kjr->kij", J, Qg[C[:, :, None], C[:, None, :]], J)
     e = prob.elim_of[pt]
     Jp = pr.J_point * prob.pt_free[pt][:, None, :]
-    B = red["B"]
-    Li = red["Li"]
+    B = red.B
+    Li = red.Li
     for p in np.unique(e[e >= 0]):
         rows = np.flatnonzero(e == p)
         M = Qx @ B.dense_cols(p, p + 1)                         # (n_x, 3) = K⁻¹ B_p
@@ -458,8 +438,6 @@ def _prediction_rows(prob, st, obs_idx):
     """Jacobian rows of block observations ``obs_idx`` over the global unknowns (``J`` (r, 2, q'),
     columns ``C``, n_g = fixed) and the eliminated point (``Jp`` (r, 2, 3), ``e`` its index or −1);
     ``sel``: the observations whose photo and point are adjusted."""
-    from .collinearity import project_observations
-
     obs = prob.block.observations
     idx = np.asarray(obs_idx, int)
     ph, pt = obs.photo[idx], obs.point[idx]
@@ -475,17 +453,15 @@ def _prediction_rows(prob, st, obs_idx):
     return sel, J, C, Jp, prob.elim_of[pt]
 
 
-def _predicted_variance_sparse(prob, st, red, obs_idx, chunk: int = 256):
-    """:func:`predicted_variance` with the sparse factor: ``a Q aᵀ`` through solves of the whole
+def predicted_variance_sparse(prob, st, red, obs_idx, chunk: int = 256):
+    """:func:`predicted_variance_dense` with the sparse factor: ``a Q aᵀ`` through solves of the whole
     system, ``x = K⁻¹ (a_g − B L⁻¹ a_p)``, ``y = L⁻ᵀ (L⁻¹ a_p − Bᵀ x)`` (a free network's
     minimal-constraint cofactors give the same value: a prediction does not depend on the datum)."""
-    from .factor import sparse_solve
-
     out = np.full((len(obs_idx), 2), np.nan)
     sel, J, C, Jp, e = _prediction_rows(prob, st, obs_idx)
     n_g = prob.n_g
-    Li, B = red["Li"], red["B"]
-    csr = prob.obs_to_point.tocsr()
+    Li, B = red.Li, red.B
+    csr = prob.layout.obs_to_point.tocsr()
     var = np.zeros((len(sel), 2))
     for c0 in range(0, len(sel), chunk):
         rows = range(c0, min(c0 + chunk, len(sel)))
@@ -497,15 +473,15 @@ def _predicted_variance_sparse(prob, st, red, obs_idx, chunk: int = 256):
                 z = Li[e[r]] @ Jp[r].T                                  # L⁻¹ a_pᵀ (3, 2)
                 zp[r] = z
                 ol = csr.indices[csr.indptr[e[r]]:csr.indptr[e[r] + 1]]
-                np.add.at(R[:, 2 * j:2 * j + 2], prob.cidx[ol], -np.matmul(B.Bk[ol], z))
-        X = sparse_solve(red, R[:n_g])
+                np.add.at(R[:, 2 * j:2 * j + 2], prob.layout.cidx[ol], -np.matmul(B.Bk[ol], z))
+        X = red.factor.solve(R[:n_g])
         Xp = np.vstack([X, np.zeros((1, X.shape[1]))])
         for j, r in enumerate(rows):
             x = Xp[:, 2 * j:2 * j + 2]
             v = np.einsum("iq,qi->i", J[r], x[C[r]])
             if r in zp:
                 ol = csr.indices[csr.indptr[e[r]]:csr.indptr[e[r] + 1]]
-                Btx = np.einsum("kaq,kqi->ai", B.BkT[ol], x[prob.cidx[ol]])      # B_pᵀ x (3, 2)
+                Btx = np.einsum("kaq,kqi->ai", B.BkT[ol], x[prob.layout.cidx[ol]])      # B_pᵀ x (3, 2)
                 y = Li[e[r]].T @ (zp[r] - Btx)
                 v = v + np.einsum("ia,ai->i", Jp[r], y)
             var[r] = v

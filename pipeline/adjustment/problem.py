@@ -1,7 +1,8 @@
 """The bundle adjustment problem: which parameters are unknown, observed or fixed, where every
 unknown sits in the global vector, the whitening of each observation, residuals and vᵀPv.
 
-The normal equations are :mod:`.normal`, their solution :mod:`.factor`, the iteration :mod:`.lm`.
+The normal equations are :mod:`.normal`, the routes :mod:`.route`, their solution :mod:`.factor`,
+the iteration :mod:`.lm`.
 
 Unknowns
     global (the "reduced camera system"): free camera parameters ``[c, xp, yp, ap…]`` per
@@ -19,14 +20,16 @@ Datum
     centres, appended as Lagrange rows to the reduced system; the scale comes from a distance when
     one is given.
 
-Everything is vectorised over observations; the reduced system is dense (``cho_factor`` /
-``lu_factor``).  See ``docs/bundle.md``.
+Everything is vectorised over observations.  The column layout of the unknowns is
+:class:`~.layout.ColumnLayout`, the normal equations :attr:`BundleProblem.normals`, the reduced
+system's route (dense or sparse) :func:`.route.choose_route`'s.  See ``docs/bundle.md``.
 """
 
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import scipy.sparse as sp
@@ -37,6 +40,7 @@ from baarda.pipeline.model import Block
 
 from ..camera import get_ap_model
 from .collinearity import Projector, bmv
+from .layout import ColumnLayout
 from .normal import NormalEquations
 from .settings import BundleSettings, BundleState, block_distances, camera_meta, check_unique
 
@@ -68,11 +72,13 @@ class GlobalRows:
         return len(self.cols) * self.r
 
 
-class BundleProblem(NormalEquations):
+class BundleProblem:
     """Index bookkeeping of one adjustment: which parameters are unknown, observed or fixed,
     where every unknown sits in the global vector, the whitening of each observation.
 
-    Built once per (block, active set, settings); the iteration only changes the state.
+    Built once per (block, active set, settings); the iteration only changes the state.  The
+    normal equations are :attr:`normals` (:class:`~.normal.NormalEquations`), the solver route
+    :func:`~.route.choose_route`'s.
     """
 
     def __init__(self, block: Block, settings: BundleSettings, obs_active: np.ndarray | None = None,
@@ -241,47 +247,9 @@ class BundleProblem(NormalEquations):
         self.n_unknowns = self.n_g + int(self.elim_free.sum())
 
     def _column_layout(self):
-        """Per observation, the global columns of its Jacobian: ``[cam (P) | eo (6) | global point
-        (3)]``, columns no observation uses dropped, the dummy column ``n_g`` for fixed ones; the
-        photo segments and the observation → eliminated point map."""
-        oi, P = self.oi, 3 + self.pmax
-        groups = []
-        if (self.g_cam[self.obs_cam] >= 0).any():
-            groups.append(("cam", P))
-        groups.append(("eo", 6))
-        if (self.g_pt[self.obs_point] >= 0).any():
-            groups.append(("pt", 3))
-        self.col_groups = groups
-        cols = []
-        for name, _ in groups:
-            cols.append({"cam": self.g_cam[self.obs_cam], "eo": self.g_eo[self.obs_photo],
-                         "pt": self.g_pt[self.obs_point]}[name])
-        cidx = np.concatenate(cols, axis=1) if cols else np.zeros((len(oi), 0), int)
-        # drop columns that no observation uses (parameters fixed everywhere)
-        keep = (cidx >= 0).any(axis=0)
-        n_ph_cols = sum(w for name, w in groups if name != "pt")
-        self.col_keep = np.flatnonzero(keep)
-        cidx = cidx[:, keep]
-        self.col_mask = cidx >= 0
-        cidx = np.where(self.col_mask, cidx, self.n_g)
-        self.cidx = cidx
-        self.q = cidx.shape[1]
-        self.q_ph = int(keep[:n_ph_cols].sum())                          # photo-constant columns
-        # photo segments of the (photo-sorted) observations
-        ph_sorted = self.obs_photo
-        starts = np.flatnonzero(np.r_[True, ph_sorted[1:] != ph_sorted[:-1]]) if len(oi) else np.zeros(0, int)
-        self.seg_start = starts
-        self.seg_end = np.r_[starts[1:], len(oi)].astype(int)
-        self.gp_obs = np.flatnonzero((cidx[:, self.q_ph:] < self.n_g).any(axis=1)) if self.q > self.q_ph \
-            else np.zeros(0, int)
-        pidx = self.elim_of[self.obs_point]
-        self.obs_elim = pidx >= 0
-        self.pidx = np.where(self.obs_elim, pidx, self.n_e)
-        self.pt_mask = np.zeros((len(oi), 3), bool)
-        self.pt_mask[self.obs_elim] = self.elim_free[pidx[self.obs_elim]]
-        ng1 = self.n_g + 1
-        gc = cidx[self.gp_obs]
-        self.flatU_gp = (gc[:, :, None] * ng1 + gc[:, None, :]).ravel()
+        """The :class:`~.layout.ColumnLayout` of the observations' Jacobian columns (built once)."""
+        self.layout = ColumnLayout.build(self.g_cam[self.obs_cam], self.g_eo[self.obs_photo], self.g_pt[self.obs_point],
+                                         self.obs_photo, self.n_g, self.elim_of[self.obs_point], self.elim_free)
 
     def _global_rows(self):
         """Observations on global unknowns only, one :class:`GlobalRows` per kind: the scale bars
@@ -333,27 +301,11 @@ class BundleProblem(NormalEquations):
                     + self.n_c - self.n_unknowns)
 
     def _setup_iteration(self):
-        """What every iteration reuses: the projector (camera of each observation, AP-model groups),
-        the Jacobian columns that feed ``cidx``, the photo segments' columns, the observation →
-        point summation matrix."""
-        P = 3 + self.pmax
-        sel = {"cam": np.zeros(0, int), "eo": np.zeros(0, int), "pt": np.zeros(0, int)}
-        off = 0
-        for name, w in self.col_groups:
-            sel[name] = self.col_keep[(self.col_keep >= off) & (self.col_keep < off + w)] - off
-            off += w
-        self.jac_cols = (sel["cam"], sel["eo"], sel["pt"])
+        """What every iteration reuses: the projector (camera of each observation, AP-model groups,
+        the camera Jacobian's columns that feed the layout)."""
         photos = self.block.photos
         self.projector = Projector(self.obs_photo, self.obs_point, photos.camera, self.block.cameras.ap_model,
-                                   self.meta, cam_cols=sel["cam"])
-        self.col_mask_all = bool(self.col_mask.all())
-        self.pt_mask_all = bool(self.pt_mask.all())
-        self.L_rows = np.stack([self.L[:, 0, 0], self.L[:, 1, 1]], axis=1)[:, :, None]
-        self.seg_len = (self.seg_end - self.seg_start).astype(np.intp)
-        self.seg_cols = self.cidx[self.seg_start, :self.q_ph]                # (n_seg, q_ph)
-        k = len(self.oi)
-        # Σ over the observations of each eliminated point (row n_e: observations of no such point)
-        self.obs_to_point = sp.csr_matrix((np.ones(k), (self.pidx, np.arange(k))), shape=(self.n_e + 1, k))
+                                   self.meta, cam_cols=self.layout.jac_cols[0])
         self.datum_on_elim = bool(self.n_c and len(self.datum_elim))
 
     # ------------------------------------------------------------------------------------------
@@ -446,7 +398,7 @@ class BundleProblem(NormalEquations):
         self.datum_photos = np.zeros(0, int)
         if st.datum != "free":
             return
-        if any(k.kind == "gnss" for k in getattr(self, "grows", ())):
+        if any(k.kind == "gnss" for k in self.grows):
             # antennas observe position, orientation and scale of the block: inner constraints on top
             # would pull against them (σ̂0 4.6 instead of 1.0 on the test block of docs/bundle.md)
             raise InputError("GNSS antenna observations fix the datum (position, orientation and scale); a free "
@@ -474,6 +426,11 @@ class BundleProblem(NormalEquations):
                                   "coordinates (option datum_points)")
         self.datum_elim = self.elim_of[sel & (self.elim_of >= 0)]
         self.datum_glob_pts = np.flatnonzero(sel & (self.g_pt >= 0).all(axis=1))
+
+    @cached_property
+    def normals(self) -> NormalEquations:
+        """The normal equations of this problem (and what they reuse between iterations)."""
+        return NormalEquations(self)
 
     # ------------------------------------------------------------------------------------------
     def initial_state(self, block: Block | None = None) -> BundleState:

@@ -37,8 +37,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from baarda.pipeline.stats import mdb
+from baarda.pipeline.stats.linear import LinearModel
+from baarda.pipeline.stats.snapshot import Snapshot
+
 from .collinearity import EO_NAMES
-from .precision import front_cofactors
+from .lm import final_system
 
 __all__ = ["OwnEffects", "own_effects", "effect_vectors", "parameter_covariance", "parameter_names_of",
            "row_mdb", "bar_delta0", "linearised_model", "GlobalRowStats", "global_rows"]
@@ -47,42 +51,12 @@ __all__ = ["OwnEffects", "own_effects", "effect_vectors", "parameter_covariance"
 # --------------------------------------------------------------------------------------------------
 # the linearised system at the solution
 def _system(res):
-    """``(prob, lin, red)`` at the solution, with the reduced system factored (sparse) and ``Qx``
-    (dense route; the result's own when it has one)."""
-    from .factor import solve_reduced
-    from .lm import final_system
-    from .precision import reduced_inverse
-
+    """``(prob, lin, red, Qx)`` at the solution on the result's route, the reduced system factored,
+    ``Qx = K⁻¹`` on the dense route (the result's own when it has one; ``None`` sparse)."""
     prob, st = res.problem, res.state
-    lin, red = final_system(prob, st)
-    if red.get("route") == "sparse":
-        solve_reduced(prob, red, st)
-        Qx = None
-    else:
-        Qx = res.Qx if res.Qx is not None else reduced_inverse(prob, red, st)
-    return prob, lin, red, Qx
-
-
-def _datum_Y(prob, red, st):
-    """Sparse free network: ``(Gg, Gp, T, Yg, Yp)`` with ``Y = Q₀ C`` (minimal-datum cofactors times
-    the inner-constraint rows) for the S-transformation ``Δ = Δ₀ − G T Cᵀ Δ₀``, ``Cᵀ Δ₀ = Yᵀ a``."""
-    from .collinearity import bmv
-    from .factor import datum_basis, sparse_solve
-
-    n_g, n_c = prob.n_g, prob.n_c
-    Gg, Gp, T = datum_basis(prob, red, st)
-    Cg, Cp, B, Li = red["Cg"], red["Cp"], red["B"], red["Li"]
-    LiT = np.transpose(Li, (0, 2, 1))
-    zc = [bmv(Li, Cp[:, :, c]) for c in range(n_c)]
-    rhs = np.empty((n_g, n_c))
-    for c in range(n_c):
-        rhs[:, c] = Cg[:, c] - (B.matvec(zc[c])[:n_g] if prob.n_e else 0.0)
-    Yg = sparse_solve(red, rhs)
-    Yp = np.zeros((prob.n_e, 3, n_c))
-    for c in range(n_c):
-        if prob.n_e:
-            Yp[:, :, c] = bmv(LiT, zc[c] - B.rmatvec(np.r_[Yg[:, c], np.zeros(n_c)]))
-    return Gg, Gp, T, Yg, Yp
+    lin, red = final_system(prob, res.route, st)
+    red.solution
+    return prob, lin, red, res.route.inverse(red, res.Qx)
 
 
 def _apply_Q(prob, red, Qx, st, a_g: np.ndarray, a_p: np.ndarray):
@@ -90,7 +64,7 @@ def _apply_Q(prob, red, Qx, st, a_g: np.ndarray, a_p: np.ndarray):
     on the eliminated points: ``(x_g (n_g, j), y (n_e, 3, j))``, inner-constraint datum for a free
     network on either route."""
     n_g, n_e, n_c = prob.n_g, prob.n_e, prob.n_c
-    B, Li = red["B"], red["Li"]
+    B, Li = red.B, red.Li
     j = a_g.shape[1]
     z = np.einsum("pab,pbj->paj", Li, a_p) if n_e else np.zeros((0, 3, j))
     n_x = n_g + n_c
@@ -99,22 +73,16 @@ def _apply_Q(prob, red, Qx, st, a_g: np.ndarray, a_p: np.ndarray):
     if n_e:
         for c in range(j):
             r[:, c] -= B.matvec(z[:, :, c])
-    sparse = red.get("route") == "sparse"
-    if sparse:
-        from .factor import sparse_solve
-
-        x = np.zeros((n_x, j))
-        x[:n_g] = sparse_solve(red, r[:n_g])
-    else:
-        x = Qx @ r
+    x = red.route.apply_inverse(red, Qx, r)
     y = np.zeros((n_e, 3, j))
     if n_e:
         for c in range(j):
             y[:, :, c] = np.einsum("pba,pb->pa", Li, z[:, :, c] - B.rmatvec(x[:, c]))
     xg = x[:n_g]
-    if sparse and n_c:
-        Gg, Gp, T, Yg, Yp = _datum_Y(prob, red, st)
-        CtD = red["Cg"].T @ xg + np.einsum("pac,paj->cj", red["Cp"], y)
+    datum = red.route.datum_transform(red)     # sparse route: minimal datum → inner constraints
+    if datum is not None:
+        Gg, Gp, T, Yg, Yp = datum
+        CtD = red.Cg.T @ xg + np.einsum("pac,paj->cj", red.Cp, y)
         xg = xg - Gg @ (T @ CtD)
         y = y - np.einsum("pac,cj->paj", Gp, T @ CtD)
     y = y * prob.elim_free[:, :, None]
@@ -181,8 +149,6 @@ def global_rows(res) -> dict:
     ``H = J̃ Q J̃ᵀ`` per observation (r × r, ``J̃ = L J`` whitened, ``Q`` the cofactors of its
     columns), ``Qvv P = L⁻¹ (I − H) L``, ``P Qvv P = Lᵀ (I − H) L`` — as for the image points.
     Needs the precision (``covariance = true``); either solver route."""
-    from baarda.pipeline.stats.snapshot import Snapshot
-
     prob, st = res.problem, res.state
     blk = res.block_in
     out = {}
@@ -219,8 +185,6 @@ def row_mdb(res, delta0: float) -> np.ndarray:
     """(k_all, 2) minimal detectable bias of every image row (mm): ``δ0 σ0 / √(P Qvv P)_ii``, the
     statistics library's :func:`~baarda.pipeline.stats.mdb` on the snapshot (nan inactive, inf
     uncontrolled: r ≤ 1e-10)."""
-    from baarda.pipeline.stats import mdb
-
     if res.snapshot is None:
         raise ValueError("MDBs need the precision: adjust with covariance = true")
     return mdb(res.snapshot, delta0).reshape(-1, 2)
@@ -295,28 +259,23 @@ def own_effects(res, delta0: float = 4.13, bias=None, chunk_bytes: float = 3.2e7
     st = res.state
     k_all = len(res.residuals)
     bias = row_mdb(res, delta0) if bias is None else np.asarray(bias, float).reshape(k_all, 2)
-    n_g, n_e, n_c, q = prob.n_g, prob.n_e, prob.n_c, prob.q
-    Jc, Jp, L = lin["Jc"], lin["Jp"], prob.L
-    Li, B = red["Li"], red["B"]
+    n_g, n_e, n_c, q = prob.n_g, prob.n_e, prob.n_c, prob.layout.q
+    Jc, Jp, L = lin.Jc, lin.Jp, prob.L
+    Li, B = red.Li, red.B
     k = len(prob.oi)
     pt_eff = np.zeros((k, 2, 3))          # per unit bias, active order
     eo_eff = np.zeros((k, 2, 6))
     eo_pos, pt_pos = _layout(prob)
     G_all = np.einsum("kiq,kic->kqc", Jc, L)                 # a_g of row c: J̃cᵀ L e_c   (k, q, 2)
     Ap_all = np.einsum("kia,kic->kac", Jp, L)                # a_p                       (k, 3, 2)
-    sparse = red.get("route") == "sparse"
-    cons = None
-    if not sparse and n_c:
-        Qgc = np.zeros((n_g + 1, n_c))
-        Qgc[:n_g] = Qx[:n_g, n_g:]
-        cons = (Qgc, Qx[n_g:, n_g:])
-    datum = _datum_Y(prob, red, st) if sparse and n_c else None
+    cons = red.route.constraint_cofactors(red, Qx)
+    datum = red.route.datum_transform(red)
 
     def tracks(obs_mat, Qsub):
         """Rows of the points whose observations are ``obs_mat`` (N, t); ``Qsub`` (N, tq, tq)."""
         N, t = obs_mat.shape
-        C = prob.cidx[obs_mat].reshape(N, t * q)
-        pts = prob.pidx[obs_mat[:, 0]]
+        C = prob.layout.cidx[obs_mat].reshape(N, t * q)
+        pts = prob.layout.pidx[obs_mat[:, 0]]
         Bk = B.Bk[obs_mat]                                                     # (N, t, q, 3)
         z = np.einsum("nab,ntbc->ntac", Li[pts], Ap_all[obs_mat])              # L⁻¹ a_p  (N, t, 3, 2)
         R = -np.einsum("nlqa,nsac->nlqsc", Bk, z)                              # (N, t, q, t, 2)
@@ -348,41 +307,26 @@ def own_effects(res, delta0: float = 4.13, bias=None, chunk_bytes: float = 3.2e7
     def _store(rows, own, y):
         eo_eff[rows] = np.transpose(_pick(own, eo_pos), (0, 2, 1))
         if y is not None:
-            pt_eff[rows] = np.transpose(y, (0, 2, 1)) * prob.pt_mask[rows][:, None, :]
+            pt_eff[rows] = np.transpose(y, (0, 2, 1)) * prob.layout.pt_mask[rows][:, None, :]
         else:
             pt_eff[rows] = np.transpose(_pick(own, pt_pos), (0, 2, 1))
 
-    groups = [obs_mat for obs_mat, _ in prob.track_groups()] if n_e else []
-    single = np.flatnonzero(prob.pidx == n_e)
-    if sparse:
-        _sparse_visit(prob, red, groups, single, tracks, singles, chunk_bytes)
-    else:
-        Qg = np.zeros((n_g + 1, n_g + 1))
-        Qg[:n_g, :n_g] = Qx[:n_g, :n_g]
-        for obs_mat in groups:
-            N, t = obs_mat.shape
-            c = max(1, int(chunk_bytes / (8.0 * 6 * (t * q) ** 2)))
-            for a in range(0, N, c):
-                om = obs_mat[a:a + c]
-                C = prob.cidx[om].reshape(len(om), -1)
-                tracks(om, Qg[C[:, :, None], C[:, None, :]])
-        for a in range(0, len(single), 4096):
-            ob = single[a:a + 4096]
-            Ck = prob.cidx[ob]
-            singles(ob, Qg[Ck[:, :, None], Ck[:, None, :]])
+    groups = [obs_mat for obs_mat, _ in prob.normals.track_groups] if n_e else []
+    single = np.flatnonzero(prob.layout.pidx == n_e)
+    red.route.hand_blocks(red, Qx, groups, single, tracks, singles, chunk_bytes)
     if datum is not None:
         Gg, Gp, T, Yg, Yp = datum
         Yx = np.vstack([Yg, np.zeros((1, n_c))])
-        CtD = np.einsum("kqc,kqd->kcd", Yx[prob.cidx], G_all)                  # (k, n_c, 2)
-        ep = prob.pidx < n_e
+        CtD = np.einsum("kqc,kqd->kcd", Yx[prob.layout.cidx], G_all)                  # (k, n_c, 2)
+        ep = prob.layout.pidx < n_e
         if ep.any():
-            CtD[ep] += np.einsum("kac,kad->kcd", Yp[prob.pidx[ep]], Ap_all[ep])
+            CtD[ep] += np.einsum("kac,kad->kcd", Yp[prob.layout.pidx[ep]], Ap_all[ep])
         TC = np.einsum("cd,kdr->kcr", T, CtD)
         Gx = np.vstack([Gg, np.zeros((1, n_c))])
         geo = np.where(prob.g_eo[prob.obs_photo] >= 0, prob.g_eo[prob.obs_photo], n_g)
         eo_eff -= np.einsum("kac,kcr->kra", Gx[geo], TC)
         if ep.any():
-            pt_eff[ep] -= np.einsum("kac,kcr->kra", Gp[prob.pidx[ep]], TC[ep]) * prob.pt_mask[ep][:, None, :]
+            pt_eff[ep] -= np.einsum("kac,kcr->kra", Gp[prob.layout.pidx[ep]], TC[ep]) * prob.layout.pt_mask[ep][:, None, :]
         gpt = np.where(prob.g_pt[prob.obs_point] >= 0, prob.g_pt[prob.obs_point], n_g)
         if (~ep).any():
             pt_eff[~ep] -= np.einsum("kac,kcr->kra", Gx[gpt[~ep]], TC[~ep])
@@ -408,10 +352,10 @@ def _layout(prob):
     P = 3 + prob.pmax
     off = {}
     o = 0
-    for name, w in prob.col_groups:
+    for name, w in prob.layout.groups:
         off[name] = o
         o += w
-    where = {int(c): j for j, c in enumerate(prob.col_keep)}
+    where = {int(c): j for j, c in enumerate(prob.layout.keep)}
     eo = np.array([where.get(off["eo"] + a, -1) for a in range(6)]) if "eo" in off else np.full(6, -1)
     pt = np.array([where.get(off["pt"] + a, -1) for a in range(3)]) if "pt" in off else np.full(3, -1)
     del P
@@ -422,58 +366,6 @@ def _pick(X, pos):
     """X (r, q, 2) → (r, len(pos), 2) with zeros where ``pos`` is −1."""
     Xp = np.concatenate([X, np.zeros((X.shape[0], 1, X.shape[2]))], axis=1)
     return Xp[:, np.where(pos >= 0, pos, X.shape[1]), :]
-
-
-def _sparse_visit(prob, red, groups, single, tracks, singles, chunk_bytes):
-    """Hand every track (and every scale-bar-point observation) the block of ``K⁻¹`` on its columns
-    from the selected inversion, in the front of its first column in the elimination order (the
-    columns form a clique of the filled graph, so that front holds them all)."""
-    F, d, kidx = red["factor"][1]
-    sym = F.sym
-    n_g, n = prob.n_g, sym.n
-    posg = np.full(n_g + 1, n)
-    posg[kidx] = sym.ipos
-    sn_of_pos = np.repeat(np.arange(sym.n_super), np.diff(sym.start))
-
-    def by_owner(C):
-        m = posg[C].reshape(len(C), -1).min(axis=1) if len(C) else np.zeros(0, int)
-        own = np.where(m < n, sn_of_pos[np.minimum(m, n - 1)], -1)
-        order = np.argsort(own, kind="stable")
-        return order, np.searchsorted(own[order], np.arange(-1, sym.n_super + 1))
-
-    Cs = [prob.cidx[om].reshape(len(om), -1) for om in groups]
-    own_t = [by_owner(C) for C in Cs]
-    Csg = prob.cidx[single]
-    own_s = by_owner(Csg)
-
-    def take(ob, s):
-        order, bounds = ob
-        return order[bounds[s + 1]:bounds[s + 2]]
-
-    def visit(s, front, Z):
-        Zx, loc = front_cofactors(front, Z, d, sym.ipos, posg)
-        _hand(s, Zx, loc)
-
-    def _hand(s, Zx, loc):
-        for g, om in enumerate(groups):
-            sel = take(own_t[g], s)
-            if sel.size:
-                w = Cs[g].shape[1]
-                c = max(1, int(chunk_bytes / (8.0 * 6 * w * w)))
-                for a in range(0, sel.size, c):
-                    ss = sel[a:a + c]
-                    Cl = loc(Cs[g][ss]) if Zx is not None else None
-                    Qsub = Zx[Cl[:, :, None], Cl[:, None, :]] if Zx is not None else np.zeros((ss.size, w, w))
-                    tracks(om[ss], Qsub)
-        sel = take(own_s, s)
-        if sel.size:
-            Cl = loc(Csg[sel]) if Zx is not None else None
-            w = Csg.shape[1]
-            singles(single[sel], Zx[Cl[:, :, None], Cl[:, None, :]] if Zx is not None
-                    else np.zeros((sel.size, w, w)))
-
-    F.selected_inverse(visit)
-    _hand(-1, None, None)                       # tracks whose columns are all fixed
 
 
 # --------------------------------------------------------------------------------------------------
@@ -494,14 +386,14 @@ def effect_vectors(res, rows, delta0: float = 4.13, bias=None) -> dict:
     if (kl < 0).any() or not res.row_active[obs_i, coord].all():
         bad = int(rows[(kl < 0) | ~res.row_active[obs_i, coord]][0])
         raise ValueError(f"row {bad} is not an active image row of the adjustment")
-    Jc, Jp, L = lin["Jc"], lin["Jp"], prob.L
+    Jc, Jp, L = lin.Jc, lin.Jp, prob.L
     r = len(rows)
     a_g = np.zeros((prob.n_g + 1, r))
     a_p = np.zeros((prob.n_e + 1, 3, r))
     for j, (kk, c) in enumerate(zip(kl, coord)):
         u = L[kk][:, c]
-        np.add.at(a_g[:, j], prob.cidx[kk], Jc[kk].T @ u)
-        a_p[prob.pidx[kk], :, j] += Jp[kk].T @ u
+        np.add.at(a_g[:, j], prob.layout.cidx[kk], Jc[kk].T @ u)
+        a_p[prob.layout.pidx[kk], :, j] += Jp[kk].T @ u
     xg, y = _apply_Q(prob, red, Qx, res.state, a_g[:-1], a_p[:-1])
     b = bias[obs_i, coord]
     xg = xg * b[None, :]
@@ -615,11 +507,6 @@ def linearised_model(res, max_entries: float = DENSE_LIMIT):
     the sparse route (``n_c`` photo parameters), which changes no residual, redundancy or test.
     Its least-squares solution is ``Δx = 0`` with the bundle's ``v``, ``vᵀPv``, dof and redundancy
     numbers.  Returns ``(model, n_image_rows)``; ``ValueError`` above ``max_entries``."""
-    from baarda.pipeline.stats.linear import LinearModel
-
-    from .factor import minimal_datum
-    from .lm import final_system
-
     prob, st = res.problem, res.state
     k_all = len(res.residuals)
     n_img = 2 * k_all
@@ -627,7 +514,7 @@ def linearised_model(res, max_entries: float = DENSE_LIMIT):
     n_rows = n_img + n_pri
     held = np.zeros(0, int)
     if prob.n_c:
-        held = minimal_datum(prob, st)
+        held = res.route.held_datum(prob, st)
         if held is None:
             raise ValueError("the free network's datum cannot be held by photo parameters; no linearised model")
     free_pt = prob.elim_free.reshape(-1)
@@ -637,7 +524,7 @@ def linearised_model(res, max_entries: float = DENSE_LIMIT):
         raise ValueError(f"the linearised bundle would be a dense {n_rows} × {u} design matrix, more than "
                          f"{max_entries:.3g} entries; RRR and other design-based methods are for small and medium "
                          "blocks (use data-snooping, ids or pope, which work on any size)")
-    lin, _ = final_system(prob, st)
+    lin, _ = final_system(prob, res.route, st)
     # column of every global unknown / eliminated point coordinate (−1: fixed or held)
     gcol = np.full(prob.n_g + 1, -1)
     keep_g = np.ones(prob.n_g, bool)
@@ -655,16 +542,16 @@ def linearised_model(res, max_entries: float = DENSE_LIMIT):
     for c in (0, 1):
         L[~ra[:, c], c, c] = 1.0
     Linv = np.linalg.inv(L)
-    Jc = np.einsum("kij,kjq->kiq", Linv, lin["Jc"])
-    Jp = np.einsum("kij,kja->kia", Linv, lin["Jp"])
+    Jc = np.einsum("kij,kjq->kiq", Linv, lin.Jc)
+    Jp = np.einsum("kij,kja->kia", Linv, lin.Jp)
     rows = 2 * prob.oi[:, None] + np.arange(2)[None, :]                       # (k, 2)
-    cc = gcol[prob.cidx]                                                      # (k, q)
+    cc = gcol[prob.layout.cidx]                                                      # (k, q)
     for c in (0, 1):
         r = np.broadcast_to(rows[:, c, None], cc.shape)
         ok = cc >= 0
         np.add.at(A, (r[ok], cc[ok]), Jc[:, c, :][ok])
-        ep = prob.pidx < prob.n_e
-        pc = pcol[prob.pidx[ep]]                                              # (k', 3)
+        ep = prob.layout.pidx < prob.n_e
+        pc = pcol[prob.layout.pidx[ep]]                                              # (k', 3)
         rp = np.broadcast_to(rows[ep, c, None], pc.shape)
         okp = pc >= 0
         np.add.at(A, (rp[okp], pc[okp]), Jp[ep, c, :][okp])
@@ -672,7 +559,7 @@ def linearised_model(res, max_entries: float = DENSE_LIMIT):
     # weights
     Pblk = np.einsum("kji,kjl->kil", L, L)                                    # LᵀL (unit on inactive rows)
     w_pri = []
-    v, e, dg, dpv, dd, _ = lin["parts"]
+    v, e, dg, dpv, dd, _ = lin.parts
     r0 = n_img
     for g, w, d in zip(prob.prior_g_idx, prob.prior_g_w, dg):
         if gcol[g] >= 0:

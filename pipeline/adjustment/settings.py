@@ -52,9 +52,9 @@ class BundleSettings:
     covariance: bool = True
     threads: int = 1
     """Python threads for the work that can share them: the dense route's photo-pair products of the
-    Schur complement and the per-photo sums (compiled kernels that release the GIL); the sparse
-    route's independent subtrees only with ``sparse.SUBTREE_THREADS`` (off: it did not pay).  BLAS
-    stays single-threaded; results do not depend on it."""
+    Schur complement and the per-photo sums (compiled kernels that release the GIL), on either
+    route; the sparse route's factorisation and selected inversion run on one thread (subtrees on
+    threads were measured not to pay).  BLAS stays single-threaded; results do not depend on it."""
     solver: Literal["auto", "dense", "sparse"] = "auto"
     """reduced camera system: dense Cholesky, or the sparse supernodal factorisation with selected
     inversion (``docs/bundle.md``, "Sparse route"); ``auto`` chooses by size and fill."""

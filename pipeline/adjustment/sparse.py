@@ -28,28 +28,18 @@ Selected inversion
 
 from __future__ import annotations
 
-import threading
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
+import pymetis
 import scipy.linalg as sla
 import scipy.sparse as sp
 from scipy.linalg import lapack
+from threadpoolctl import threadpool_limits
 
 from . import kernels
 
 __all__ = ["Symbolic", "SupernodalCholesky", "NotPositiveDefinite", "nested_dissection"]
-
-SUBTREE_THREADS = False
-"""Run independent subtrees of the elimination tree on ``threads`` Python threads.  Off: measured
-on the 2-core machine it never paid — with BLAS single-threaded, two threads gained 0–10 % on the
-factorisation and lost on the selected inversion, and once the fronts' assembly was compiled
-(kernels ``front``, ``extend_add``, ``gather_block``) whole adjustments were 10–20 % *slower* with
-two threads than with one (5 000 photos: 13.5 s against 11.4 s): scipy's triangular solve, numpy's
-small products and the precision's visitor hold the GIL (``docs/benchmarks.md``, "Threads").  The
-machinery stays, tested bit-identical, for when those parts are compiled too."""
-
 
 class NotPositiveDefinite(Exception):
     """The matrix is singular or indefinite; ``column`` is the original index of the first column
@@ -66,8 +56,6 @@ def nested_dissection(adj: sp.csr_matrix) -> np.ndarray:
     n = adj.shape[0]
     if n < 8 or adj.nnz == 0:
         return np.arange(n)
-    import pymetis
-
     graph = pymetis.CSRAdjacency(adj.indptr.astype(np.int64), adj.indices.astype(np.int64))
     perm, _ = pymetis.nested_dissection(adjacency=graph)
     return np.asarray(perm, dtype=np.intp)
@@ -108,58 +96,6 @@ class Symbolic:
         nr = np.array([len(r) for r in self.rows], float)
         return float(np.sum(w ** 3 / 3 + w * w * nr + w * nr * nr))
 
-    def work(self) -> np.ndarray:
-        """Flops of each supernode's factorisation step (≈)."""
-        w = np.diff(self.start).astype(float)
-        nr = np.array([len(r) for r in self.rows], float)
-        return w ** 3 / 3 + w * w * nr + w * nr * nr + 50.0 * (w + nr) ** 2
-
-    def split(self, n: int) -> tuple[np.ndarray, list[np.ndarray]]:
-        """Independent subtrees for ``n`` threads: ``(top, groups)`` — the supernodes above the cut
-        (ascending) and ``n`` groups of whole subtrees (each ascending), balanced by work.  The
-        largest subtree is split at its root until there are ``4 n`` of them or none is larger
-        than a quarter of a thread's share."""
-        S = self.n_super
-        if n <= 1 or S < 4:
-            return np.arange(S), []
-        kids: list = [[] for _ in range(S)]
-        for s in range(S):
-            if self.parent[s] >= 0:
-                kids[self.parent[s]].append(s)
-        work = self.work()
-        sub = work.copy()                                   # work of each subtree
-        for s in range(S):                                  # children come before parents
-            if self.parent[s] >= 0:
-                sub[self.parent[s]] += sub[s]
-        total = float(sub[self.parent < 0].sum())
-        roots = [int(r) for r in np.flatnonzero(self.parent < 0)]
-        top: list[int] = []
-        while roots:
-            big = max(roots, key=lambda r: sub[r])
-            if len(roots) >= 4 * n or sub[big] < 0.25 * total / n or not kids[big]:
-                break
-            roots.remove(big)
-            top.append(big)
-            roots.extend(kids[big])
-        if len(roots) < 2:
-            return np.arange(S), []
-        load = np.zeros(n)
-        members: list = [[] for _ in range(n)]
-        for r in sorted(roots, key=lambda r: -sub[r]):      # longest first onto the least loaded
-            t = int(np.argmin(load))
-            load[t] += sub[r]
-            members[t].append(r)
-        owner = np.full(S, -1)
-        for t, rs in enumerate(members):
-            owner[rs] = t
-        for s in range(S - 1, -1, -1):                      # parents after children: go top-down
-            if owner[s] < 0 and self.parent[s] >= 0 and owner[self.parent[s]] >= 0 \
-                    and self.parent[s] not in top:
-                owner[s] = owner[self.parent[s]]
-        groups = [np.flatnonzero(owner == t) for t in range(n) if (owner == t).any()]
-        return np.flatnonzero(owner < 0), groups
-
-    @property
     def max_front(self) -> int:
         return int(max((len(r) + int(w) for r, w in zip(self.rows, np.diff(self.start))), default=0))
 
@@ -251,9 +187,8 @@ class SupernodalCholesky:
     ``pivot_tol``: a pivot below ``pivot_tol`` × the column's diagonal raises
     :class:`NotPositiveDefinite` (a numerically singular system)."""
 
-    def __init__(self, sym: Symbolic, K: sp.spmatrix, pivot_tol: float = 1e-11, threads: int = 1):
+    def __init__(self, sym: Symbolic, K: sp.spmatrix, pivot_tol: float = 1e-11):
         self.sym = sym
-        self.threads = max(1, int(threads))
         p = sym.perm
         Kp = sp.csc_matrix(K)[p][:, p].tocsc()
         Kp.sort_indices()
@@ -265,11 +200,9 @@ class SupernodalCholesky:
         self.L21: list = [None] * S
         self._upd: dict = {}
         self._pending: dict = {}
-        top, groups = sym.split(self.threads if SUBTREE_THREADS else 1)
-        _parallel(groups, self._factor_step, reverse=False)
         with _blas(1):
-            for s in top:
-                self._factor_step(int(s))
+            for s in range(S):
+                self._factor_step(s)
         del self._K, self._upd, self._pending
 
     def _factor_step(self, s: int) -> None:
@@ -280,7 +213,7 @@ class SupernodalCholesky:
         ns = c1 - c0
         R = sym.rows[s]
         F = kernels.front(indptr, indices, data, c0, c1, R)   # compiled, GIL released
-        for c in sorted(self._pending.pop(s, ())):           # fixed order: the same sums whatever the threads
+        for c in sorted(self._pending.pop(s, ())):           # fixed order of the sums
             kernels.extend_add(F, sym.rel[c], self._upd.pop(c))
         L11, info = lapack.dpotrf(F[:ns, :ns], lower=1, clean=1, overwrite_a=0)
         diag = self._diag[c0:c1]
@@ -327,19 +260,14 @@ class SupernodalCholesky:
     def selected_inverse(self, visit) -> None:
         """Call ``visit(s, front, Z)`` for every supernode, a parent before its children: ``front``
         the original column indices of the supernode's columns followed by its rows, ``Z`` the dense
-        block of ``K⁻¹`` on them (the front's own copy: the visitor may keep it).  With ``threads``
-        > 1 and :data:`SUBTREE_THREADS`, independent subtrees are visited concurrently (one thread each): ``visit`` must only
-        write what belongs to its supernode's subtree."""
+        block of ``K⁻¹`` on them (the front's own copy: the visitor may keep it)."""
         sym = self.sym
         self._fronts: dict = {}
         self._left = sym.n_children.copy()
-        self._lock = threading.Lock()
-        top, groups = sym.split(self.threads if SUBTREE_THREADS else 1)
         with _blas(1):
-            for s in top[::-1]:
-                self._inverse_step(int(s), visit)
-        _parallel(groups, lambda s: self._inverse_step(s, visit), reverse=True)
-        del self._fronts, self._left, self._lock
+            for s in range(sym.n_super - 1, -1, -1):
+                self._inverse_step(s, visit)
+        del self._fronts, self._left
 
     def _inverse_step(self, s: int, visit) -> None:
         sym = self.sym
@@ -352,10 +280,9 @@ class SupernodalCholesky:
         if nr:
             p = int(sym.parent[s])
             ZRR = kernels.gather_block(self._fronts[p], sym.rel[s])   # compiled, GIL released
-            with self._lock:
-                self._left[p] -= 1
-                if self._left[p] == 0:
-                    del self._fronts[p]
+            self._left[p] -= 1
+            if self._left[p] == 0:
+                del self._fronts[p]
             Lh = self.L21[s] @ Linv                       # L̂_RJ = L_RJ L_JJ⁻¹
             ZRJ = -(ZRR @ Lh)
             ZJJ = Linv.T @ Linv - Lh.T @ ZRJ
@@ -381,22 +308,6 @@ def _trsm(L, B):
     return x
 
 
-def _parallel(groups, step, reverse: bool) -> None:
-    """Run ``step(s)`` over every group's supernodes (ascending, or descending with ``reverse``),
-    one thread per group, BLAS single-threaded meanwhile; exceptions propagate."""
-    if not groups:
-        return
-    order = [g[::-1] if reverse else g for g in groups]
-    if len(order) == 1:
-        for s in order[0]:
-            step(int(s))
-        return
-    with _blas(1), ThreadPoolExecutor(max_workers=len(order)) as pool:
-        futures = [pool.submit(lambda g=g: [step(int(s)) for s in g]) for g in order]
-        for f in futures:
-            f.result()
-
-
 def _blas(n: int):
     """BLAS/OpenMP pools limited to ``n`` threads for the block (threadpoolctl).
 
@@ -404,8 +315,6 @@ def _blas(n: int):
     threads were slower than one for every front size measured on the 2-core machine (a front's
     potrf + trsm + syrk: 8 ms fixed cost per call, 1.4× slower even at 2 000 columns; the top
     fronts with two BLAS threads made a 2 000-photo block 7–26 % slower in all, 1 000 photos 17–30 %).
-    ``threads`` never touches BLAS: with :data:`SUBTREE_THREADS` it means independent subtrees on
-    Python threads, and the result is bit-identical whatever its value (``docs/bundle.md``)."""
-    from threadpoolctl import threadpool_limits
-
+    The route itself runs on one Python thread (independent subtrees on threads were measured not
+    to pay: ``docs/benchmarks.md``, "Threads")."""
     return threadpool_limits(limits=max(1, int(n)))

@@ -42,7 +42,8 @@ from scipy import stats as sps
 from baarda.pipeline.model import Block, ScaleBars
 
 from .adjust import BundleResult, adjust
-from .settings import BundleSettings, Distance
+from .reliability import global_rows
+from .settings import BundleSettings, Distance, block_distances
 
 __all__ = ["VarianceGroup", "VarianceComponents", "LinearComponents", "linear_components",
            "estimate_components", "group_parts", "image_group_labels", "scale_block", "component_test"]
@@ -233,8 +234,6 @@ def group_parts(result: BundleResult, image_labels: np.ndarray) -> list[dict]:
         add("control", "control", len(w), np.sum(w * dpv ** 2), np.sum(1.0 - w * q))
     # observations on global unknowns: scale bars, GNSS antennas (whitened residuals dd)
     if prob.n_grow_rows:
-        from .reliability import global_rows
-
         for kind, gs in global_rows(result).items():
             sl = prob.grow_slices[kind]
             name = {"distance": "scale bars", "gnss": "GNSS"}[kind]
@@ -266,8 +265,6 @@ def scale_block(block: Block, settings: BundleSettings, factors: dict, image_lab
                                                       sigma_ap=scaled(out.cameras.sigma_ap, f)))
     if factors.get("GNSS", 1.0) != 1.0 and len(block.gnss):
         out = out.replace(gnss=block.gnss.replace(cov=block.gnss.cov * factors["GNSS"] ** 2))
-    from .settings import block_distances
-
     bars = tuple(settings.distances) + tuple(block_distances(block))
     if bars:
         f = factors.get("scale bars", 1.0)

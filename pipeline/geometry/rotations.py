@@ -6,30 +6,16 @@
 from __future__ import annotations
 
 import numpy as np
-
-
-def _r1(a):
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[1.0, 0.0, 0.0], [0.0, c, s], [0.0, -s, c]])
-
-
-def _r2(a):
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[c, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, c]])
-
-
-def _r3(a):
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+from scipy.spatial.transform import Rotation
 
 
 def rotation_from_opk(omega: float, phi: float, kappa: float) -> np.ndarray:
-    """``R_cam_from_world`` (3, 3) from ω, φ, κ in radians."""
-    return _r3(kappa) @ _r2(phi) @ _r1(omega)
+    """``R_cam_from_world`` (3, 3) from ω, φ, κ in radians (one triple of :func:`rotation_from_opk_many`)."""
+    return rotation_from_opk_many(np.array([omega, phi, kappa], float))[0]
 
 
 def rotation_from_opk_many(opk: np.ndarray) -> np.ndarray:
-    """Vectorised :func:`rotation_from_opk`: ``opk (m, 3)`` → ``(m, 3, 3)``."""
+    """``R_cam_from_world = R3(κ) R2(φ) R1(ω)`` of every row: ``opk (m, 3)`` → ``(m, 3, 3)``."""
     opk = np.asarray(opk, dtype=float).reshape(-1, 3)
     so, co = np.sin(opk[:, 0]), np.cos(opk[:, 0])
     sp, cp = np.sin(opk[:, 1]), np.cos(opk[:, 1])
@@ -52,11 +38,7 @@ def opk_from_rotation(R_cam_from_world: np.ndarray) -> np.ndarray:
 
     Inverse of :func:`rotation_from_opk` away from the gimbal lock φ = ±90°.
     """
-    R = np.asarray(R_cam_from_world, dtype=float)
-    phi = np.arcsin(np.clip(R[2, 0], -1.0, 1.0))
-    omega = np.arctan2(-R[2, 1], R[2, 2])
-    kappa = np.arctan2(-R[1, 0], R[0, 0])
-    return np.array([omega, phi, kappa])
+    return opk_from_rotation_many(R_cam_from_world)[0]
 
 
 def _elem(a, axis):
@@ -93,7 +75,7 @@ def rotation_and_derivatives(opk: np.ndarray):
 
 
 def opk_from_rotation_many(R) -> np.ndarray:
-    """Vectorised :func:`opk_from_rotation`: ``R (m, 3, 3)`` → ``(m, 3)`` ω, φ, κ (radians)."""
+    """ω, φ, κ (radians) of every rotation matrix: ``R (m, 3, 3)`` → ``(m, 3)``; φ in [−π/2, π/2]."""
     R = np.asarray(R, float).reshape(-1, 3, 3)
     phi = np.arcsin(np.clip(R[:, 2, 0], -1, 1))
     omega = np.arctan2(-R[:, 2, 1], R[:, 2, 2])
@@ -104,8 +86,6 @@ def opk_from_rotation_many(R) -> np.ndarray:
 def rotation_from_rotvec(r) -> np.ndarray:
     """Rotation matrices ``(m, 3, 3)`` of angle-axis (Rodrigues) vectors ``r (m, 3)``: the rotation
     by ``|r|`` about ``r / |r|`` (``P = R X``), as BAL, OpenCV and COLMAP use them."""
-    from scipy.spatial.transform import Rotation
-
     return Rotation.from_rotvec(np.asarray(r, float).reshape(-1, 3)).as_matrix()
 
 

@@ -51,6 +51,8 @@ from typing import Any, Callable, Literal
 
 import numpy as np
 
+from .linear import LinearModel
+
 __all__ = ["ROBUST_METHODS", "DEFAULT_C", "robust_weights", "robust_rho", "irls", "RobustResult",
            "weighted_linear_refit", "scale_covariance", "weighted_refit"]
 
@@ -228,8 +230,6 @@ def weighted_linear_refit(model, active=None) -> Callable[[np.ndarray], Any]:
     ``P``, ``sigma0``, ``labels``, ``group``, ``names``): the same model with ``P`` replaced by
     ``W^½ P W^½`` (``W = diag(weights)``; for diagonal ``P`` simply ``p_i w_i``).  Rows inactive
     in ``active`` stay out."""
-    from baarda.pipeline.stats.linear import LinearModel
-
     act = None if active is None else np.array(active, bool)
 
     def refit(weights):
@@ -261,9 +261,10 @@ def weighted_refit(model, active=None, *, redundancy: bool = False):
 
     - a model with ``refit_weighted(weights)`` (a third party's adjustment): that method;
     - a :class:`LinearModel` (helmert-screening, a linear user model): :func:`weighted_linear_refit`;
-    - a bundle result (``block_in``, ``settings``, ``state``, as ``adjust`` returns): adjusted again
-      from its solution with each image point's covariance scaled by :func:`scale_covariance`
-      (covariances not computed; ``refit(w).result`` is the new bundle result);
+    - a model with ``weighted_refit(redundancy=…)`` returning ``(refit, how)`` (the bundle result
+      ``adjust`` returns: adjusted again from its solution with each image point's covariance
+      scaled by :func:`scale_covariance`, covariances not computed; ``refit(w).result`` is the new
+      bundle result);
     - a model with ``linear_model()`` (the independent-model block): its linearisation at the
       solution, a :class:`LinearModel` with the snapshot's rows.
     ``active`` (n,) are the rows in use (default: all).  ``redundancy=True``: the bundle's refits
@@ -273,30 +274,8 @@ def weighted_refit(model, active=None, *, redundancy: bool = False):
         return model.refit_weighted, "the adjustment's own weighted refit"
     if all(hasattr(model, k) for k in ("A", "l", "P", "adjust")):
         return weighted_linear_refit(model, active), "linear model, adjusted again"
-    if all(hasattr(model, k) for k in ("block_in", "settings", "state", "row_active")):
-        return _bundle_refit(model, redundancy), "bundle, adjusted again from its solution"
+    if hasattr(model, "weighted_refit"):
+        return model.weighted_refit(redundancy=redundancy)
     if hasattr(model, "linear_model"):
         return weighted_linear_refit(model.linear_model(), active), "linearised at the solution"
     return None, f"a {type(model).__name__} offers no weighted refit (refit_weighted, A/l/P or linear_model)"
-
-
-def _bundle_refit(result, redundancy: bool = False):
-    """``refit(weights)`` of a bundle result: image-point covariances scaled, adjusted again from the
-    solution (no covariances); returns an object with ``v`` (2k,) and ``result``."""
-    from types import SimpleNamespace
-
-    from baarda.pipeline.adjustment import adjust
-
-    block = result.block_in
-    obs = block.observations
-    row_active = np.asarray(result.row_active, bool)
-
-    def refit(weights):
-        cov = scale_covariance(obs.cov, weights)
-        b = block.replace(observations=obs.replace(cov=cov))
-        res = adjust(b, result.settings, row_active=row_active, start=result.state, compute_initial=False,
-                     covariance=redundancy)
-        v = np.where(row_active, np.nan_to_num(res.residuals), 0.0).reshape(-1)
-        return SimpleNamespace(v=v, r=res.redundancy.reshape(-1), result=res, block=b)
-
-    return refit

@@ -97,15 +97,15 @@ RIG = dict(datum="free", datum_centres=True, max_iter=50, covariance=False)
 def test_rig_reaches_the_independent_minimum_in_a_few_iterations(seed):
     block = rig_block(np.random.default_rng(seed))
     _, _, info = solve_bundle(block, BundleSettings(**RIG), final=False)
-    assert info["iterations"] <= 8
-    assert any(h.get("exact_similarity") for h in info["history"])
+    assert info.iterations <= 8
+    assert any(h.get("exact_similarity") for h in info.history)
     ref = reference_minimum(block)
-    assert info["vtpv"] == pytest.approx(ref, rel=1e-9)
+    assert info.vtpv == pytest.approx(ref, rel=1e-9)
 
 
 def test_thirty_rigs_converge_in_a_few_iterations():
     """Additive steps needed 5 to more than 50 iterations on these (three did not converge)."""
-    its = [solve_bundle(rig_block(np.random.default_rng(seed)), BundleSettings(**RIG), final=False)[2]["iterations"]
+    its = [solve_bundle(rig_block(np.random.default_rng(seed)), BundleSettings(**RIG), final=False)[2].iterations
            for seed in range(30)]
     assert max(its) <= 8
 
@@ -127,10 +127,10 @@ def test_well_conditioned_free_network_iterates_as_before(monkeypatch):
     block = rig_block(np.random.default_rng(6), spread=0.5)
     s = BundleSettings(datum="free", max_iter=50, covariance=False)
     _, st_a, info_a = solve_bundle(block, s, final=False)
-    assert not any(h.get("exact_similarity") for h in info_a["history"])
+    assert not any(h.get("exact_similarity") for h in info_a.history)
     monkeypatch.setattr(SimilarityGauge, "of", classmethod(lambda cls, prob: None))
     _, st_b, info_b = solve_bundle(block, s, final=False)
-    assert info_a["vtpv"] == info_b["vtpv"]
+    assert info_a.vtpv == info_b.vtpv
     np.testing.assert_array_equal(st_a.XYZ, st_b.XYZ)
 
 

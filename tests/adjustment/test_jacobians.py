@@ -195,8 +195,8 @@ def test_distance_jacobian_matches_finite_differences():
     prob = BundleProblem(blk, BundleSettings(datum="free", distances=(Distance("103", "111", d, sd),)))
     st = prob.initial_state()
     st.XYZ[11] += [0.004, -0.003, 0.002]             # the bar is now ≈ 30 σ off
-    lin = prob.linearize(st)
-    Jd, cols = lin["Jd"][0], lin["dcols"][0]
+    lin = prob.normals.linearize(st)
+    Jd, cols = lin.Jd[0], lin.dcols[0]
     assert list(cols) == list(prob.g_pt[3]) + list(prob.g_pt[11])
     zero_p = np.zeros((prob.n_e, 3))
 
@@ -214,4 +214,4 @@ def test_distance_jacobian_matches_finite_differences():
         # gradient of the cost: ∂(vᵀPv)/∂x = −2 g
         h = 1e-6
         numc = (prob.cost(moved(col, h)) - prob.cost(moved(col, -h))) / (2 * h)
-        assert -2 * lin["g"][col] == pytest.approx(numc, rel=1e-5)
+        assert -2 * lin.g[col] == pytest.approx(numc, rel=1e-5)

@@ -202,7 +202,7 @@ def test_monte_carlo_spread_matches_reported_covariance(n_sim):
 def test_schur_strategies_agree(monkeypatch, datum):
     """dense / pairs / sparse forms of B Bᵀ and both precision routes give the same numbers."""
     from baarda.pipeline.model import FREE
-    from baarda.pipeline.adjustment.problem import BundleProblem
+    from baarda.pipeline.adjustment.normal import NormalEquations
 
     blk, _ = make_block(model="brown", n_photos=6, n_points=30, noise_mm=0.002, rng=np.random.default_rng(1))
     st = BundleSettings()
@@ -213,8 +213,8 @@ def test_schur_strategies_agree(monkeypatch, datum):
     out = {}
     for mode, route in (("dense", "chunks"), ("pairs", "pairs"), ("sparse", "chunks"), ("dense", "pairs"),
                         ("pairs", "chunks")):
-        monkeypatch.setattr(BundleProblem, "gram_mode", lambda self, m=mode: m)
-        monkeypatch.setattr(BundleProblem, "precision_route", lambda self, r=route: r)
+        monkeypatch.setattr(NormalEquations, "gram_mode", property(lambda self, m=mode: m))
+        monkeypatch.setattr(NormalEquations, "points_by_pairs", property(lambda self, r=route: r == "pairs"))
         out[mode, route] = adjust(blk, st)
     ref = out["dense", "chunks"]
     for key in list(out)[1:]:
