@@ -55,6 +55,20 @@ SECONDS = {
 }
 QUICK_LIMIT = 10.0
 
+#: projects that another test of ``make test`` already runs end to end through the runner (and checks
+#: in detail): their run here is under ``slow`` so that ``make test`` runs each project once
+COVERED = {
+    "dbat/camcal-detect.toml": "tests/dbat/test_detect.py",
+    "study/study.toml": "tests/testfield/test_method_study_project.py",
+    "design/design.toml": "tests/design/test_design.py",
+    "gnss/gnss.toml": "tests/gcp/test_gnss_fixture.py",
+    "paper000/data1.toml": "tests/pipeline/test_recordings.py",
+    "testfield/block.toml": "tests/pipeline/test_recordings.py",
+    "colmap/colmap.toml": "tests/pipeline/test_recordings.py",
+    "dbat/camcal.toml": "tests/pipeline/test_recordings.py",
+    "calibration/charuco.toml": "tests/pipeline/test_recordings.py",
+}
+
 
 def _rel(path: Path) -> str:
     return path.relative_to(ROOT / "fixtures").as_posix()
@@ -65,7 +79,7 @@ def _runs():
     out = []
     for p in PROJECTS:
         rel = _rel(p)
-        slow = SECONDS.get(rel, float("inf")) >= QUICK_LIMIT
+        slow = SECONDS.get(rel, float("inf")) >= QUICK_LIMIT or rel in COVERED
         out.append(pytest.param(rel, id=rel, marks=[pytest.mark.slow] if slow else []))
     return out
 
@@ -75,6 +89,16 @@ def test_every_project_is_timed():
     assert names, "no bundled projects under fixtures/"
     assert names == set(SECONDS), (f"untimed: {sorted(names - set(SECONDS))}; "
                                    f"gone: {sorted(set(SECONDS) - names)}")
+
+
+def test_covered_projects_are_run_by_the_test_named():
+    """Each project moved under ``slow`` because another test runs it names a test file that does run
+    it (its path in the file; ``make test`` collects that file)."""
+    for rel, test in COVERED.items():
+        assert (ROOT / "fixtures" / rel).exists(), rel
+        text = (ROOT / test).read_text(encoding="utf-8")
+        assert rel in text or rel.split("/")[-1] in text, f"{test} does not mention {rel}"
+        assert "run_project" in text or 'main(["run"' in text, f"{test} runs no project"
 
 
 @pytest.mark.parametrize("path", PROJECTS, ids=_rel)
