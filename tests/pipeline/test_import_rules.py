@@ -20,7 +20,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 
 #: numerical libraries (modules or packages under pipeline/)
-LIBRARIES = ("geometry", "camera", "adjustment", "stats", "synthetic", "contracts", "accuracy", "model")
+LIBRARIES = ("geometry", "camera", "adjustment", "stats", "synthetic", "contracts", "accuracy", "model", "options")
 #: what a library may import besides the standard library and other libraries
 #: (pymetis: the sparse route's fill-reducing ordering; threadpoolctl: its BLAS threads per phase)
 LIBRARY_THIRD_PARTY = {"numpy", "scipy", "pymetis", "threadpoolctl"}
