@@ -93,7 +93,7 @@ def parse_sets(sets: list[str], project) -> dict[str, Any]:
     for item in sets:
         key, eq, value = item.partition("=")
         key = key.strip()
-        sid, dot, opt = key.rpartition(".")
+        sid, dot, opt = key.partition(".")          # an option of a nested table: STAGE.TABLE.OPTION
         if not eq or not dot or not sid or not opt:
             raise InputError(f"expected STAGE.OPTION=VALUE, got {item!r}", field="--set")
         if sid not in stages:
@@ -102,17 +102,31 @@ def parse_sets(sets: list[str], project) -> dict[str, Any]:
             raise InputError(f"no stage '{sid}' in {project.path.name}; {did}its stages: {', '.join(stages)}",
                              field=f"--set {key}")
         known = [o["name"] for o in describe(stages[sid].cls.Options)]
-        if opt not in known:
+        if opt.split(".")[0] not in known:
             close = difflib.get_close_matches(opt, known, n=2, cutoff=0.6)
             did = f"did you mean {' or '.join(repr(sid + '.' + c) for c in close)}? " if close else ""
             raise InputError(f"unknown option '{key}'; {did}stage '{sid}' accepts: {', '.join(known)}",
                              field=f"--set {key}")
         over[key] = _toml_value(value)
-    for sid in {k.rpartition(".")[0] for k in over}:
+    for sid in {k.partition(".")[0] for k in over}:
         spec = stages[sid]
-        mine = {k.rpartition(".")[2]: v for k, v in over.items() if k.rpartition(".")[0] == sid}
-        parse_options(spec.cls.Options, {**spec.raw_options, **mine}, path="--set", prefix=f"{sid}.")
+        mine = dict(spec.raw_options)
+        for k, v in over.items():
+            if k.partition(".")[0] == sid:
+                _put(mine, k.partition(".")[2], v)
+        parse_options(spec.cls.Options, mine, path="--set", prefix=f"{sid}.")
     return over
+
+
+def _put(options: dict, path: str, value) -> None:
+    """``options[a][b] = value`` for ``path = "a.b"`` (nested tables copied, never changed in place)."""
+    head, dot, rest = path.partition(".")
+    if not dot:
+        options[head] = value
+        return
+    inner = dict(options.get(head) or {}) if isinstance(options.get(head), dict) else {}
+    _put(inner, rest, value)
+    options[head] = inner
 
 
 @contextmanager
@@ -140,9 +154,9 @@ def _project_with_sets(project_path, sets):
             continue
         opts = st.setdefault("options", {})
         for key, value in over.items():
-            sid, _, opt = key.rpartition(".")
+            sid, _, opt = key.partition(".")
             if sid == spec.id:
-                opts[opt] = value
+                _put(opts, opt, value)
         for opt, role in path_roles(spec.cls).items():
             if role != "output" and opt in opts:
                 opts[opt] = _absolute(opts[opt], project.directory)
@@ -394,7 +408,7 @@ def _noise_args(p: argparse.ArgumentParser, top: bool = False, verbose_help: str
 
 def _set_arg(p: argparse.ArgumentParser) -> None:
     p.add_argument("--set", action="append", default=[], metavar="STAGE.OPTION=VALUE",
-                   help="override an option of the project for this run, e.g. --set bundle.max_iter=50 "
+                   help="override an option of the project for this run, e.g. --set bundle.solver.max_iter=50 "
                         "(repeatable; the value is TOML: 0.5, true, \"text\", [1, 2]; checked as in the file)")
 
 
