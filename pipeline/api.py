@@ -15,7 +15,8 @@ holds the test helpers.  ``adjust(block, BundleConfig(...))`` runs the bundle wo
 from __future__ import annotations
 
 from . import stats
-from .adjustment import BundleConfig, BundleReport
+from .adjustment import (APSelectionConfig, BundleConfig, BundleReport, OutputConfig, RobustConfig, ScaleBar,
+                         SolverConfig, StatTestsConfig, VarianceComponentsConfig)
 from .adjustment import adjust_block as adjust
 from .contracts import AdjustmentArtefact
 from .errors import AdjustmentError, BaardaError, InputError
@@ -30,7 +31,8 @@ __all__ = [
     # the protocol
     "Stage", "SourceStage", "StageResult", "TableData", "Context", "Progress", "option", "NoOptions",
     # the bundle workflow as a library (docs/library.md)
-    "adjust", "BundleConfig", "BundleReport",
+    "adjust", "BundleConfig", "BundleReport", "SolverConfig", "StatTestsConfig", "RobustConfig",
+    "VarianceComponentsConfig", "APSelectionConfig", "OutputConfig", "ScaleBar",
     # errors
     "InputError", "AdjustmentError", "BaardaError",
     # data and contracts
