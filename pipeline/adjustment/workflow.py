@@ -389,6 +389,18 @@ class ParameterCovariance:
     names: tuple[str, ...]
     matrix: np.ndarray
 
+    @property
+    def sigma(self) -> np.ndarray:
+        """The a-posteriori σ of each parameter (the root of the diagonal)."""
+        return np.sqrt(np.clip(np.diag(self.matrix), 0, None))
+
+    @property
+    def correlation(self) -> np.ndarray:
+        """The correlation matrix (0 where a parameter is fixed)."""
+        d = self.sigma
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(np.outer(d, d) > 0, self.matrix / np.outer(d, d), 0.0)
+
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class GnssTests:
@@ -396,6 +408,11 @@ class GnssTests:
 
     rows: GlobalRowStats
     snooping: stats.DataSnoopingResult
+
+    @property
+    def flagged(self) -> np.ndarray:
+        """Per antenna: any of its three coordinates flagged by the w-test."""
+        return self.snooping.flagged.reshape(-1, 3).any(axis=1)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

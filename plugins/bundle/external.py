@@ -119,10 +119,7 @@ def point_columns(res, confidence: float) -> dict:
 
 def covariance_parts(cov):
     """``(TableData, summary dict, report lines)`` of a :class:`~baarda.pipeline.adjustment.workflow.ParameterCovariance`."""
-    names, C = list(cov.names), cov.matrix
-    d = np.sqrt(np.clip(np.diag(C), 0, None))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        R = np.where(np.outer(d, d) > 0, C / np.outer(d, d), 0.0)
+    names, C, d, R = list(cov.names), cov.matrix, cov.sigma, cov.correlation
     cols = {"parameter": names}
     for j, n in enumerate(names):
         cols[n] = C[:, j]

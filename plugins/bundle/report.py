@@ -131,20 +131,7 @@ def report_text(rep, work=None, protocol=None) -> str:
                  f"(α = {jt.alpha:g}) at {int(jt.flagged.sum())} of {jt.groups.size} image points (expected under "
                  f"H0: about {jt.alpha * jt.groups.size:.0f}); per point in bundle_observations.csv "
                  "(T2d, T2d_critical, T2d_flagged)")
-    ids = rep.ids
-    if ids is not None:
-        L.append(f"- iterated data snooping (|w| > {ids.critical:.3f}, one coordinate at a time): "
-                 f"{len(ids.removed)} coordinate(s) rejected; stop: {ids.stop_reason}")
-        before = rep.before_ids
-        if before is not None:
-            r0, ds0 = before.result, before.snooping
-            n0 = int(r0.snapshot.active.sum())
-            L.append(f"  - before the rejections ({r0.iterations} iterations from the initial values): σ̂0 = "
-                     f"{_f(r0.sigma0_hat)}, {int(ds0.flagged.sum())} coordinate(s) with |w| > {ds0.critical:.3f} "
-                     f"(expected under H0: about {ds0.alpha0 * n0:.0f})")
-            L.append("  " + _tail_line(ds0, r0.snapshot))
-            L.append("  " + _radius_line(res, ids))
-        L.extend(_rejected_lines(res, ids))
+    L.extend(_ids_lines(rep))
     L.extend(_robust_lines(rep.robust))
     if res.check.get("n"):
         c = res.check
@@ -211,6 +198,23 @@ def report_text(rep, work=None, protocol=None) -> str:
     if rep.gnss is not None:          # the GNSS antennas' section
         text += "\n\n" + "\n".join(gnss_parts(rep)["lines"])
     return text
+
+
+def _ids_lines(rep) -> list[str]:
+    """Iterated data snooping: what it rejected, the adjustment before the rejections, the rejected rows."""
+    ids, res, before = rep.ids, rep.result, rep.before_ids
+    if ids is None:
+        return []
+    L = [f"- iterated data snooping (|w| > {ids.critical:.3f}, one coordinate at a time): "
+         f"{len(ids.removed)} coordinate(s) rejected; stop: {ids.stop_reason}"]
+    if before is not None:
+        r0, ds0 = before.result, before.snooping
+        n0 = int(r0.snapshot.active.sum())
+        L += [f"  - before the rejections ({r0.iterations} iterations from the initial values): σ̂0 = "
+              f"{_f(r0.sigma0_hat)}, {int(ds0.flagged.sum())} coordinate(s) with |w| > {ds0.critical:.3f} "
+              f"(expected under H0: about {ds0.alpha0 * n0:.0f})",
+              "  " + _tail_line(ds0, r0.snapshot), "  " + _radius_line(res, ids)]
+    return L + _rejected_lines(res, ids)
 
 
 def _robust_lines(rob, most: int = 30) -> list[str]:
@@ -468,7 +472,7 @@ def gnss_parts(rep) -> dict:
     blk = res.block_in
     G = len(gs.index)
     w, mdb = ds.w.reshape(G, 3), ds.mdb.reshape(G, 3)
-    flagged = ds.flagged.reshape(G, 3).any(axis=1)
+    flagged = rep.gnss.flagged
     ax = ("E", "N", "U") if isinstance(blk.meta, dict) and blk.meta.get("crs") else ("X", "Y", "Z")
     ids = blk.photos.ids[blk.gnss.photo[gs.index]].astype(str).tolist()
     u = blk.object_unit

@@ -23,15 +23,11 @@ from baarda.pipeline.stage import Context, StageResult, TableData
 from . import external as bundle_external
 from . import report as bundle_report
 
-BundleOptions = BundleConfig
-"""The stage's option table is the library's config (one schema)."""
-
-
 class BundleAdjustment:
     summary = "Self-calibrating bundle block adjustment: datum, APs, precision, reliability, data snooping"
     reads = ("block",)
     writes = ("bundle", "adjustment", "block")
-    Options = BundleConfig
+    Options = BundleConfig          # the stage's option table is the library's config (one schema)
 
     def run(self, inputs, options: BundleConfig, ctx: Context) -> StageResult:
         from .progress import iteration_progress
