@@ -258,7 +258,7 @@ def _vc_lines(vc, o) -> list[str]:
          f"f = estimated σ / a-priori σ; test of H0: f = 1 by T = f² ~ χ²(r)/r, two-sided at α = {vc.alpha:g}. "
          + ("The adjustment above and its tests use the a-priori σ × f." if o.mode == "apply"
             else "Estimated only: the adjustment above keeps the a-priori σ "
-                 f"(σ̂0 = {_f(first.sigma0_hat)}) — variance_components = \"apply\" re-weights it."), "",
+                 f"(σ̂0 = {_f(first.sigma0_hat)}) — variance_components.mode = \"apply\" re-weights it."), "",
          f"First adjustment, on the a-priori σ: {first.iterations} iterations, σ̂0 = {_f(first.sigma0_hat)}, "
          f"dof {first.dof}.", "",
          "| group | rows | r | f | σ(f) | T | p | H0: f = 1 |", "|---|---|---|---|---|---|---|---|"]
