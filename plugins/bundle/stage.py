@@ -9,6 +9,7 @@ report text, tables and summary (:mod:`.report`), figures and the recording.
 from __future__ import annotations
 
 import copy
+import dataclasses
 
 import numpy as np
 
@@ -22,6 +23,10 @@ from baarda.pipeline.stage import Context, StageResult, TableData
 
 from . import external as bundle_external
 from . import report as bundle_report
+
+OPTION_FIELDS = {f.name for f in dataclasses.fields(BundleConfig)} | {"fix/free/sigma"}
+"""The names an :class:`InputError` of :func:`adjust_block` may carry for an option (not for the block's data)."""
+
 
 class BundleAdjustment:
     summary = "Self-calibrating bundle block adjustment: datum, APs, precision, reliability, data snooping"
@@ -39,8 +44,8 @@ class BundleAdjustment:
                 _save_state(e, getattr(e, "block", inputs["block"]), ctx)
                 raise
             except InputError as e:
-                if e.path is None and e.field:      # an option that does not fit the block: its file and line
-                    raise ctx.option_error(e.message, e.field) from None
+                if e.path is None and str(e.field).split(".")[0] in OPTION_FIELDS:   # an option that does not
+                    raise ctx.option_error(e.message, e.field) from None             # fit the block: file, line
                 raise
             for w in rep.warnings:
                 ctx.warn(w)
