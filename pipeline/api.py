@@ -8,12 +8,16 @@ The stage protocol and its context, typed options, the errors, the data model an
 stages exchange (``Block``, ``AdjustmentArtefact``, ``Snapshot``), the statistics library, and the
 recording helpers a ``log`` method uses (one role palette, one photo→view conversion, point
 ellipsoids).  ``docs/plugins.md`` shows a whole stage built on it; ``baarda.pipeline.testing``
-holds the test helpers.  The names here stay; the modules behind them may move.
+holds the test helpers.  ``adjust(block, BundleConfig(...))`` runs the bundle workflow without the runner
+(``docs/library.md``).  The names here stay; the modules behind them may move.
 """
 
 from __future__ import annotations
 
 from . import stats
+from .adjustment import (APSelectionConfig, BundleConfig, BundleReport, OutputConfig, RobustConfig, ScaleBar,
+                         SolverConfig, StatTestsConfig, VarianceComponentsConfig)
+from .adjustment import adjust_block as adjust
 from .contracts import AdjustmentArtefact
 from .errors import AdjustmentError, BaardaError, InputError
 from .model import Block
@@ -30,6 +34,9 @@ from .colmap import block_from_reconstruction, read_colmap, read_reconstruction,
 __all__ = [
     # the protocol
     "Stage", "SourceStage", "StageResult", "TableData", "Context", "Progress", "option", "NoOptions",
+    # the bundle workflow as a library (docs/library.md)
+    "adjust", "BundleConfig", "BundleReport", "SolverConfig", "StatTestsConfig", "RobustConfig",
+    "VarianceComponentsConfig", "APSelectionConfig", "OutputConfig", "ScaleBar",
     # errors
     "InputError", "AdjustmentError", "BaardaError",
     # data and contracts

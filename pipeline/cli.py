@@ -348,7 +348,7 @@ def _noise_args(p: argparse.ArgumentParser, top: bool = False, verbose_help: str
 
 def _set_arg(p: argparse.ArgumentParser) -> None:
     p.add_argument("--set", action="append", default=[], metavar="STAGE.OPTION=VALUE",
-                   help="override an option of the project for this run, e.g. --set bundle.max_iter=50 "
+                   help="override an option of the project for this run, e.g. --set bundle.solver.max_iter=50 "
                         "(repeatable; the value is TOML: 0.5, true, \"text\", [1, 2]; checked as in the file)")
 
 

@@ -10,7 +10,8 @@ redundancy numbers), :mod:`.diagnose` (a singular system named), :mod:`.initial`
 intersection, initial values), :mod:`.apselect` (additional-parameter selection), :mod:`.adjust`
 (the entry point and its result), :mod:`.reproject` (a block's reprojection errors),
 :mod:`.variance` (variance components per observation group), :mod:`.reliability` (external
-reliability, covariances of chosen parameters, the linearised model for RRR).
+reliability, covariances of chosen parameters, the linearised model for RRR), :mod:`.workflow` (the
+whole bundle workflow: :func:`adjust_block` with a :class:`BundleConfig`, docs/library.md).
 
 Everything other code needs is imported from this package::
 
@@ -35,6 +36,9 @@ from .reproject import project_block, reprojection_px, reprojection_summary
 from .settings import BundleSettings, BundleState, Distance, camera_meta
 from .variance import (LinearComponents, VarianceComponents, VarianceGroup, estimate_components, group_parts,
                        image_group_labels, linear_components)
+from .workflow import (EO_LABELS, APSelectionConfig, BundleConfig, BundleReport, OutputConfig, RobustConfig, ScaleBar,
+                       SolverConfig, StatTestsConfig, VarianceComponentsConfig, adjust_block, bundle_settings,
+                       configure_block)
 
 __all__ = [
     "adjust", "BundleResult", "result_of", "BundleSettings", "BundleState", "Distance", "padded_ap", "camera_meta",
@@ -46,4 +50,7 @@ __all__ = [
     "group_parts", "image_group_labels",
     "own_effects", "OwnEffects", "effect_vectors", "parameter_covariance", "linearised_model", "row_mdb",
     "global_rows", "GlobalRowStats",
+    "adjust_block", "BundleConfig", "BundleReport", "configure_block", "bundle_settings", "ScaleBar",
+    "SolverConfig", "StatTestsConfig", "RobustConfig", "VarianceComponentsConfig", "APSelectionConfig",
+    "OutputConfig", "EO_LABELS",
 ]

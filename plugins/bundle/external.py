@@ -6,27 +6,22 @@ from __future__ import annotations
 
 import numpy as np
 
-from baarda.pipeline.adjustment import own_effects, parameter_covariance
-from baarda.pipeline.errors import InputError
+from baarda.pipeline.adjustment import EO_LABELS
 from baarda.pipeline.stage import TableData
-from baarda.pipeline.stats.critical import delta0 as _delta0
 from baarda.pipeline.stats.ellipses import ellipse_columns
 
 from .protocol import image_units
 
-EO_LABELS = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
-
-
-def external_reliability(res, alpha0: float, beta0: float) -> dict | None:
-    """Own-point / own-photo effects of every image row's MDB (δ0(α0, β0)) and the block's largest."""
-    if res.snapshot is None:
+def external_view(rep) -> dict | None:
+    """The report's own-point / own-photo effects (:class:`~baarda.pipeline.adjustment.OwnEffects`) as the
+    tables and lines use them: the largest effect per coordinate, angles in degrees."""
+    if rep.external is None:
         return None
-    eff = own_effects(res, _delta0(alpha0, beta0))
+    eff = rep.external
     jp, vp, sp, je, ve, se = eff.largest()
-    # angles to degrees for tables and reports
     ve = np.where(je >= 3, np.degrees(ve), ve)
-    return {"effects": eff, "point": (jp, vp, sp), "eo": (je, ve, se), "delta0": _delta0(alpha0, beta0),
-            "r": np.asarray(res.redundancy)}
+    return {"effects": eff, "point": (jp, vp, sp), "eo": (je, ve, se), "delta0": rep.delta0,
+            "r": np.asarray(rep.result.redundancy)}
 
 
 def observation_columns(ext: dict | None, k: int) -> dict:
@@ -122,40 +117,9 @@ def point_columns(res, confidence: float) -> dict:
     return cols
 
 
-def check_requests(block, specs, ctx=None, option: str = "covariance_of") -> None:
-    """Before adjusting: every ``covariance_of`` entry names a photo, point or camera of the block
-    (and a known component of a photo or point); an :class:`InputError` naming the option if not."""
-    tables = {"photo": block.photos, "point": block.points, "camera": block.cameras}
-    comps = {"photo": EO_LABELS, "point": ("X", "Y", "Z")}
-    for spec in specs:
-        parts = str(spec).split()
-        msg = None
-        if len(parts) < 2 or parts[0] not in tables:
-            msg = f"{spec!r}: expected 'photo <id>', 'point <id>' or 'camera <id>' (optionally + a component)"
-        else:
-            ids = {str(i) for i in tables[parts[0]].ids}
-            ident = " ".join(parts[1:])
-            if ident not in ids:
-                head = " ".join(parts[1:-1])
-                if len(parts) > 2 and head in ids:
-                    if parts[0] in comps and parts[-1] not in comps[parts[0]]:
-                        msg = f"{spec!r}: {parts[0]} components are {', '.join(comps[parts[0]])}"
-                else:
-                    msg = f"{spec!r}: no {parts[0]} with id {ident!r}"
-        if msg:
-            raise ctx.option_error(msg, option) if ctx is not None else InputError(msg, None, None, option)
-
-
-def covariance_of(res, specs, option: str = "covariance_of", ctx=None):
-    """``(TableData, summary dict, report lines)`` of the joint covariance of ``specs``."""
-    try:
-        names, C = parameter_covariance(res, specs)
-    except KeyError as e:
-        msg = str(e.args[0])
-        raise ctx.option_error(msg, option) if ctx is not None else InputError(msg, None, None, option) from None
-    d = np.sqrt(np.clip(np.diag(C), 0, None))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        R = np.where(np.outer(d, d) > 0, C / np.outer(d, d), 0.0)
+def covariance_parts(cov):
+    """``(TableData, summary dict, report lines)`` of a :class:`~baarda.pipeline.adjustment.workflow.ParameterCovariance`."""
+    names, C, d, R = list(cov.names), cov.matrix, cov.sigma, cov.correlation
     cols = {"parameter": names}
     for j, n in enumerate(names):
         cols[n] = C[:, j]
@@ -172,38 +136,26 @@ def covariance_of(res, specs, option: str = "covariance_of", ctx=None):
     return table, summ, L
 
 
-# -- the stage's hooks (extras keys "external", "covariance_of", "confidence") -----------------------
-def compute(res, o, ctx=None) -> dict:
-    """What the stage adds to its extras for options ``o`` (``external_reliability``,
-    ``confidence``, ``covariance_of``)."""
-    out = {"external": None, "covariance_of": None, "confidence": o.confidence}
-    if res.snapshot is None:
-        return out
-    if o.external_reliability:
-        out["external"] = external_reliability(res, o.alpha0, o.beta0)
-    if o.covariance_of:
-        out["covariance_of"] = covariance_of(res, o.covariance_of, ctx=ctx)
-    return out
-
-
-def summary_entries(extras, block) -> dict:
+# -- the stage's hooks: from the BundleReport ------------------------------------------------------
+def summary_entries(rep) -> dict:
     out = {}
-    if extras.get("external") is not None:
-        out["external_reliability"] = summary(extras["external"], block)
-    if extras.get("covariance_of") is not None:
-        out["covariance_of"] = extras["covariance_of"][1]
+    ext = external_view(rep)
+    if ext is not None:
+        out["external_reliability"] = summary(ext, rep.result.block_in)
+    if rep.covariance is not None:
+        out["covariance_of"] = covariance_parts(rep.covariance)[1]
     return out
 
 
-def report_entries(extras, block) -> list[str]:
-    L = report_lines(extras.get("external"), block)
-    if extras.get("covariance_of") is not None:
-        L += extras["covariance_of"][2]
+def report_entries(rep, block) -> list[str]:
+    L = report_lines(external_view(rep), block)
+    if rep.covariance is not None:
+        L += covariance_parts(rep.covariance)[2]
     return L
 
 
-def tables(extras) -> dict:
-    return {"covariance": extras["covariance_of"][0]} if extras.get("covariance_of") is not None else {}
+def tables(rep) -> dict:
+    return {"covariance": covariance_parts(rep.covariance)[0]} if rep.covariance is not None else {}
 
 
 def linearisation(res):

@@ -101,8 +101,9 @@ def _rms_rows(v, act, keys, ids) -> list[dict]:
             for k in np.flatnonzero(npt)]
 
 
-def bundle_protocol(res, extras: dict, *, alpha0: float, beta0: float) -> dict:
-    """The protocol dict of a bundle result (see :mod:`baarda.pipeline.protocol` for the keys)."""
+def bundle_protocol(res, rejections=None, *, alpha0: float, beta0: float) -> dict:
+    """The protocol dict of a bundle result (see :mod:`baarda.pipeline.protocol` for the keys); ``rejections``: the
+    iterated data snooping that rejected rows (its count and labels), if any."""
     block = res.block_in
     unit, scale, src = image_units(block)
     snap = res.snapshot
@@ -179,10 +180,9 @@ def bundle_protocol(res, extras: dict, *, alpha0: float, beta0: float) -> dict:
         if k is not None and len(orows) == snap.n and np.isfinite(rel["mdb_max"]):
             rel["mdb_unit"] = unit
             rel.update(_mdb_effect(res, int(orows[k, 0]), int(orows[k, 1]), rel["mdb_max"] / scale))
-        ids = extras.get("ids")
-        if ids is not None:
-            out["tests"]["n_rejected"] = len(ids.removed)
-            out["tests"]["rejected"] = [str(x) for x in ids.removed_labels[:MOST_LABELS]]
+        if rejections is not None:
+            out["tests"]["n_rejected"] = len(rejections.removed)
+            out["tests"]["rejected"] = [str(x) for x in rejections.removed_labels[:MOST_LABELS]]
 
     out["cameras"] = [_camera(res, j, src, scale) for j in range(len(block.cameras)) if res.camera_used[j]]
     out["warnings"] = [str(w) for w in res.warnings]

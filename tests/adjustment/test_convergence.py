@@ -231,7 +231,7 @@ def test_bal_fixture_problem_reaches_pycolmaps_minimum(shared_data):
     block, behind = bench.load_problem(path)
     assert behind == 31
     settings = BundleSettings(datum=bundle["datum"], datum_centres=bundle["datum_on"] == "centres",
-                              max_iter=bundle["max_iter"], covariance=False)
+                              max_iter=bundle["solver"]["max_iter"], covariance=False)
     res = adjust(block, settings)
     cost_b = bench.cost_px(res.block.replace(observations=block.observations))
     assert cost_b == pytest.approx(res.vtpv / 2, rel=1e-9)              # one cost definition

@@ -109,7 +109,7 @@ def test_weighted_control_and_eo_priors_dense_reference():
     through the stage option ``sigma_eo`` (degrees): every variance against the dense normal
     matrix of the image rows plus the prior weights 1/σ² on the constrained unknowns."""
     from baarda.pipeline.options import parse_options
-    from baarda.plugins.bundle.stage import BundleOptions, configure_block
+    from baarda.pipeline.adjustment import BundleConfig, configure_block
 
     blk, truth = make_block(model="none", n_photos=5, n_points=14, noise_mm=0.002, rng=np.random.default_rng(8),
                             n_control=6)
@@ -125,7 +125,7 @@ def test_weighted_control_and_eo_priors_dense_reference():
     ph = blk.photos
     blk = blk.replace(photos=ph.replace(X0=ph.X0 + 0.003, opk=ph.opk - 0.002))
     s_eo = [0.004, 0.005, 0.006, 0.1, 0.2, 0.3]         # object units (m), degrees
-    opts = parse_options(BundleOptions, {"sigma_eo": s_eo}, path="<test>")
+    opts = parse_options(BundleConfig, {"sigma_eo": s_eo}, path="<test>")
     blk = configure_block(blk, opts)
     sig_rad = np.r_[s_eo[:3], np.radians(s_eo[3:])]
     assert np.allclose(blk.photos.sigma_eo, sig_rad)

@@ -168,7 +168,7 @@ def test_bundle_stage_tables_report_and_summary(tmp_path):
                         n_control=5)
     ph, pt = str(blk.photos.ids[1]), str(blk.points.ids[12])
     res = run_stage(BundleAdjustment, {"block": blk},
-                    {"confidence": 0.95, "covariance_of": [f"photo {ph}", f"point {pt}"]}, tmp_path=tmp_path)
+                    {"output": {"confidence": 0.95, "covariance_of": [f"photo {ph}", f"point {pt}"]}}, tmp_path=tmp_path)
     b = res.artefacts["bundle"]
     eff = own_effects(b, 4.13)          # δ0(0.1 %, 80 %) = 4.13, the stage's defaults
     t = res.tables["observations"].columns
@@ -196,7 +196,7 @@ def test_bundle_stage_tables_report_and_summary(tmp_path):
                      ([f"point {pt} W"], "point components are X, Y, Z"),
                      ([f"camera {blk.cameras.ids[0]} K9"], "camera components are")):
         with pytest.raises(InputError, match="covariance_of") as e:
-            run_stage(BundleAdjustment, {"block": blk}, {"covariance_of": bad}, tmp_path=tmp_path)
+            run_stage(BundleAdjustment, {"block": blk}, {"output": {"covariance_of": bad}}, tmp_path=tmp_path)
         assert msg in str(e.value)
 
 

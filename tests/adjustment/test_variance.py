@@ -186,8 +186,8 @@ def test_bundle_stage_option(tmp_path):
     from baarda.plugins.bundle.stage import BundleAdjustment
 
     blk = _two_camera_block(11, 0.001, 0.003, 0.0015)
-    est = run_stage(BundleAdjustment, {"block": blk}, {"variance_components": "estimate"}, tmp_path=tmp_path)
-    app = run_stage(BundleAdjustment, {"block": blk}, {"variance_components": "apply"}, tmp_path=tmp_path)
+    est = run_stage(BundleAdjustment, {"block": blk}, {"variance_components": {"mode": "estimate"}}, tmp_path=tmp_path)
+    app = run_stage(BundleAdjustment, {"block": blk}, {"variance_components": {"mode": "apply"}}, tmp_path=tmp_path)
     vc = app.summary["variance_components"]
     g = {x["name"]: x for x in vc["groups"]}
     assert vc["converged"] and vc["mode"] == "apply"
@@ -204,14 +204,15 @@ def test_bundle_stage_option(tmp_path):
     on_b = blk.photos.camera[blk.observations.photo] == 1
     assert np.sqrt(cov[on_b, 0, 0]).mean() == pytest.approx(0.0015 * g["image camera B"]["factor"], rel=1e-9)
     # user-defined groups: photos P1, P2 on their own
-    usr = run_stage(BundleAdjustment, {"block": blk}, {"variance_components": "estimate",
-                                                       "vc_photo_groups": {"first two": ["P1", "P2"]}},
+    usr = run_stage(BundleAdjustment, {"block": blk}, {"variance_components": {
+        "mode": "estimate", "photo_groups": {"first two": ["P1", "P2"]}}},
                     tmp_path=tmp_path)
     names = {x["name"] for x in usr.summary["variance_components"]["groups"]}
     assert names == {"image camera A", "image camera B", "image first two"}
-    with pytest.raises(InputError, match="vc_photo_groups"):
-        run_stage(BundleAdjustment, {"block": blk}, {"variance_components": "estimate",
-                                                     "vc_photo_groups": {"x": ["P99"]}}, tmp_path=tmp_path)
+    with pytest.raises(InputError, match="variance_components.photo_groups"):
+        run_stage(BundleAdjustment, {"block": blk}, {"variance_components": {"mode": "estimate",
+                                                                             "photo_groups": {"x": ["P99"]}}},
+                  tmp_path=tmp_path)
 
 
 def test_image_groups_by_source_photo_and_user():
@@ -244,15 +245,16 @@ def test_bundle_stage_option_errors_and_ap_selection(tmp_path):
     components start from the selected model (the removed parameters stay removed)."""
     from baarda.pipeline.options import parse_options
     from baarda.pipeline.testing import run_stage
-    from baarda.plugins.bundle.stage import BundleAdjustment, BundleOptions
+    from baarda.pipeline.adjustment import BundleConfig
+    from baarda.plugins.bundle.stage import BundleAdjustment
 
     with pytest.raises(Exception, match="covariance = true"):
-        parse_options(BundleOptions, {"variance_components": "apply", "covariance": False})
+        parse_options(BundleConfig, {"variance_components": {"mode": "apply"}, "solver": {"covariance": False}})
     blk = _two_camera_block(21, 0.001, 0.002, 0.001)
-    out = run_stage(BundleAdjustment, {"block": blk}, {"variance_components": "apply", "ap_selection": True},
+    out = run_stage(BundleAdjustment, {"block": blk}, {"variance_components": {"mode": "apply"}, "ap_selection": {"enabled": True}},
                     tmp_path=tmp_path)
     res = out.artefacts["bundle"]
-    sel = out.data["extras"]["selection"].result
+    sel = out.data["report"].selection.result
     assert sel.camera_free.sum() < (blk.cameras.sigma_ap != 0).sum() + 6     # the selection removed some
     np.testing.assert_array_equal(res.camera_free, sel.camera_free)
     assert res.sigma0_hat == pytest.approx(1.0, abs=1e-3)

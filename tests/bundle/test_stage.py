@@ -17,7 +17,7 @@ def test_stage_runs_and_logs(tmp_path):
     blk, truth = make_block(model="brown", n_photos=8, n_points=40, noise_mm=0.001,
                             rng=np.random.default_rng(5))
     res = run_stage(BundleAdjustment, {"block": perturb(blk, np.random.default_rng(1))},
-                    {"blunders": "data-snooping"}, tmp_path=tmp_path)
+                    {"tests": {"blunders": "data-snooping"}}, tmp_path=tmp_path)
     b = res.artefacts["bundle"]
     assert res.artefacts["adjustment"].snapshot.n == 2 * len(blk.observations)
     assert abs(b.sigma0_hat - 1) < 0.15
@@ -47,7 +47,7 @@ def test_ids_rejects_a_planted_blunder(tmp_path):
     k = 37
     xy[k, 1] += 0.02                  # 20 σ in y
     bad = blk.replace(observations=obs.replace(xy=xy))
-    res = run_stage(BundleAdjustment, {"block": bad}, {"blunders": "ids"}, tmp_path=tmp_path)
+    res = run_stage(BundleAdjustment, {"block": bad}, {"tests": {"blunders": "ids"}}, tmp_path=tmp_path)
     dec = np.array(res.tables["observations"].columns["decision"])
     assert dec[k] == "rejected"
     assert (dec == "rejected").sum() == 1
@@ -59,7 +59,7 @@ def test_ids_rejects_a_planted_blunder(tmp_path):
 
     path = log_stage(BundleAdjustment, res, tmp_path / "bundle.rrd")
     series = read_series(path)
-    ids = res.artefacts["bundle"].extras["ids"]
+    ids = res.data["report"].ids
     np.testing.assert_allclose(series["/bundle/ids/global_test/T"], [h.T for h in ids.history])
     np.testing.assert_allclose(series["/bundle/ids/global_test/F_critical"], [h.critical for h in ids.history])
     assert len(series["/bundle/ids/w/w_max"]) == 2 and "/bundle/ids/w/K" not in series
@@ -82,7 +82,7 @@ def test_joint_2d_test_per_image_point_against_closed_form(tmp_path):
     k_bad = 23
     xy[k_bad] += [0.008, -0.008]                           # ≈ 6 σ in both coordinates
     blk = blk.replace(observations=obs.replace(xy=xy))
-    out = run_stage(BundleAdjustment, {"block": blk}, {"blunders": "data-snooping", "alpha0": 0.001},
+    out = run_stage(BundleAdjustment, {"block": blk}, {"tests": {"blunders": "data-snooping", "alpha0": 0.001}},
                     tmp_path=tmp_path)
     res = out.artefacts["bundle"]
     unknowns, A, P, N = _dense_reference(res)
@@ -152,7 +152,7 @@ ap_model = "ebner12"
 [[stage]]
 use = "bundle"
 [stage.options]
-max_iter = 1
+solver.max_iter = 1
 """
     pm = make_plugin_manager({"testfield": TestFieldSource, "bundle": BundleAdjustment})
     outcome = run_project_text(text, tmp_path, plugins=pm)
@@ -177,12 +177,12 @@ max_iter = 1
 
 def test_sigma_eo_and_image_sigma_scale_options():
     from baarda.pipeline.options import parse_options
-    from baarda.plugins.bundle.stage import BundleOptions, configure_block
+    from baarda.pipeline.adjustment import BundleConfig, configure_block
 
     blk, _ = make_block(model="none", n_photos=4, n_points=20)
     ph = blk.photos
     blk = blk.replace(photos=ph.replace(X0=np.where(np.arange(4)[:, None] == 2, np.nan, ph.X0)))
-    o = parse_options(BundleOptions, {"sigma_eo": [0.01, 0.01, 0.02, 0.5, 0.5, 1.0], "sigma_image_scale": 2.0},
+    o = parse_options(BundleConfig, {"sigma_eo": [0.01, 0.01, 0.02, 0.5, 0.5, 1.0], "sigma_image_scale": 2.0},
                       path="<test>")
     out = configure_block(blk, o)
     se = out.photos.sigma_eo
@@ -191,7 +191,7 @@ def test_sigma_eo_and_image_sigma_scale_options():
     assert np.allclose(out.observations.cov, 4 * blk.observations.cov)
     for bad in ({"sigma_eo": [0.01, 0.01]}, {"sigma_eo": [0.01] * 5 + [-1]}, {"sigma_image_scale": 0.0}):
         with pytest.raises(Exception, match="sigma_eo|sigma_image_scale"):
-            parse_options(BundleOptions, bad, path="<test>")
+            parse_options(BundleConfig, bad, path="<test>")
 
 
 def test_ids_until_no_w_exceeds_the_critical_value(tmp_path):
@@ -204,13 +204,13 @@ def test_ids_until_no_w_exceeds_the_critical_value(tmp_path):
     for k, (c, e) in bad.items():
         xy[k, c] += e
     blk = blk.replace(observations=obs.replace(xy=xy))
-    kok = run_stage(BundleAdjustment, {"block": blk}, {"blunders": "ids"}, tmp_path=tmp_path)
-    full = run_stage(BundleAdjustment, {"block": blk}, {"blunders": "ids", "ids_stop": "w-test"},
+    kok = run_stage(BundleAdjustment, {"block": blk}, {"tests": {"blunders": "ids"}}, tmp_path=tmp_path)
+    full = run_stage(BundleAdjustment, {"block": blk}, {"tests": {"blunders": "ids", "ids_stop": "w-test"}},
                      tmp_path=tmp_path)
     rej = lambda r: set(np.flatnonzero(np.array(r.tables["observations"].columns["decision"]) == "rejected"))
     assert rej(full) == set(bad)
     assert rej(kok) < set(bad)
-    ids = full.artefacts["bundle"].extras["ids"]
+    ids = full.data["report"].ids
     assert [i // 2 for i in ids.removed] == [37, 90, 150]
     assert "no |w| above K" in ids.stop_reason
     assert "3 coordinate(s) rejected" in full.report and "| 3 | photo" in full.report
@@ -228,10 +228,9 @@ def test_testfield_fixture_selects_aps_by_the_papers_rule(repo_root, tmp_path):
     out = run_project(repo_root / "fixtures/testfield/block.toml", tmp_path / "run", verbose=False)
     assert out.ok, out.message
     b = out.artefacts["bundle"]
-    sel = b.extras["selection"]
-    assert sel is not None
-    kept = [k.split(":")[1] for k in sel.summary()["kept"]]
-    removed = [k.split(":")[1] for k in sel.summary()["removed"]]
+    sel = next(s for s in out.stages if s.use == "bundle").summary["ap_selection"]
+    kept = [k.split(":")[1] for k in sel["kept"]]
+    removed = [k.split(":")[1] for k in sel["removed"]]
     assert sorted(kept + removed, key=lambda n: int(n[1:])) == [f"b{i}" for i in range(1, 13)]
     assert kept
     table = {r["parameter"]: r for r in b.camera_table(0)}

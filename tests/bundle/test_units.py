@@ -83,7 +83,7 @@ def _pixel_block(model="brown"):
 
 def test_stage_report_and_tables_in_pixels_for_a_pixel_source(tmp_path):
     blk = _pixel_block()
-    res = run_stage(BundleAdjustment, {"block": blk}, {"blunders": "data-snooping"}, tmp_path=tmp_path)
+    res = run_stage(BundleAdjustment, {"block": blk}, {"tests": {"blunders": "data-snooping"}}, tmp_path=tmp_path)
     b = res.artefacts["bundle"]
     text = res.report
     assert "µm" not in text, [line for line in text.splitlines() if "µm" in line][:5]

@@ -138,11 +138,10 @@ def test_bundle_stage_reports_the_antennas(tmp_path):
     import rerun as rr
 
     from baarda.pipeline.recording import read_recording
-    from baarda.plugins.bundle.rrlog import log_bundle
 
     rec = rr.RecordingStream("gnss-test")
     rec.save(str(tmp_path / "bundle.rrd"))
-    log_bundle(rec, res, out.data["decision"], out.data["options"], out.report)
+    BundleAdjustment().log(out, rec, None)
     rec.flush()
     del rec
     paths = {e.path for e in read_recording(tmp_path / "bundle.rrd").entities}

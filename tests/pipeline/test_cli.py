@@ -40,7 +40,7 @@ def test_stages_name_describes_one_stage(capsys):
     assert main(["stages", "bundle"]) == 0
     out = capsys.readouterr().out
     assert out.startswith("bundle")
-    assert "reads: block" in out and "max_iter (int, default" in out
+    assert "reads: block" in out and "solver (table (max_iter, tol_obs" in out
 
 
 def test_unknown_stage_name_says_did_you_mean(capsys):
@@ -51,8 +51,8 @@ def test_unknown_stage_name_says_did_you_mean(capsys):
 
 def test_set_overrides_an_option(tmp_path, capsys):
     out = tmp_path / "run"
-    assert main(["-q", "run", str(BLOCK), "--out", str(out), "--set", "bundle.max_iter=2",
-                 "--set", "bundle.tol_rel=1e-3"]) in (0, 1)
+    assert main(["-q", "run", str(BLOCK), "--out", str(out), "--set", "bundle.solver.max_iter=2",
+                 "--set", "bundle.solver.tol_rel=1e-3"]) in (0, 1)
     resolved = (out / "project.resolved.toml").read_text()
     assert re.search(r"max_iter = 2\b", resolved) and "tol_rel = 0.001" in resolved
     results = json.loads((out / "results.json").read_text())
@@ -63,9 +63,9 @@ def test_set_overrides_an_option(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("arg, expect", [
-    ("bundle.max_iterr=5", "did you mean 'bundle.max_iter'"),
+    ("bundle.solver.max_iterr=5", "did you mean 'bundle.solver.max_iter'"),
     ("bundel.max_iter=5", "did you mean 'bundle'"),
-    ("bundle.max_iter=-5", "must be at least 1"),
+    ("bundle.solver.max_iter=-5", "must be at least 1"),
     ("max_iter=5", "expected STAGE.OPTION=VALUE"),
 ])
 def test_set_mistakes_are_one_line_errors(capsys, arg, expect):

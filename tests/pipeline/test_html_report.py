@@ -209,13 +209,12 @@ def test_pixel_source_is_reported_in_pixels(tmp_path):
 
     out = run_project(REPO / "fixtures" / "testfield" / "block.toml", tmp_path / "run", verbose=False)
     res = out.artefacts["bundle"]
-    extras = res.extras
-    mm = bundle_protocol(res, extras, alpha0=0.001, beta0=0.8)
+    mm = bundle_protocol(res, None, alpha0=0.001, beta0=0.8)
     cams = res.block_in.cameras
     p = 0.005
     block = res.block_in.replace(source=SourceInfo(path="x", format="COLMAP", pixel_format="COLMAP"),
                                  cameras=cams.replace(pixel_mm=np.full(len(cams), p)))
-    px = bundle_protocol(dataclasses.replace(res, block_in=block), extras, alpha0=0.001, beta0=0.8)
+    px = bundle_protocol(dataclasses.replace(res, block_in=block), None, alpha0=0.001, beta0=0.8)
     assert mm["unit"] == "µm" and px["unit"] == "px" and px["pixel_source"] == "COLMAP"
     for k in ("x", "y", "all"):
         assert px["rms"][k] == pytest.approx(mm["rms"][k] / (1000 * p), rel=1e-12)

@@ -62,8 +62,8 @@ def test_a_renamed_value_names_its_new_spelling(tmp_path, installed, stage, opti
 
 
 def test_unknown_option_gets_the_closest_names(tmp_path, installed):
-    msg = _load(tmp_path, installed, "bundle", "max_itre = 5")
-    assert "unknown option 'max_itre'; did you mean 'max_iter'?" in msg
+    msg = _load(tmp_path, installed, "bundle", "solver.max_itre = 5")
+    assert "unknown option 'solver.max_itre'; did you mean 'solver.max_iter'?" in msg
 
 
 def test_a_renamed_stage_names_its_new_name(tmp_path, installed):

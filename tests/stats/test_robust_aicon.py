@@ -9,7 +9,9 @@ import time
 import numpy as np
 import pytest
 
-from baarda.pipeline.runner import run_project
+from baarda.pipeline.adjustment import adjust_block
+from baarda.pipeline.plugins import PluginManager
+from baarda.pipeline.project import load_project, stage_context
 from baarda.pipeline.stats import irls, weighted_refit
 
 
@@ -17,11 +19,16 @@ from baarda.pipeline.stats import irls, weighted_refit
 def test_aicon_robust_against_ids(repo_root, shared_data, tmp_path):
     if (repo_root.parent / "shared" / "data").resolve() != shared_data.resolve():
         pytest.skip(f"shared data is not beside the repository ({shared_data})")
-    out = run_project(repo_root / "fixtures/aicon/aicon.toml", tmp_path / "run", verbose=False)
-    assert out.ok, out.message
-    bundle = out.artefacts["bundle"]
-    ids = bundle.extras["ids"]
-    start = bundle.extras["before_ids"]["result"]       # the adjustment IDS started from
+    project = load_project(repo_root / "fixtures/aicon/aicon.toml", PluginManager())
+    k = next(k for k, spec in enumerate(project.stages) if spec.use == "bundle")
+    store = {}
+    for spec in project.stages[:k]:                  # the source: the block the bundle stage reads
+        ctx = stage_context(project, spec, run_dir=tmp_path, previous=[])
+        inputs = {n.rstrip("?"): store[n.rstrip("?")] for n in spec.cls.reads if n.rstrip("?") in store}
+        store.update(spec.cls().run(inputs, spec.options, ctx).artefacts)
+    report = adjust_block(store["block"], project.stages[k].options)   # the bundle stage's workflow
+    ids = report.ids
+    start = report.before_ids.result                 # the adjustment IDS started from
     ids_rows = set(ids.removed)
     print(f"\nAICON: {int(start.snapshot.active.sum())} coordinates, dof {start.dof}, σ̂0 {start.sigma0_hat:.4f}; "
           f"IDS rejected {len(ids_rows)}")

@@ -23,7 +23,7 @@ def bad_block():
 
 @pytest.mark.parametrize("method", ["huber", "danish"])
 def test_bundle_robust_downweights_the_blunder(tmp_path, bad_block, method):
-    res = run_stage(BundleAdjustment, {"block": bad_block}, {"robust": method}, tmp_path=tmp_path)
+    res = run_stage(BundleAdjustment, {"block": bad_block}, {"robust": {"method": method}}, tmp_path=tmp_path)
     t = res.tables["observations"].columns
     dec = np.array(t["decision"])
     assert dec[37] == "downweighted"
@@ -40,8 +40,9 @@ def test_bundle_robust_downweights_the_blunder(tmp_path, bad_block, method):
 
 
 def test_bundle_robust_excludes_ids(tmp_path, bad_block):
-    with pytest.raises((ValueError, InputError), match="excludes blunders = 'ids'"):
-        run_stage(BundleAdjustment, {"block": bad_block}, {"robust": "huber", "blunders": "ids"}, tmp_path=tmp_path)
+    with pytest.raises((ValueError, InputError), match="excludes tests.blunders = 'ids'"):
+        run_stage(BundleAdjustment, {"block": bad_block}, {"robust": {"method": "huber"}, "tests": {"blunders": "ids"}},
+                  tmp_path=tmp_path)
 
 
 # ------------------------------------------------------------------ blunder-rejection robust-*

@@ -1,0 +1,504 @@
+"""The bundle stage's report text, tables and results.json summary, from a
+:class:`~baarda.pipeline.adjustment.BundleReport` (the numbers: :func:`baarda.pipeline.adjustment.adjust_block`).
+
+:func:`summary`, :func:`tables` and :func:`report_text` are what the stage writes; nothing here computes
+an adjustment or a test, it only arranges their results.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import stats as sps
+
+from baarda.pipeline import stats
+from baarda.pipeline.adjustment import EO_NAMES, BundleResult
+from baarda.pipeline.model import Block
+from baarda.pipeline.report import markdown_table
+from baarda.pipeline.stage import TableData
+
+from . import external as bundle_external
+from .protocol import bundle_protocol, camera_rows, image_units, protocol_lines
+
+
+def _crs_columns(res: BundleResult, block: Block) -> dict:
+    """The adjusted points and their σ in the user's CRS (``block.crs``, set by a source
+    that read coordinates in a CRS; the adjustment itself runs in the local east-north-up frame):
+    ``<axis>_crs`` and ``s<axis>_crs``, the covariance carried over as ``J C Jᵀ``.  None without a CRS."""
+    from baarda.pipeline.crs import frame_of_block
+
+    frame = frame_of_block(block)
+    if frame.is_identity:
+        return {}
+    XYZ = res.state.XYZ
+    ok = np.isfinite(XYZ).all(axis=1)
+    user = np.full_like(XYZ, np.nan)
+    sig = np.full_like(XYZ, np.nan)
+    if ok.any():
+        user[ok] = frame.from_local(XYZ[ok])
+        J = frame.jacobian(XYZ[ok])
+        C = np.nan_to_num(res.cov_points[ok])
+        sig[ok] = np.sqrt(np.clip(np.einsum("nij,njk,nik->ni", J, C, J), 0.0, None))
+    names = frame.axis_names()
+    out = {f"{a}_crs": user[:, i] for i, a in enumerate(names)}
+    out.update({f"s{a}_crs": sig[:, i] for i, a in enumerate(names)})
+    return out
+
+
+def _f(x, nd=4):
+    return "–" if x is None or not np.isfinite(x) else f"{x:.{nd}g}"
+
+
+def summary(rep) -> dict:
+    """results.json's entry of the bundle stage."""
+    res, o = rep.result, rep.config
+    out = res.summary()
+    gt = rep.global_test
+    if gt is not None:
+        out["global_test"] = {k: (float(v) if isinstance(v, (float, np.floating)) else v)
+                              for k, v in gt.summary().items()}
+    ds = rep.snooping
+    if ds is not None:
+        out["data_snooping"] = {"critical": ds.critical, "n_flagged": int(ds.flagged.sum())}
+    jt = rep.joint
+    if jt is not None:
+        out["joint_test"] = {"critical": jt.critical, "alpha": jt.alpha, "n_tested": int(jt.groups.size),
+                             "n_flagged": int(jt.flagged.sum())}
+    if rep.ids is not None:
+        out["ids"] = {"removed": rep.ids.removed_labels, "stop": rep.ids.stop_reason}
+    before = rep.before_ids
+    if before is not None:     # the adjustment from the initial values, before any rejection
+        r0 = before.result
+        out["before_rejection"] = {"iterations": r0.iterations, "sigma0_hat": r0.sigma0_hat, "dof": r0.dof,
+                                   "n_flagged": int(before.snooping.flagged.sum())}
+    if rep.selection is not None:
+        out["ap_selection"] = rep.selection.summary()
+    out["cameras"] = [r for j in range(len(res.block_in.cameras)) for r in camera_rows(res, j)]
+    out["sigma0_um_equivalent"] = _sigma0_um(res)
+    out["protocol"] = bundle_protocol(res, rep.ids, alpha0=o.tests.alpha0, beta0=o.tests.beta0)
+    if isinstance(out.get("check_points"), dict) and out["check_points"].get("n"):
+        out["check_points"]["unit"] = res.block_in.object_unit
+    flagged = out.get("data_snooping", {}).get("n_flagged")
+    if rep.vc is not None:
+        out["variance_components"] = {"mode": o.variance_components.mode, "groups_by": o.variance_components.groups,
+                                      **rep.vc.summary()}
+    out.update(bundle_external.summary_entries(rep))
+    if rep.robust is not None:
+        out["robust"] = rep.robust.summary()
+    out["headline"] = (f"σ̂0 = {res.sigma0_hat:.3g} (dof {res.dof}, {res.iterations} iterations)"
+                       + (f"; {flagged} coordinate(s) flagged by data snooping" if flagged else "")
+                       + (f"; IDS removed {len(rep.ids.removed_labels)}" if rep.ids is not None else ""))
+    if rep.gnss is not None:
+        out["gnss"] = gnss_parts(rep)["summary"]
+    return out
+
+
+def _sigma0_um(res: BundleResult) -> float:
+    """σ̂0 × median a-priori image σ, in µm (the papers' 'σ0 in µm' when all σ are equal)."""
+    cov = res.block_in.observations.cov[res.obs_active]
+    if len(cov) == 0:
+        return float("nan")
+    s = np.sqrt(np.median(0.5 * (cov[:, 0, 0] + cov[:, 1, 1])))
+    return float(res.sigma0_hat * s * 1000.0 / res.sigma0)
+
+
+def report_text(rep, work=None, protocol=None) -> str:
+    """report.md's section of the bundle stage; ``work``: the stage's :class:`~.progress.Work`."""
+    res, o, block = rep.result, rep.config, rep.block
+    L = []
+    L.append(f"Bundle adjustment of {int(res.photo_used.sum())} photos, {int(res.point_used.sum())} points, "
+             f"{int(res.obs_active.sum())} image points ({res.n_observation_rows} coordinates); "
+             f"{res.n_unknowns} unknowns, {res.n_weighted_constraints} weighted constraints, "
+             f"{len(res.distances)} distance(s); datum: {o.datum}"
+             + (f" (inner constraints on {'projection centres' if o.datum_on == 'centres' else 'points'}, "
+                f"{res.n_datum_constraints} constraints)" if o.datum == "free" else "") + ".")
+    L.append("")
+    L.append(f"- iterations: {res.iterations}; vᵀPv = {res.vtpv:.6g}; dof = {res.dof}; "
+             f"σ̂0 = {_f(res.sigma0_hat)} (≈ {_sigma0_equivalent(res, protocol)})")
+    gt = rep.global_test
+    if gt is not None:
+        L.append(f"- global test: T = σ̂0²/σ0² = {_f(gt.T)} vs F-critical {_f(gt.critical)} "
+                 f"(α′ = {gt.alpha:.3g}): {'REJECTED' if gt.rejected else 'accepted'}")
+    ds = rep.snooping
+    if ds is not None:
+        L.append(f"- data snooping: |w| > {ds.critical:.3f}: {int(ds.flagged.sum())} coordinate(s) flagged"
+                 + (f" (expected under H0 at α0 = {ds.alpha0:g}: about {ds.alpha0 * int(res.snapshot.active.sum()):.0f})"
+                    if getattr(ds, "alpha0", None) else ""))
+        L.append(_tail_line(ds, res.snapshot))
+        L.extend(_flagged_lines(res, ds))
+    jt = rep.joint
+    if jt is not None and jt.groups.size:
+        L.append(f"- 2-D test per image point, T = (Pv)ᵀ(PQvvP)⁻¹(Pv)/σ0² ~ χ²(2): T > {jt.critical:.3f} "
+                 f"(α = {jt.alpha:g}) at {int(jt.flagged.sum())} of {jt.groups.size} image points (expected under "
+                 f"H0: about {jt.alpha * jt.groups.size:.0f}); per point in bundle_observations.csv "
+                 "(T2d, T2d_critical, T2d_flagged)")
+    L.extend(_ids_lines(rep))
+    L.extend(_robust_lines(rep.robust))
+    if res.check.get("n"):
+        c = res.check
+        L.append(f"- check points ({c['n']}, adjusted − surveyed): Sx = {_f(c['Sx'])}, Sy = {_f(c['Sy'])}, "
+                 f"Sxy = {_f(c['Sxy'])}, Sz = {_f(c['Sz'])} ({block.object_unit})")
+    t = res.timings
+    w = work
+    if w is not None and w.adjustments > 1:
+        L.append(f"- stage time: {w.seconds:.3f} s for {w.adjustments} adjustments ({w.iterations} iterations "
+                 "in all: every re-adjustment of the stage, and the statistics); the last adjustment:")
+    elif w is not None:
+        L.append(f"- stage time: {w.seconds:.3f} s (the adjustment and its statistics); the adjustment:")
+    L.append(f"- time: {t.get('total', 0):.3f} s (initial values {t.get('initial_values', 0):.3f}, linearise "
+             f"{t.get('linearize', 0):.3f}, solve {t.get('solve', 0):.3f}, covariance {t.get('covariance', 0):.3f}; "
+             f"{res.solver_route} reduced system)")
+    for w in res.warnings:
+        L.append(f"- warning: {w}")
+    if protocol:
+        L += protocol_lines(protocol)
+    L.append("")
+    L.append("### Camera parameters")
+    L.append("")
+    u = image_units(block)
+    if u[0] == "px":
+        L += [f"In pixels ({u[2]} source): c and the principal point's offset from the image centre (xp, yp, "
+              "y up) in px, the additional parameters scaled to pixel coordinates (a parameter of unit mm⁻ᵏ "
+              "times pitchᵏ: K1 px⁻², P1 px⁻¹, B1 dimensionless; docs/report.md); OpenCV's form is in the "
+              "protocol summary above.", ""]
+    L.append("| camera | parameter | value | σ | unit | status |")
+    L.append("|---|---|---|---|---|---|")
+    zero_fixed = {}                          # camera -> parameters held fixed at 0 (one line, not rows)
+    for j in range(len(block.cameras)):
+        if not res.camera_used[j]:
+            continue
+        for r in camera_rows(res, j, u):
+            if r["status"] == "fixed" and r["value"] == 0.0:
+                zero_fixed.setdefault(r["camera"], []).append(r["parameter"])
+                continue
+            L.append(f"| {r['camera']} | {r['parameter']} | {r['value']:.8g} | {_f(r['sigma'], 3)} | {r['unit']} | "
+                     f"{r['status']} |")
+    L += _zero_fixed_lines(zero_fixed)
+    shown = 0
+    for j in range(len(block.cameras)):
+        free = [t for t in range(len(res.cam_param_names[j])) if res.camera_free[j, t]]
+        if len(free) < 2:
+            continue
+        shown += 1
+        if shown > MAX_CORRELATION_TABLES:
+            L += ["", f"Correlations of the other cameras: bundle_correlations.csv."]
+            break
+        R = res.correlation_camera(j)[np.ix_(free, free)]
+        nm = [res.cam_param_names[j][t] for t in free]
+        L += ["", f"Correlations of camera {str(block.cameras.ids[j])!r}:", "",
+              "| | " + " | ".join(nm) + " |", "|---" * (len(nm) + 1) + "|"]
+        for a in range(len(nm)):
+            L.append(f"| {nm[a]} | " + " | ".join(f"{R[a, b]:+.2f}" for b in range(len(nm))) + " |")
+    sel = rep.selection
+    if sel is not None:
+        L += ["", "### Additional-parameter selection", "", sel.markdown()]
+    if rep.vc is not None:
+        L += ["", "### Variance components", ""] + _vc_lines(rep.vc, o.variance_components)
+    L += bundle_external.report_entries(rep, block)
+    text = "\n".join(L)
+    if rep.gnss is not None:          # the GNSS antennas' section
+        text += "\n\n" + "\n".join(gnss_parts(rep)["lines"])
+    return text
+
+
+def _ids_lines(rep) -> list[str]:
+    """Iterated data snooping: what it rejected, the adjustment before the rejections, the rejected rows."""
+    ids, res, before = rep.ids, rep.result, rep.before_ids
+    if ids is None:
+        return []
+    L = [f"- iterated data snooping (|w| > {ids.critical:.3f}, one coordinate at a time): "
+         f"{len(ids.removed)} coordinate(s) rejected; stop: {ids.stop_reason}"]
+    if before is not None:
+        r0, ds0 = before.result, before.snooping
+        n0 = int(r0.snapshot.active.sum())
+        L += [f"  - before the rejections ({r0.iterations} iterations from the initial values): σ̂0 = "
+              f"{_f(r0.sigma0_hat)}, {int(ds0.flagged.sum())} coordinate(s) with |w| > {ds0.critical:.3f} "
+              f"(expected under H0: about {ds0.alpha0 * n0:.0f})",
+              "  " + _tail_line(ds0, r0.snapshot), "  " + _radius_line(res, ids)]
+    return L + _rejected_lines(res, ids)
+
+
+def _robust_lines(rob, most: int = 30) -> list[str]:
+    """The robust estimate in the report: estimator, convergence, the down-weighted coordinates."""
+    if rob is None:
+        return []
+    r = rob.irls
+    d = r.downweighted
+    L = [f"- robust estimation: {r.method} (c = {r.c:g}, residuals / {_ROBUST_SCALE[r.standardise]}), "
+         f"{r.iterations} weighted adjustment(s), {'converged' if r.converged else 'NOT converged'}; "
+         f"{d.size} coordinate(s) down-weighted (ω < {r.threshold:g}); the values above are the final weighted "
+         "adjustment's (a-priori σ / √ω)"]
+    if d.size:
+        L += ["", f"  Down-weighted (smallest ω first; all in bundle_observations.csv, robust_wx / robust_wy):", "",
+              "  | observation | ω | u |", "  |---|---|---|"]
+        L += [f"  | {r.labels[i]} | {r.weights[i]:.3g} | {r.u[i]:+.2f} |" for i in d[:most]]
+        if d.size > most:
+            L.append(f"  | … | {d.size - most} more | |")
+        L.append("")
+    return L
+
+
+_ROBUST_SCALE = {"redundancy": "σ √r of the unweighted adjustment", "apriori": "a-priori σ",
+                 "current": "σ √r of the current weighted adjustment"}
+
+
+def _robust_columns(rob, k: int) -> dict:
+    """Per observation: the final robust weight of x and y (only with robust estimation)."""
+    if rob is None:
+        return {}
+    w = np.asarray(rob.irls.weights).reshape(k, 2)
+    return {"robust_wx": w[:, 0], "robust_wy": w[:, 1]}
+
+
+def _vc_lines(vc, o) -> list[str]:
+    """``o``: the config's variance_components group."""
+    """Each group's factor on its a-priori σ, σ(f), r_g and the test of f = 1."""
+    first = vc.first
+    L = [f"Förstner's estimate, iterated ({vc.iterations} re-adjustment(s), "
+         f"{'converged' if vc.converged else 'NOT converged'}); image groups per {o.groups}. "
+         f"f = estimated σ / a-priori σ; test of H0: f = 1 by T = f² ~ χ²(r)/r, two-sided at α = {vc.alpha:g}. "
+         + ("The adjustment above and its tests use the a-priori σ × f." if o.mode == "apply"
+            else "Estimated only: the adjustment above keeps the a-priori σ "
+                 f"(σ̂0 = {_f(first.sigma0_hat)}) — variance_components.mode = \"apply\" re-weights it."), "",
+         f"First adjustment, on the a-priori σ: {first.iterations} iterations, σ̂0 = {_f(first.sigma0_hat)}, "
+         f"dof {first.dof}.", "",
+         "| group | rows | r | f | σ(f) | T | p | H0: f = 1 |", "|---|---|---|---|---|---|---|---|"]
+    for g in vc.groups:
+        if g.estimable:
+            L.append(f"| {g.name} | {g.n} | {g.redundancy:.1f} | {g.factor:.4g} | {g.sigma_factor:.2g} | "
+                     f"{g.T:.4g} | {g.p_value:.3g} | {'rejected' if g.rejected else 'accepted'} |")
+        else:
+            L.append(f"| {g.name} | {g.n} | {g.redundancy:.3g} | 1 (not estimable: r < 1) | – | – | – | – |")
+    return L
+
+
+MAX_CORRELATION_TABLES = 4
+"""Cameras whose correlation matrix report.md prints (all are in bundle_correlations.csv)."""
+
+
+def _zero_fixed_lines(zero_fixed: dict) -> list[str]:
+    """'held fixed at 0' per group of cameras with the same parameters (every row is in
+    bundle_cameras.csv); a COLMAP block of 23 cameras gets one line instead of 138 rows."""
+    groups: dict[tuple, list[str]] = {}
+    for cam, names in zero_fixed.items():
+        groups.setdefault(tuple(names), []).append(cam)
+    out = []
+    for names, cams in groups.items():
+        who = f"camera {cams[0]}" if len(cams) == 1 else (
+            f"cameras {', '.join(cams)}" if len(cams) <= 6 else f"{len(cams)} cameras ({cams[0]} … {cams[-1]})")
+        out.append(f"- {who}: {', '.join(names)} held fixed at 0")
+    return ([""] + out) if out else []
+
+
+def _sigma0_equivalent(res: BundleResult, protocol) -> str:
+    """σ̂0 × the median a-priori image σ in the unit of the source (µm, or px for a pixel source)."""
+    um = _sigma0_um(res)
+    if protocol and protocol.get("unit") == "px":
+        return f"{_f(um / 1000.0 / float(res.block_in.cameras.pixel_mm[0]), 3)} px"
+    return f"{_f(um, 3)} µm"
+
+
+def _flagged_lines(res: BundleResult, ds, most: int = 15) -> list[str]:
+    """The largest flagged standardized residuals, with photo, point and coordinate."""
+    idx = np.flatnonzero(ds.flagged)
+    if not len(idx):
+        return []
+    u, k, _ = image_units(res.block_in)
+    idx = idx[np.argsort(-np.abs(ds.w[idx]))]
+    rows = ["", f"  Largest flagged (of {len(idx)}; all in bundle_observations.csv, column `decision`):", "",
+            f"  | observation | v ({u}) | r | w | ∇̂ ({u}) | MDB ({u}) |", "  |---|---|---|---|---|---|"]
+    snap = res.snapshot
+    for i in idx[:most]:
+        rows.append(f"  | {snap.labels[i]} | {k * snap.v[i]:+.3f} | {snap.r[i]:.3f} | {ds.w[i]:+.2f} | "
+                    f"{k * ds.nabla_hat[i]:+.3f} | {k * ds.mdb[i]:.3f} |")
+    return rows + [""]
+
+
+def _tail_line(ds, snap) -> str:
+    """How the standardized residuals' tails compare with the normal distribution they follow under
+    H0 — more large |w| than α0·n means gross errors or a-priori σ that do not fit the data."""
+    w = np.abs(ds.w[np.asarray(snap.active, bool) & (np.asarray(snap.r) > 1e-9)])
+    if not w.size:
+        return "- w: no controlled coordinates"
+    parts = [f"|w| > {k:g}: {100 * np.mean(w > k):.2f} % (normal {200 * sps.norm.sf(k):.2f} %)" for k in (2.0, 3.0, 4.0)]
+    return "- distribution of w over " + f"{w.size} coordinates: " + "; ".join(parts)
+
+
+def _radius_line(res: BundleResult, ids) -> str:
+    """Where in the format the rejected coordinates lie: median distance from the principal point."""
+    obs = res.block_in.observations
+    cp = res.state.cam_params[res.block_in.photos.camera[obs.photo]]
+    rad = np.hypot(obs.xy[:, 0] - cp[:, 1], obs.xy[:, 1] - cp[:, 2])
+    act = np.asarray(res.snapshot.active, bool).reshape(-1, 2).any(axis=1) | (np.bincount(
+        np.asarray(ids.removed, int) // 2, minlength=len(obs)) > 0)
+    rej = np.unique(np.asarray(ids.removed, int) // 2)
+    u, k, _ = image_units(res.block_in)
+    u, k = ("px", k) if u == "px" else ("mm", 1.0)
+    return (f"- distance from the principal point: median {k * np.median(rad[rej]):.2f} {u} for the rejected "
+            f"image points, {k * np.median(rad[act]):.2f} {u} for all")
+
+
+def _rejected_lines(res: BundleResult, ids, most: int = 30) -> list[str]:
+    """The rejected coordinates in the order of rejection, with w when rejected and the predicted
+    residual in the final adjustment (v_pred/σ, the w-test the row would have if it were back)."""
+    if not ids.removed:
+        return []
+    snap = ids.snapshot
+    u, scale, _ = image_units(res.block_in)
+    steps = [h for h in ids.history if h.removed]
+    rows = ["", f"  Rejected (in order; all in bundle_observations.csv, decision = rejected):", "",
+            f"  | # | observation | w when rejected | v_pred now ({u}) | v_pred/σ now |", "  |---|---|---|---|---|"]
+    for k, (i, h) in enumerate(zip(ids.removed[:most], steps)):
+        vp = snap.v_pred[i] if snap.v_pred is not None else np.nan
+        sp = snap.sigma_v_pred[i] if snap.sigma_v_pred is not None else np.nan
+        rows.append(f"  | {k + 1} | {snap.labels[i]} | {h.w_max:+.2f} | {scale * vp:+.3f} | {vp / sp:+.2f} |")
+    if len(ids.removed) > most:
+        rows.append(f"  | … | {len(ids.removed) - most} more | | | |")
+    return rows + [""]
+
+
+def _joint_columns(jt, k: int) -> dict:
+    """Per observation: the 2-D statistic, its critical value and the decision (nan / False for
+    image points without two active coordinates)."""
+    T = np.full(k, np.nan)
+    flag = np.zeros(k, bool)
+    crit = np.full(k, np.nan)
+    if jt is not None and jt.groups.size:
+        g = np.asarray(jt.groups, int)
+        T[g] = jt.T
+        flag[g] = jt.flagged
+        crit[g] = jt.critical
+    return {"T2d": T, "T2d_critical": crit, "T2d_flagged": flag.tolist()}
+
+
+def _pixel_columns(units, v, nab, mdbs) -> dict:
+    """For a pixel source: residuals, estimated errors and MDBs of each image point in px (the mm
+    columns stay: they are the adjustment's own numbers)."""
+    if units[0] != "px":
+        return {}
+    k = units[1]
+    return {"vx_px": k * v[:, 0], "vy_px": k * v[:, 1], "nabla_x_px": k * nab[:, 0], "nabla_y_px": k * nab[:, 1],
+            "mdb_x_px": k * mdbs[:, 0], "mdb_y_px": k * mdbs[:, 1]}
+
+
+def tables(rep) -> dict:
+    """The bundle stage's CSV tables (bundle_<name>.csv)."""
+    res, decision, block = rep.result, rep.decision, rep.block
+    units = image_units(block)
+    obs = block.observations
+    ph_ids = block.photos.ids[obs.photo]
+    pt_ids = block.points.ids[obs.point]
+    v = res.residuals
+    r = res.redundancy
+    snap = res.snapshot
+    if snap is not None:
+        w = stats.w_test(snap).reshape(-1, 2)
+        mdbs = stats.mdb(snap).reshape(-1, 2)
+        nab = stats.estimated_errors(snap).reshape(-1, 2)
+    else:
+        w = mdbs = nab = np.full((len(obs), 2), np.nan)
+    tables = {}
+    tables["observations"] = TableData({
+        "photo": ph_ids.tolist(), "point": pt_ids.tolist(), "x": obs.xy[:, 0], "y": obs.xy[:, 1],
+        "vx": v[:, 0], "vy": v[:, 1], "rx": r[:, 0], "ry": r[:, 1], "wx": w[:, 0], "wy": w[:, 1],
+        "nabla_x": nab[:, 0], "nabla_y": nab[:, 1], "mdb_x": mdbs[:, 0], "mdb_y": mdbs[:, 1],
+        **_pixel_columns(units, v, nab, mdbs),
+        **_joint_columns(rep.joint, len(obs)),
+        **bundle_external.observation_columns(bundle_external.external_view(rep), len(obs)),
+        **_robust_columns(rep.robust, len(obs)),
+        "decision": decision.tolist()},
+        "every image observation: residual (mm), redundancy, w-test, MDB (mm)"
+        + (f"; the same in pixels ({units[2]} source): *_px" if units[0] == "px" else "")
+        + ", 2-D test of the point (χ²(2)), "
+        "largest effect of each MDB on its own point / photo (ext_*: object units, degrees, in σ), δ̄0")
+    pts = block.points
+    sp = res.point_sigmas()
+    rays = np.bincount(obs.point[res.obs_active], minlength=len(pts))
+    XYZ = res.state.XYZ
+    dXYZ = np.where((pts.role == "check")[:, None], XYZ - pts.XYZ, np.nan)
+    tables["points"] = TableData({
+        "point": pts.ids.tolist(), "role": pts.role.tolist(), "X": XYZ[:, 0], "Y": XYZ[:, 1], "Z": XYZ[:, 2],
+        "sX": sp[:, 0], "sY": sp[:, 1], "sZ": sp[:, 2], "rays": rays,
+        "dX_check": dXYZ[:, 0], "dY_check": dXYZ[:, 1], "dZ_check": dXYZ[:, 2],
+        **bundle_external.point_columns(res, rep.config.output.confidence), **_crs_columns(res, block)},
+        f"adjusted object points ({block.object_unit}) with a-posteriori σ; check points: adjusted − surveyed; "
+        "error ellipsoid (semi-axes, direction of the largest), plan ellipse (bearing from +X), height interval; "
+        "*_crs: the same points and σ in the CRS the coordinates were given in (docs/crs.md), where there is one")
+    chk = pts.role == "check"
+    if chk.any():
+        tables["check_points"] = TableData({
+            "point": pts.ids[chk].tolist(), "dX": dXYZ[chk, 0], "dY": dXYZ[chk, 1], "dZ": dXYZ[chk, 2]},
+            f"check points: adjusted − surveyed ({block.object_unit})")
+    rows = [r for j in range(len(block.cameras)) for r in camera_rows(res, j, units)]
+    tables["cameras"] = TableData({k: [r[k] for r in rows] for k in
+                                   ("camera", "parameter", "value", "sigma", "status", "apriori_sigma", "unit")},
+                                  "camera parameters with σ in the unit of column 'unit': " + (
+                                      f"pixels ({units[2]} source: c, xp, yp in px, the APs scaled to pixel "
+                                      "coordinates, docs/report.md)" if units[0] == "px" else "mm (APs mm⁻ᵏ)"))
+    se = res.eo_sigmas()
+    X0, opk = res.state.X0, res.state.opk
+    cols = {"photo": block.photos.ids.tolist()}
+    for t, n in enumerate(EO_NAMES):
+        val = X0[:, t] if t < 3 else np.degrees(opk[:, t - 3])
+        sd = se[:, t] if t < 3 else np.degrees(se[:, t])
+        cols[n + ("" if t < 3 else "_deg")] = val
+        cols["s" + n + ("" if t < 3 else "_deg")] = sd
+    tables["eo"] = TableData(cols, "exterior orientation with a-posteriori σ (angles in degrees)")
+    corr_rows = []
+    for j in range(len(block.cameras)):
+        R = res.correlation_camera(j)
+        nm = res.cam_param_names[j]
+        for a in range(len(nm)):
+            for b in range(a + 1, len(nm)):
+                if R[a, a] > 0 and R[b, b] > 0:
+                    corr_rows.append((str(block.cameras.ids[j]), nm[a], nm[b], float(R[a, b])))
+    tables["correlations"] = TableData({"camera": [c[0] for c in corr_rows], "p1": [c[1] for c in corr_rows],
+                                        "p2": [c[2] for c in corr_rows], "rho": [c[3] for c in corr_rows]},
+                                       "correlations between the estimated camera parameters")
+    tables["convergence"] = TableData({k: [h[k] for h in res.history] for k in
+                                       ("iteration", "vtpv", "lambda", "max_step_sigma")},
+                                      "vᵀPv, damping and largest correction (in σ of an observation) per iteration")
+    tables.update(bundle_external.tables(rep))
+    if rep.gnss is not None:
+        tables["gnss"] = gnss_parts(rep)["table"]
+    return tables
+
+
+def gnss_parts(rep) -> dict:
+    """The GNSS antennas as observations of the bundle (``block.gnss``, the report's ``gnss``): per photo
+    the residuals ``v = X_antenna − (X0 + Rᵀ e)`` (object units; E N U in a CRS's local frame, else X Y Z),
+    a-priori σ, redundancy numbers, w-tests and MDBs; the report section, table and summary."""
+    res = rep.result
+    gs, ds = rep.gnss.rows, rep.gnss.snooping
+    blk = res.block_in
+    G = len(gs.index)
+    w, mdb = ds.w.reshape(G, 3), ds.mdb.reshape(G, 3)
+    flagged = rep.gnss.flagged
+    ax = ("E", "N", "U") if blk.crs is not None else ("X", "Y", "Z")
+    ids = blk.photos.ids[blk.gnss.photo[gs.index]].astype(str).tolist()
+    u = blk.object_unit
+    cols = {"photo": ids}
+    for name, arr in (("v", gs.v), ("s", gs.sigma), ("r", gs.r), ("w", w), ("mdb", mdb)):
+        cols.update({f"{name}{a}": arr[:, t] for t, a in enumerate(ax)})
+    cols["flagged"] = flagged
+    rms = np.sqrt(np.mean(gs.v ** 2, axis=0))
+    om = float(np.sum(gs.snapshot.Pv * gs.snapshot.v))
+    rsum = float(gs.r.sum())
+    lines = ["### GNSS antennas", "",
+             f"{G} antenna positions observed: `X_antenna + v = X0 + R_cam_from_worldᵀ · e` (lever arm e in the "
+             f"camera frame). Residuals ({u}): RMS {ax[0]} {rms[0]:.4g}, {ax[1]} {rms[1]:.4g}, {ax[2]} {rms[2]:.4g}; "
+             f"their share of vᵀPv {om:.4g} on redundancy {rsum:.4g} (Ω/r = {om / rsum if rsum > 0 else float('nan'):.3g}"
+             f"); w-test critical value {ds.critical:.3g}: {int(flagged.sum())} antenna(s) flagged.", ""]
+    order = np.argsort(-np.abs(w).max(axis=1))
+    show = order[:min(G, 15)]
+    head = ["photo"] + [f"v{a}" for a in ax] + [f"r{a}" for a in ax] + [f"w{a}" for a in ax] + ["flagged"]
+    lines.append(("Largest |w| first" + (f" ({len(show)} of {G})" if len(show) < G else "") + ":"))
+    lines += ["", markdown_table(head, [[ids[g]] + [f"{x:.4f}" for x in gs.v[g]] + [f"{x:.3f}" for x in gs.r[g]]
+                                        + [f"{x:.2f}" for x in w[g]] + ["yes" if flagged[g] else ""] for g in show])]
+    summary = {"antennas": G, "rms": rms.tolist(), "axes": list(ax), "unit": u, "omega": om, "redundancy": rsum,
+               "critical": float(ds.critical), "flagged": int(flagged.sum()),
+               "flagged_photos": [ids[g] for g in np.flatnonzero(flagged)]}
+    table = TableData(cols, f"GNSS antenna residuals v = observed − computed ({u}), a-priori σ, redundancy numbers, "
+                            "w-tests and MDBs per photo")
+    return {"summary": summary, "lines": lines, "table": table, "photos": ids, "v": gs.v,
+            "observed": blk.gnss.XYZ[gs.index]}
+
