@@ -79,8 +79,10 @@ def options_problems(options_cls: type) -> list[str]:
         return []
     problems = []
     fields = {f.metadata.get("key", f.name) for f in dataclasses.fields(options_cls)}
+    groups = {f.metadata.get("key", f.name) for f in dataclasses.fields(options_cls)
+              if dataclasses.is_dataclass(typing.get_type_hints(options_cls).get(f.name))}
     for old, new in dict(getattr(options_cls, "MOVED", {}) or {}).items():
-        if old in fields:
+        if old in fields and old not in groups:     # an old flat name may be a nested table's name now
             problems.append(f"{options_cls.__qualname__}.MOVED: '{old}' is still an option")
         cls, parts = options_cls, new.split(".")
         for part in parts:
@@ -343,6 +345,8 @@ def _parse(options_cls: type, raw: dict | None, where, sub: str) -> Any:
         raise InputError(f"option '{name}' is now '{name[:-len(key)]}{renamed[key]}'", field=name, **loc)
     moved = dict(getattr(options_cls, "MOVED", {}) or {})
     for key in sorted(set(raw) & set(moved)):
+        if key in fields and isinstance(raw[key], dict):   # the nested table that took the old name
+            continue
         name, loc = at(key, naming=True)
         new = name[:-len(key)] + moved[key]
         w = where(sub + key)
