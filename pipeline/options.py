@@ -79,8 +79,9 @@ def options_problems(options_cls: type) -> list[str]:
         return []
     problems = []
     fields = {f.metadata.get("key", f.name) for f in dataclasses.fields(options_cls)}
+    groups = _groups(options_cls)
     for old, new in dict(getattr(options_cls, "MOVED", {}) or {}).items():
-        if old in fields:
+        if old in fields and old not in groups:
             problems.append(f"{options_cls.__qualname__}.MOVED: '{old}' is still an option")
         cls, parts = options_cls, new.split(".")
         for part in parts:
@@ -95,6 +96,29 @@ def options_problems(options_cls: type) -> list[str]:
                 typing.Union, types.UnionType) else [tp]
             cls = real[0] if len(real) == 1 else None
     return problems
+
+
+def _group_type(tp) -> type | None:
+    """The dataclass of a nested table's type (``Solver`` or ``Solver | None``), else None."""
+    if get_origin(tp) in (typing.Union, types.UnionType):
+        real = [a for a in get_args(tp) if a is not type(None)]
+        tp = real[0] if len(real) == 1 else None
+    return tp if isinstance(tp, type) and dataclasses.is_dataclass(tp) else None
+
+
+def _groups(options_cls: type) -> dict[str, type]:
+    """``{project key: dataclass}`` of the options of ``options_cls`` that are nested tables (groups).
+
+    A ``MOVED`` old name may be the name of a group (an old ``solver = "sparse"`` became
+    ``solver.solver`` when the group ``solver`` appeared): such a key is the group when its value is a
+    table, and the old flat option — rejected with its new spelling — when it is not."""
+    hints = typing.get_type_hints(options_cls)
+    out = {}
+    for f in dataclasses.fields(options_cls):
+        sub = _group_type(hints[f.name])
+        if sub is not None:
+            out[f.metadata.get("key", f.name)] = sub
+    return out
 
 
 def describe(options_cls: type) -> list[dict]:
@@ -342,7 +366,9 @@ def _parse(options_cls: type, raw: dict | None, where, sub: str) -> Any:
         name, loc = at(key, naming=True)
         raise InputError(f"option '{name}' is now '{name[:-len(key)]}{renamed[key]}'", field=name, **loc)
     moved = dict(getattr(options_cls, "MOVED", {}) or {})
-    for key in sorted(set(raw) & set(moved)):
+    groups = _groups(options_cls)
+    flat = {k for k in set(raw) & set(moved) if k not in groups or not isinstance(raw[k], dict)}
+    for key in sorted(flat):
         name, loc = at(key, naming=True)
         new = name[:-len(key)] + moved[key]
         w = where(sub + key)

@@ -13,7 +13,7 @@ import pytest
 from baarda.pipeline import project as project_module
 from baarda.pipeline.cli import main
 from baarda.pipeline.errors import InputError
-from baarda.pipeline.options import (check_bounds, describe, field_range, option, options_problems,
+from baarda.pipeline.options import (Where, check_bounds, describe, field_range, option, options_problems,
                                      parse_options, range_text)
 from baarda.pipeline.project import Overrides, load_project, with_overrides
 from baarda.pipeline.stage import Stage, StageResult
@@ -81,6 +81,58 @@ def test_moved_with_parse_options_alone():
     with pytest.raises(InputError, match="tol_rel is now written as solver.tol_rel"):
         parse_options(Grouped, {"tol_rel": 1e-3})
     assert parse_options(Grouped, {"solver": {"max_iter": 4}}).solver == Solver(4, 1e-10)
+
+
+@dataclass(frozen=True)
+class Robust:
+    method: str = option("none", "none or huber")
+    c: float = option(1.5, "tuning constant")
+
+
+@dataclass(frozen=True)
+class SameName:
+    """An old flat option ``robust`` became the group ``robust`` (its value robust.method)."""
+
+    MOVED: ClassVar[dict[str, str]] = {"robust": "robust.method", "robust_c": "robust.c"}
+    robust: Robust = option(Robust(), "robust estimation")
+
+
+def test_an_old_flat_name_that_is_now_a_group():
+    assert options_problems(SameName) == []          # a MOVED name may be a group's
+    assert parse_options(SameName, {"robust": {"method": "huber"}}).robust == Robust("huber", 1.5)
+    for value in ("huber", True, 1.5, ["huber"]):  # not a table: the old option, with its new spelling
+        with pytest.raises(InputError) as e:
+            parse_options(SameName, {"robust": value}, path="p.toml", line=9)
+        assert str(e.value) == ("p.toml:9, field 'robust': robust is now written as robust.method "
+                                "(in a [stage.options.robust] table)")
+    with pytest.raises(InputError, match=r"^--set, field 'adj.robust': adj.robust is now written as "
+                                         r"adj.robust.method$"):
+        parse_options(SameName, {"robust": "huber"}, locate=lambda key: Where("--set", None, "adj."))
+
+
+@pytest.mark.parametrize("flat, value, new", [
+    ("solver", '"sparse"', "solver.solver"),
+    ("robust", '"huber"', "robust.method"),
+    ("variance_components", '"estimate"', "variance_components.mode"),
+    ("ap_selection", "true", "ap_selection.enabled"),
+])
+def test_the_bundles_old_names_of_its_groups(tmp_path, flat, value, new, capsys):
+    """An old bundle project's ``solver = "sparse"`` is not a type error on the group ``solver``:
+    the file's line and the new dotted name; the same through ``--set bundle.solver=…``."""
+    p = tmp_path / "old.toml"
+    p.write_text('[project]\nname = "old"\n\n[[stage]]\nuse = "testfield"\nid = "source"\n\n'
+                 f'[[stage]]\nuse = "bundle"\n[stage.options]\n{flat} = {value}\n', encoding="utf-8")
+    with pytest.raises(InputError) as e:
+        load_project(p)
+    table = new.rpartition(".")[0]
+    assert str(e.value) == (f"{p}:11, field '{flat}': {flat} is now written as {new} "
+                            f"(in a [stage.options.{table}] table)")
+    p.write_text('[project]\nname = "new"\n\n[[stage]]\nuse = "testfield"\nid = "source"\n\n'
+                 f'[[stage]]\nuse = "bundle"\n[stage.options]\n{new} = {value}\n', encoding="utf-8")
+    assert load_project(p).stages[1].options is not None              # the new spelling is fine
+    assert main(["validate", str(p), "--set", f"bundle.{flat}={value}"]) == 2
+    err = capsys.readouterr().err
+    assert f"--set, field 'bundle.{flat}': bundle.{flat} is now written as bundle.{new}" in err
 
 
 def test_nested_table_values_and_dotted_set(tmp_path, pm):
