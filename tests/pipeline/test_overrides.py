@@ -13,8 +13,8 @@ import pytest
 from baarda.pipeline import project as project_module
 from baarda.pipeline.cli import main
 from baarda.pipeline.errors import InputError
-from baarda.pipeline.options import (Where, check_bounds, describe, field_range, option, options_problems,
-                                     parse_options, range_text)
+from baarda.pipeline.options import (Where, check_bounds, describe, field_range, option, option_value,
+                                     options_problems, parse_options, range_text)
 from baarda.pipeline.project import Overrides, load_project, with_overrides
 from baarda.pipeline.stage import Stage, StageResult
 from baarda.pipeline.testing import make_plugin_manager
@@ -169,7 +169,33 @@ def test_a_group_default_may_be_a_mutable_dataclass():
     a, b = Holder(), Holder()
     assert a.group == Mutable(1) and a.group is not b.group
     assert parse_options(Holder, {"group": {"n": 3}}).group == Mutable(3)
-    assert describe(Holder)[0]["default"] == Mutable(1)
+    assert [(d["name"], d["field"], d["default"], d["group"]) for d in describe(Holder)] == [("group.n", "group.n", 1, "group")]
+
+
+@dataclass(frozen=True)
+class Keyed:
+    from_: int = option(0, "a key that is a Python keyword", key="from")
+
+
+@dataclass(frozen=True)
+class Deep:
+    solver: Solver = option(Solver(max_iter=50), "the solver's options, with a default of their own")
+    keyed: Keyed | None = option(None, "an optional group")
+    sigma_px: float = option(1.0, "image sigma")
+
+
+def test_describe_lists_the_options_of_groups_by_their_dotted_names():
+    got = {d["name"]: d for d in describe(Deep)}
+    assert list(got) == ["solver.max_iter", "solver.tol_rel", "keyed.from", "sigma_px"]
+    assert got["solver.max_iter"]["default"] == 50                   # the group's default instance
+    assert got["solver.max_iter"]["bounds"] == "≥ 1" and got["solver.tol_rel"]["bounds"] == "> 0"
+    assert (got["solver.max_iter"]["group"], got["solver.max_iter"]["group_doc"]) == (
+        "solver", "the solver's options, with a default of their own")
+    assert (got["keyed.from"]["field"], got["keyed.from"]["default"]) == ("keyed.from_", 0)
+    assert (got["sigma_px"]["group"], got["sigma_px"]["type"]) == ("", "float")
+    opts = parse_options(Deep, {"solver": {"tol_rel": 1e-3}, "keyed": {"from": 4}})
+    assert [option_value(opts, d["field"]) for d in describe(Deep)] == [50, 1e-3, 4, 1.0]
+    assert option_value(Deep(), "keyed.from_") is None
 
 
 def test_moved_declarations_are_checked():
@@ -225,7 +251,8 @@ def test_cli_validate_and_run_use_the_users_file(tmp_path, pm, monkeypatch, caps
     p = _write(tmp_path)
     assert main(["validate", str(p), "--set", "adj.solver.max_iter=7", "-v"]) == 0
     out = capsys.readouterr().out
-    assert "solver = {'max_iter': 7, 'tol_rel': 1e-08}" in out and "sigma_px = 2.0  (> 0)" in out
+    assert "    solver.max_iter = 7  (≥ 1)\n    solver.tol_rel = 1e-08  (> 0)\n" in out
+    assert "sigma_px = 2.0  (> 0)" in out and "{" not in out
     assert main(["validate", str(p), "--set", "adj.max_iter=7"]) == 2
     assert "adj.max_iter is now written as adj.solver.max_iter" in capsys.readouterr().err
 
