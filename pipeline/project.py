@@ -308,10 +308,12 @@ def _build(path: Path, text: str, data: dict, plugins: PluginManager,
     for k, raw, sid, info in chosen:
         use, line = info.name, loc.stage(k)
         mine = by_id.get(sid, {})
+        written = raw
         for opt, key in mine.items():
             try:
                 raw = apply_override(raw, opt, overrides.values[key])
-            except ValueError as e:
+            except ValueError as e:         # the file's value is no table: its own mistake first
+                parse_options(info.cls.Options, written, path=path, line=line, locate=lambda o, k=k: loc.key(k, o))
                 raise InputError(str(e), **overrides.where(key)) from None
 
         def locate(key, k=k, sid=sid, mine=mine):

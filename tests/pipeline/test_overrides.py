@@ -133,6 +133,19 @@ def test_the_bundles_old_names_of_its_groups(tmp_path, flat, value, new, capsys)
     assert main(["validate", str(p), "--set", f"bundle.{flat}={value}"]) == 2
     err = capsys.readouterr().err
     assert f"--set, field 'bundle.{flat}': bundle.{flat} is now written as bundle.{new}" in err
+    # --set into the group of a file that still writes the old flat option: the file's mistake
+    p.write_text('[project]\nname = "old"\n\n[[stage]]\nuse = "testfield"\nid = "source"\n\n'
+                 f'[[stage]]\nuse = "bundle"\n[stage.options]\n{flat} = {value}\n', encoding="utf-8")
+    with pytest.raises(InputError) as e:
+        load_project(p, overrides={f"bundle.{new}": value.strip('"') if value != "true" else True})
+    assert str(e.value).startswith(f"{p}:11, field '{flat}': {flat} is now written as {new}")
+
+
+def test_set_into_an_option_that_is_no_table(tmp_path, pm):
+    with pytest.raises(InputError) as e:
+        load_project(_write(tmp_path), pm, overrides={"adj.sigma_px.x": 1.0})
+    assert str(e.value) == ("--set, field 'adj.sigma_px.x': 'sigma_px' is not a table here, so "
+                            "'sigma_px.x' cannot be set")
 
 
 def test_nested_table_values_and_dotted_set(tmp_path, pm):
