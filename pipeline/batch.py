@@ -15,7 +15,9 @@ A batch directory holds
   HTML report), and what ran them.
 
 A failed run is a row with its status; it never stops the other runs.  A sweep table is a CSV
-whose header names ``<stage id>.<option>`` columns (and optionally ``name``), one run per row,
+whose header names ``<stage id>.<option>`` columns (``<stage id>.<table>.<option>`` for an option
+of a nested table, ``bundle.solver.max_iter``; the stage id is what the column starts with, the
+rest the option's dotted path, applied as ``--set`` applies it) and optionally ``name``, one run per row,
 cells read as TOML values (``0.01``, ``true``, ``"text"``, ``[1, 2]``; a bare word is a string),
 or a TOML file of ``[[run]]`` tables with the same keys.  Every name and value is checked against
 the stage's options before anything runs (an InputError naming the table, its line and the
@@ -41,7 +43,7 @@ from .errors import BaardaError, InputError
 from .html import escape, markdown_html
 from .montecarlo import Engine
 from .plugins import PluginManager
-from .project import Overrides, apply_override, load_project, path_roles, toml_value, with_overrides
+from .project import Overrides, load_project, path_roles, toml_value, with_overrides
 from .report import markdown_table, write_toml
 from .runner import run_project
 
@@ -118,7 +120,7 @@ def plan_batch(projects: list[str | Path], out: str | Path, sweep: str | Path | 
     jobs = []
     for name, row in zip(names, rows):
         path = out / "projects" / f"{name}.toml"
-        _write_variant(base, row["overrides"], name, path)
+        _write_variant(base, row["overrides"], name, path, plugins)
         jobs.append(BatchJob(name=name, project=path, out=out / "runs" / name,
                              source=f"{sweep}:{row['line']}", overrides=dict(row["overrides"])))
     return jobs
@@ -189,23 +191,22 @@ def read_sweep(path: str | Path, project, plugins: PluginManager | None = None) 
     return rows
 
 
-def _write_variant(project, overrides: dict, name: str, path: Path) -> None:
-    """The project file of one sweep row: the base project's TOML with the row's options (set as
-    :func:`~baarda.pipeline.project.load_project` sets overrides), input paths made absolute (the
-    file lives in the batch directory)."""
+def _write_variant(project, overrides: dict, name: str, path: Path, plugins=None) -> None:
+    """The project file of one sweep row: the base project's TOML with the row's options applied
+    by :func:`~baarda.pipeline.project.with_overrides` (as ``--set`` applies them: the column
+    ``bundle.solver.max_iter`` is the stage ``bundle``'s option ``solver.max_iter``), input paths
+    made absolute (the file lives in the batch directory)."""
+    variant = with_overrides(project, overrides, plugins)
     data = {k: v for k, v in project.data.items() if k != "stage"}
-    by_id = {s.id: s for s in project.stages}
+    by_id = {s.id: s for s in variant.stages}
     stages = []
     for st in project.data.get("stage", []):
         sid = st.get("id", st.get("use"))
-        spec = by_id.get(sid)
+        spec = by_id.get(sid) if st.get("enabled", True) else None
         if spec is None:                    # a disabled stage: left as it is
             stages.append(st)
             continue
-        opts = dict(st.get("options", {}))
-        for col, value in overrides.items():
-            if col.startswith(sid + "."):
-                opts = apply_override(opts, col[len(sid) + 1:], value)
+        opts = dict(spec.raw_options)       # the file's option table with the row's values
         for opt, role in path_roles(spec.cls).items():
             if role == "output" or opt not in opts:
                 continue

@@ -33,7 +33,7 @@ from typing import Any
 
 from . import __version__
 from .errors import AdjustmentError, BaardaError, InputError
-from .options import describe, to_plain
+from .options import describe, option_value, to_plain
 
 # The commands import the engine inside their functions, not here: it brings numpy, threadpoolctl
 # and the entry-point machinery (≈ 0.17 s), which `baarda --help` and a mistyped argument do not
@@ -152,7 +152,7 @@ def _cmd_validate(args) -> int:
         for spec in project.stages:
             print(f"{spec.id} ({spec.use}):")
             for o in describe(spec.cls.Options):
-                value = to_plain(getattr(spec.options, o["field"]))
+                value = to_plain(option_value(spec.options, o["field"]))
                 print(f"    {o['name']} = {value!r}" + (f"  ({o['bounds']})" if o["bounds"] else ""))
     print(f"{args.project}: valid — {len(project.stages)} stage(s): "
           + " → ".join(f"{s.id} ({s.use})" for s in project.stages)
@@ -177,7 +177,11 @@ def _cmd_stages(args) -> int:
         if args.verbose:
             cls = info.cls
             print(f"{'':<{width}}  reads: {', '.join(cls.reads) or '—'}; writes: {', '.join(cls.writes) or '—'}")
+            group = ""
             for o in describe(cls.Options):
+                if o["group"] and o["group"] != group:
+                    print(f"{'':<{width}}    {_group_line(o)}")
+                group = o["group"]
                 dflt = "required" if o["required"] else f"default {o['default']!r}"
                 rng = f", {o['bounds']}" if o["bounds"] else ""
                 print(f"{'':<{width}}    {o['name']} ({o['type']}, {dflt}{rng}): {o['doc']}")
@@ -201,11 +205,20 @@ def _print_stage(info, first: bool = True) -> None:
         print(f"  formerly: {', '.join(formerly)}")
     opts = describe(cls.Options)
     print("  options:" if opts else "  options: none")
+    group = ""
     for o in opts:
+        if o["group"] and o["group"] != group:
+            print(f"    {_group_line(o)}")
+        group = o["group"]
         dflt = "required" if o["required"] else f"default {o['default']!r}"
         rng = f", {o['bounds']}" if o["bounds"] else ""
         print(f"    {o['name']} ({o['type']}, {dflt}{rng})")
         print(f"        {o['doc']}")
+
+
+def _group_line(o: dict) -> str:
+    """The line before the options of a nested table: ``solver.*  (a [stage.options.solver] table): doc``."""
+    return f"{o['group']}.*  (a [stage.options.{o['group']}] table): {o['group_doc']}"
 
 
 def _cmd_review(args) -> int:

@@ -79,10 +79,9 @@ def options_problems(options_cls: type) -> list[str]:
         return []
     problems = []
     fields = {f.metadata.get("key", f.name) for f in dataclasses.fields(options_cls)}
-    groups = {f.metadata.get("key", f.name) for f in dataclasses.fields(options_cls)
-              if dataclasses.is_dataclass(typing.get_type_hints(options_cls).get(f.name))}
+    groups = _groups(options_cls)
     for old, new in dict(getattr(options_cls, "MOVED", {}) or {}).items():
-        if old in fields and old not in groups:     # an old flat name may be a nested table's name now
+        if old in fields and old not in groups:
             problems.append(f"{options_cls.__qualname__}.MOVED: '{old}' is still an option")
         cls, parts = options_cls, new.split(".")
         for part in parts:
@@ -99,20 +98,70 @@ def options_problems(options_cls: type) -> list[str]:
     return problems
 
 
+def _group_type(tp) -> type | None:
+    """The dataclass of a nested table's type (``Solver`` or ``Solver | None``), else None."""
+    if get_origin(tp) in (typing.Union, types.UnionType):
+        real = [a for a in get_args(tp) if a is not type(None)]
+        tp = real[0] if len(real) == 1 else None
+    return tp if isinstance(tp, type) and dataclasses.is_dataclass(tp) else None
+
+
+def _groups(options_cls: type) -> dict[str, type]:
+    """``{project key: dataclass}`` of the options of ``options_cls`` that are nested tables (groups).
+
+    A ``MOVED`` old name may be the name of a group (an old ``solver = "sparse"`` became
+    ``solver.solver`` when the group ``solver`` appeared): such a key is the group when its value is a
+    table, and the old flat option — rejected with its new spelling — when it is not."""
+    hints = typing.get_type_hints(options_cls)
+    out = {}
+    for f in dataclasses.fields(options_cls):
+        sub = _group_type(hints[f.name])
+        if sub is not None:
+            out[f.metadata.get("key", f.name)] = sub
+    return out
+
+
 def describe(options_cls: type) -> list[dict]:
     """Name, type, default, doc and range of every option (for ``baarda stages --verbose`` and docs):
-    ``range`` as :func:`field_range` gives it (``{"gt": 0}`` or None), ``bounds`` as text (``> 0``)."""
-    hints = typing.get_type_hints(options_cls)
-    out = []
-    for f in dataclasses.fields(options_cls):
-        required = f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
-        default = f.default if f.default is not dataclasses.MISSING else (
-            f.default_factory() if f.default_factory is not dataclasses.MISSING else None)
-        rng = field_range(f)
-        out.append({"name": f.metadata.get("key", f.name), "field": f.name, "type": _type_name(hints[f.name]), "default": default,
-                    "required": required, "doc": f.metadata.get("doc", ""), "range": rng,
-                    "bounds": range_text(rng)})
+    ``range`` as :func:`field_range` gives it (``{"gt": 0}`` or None), ``bounds`` as text (``> 0``).
+
+    A nested table (a group, such as the bundle's ``solver``) is listed as its options, each under
+    its dotted name (``solver.max_iter``, as a ``[stage.options.solver]`` table, ``--set`` and a sweep
+    column write it), with ``group`` (``"solver"``; ``""`` at the top) and ``group_doc`` (the
+    group's doc); ``field`` is the dotted attribute path (:func:`option_value` reads it)."""
+    out: list[dict] = []
+
+    def walk(cls: type, name: str, attr: str, group_doc: str, defaults: Any) -> None:
+        """``defaults``: the group's default instance (its values are the defaults shown), or None."""
+        hints = typing.get_type_hints(cls)
+        for f in dataclasses.fields(cls):
+            key = f.metadata.get("key", f.name)
+            required = f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
+            default = _default(f)
+            if defaults is not None:
+                default, required = getattr(defaults, f.name), False
+            sub = _group_type(hints[f.name])
+            if sub is not None:
+                walk(sub, name + key + ".", attr + f.name + ".", f.metadata.get("doc", ""),
+                     default if isinstance(default, sub) else None)
+                continue
+            rng = field_range(f)
+            out.append({"name": name + key, "field": attr + f.name, "type": _type_name(hints[f.name]),
+                        "default": default, "required": required, "doc": f.metadata.get("doc", ""),
+                        "range": rng, "bounds": range_text(rng), "group": name[:-1], "group_doc": group_doc})
+
+    walk(options_cls, "", "", "", None)
     return out
+
+
+def option_value(options: Any, field: str) -> Any:
+    """The value of the option at the dotted attribute path ``field`` (:func:`describe`'s
+    ``field``: ``"solver.max_iter"``) of an options instance; None under a group that is None."""
+    for part in field.split("."):
+        if options is None:
+            return None
+        options = getattr(options, part)
+    return options
 
 
 def _type_name(tp) -> str:
@@ -326,8 +375,9 @@ def parse_options(options_cls: type, raw: dict | None, *, path=None, line=None,
     return _parse(options_cls, raw, where, "")
 
 
-def _parse(options_cls: type, raw: dict | None, where, sub: str) -> Any:
-    """:func:`parse_options` of one table; ``sub`` is its dotted path (``"solver."``, or ``""``)."""
+def _parse(options_cls: type, raw: dict | None, where, sub: str, base: Any = None) -> Any:
+    """:func:`parse_options` of one table; ``sub`` is its dotted path (``"solver."``, or ``""``);
+    ``base``: the group's default instance, whose values the options not written keep."""
     raw = dict(raw or {})
     hints = typing.get_type_hints(options_cls)
     fields = {f.metadata.get("key", f.name): f for f in dataclasses.fields(options_cls)}
@@ -344,9 +394,9 @@ def _parse(options_cls: type, raw: dict | None, where, sub: str) -> Any:
         name, loc = at(key, naming=True)
         raise InputError(f"option '{name}' is now '{name[:-len(key)]}{renamed[key]}'", field=name, **loc)
     moved = dict(getattr(options_cls, "MOVED", {}) or {})
-    for key in sorted(set(raw) & set(moved)):
-        if key in fields and isinstance(raw[key], dict):   # the nested table that took the old name
-            continue
+    groups = _groups(options_cls)
+    flat = {k for k in set(raw) & set(moved) if k not in groups or not isinstance(raw[k], dict)}
+    for key in sorted(flat):
         name, loc = at(key, naming=True)
         new = name[:-len(key)] + moved[key]
         w = where(sub + key)
@@ -370,8 +420,10 @@ def _parse(options_cls: type, raw: dict | None, where, sub: str) -> Any:
             raise InputError(f"option '{name}': the value {value!r} is now {old[value]!r}", field=name, **loc)
         f = fields[key]
         values[f.name] = _coerce(value, hints[f.name], name, loc,
-                                 lambda tp, v, key=key: _parse(tp, v, where, f"{sub}{key}."))
+                                 lambda tp, v, key=key, f=f: _parse(tp, v, where, f"{sub}{key}.", _default(f)))
         _check_range(values[f.name], name, field_range(f), loc)
+    if isinstance(base, options_cls):          # a group's own default instance: what is not written
+        values = {f.name: getattr(base, f.name) for f in dataclasses.fields(options_cls) if f.init} | values
     missing = [n for n, f in fields.items() if f.name not in values
                and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING]
     if missing:
@@ -381,6 +433,13 @@ def _parse(options_cls: type, raw: dict | None, where, sub: str) -> Any:
         return options_cls(**values)
     except (ValueError, TypeError) as e:  # __post_init__ checks of the options class
         raise InputError(str(e), **at(None)[1]) from None
+
+
+def _default(f: dataclasses.Field) -> Any:
+    """The default value of field ``f`` (None when it has none)."""
+    if f.default is not dataclasses.MISSING:
+        return f.default
+    return f.default_factory() if f.default_factory is not dataclasses.MISSING else None
 
 
 def to_plain(obj: Any) -> Any:

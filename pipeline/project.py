@@ -308,10 +308,12 @@ def _build(path: Path, text: str, data: dict, plugins: PluginManager,
     for k, raw, sid, info in chosen:
         use, line = info.name, loc.stage(k)
         mine = by_id.get(sid, {})
+        written = raw
         for opt, key in mine.items():
             try:
                 raw = apply_override(raw, opt, overrides.values[key])
-            except ValueError as e:
+            except ValueError as e:         # the file's value is no table: its own mistake first
+                parse_options(info.cls.Options, written, path=path, line=line, locate=lambda o, k=k: loc.key(k, o))
                 raise InputError(str(e), **overrides.where(key)) from None
 
         def locate(key, k=k, sid=sid, mine=mine):
@@ -348,14 +350,13 @@ def _overrides_by_stage(overrides: Overrides, ids: list[str], project_name: str)
     out: dict[str, dict] = {}
     for key in overrides.values:
         split = _split_key(key, ids)
-        if split is None:
+        if split is None:                 # the stage id is what the key starts with: up to its first dot
             sid, dot, rest = key.partition(".")
             if not dot or not sid or not rest:
                 raise InputError(f"'{key}' must be <stage id>.<option>", **overrides.where(key, naming=True))
-            close = difflib.get_close_matches(key.rpartition(".")[0], ids, n=1, cutoff=0.6) or \
-                difflib.get_close_matches(sid, ids, n=1, cutoff=0.6)
+            close = difflib.get_close_matches(sid, ids, n=1, cutoff=0.6)
             did = f"did you mean '{close[0]}'? " if close else ""
-            raise InputError(f"no stage '{key.rpartition('.')[0]}' in {project_name}; {did}its stages: "
+            raise InputError(f"no stage '{sid}' in {project_name}; {did}its stages: "
                              f"{', '.join(ids)}", **overrides.where(key, naming=True))
         sid, opt = split
         out.setdefault(sid, {})[opt] = key

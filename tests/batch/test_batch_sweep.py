@@ -27,6 +27,9 @@ def _sweep(tmp_path, text, name="sweep.csv"):
 @pytest.mark.parametrize("text,where,message", [
     ("screenin.threshold_mm\n2\n", ":1, field 'screenin.threshold_mm'", "no stage 'screenin' in data1.toml; did you mean 'screening'?"),
     ("screening.treshold_mm\n2\n", ":1, field 'screening.treshold_mm'", "did you mean 'screening.threshold_mm'?"),
+    ("screenin.tab.threshold_mm\n2\n", ":1, field 'screenin.tab.threshold_mm'",
+     "no stage 'screenin' in data1.toml; did you mean 'screening'?"),
+    ("screening.tab.threshold_mm\n2\n", ":1, field 'screening.tab'", "unknown option 'screening.tab'"),
     ("threshold_mm\n2\n", ":1, field 'threshold_mm'", "must be <stage id>.<option>"),
     ("screening.threshold_mm\n2\nabc\n", ":3, field 'screening.threshold_mm'", "expected"),
     ("screening.threshold_mm\n-1\n", ":2, field 'screening.threshold_mm'", "must be greater than 0"),
@@ -81,3 +84,49 @@ def test_projects_by_glob_folder_and_path(tmp_path):
     assert [j.name for j in jobs] == ["data1"]                       # the same file once
     with pytest.raises(InputError, match="project file not found"):
         expand_projects([str(tmp_path / "none.toml")])
+
+
+TINY = """[project]
+name = "tiny"
+seed = 3
+
+[[stage]]
+use = "testfield"
+id = "source"
+
+[[stage]]
+use = "bundle"
+id = "adj"
+[stage.options]
+datum = "control"
+[stage.options.tests]
+blunders = "data-snooping"
+"""
+
+
+def test_a_sweep_of_options_in_nested_tables(tmp_path):
+    """Columns ``adj.solver.max_iter``: the stage id, then the option's dotted path into the bundle's
+    nested tables, applied as ``--set`` applies it — the file's other options of the table kept."""
+    from baarda.pipeline import montecarlo as mc
+    from baarda.pipeline.batch import run_batch
+
+    project = tmp_path / "tiny.toml"
+    project.write_text(TINY, encoding="utf-8")
+    sweep = _sweep(tmp_path, "name,adj.solver.max_iter,adj.tests.alpha0\nfew,2,\nmany,30,0.01\n")
+    jobs = plan_batch([project], tmp_path / "out", sweep=sweep)
+    assert [j.overrides for j in jobs] == [{"adj.solver.max_iter": 2},
+                                           {"adj.solver.max_iter": 30, "adj.tests.alpha0": 0.01}]
+    written = load_project(jobs[1].project, PluginManager()).stages[1].options
+    assert (written.solver.max_iter, written.tests.alpha0, written.tests.blunders) == (30, 0.01, "data-snooping")
+    rows = run_batch(jobs, tmp_path / "out", mc.Engine(mc.Scheduler("sync")))
+    few, many = rows
+    assert few["status"] == "failed" and "no convergence after 2 iterations" in few["message"]
+    assert many["status"] == "ok", many["message"]
+    import tomllib
+
+    resolved = tomllib.loads((Path(many["run_dir"]) / "project.resolved.toml").read_text(encoding="utf-8"))
+    adj = next(s["options"] for s in resolved["stage"] if s["id"] == "adj")
+    assert adj["solver"]["max_iter"] == 30 and adj["tests"] == {**adj["tests"], "alpha0": 0.01,
+                                                                  "blunders": "data-snooping"}
+    header = (tmp_path / "out" / "summary.csv").read_text(encoding="utf-8").splitlines()[0].split(",")
+    assert "adj.solver.max_iter" in header and "adj.tests.alpha0" in header

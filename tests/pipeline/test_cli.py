@@ -40,7 +40,21 @@ def test_stages_name_describes_one_stage(capsys):
     assert main(["stages", "bundle"]) == 0
     out = capsys.readouterr().out
     assert out.startswith("bundle")
-    assert "reads: block" in out and "solver (table (max_iter, tol_obs" in out
+    assert "reads: block" in out
+    # a nested table is listed as its options, each under its dotted name, after a line naming the table
+    assert "    solver.*  (a [stage.options.solver] table): the iteration and the linear algebra\n" \
+           "    solver.max_iter (int, default 30, ≥ 1)\n        maximum number of iterations\n" in out
+    assert "    robust.method ('none' | 'huber' | 'danish' | 'l1', default 'none')\n" in out
+    assert "(table (" not in out and "Config(" not in out         # no group shown as a dataclass repr
+
+
+def test_stages_verbose_lists_the_options_of_nested_tables(capsys):
+    assert main(["stages", "-v"]) == 0
+    out = capsys.readouterr().out
+    assert re.search(r"^ +tests\.alpha0 \(float, default 0\.001, in \(0, 1\)\): significance level of the w-test",
+                     out, re.M)
+    assert re.search(r"^ +output\.\*  \(a \[stage\.options\.output\] table\): ", out, re.M)
+    assert "Config(" not in out
 
 
 def test_unknown_stage_name_says_did_you_mean(capsys):

@@ -13,8 +13,8 @@ import pytest
 from baarda.pipeline import project as project_module
 from baarda.pipeline.cli import main
 from baarda.pipeline.errors import InputError
-from baarda.pipeline.options import (check_bounds, describe, field_range, option, options_problems,
-                                     parse_options, range_text)
+from baarda.pipeline.options import (Where, check_bounds, describe, field_range, option, option_value,
+                                     options_problems, parse_options, range_text)
 from baarda.pipeline.project import Overrides, load_project, with_overrides
 from baarda.pipeline.stage import Stage, StageResult
 from baarda.pipeline.testing import make_plugin_manager
@@ -83,6 +83,71 @@ def test_moved_with_parse_options_alone():
     assert parse_options(Grouped, {"solver": {"max_iter": 4}}).solver == Solver(4, 1e-10)
 
 
+@dataclass(frozen=True)
+class Robust:
+    method: str = option("none", "none or huber")
+    c: float = option(1.5, "tuning constant")
+
+
+@dataclass(frozen=True)
+class SameName:
+    """An old flat option ``robust`` became the group ``robust`` (its value robust.method)."""
+
+    MOVED: ClassVar[dict[str, str]] = {"robust": "robust.method", "robust_c": "robust.c"}
+    robust: Robust = option(Robust(), "robust estimation")
+
+
+def test_an_old_flat_name_that_is_now_a_group():
+    assert options_problems(SameName) == []          # a MOVED name may be a group's
+    assert parse_options(SameName, {"robust": {"method": "huber"}}).robust == Robust("huber", 1.5)
+    for value in ("huber", True, 1.5, ["huber"]):  # not a table: the old option, with its new spelling
+        with pytest.raises(InputError) as e:
+            parse_options(SameName, {"robust": value}, path="p.toml", line=9)
+        assert str(e.value) == ("p.toml:9, field 'robust': robust is now written as robust.method "
+                                "(in a [stage.options.robust] table)")
+    with pytest.raises(InputError, match=r"^--set, field 'adj.robust': adj.robust is now written as "
+                                         r"adj.robust.method$"):
+        parse_options(SameName, {"robust": "huber"}, locate=lambda key: Where("--set", None, "adj."))
+
+
+@pytest.mark.parametrize("flat, value, new", [
+    ("solver", '"sparse"', "solver.solver"),
+    ("robust", '"huber"', "robust.method"),
+    ("variance_components", '"estimate"', "variance_components.mode"),
+    ("ap_selection", "true", "ap_selection.enabled"),
+])
+def test_the_bundles_old_names_of_its_groups(tmp_path, flat, value, new, capsys):
+    """An old bundle project's ``solver = "sparse"`` is not a type error on the group ``solver``:
+    the file's line and the new dotted name; the same through ``--set bundle.solver=…``."""
+    p = tmp_path / "old.toml"
+    p.write_text('[project]\nname = "old"\n\n[[stage]]\nuse = "testfield"\nid = "source"\n\n'
+                 f'[[stage]]\nuse = "bundle"\n[stage.options]\n{flat} = {value}\n', encoding="utf-8")
+    with pytest.raises(InputError) as e:
+        load_project(p)
+    table = new.rpartition(".")[0]
+    assert str(e.value) == (f"{p}:11, field '{flat}': {flat} is now written as {new} "
+                            f"(in a [stage.options.{table}] table)")
+    p.write_text('[project]\nname = "new"\n\n[[stage]]\nuse = "testfield"\nid = "source"\n\n'
+                 f'[[stage]]\nuse = "bundle"\n[stage.options]\n{new} = {value}\n', encoding="utf-8")
+    assert load_project(p).stages[1].options is not None              # the new spelling is fine
+    assert main(["validate", str(p), "--set", f"bundle.{flat}={value}"]) == 2
+    err = capsys.readouterr().err
+    assert f"--set, field 'bundle.{flat}': bundle.{flat} is now written as bundle.{new}" in err
+    # --set into the group of a file that still writes the old flat option: the file's mistake
+    p.write_text('[project]\nname = "old"\n\n[[stage]]\nuse = "testfield"\nid = "source"\n\n'
+                 f'[[stage]]\nuse = "bundle"\n[stage.options]\n{flat} = {value}\n', encoding="utf-8")
+    with pytest.raises(InputError) as e:
+        load_project(p, overrides={f"bundle.{new}": value.strip('"') if value != "true" else True})
+    assert str(e.value).startswith(f"{p}:11, field '{flat}': {flat} is now written as {new}")
+
+
+def test_set_into_an_option_that_is_no_table(tmp_path, pm):
+    with pytest.raises(InputError) as e:
+        load_project(_write(tmp_path), pm, overrides={"adj.sigma_px.x": 1.0})
+    assert str(e.value) == ("--set, field 'adj.sigma_px.x': 'sigma_px' is not a table here, so "
+                            "'sigma_px.x' cannot be set")
+
+
 def test_nested_table_values_and_dotted_set(tmp_path, pm):
     p = _write(tmp_path)
     proj = load_project(p, pm, overrides={"adj.solver.max_iter": 5})
@@ -117,7 +182,33 @@ def test_a_group_default_may_be_a_mutable_dataclass():
     a, b = Holder(), Holder()
     assert a.group == Mutable(1) and a.group is not b.group
     assert parse_options(Holder, {"group": {"n": 3}}).group == Mutable(3)
-    assert describe(Holder)[0]["default"] == Mutable(1)
+    assert [(d["name"], d["field"], d["default"], d["group"]) for d in describe(Holder)] == [("group.n", "group.n", 1, "group")]
+
+
+@dataclass(frozen=True)
+class Keyed:
+    from_: int = option(0, "a key that is a Python keyword", key="from")
+
+
+@dataclass(frozen=True)
+class Deep:
+    solver: Solver = option(Solver(max_iter=50), "the solver's options, with a default of their own")
+    keyed: Keyed | None = option(None, "an optional group")
+    sigma_px: float = option(1.0, "image sigma")
+
+
+def test_describe_lists_the_options_of_groups_by_their_dotted_names():
+    got = {d["name"]: d for d in describe(Deep)}
+    assert list(got) == ["solver.max_iter", "solver.tol_rel", "keyed.from", "sigma_px"]
+    assert got["solver.max_iter"]["default"] == 50                   # the group's default instance
+    assert got["solver.max_iter"]["bounds"] == "≥ 1" and got["solver.tol_rel"]["bounds"] == "> 0"
+    assert (got["solver.max_iter"]["group"], got["solver.max_iter"]["group_doc"]) == (
+        "solver", "the solver's options, with a default of their own")
+    assert (got["keyed.from"]["field"], got["keyed.from"]["default"]) == ("keyed.from_", 0)
+    assert (got["sigma_px"]["group"], got["sigma_px"]["type"]) == ("", "float")
+    opts = parse_options(Deep, {"solver": {"tol_rel": 1e-3}, "keyed": {"from": 4}})
+    assert [option_value(opts, d["field"]) for d in describe(Deep)] == [50, 1e-3, 4, 1.0]
+    assert option_value(Deep(), "keyed.from_") is None
 
 
 def test_moved_declarations_are_checked():
@@ -173,7 +264,8 @@ def test_cli_validate_and_run_use_the_users_file(tmp_path, pm, monkeypatch, caps
     p = _write(tmp_path)
     assert main(["validate", str(p), "--set", "adj.solver.max_iter=7", "-v"]) == 0
     out = capsys.readouterr().out
-    assert "solver = {'max_iter': 7, 'tol_rel': 1e-08}" in out and "sigma_px = 2.0  (> 0)" in out
+    assert "    solver.max_iter = 7  (≥ 1)\n    solver.tol_rel = 1e-08  (> 0)\n" in out
+    assert "sigma_px = 2.0  (> 0)" in out and "{" not in out
     assert main(["validate", str(p), "--set", "adj.max_iter=7"]) == 2
     assert "adj.max_iter is now written as adj.solver.max_iter" in capsys.readouterr().err
 
