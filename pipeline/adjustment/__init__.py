@@ -5,7 +5,7 @@ Modules, in the order of the mathematics: :mod:`.settings` (what is asked), :mod
 priors, datum), :mod:`.layout` (the column layout of the unknowns), :mod:`.normal` (normal
 equations, the reduced camera system's pieces), :mod:`.route` (the dense and the sparse route,
 one interface, chosen once), :mod:`.factor` (the solution), :mod:`.sparse` (the sparse route's
-Cholesky), :mod:`.lm` (the Levenberg–Marquardt iteration), :mod:`.precision` (cofactors,
+Cholesky), :mod:`.lm` (the Levenberg–Marquardt iteration, its records in :mod:`.records`), :mod:`.precision` (cofactors,
 redundancy numbers), :mod:`.diagnose` (a singular system named), :mod:`.initial` (resection,
 intersection, initial values), :mod:`.apselect` (additional-parameter selection), :mod:`.adjust`
 (the entry point and its result), :mod:`.reproject` (a block's reprojection errors),
@@ -30,6 +30,7 @@ from .diagnose import parameter_names
 from .initial import ResectionResult, initial_values, intersection, resection
 from .lm import ITERATION_CALLBACK, solve_bundle
 from .problem import BundleProblem
+from .records import Convergence, Iteration, IterationEvent, Timings
 from .reliability import (GlobalRowStats, OwnEffects, effect_vectors, global_rows, linearised_model, own_effects,
                           parameter_covariance, row_mdb)
 from .reproject import project_block, reprojection_px, reprojection_summary
@@ -44,7 +45,7 @@ __all__ = [
     "adjust", "BundleResult", "result_of", "BundleSettings", "BundleState", "Distance", "padded_ap", "camera_meta",
     "select_aps", "APSelection", "project_observations", "EO_NAMES", "IOP_NAMES", "parameter_names",
     "resection", "ResectionResult", "intersection", "initial_values", "solve_bundle", "ITERATION_CALLBACK",
-    "BundleProblem",
+    "BundleProblem", "Convergence", "Iteration", "IterationEvent", "Timings",
     "project_block", "reprojection_px", "reprojection_summary",
     "estimate_components", "VarianceComponents", "VarianceGroup", "linear_components", "LinearComponents",
     "group_parts", "image_group_labels",

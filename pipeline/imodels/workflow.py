@@ -4,7 +4,7 @@
 photos), orients each pair relatively (:mod:`baarda.pipeline.imodels.relor`), intersects the model points
 and the projection centres, and adjusts all models at once (:mod:`baarda.pipeline.imodels.block`) with
 the block's control.  It returns everything a report, a study or a recording needs — the check-point
-RMSE is ``result.rmse``.  Pure: no files, no rerun.
+RMSE is ``result.check`` (:class:`~baarda.pipeline.accuracy.CheckPoints`).  Pure: no files, no rerun.
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ from typing import Callable, Literal, Sequence
 
 import numpy as np
 
+from baarda.pipeline.accuracy import CheckPoints
 from baarda.pipeline.errors import AdjustmentError, InputError
 from baarda.pipeline.model import Block
 
@@ -154,9 +155,9 @@ class IndependentModelResult:
     options: dict = field(default_factory=dict)
 
     @property
-    def rmse(self) -> dict:
-        """Check-point RMSE ``{"Sx", "Sy", "Sxy", "Sz", "n"}`` (adjusted − surveyed)."""
-        return self.block.check["rmse"]
+    def check(self) -> CheckPoints:
+        """The check points of the block adjustment: ids, errors adjusted − surveyed, ``Sx`` … ``Sz``."""
+        return self.block.check
 
     @property
     def sigma0_hat(self) -> float:

@@ -27,14 +27,14 @@ def summary(result: IndependentModelResult, stats: dict, block) -> dict:
              "rcond": ro.rcond, "n_flagged": int(st["snooping"].flagged.sum()),
              "flagged": st["snooping"].flagged_labels}
         models.append(d)
-    rm = blk.check["rmse"]
+    rm = blk.check
     unit = block.object_unit
-    check_points = {"n": int(rm["n"]), **{k: float(rm[k]) for k in ("Sx", "Sy", "Sxy", "Sz")}, "unit": unit}
+    check_points = {"n": int(rm.n), **{k: float(getattr(rm, k)) for k in ("Sx", "Sy", "Sxy", "Sz")}, "unit": unit}
     f, u = (100.0, "cm") if unit == "m" else (1.0, unit)
     headline = (f"{len(result.relative)} models; block σ̂0 = {blk.sigma0_hat:.3g} (dof {blk.dof}, global test "
                 f"{'rejected' if gt.rejected else 'accepted'}), {int(ds.flagged.sum())} coordinate(s) flagged"
-                + (f"; check points ({rm['n']}): Sxy {rm['Sxy'] * f:.4g} {u}, Sz {rm['Sz'] * f:.4g} {u}"
-                   if rm["n"] else "; no check points"))
+                + (f"; check points ({rm.n}): Sxy {rm.Sxy * f:.4g} {u}, Sz {rm.Sz * f:.4g} {u}"
+                   if rm.n else "; no check points"))
     return {
         "headline": headline, "check_points": check_points,
         "models": len(result.relative), "method": result.options["method"],
@@ -42,7 +42,7 @@ def summary(result: IndependentModelResult, stats: dict, block) -> dict:
         "block": {"sigma0_hat": blk.sigma0_hat, "dof": blk.dof, "iterations": blk.iterations,
                   "global_test": gt.summary(), "n_flagged": int(ds.flagged.sum()),
                   "flagged": ds.flagged_labels, "points": int(blk.in_adjustment.sum())},
-        "check_rmse": dict(blk.check["rmse"]), "object_unit": block.object_unit,
+        "check_rmse": blk.check.rmse(), "object_unit": block.object_unit,
         "per_model": models, "ro_removed": stats.get("ro_removed", {}),
     }
 
@@ -152,8 +152,8 @@ def tables(result: IndependentModelResult, stats: dict, block) -> dict:
                          "v": blk.v_control, "r": s.r[3 * G:3 * G + C], "w": ds.w[3 * G:3 * G + C]},
                         f"weighted control coordinates: residual surveyed − adjusted ({unit}), redundancy, w")
     chk = blk.check
-    check = TableData({"point": chk["ids"].tolist(), "dX": chk["dXYZ"][:, 0], "dY": chk["dXYZ"][:, 1],
-                       "dZ": chk["dXYZ"][:, 2]}, f"check points: adjusted − surveyed ({unit})")
+    check = TableData({"point": list(chk.ids), "dX": chk.errors[:, 0], "dY": chk.errors[:, 1],
+                       "dZ": chk.errors[:, 2]}, f"check points: adjusted − surveyed ({unit})")
     return {"models": models, "ro_tests": ro_tests, "ro_points": ro_points,
             "transformations": transformations, "points": points, "residuals": residuals,
             "control": control, "check_points": check}
