@@ -19,7 +19,7 @@ from ..camera import get_ap_model
 from .collinearity import EO_NAMES, project_observations
 from .initial import initial_values
 from .lm import final_system, solve_bundle
-from .precision import reliability_rows
+from .precision import Cofactors, reliability_rows
 from .problem import BundleProblem
 from .records import Convergence, Timings
 from .route import Route
@@ -77,7 +77,7 @@ class BundleResult:
     timings: Timings
     warnings: list
     Qx: np.ndarray | None = field(default=None, repr=False)   # cofactors of the global unknowns (dense route)
-    cofactors: object = field(default=None, repr=False)       # DenseCofactors / SparseCofactors
+    cofactors: Cofactors | None = field(default=None, repr=False)   # DenseCofactors / SparseCofactors
     route: Route | None = field(default=None, repr=False)      # the solver route the adjustment used
 
     # -- derived -------------------------------------------------------------------------------

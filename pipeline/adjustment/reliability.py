@@ -110,38 +110,11 @@ class GlobalRowStats:
 
 
 def _cofactor_blocks(res, cols: np.ndarray) -> np.ndarray:
-    """(G, w, w) cofactors of the global unknowns ``cols`` (G, w) (n_g: fixed → 0).  Dense route:
-    gathered from ``K⁻¹``; sparse route: a row group within one photo's orientation from the
-    orientations' cofactors (the selected inversion), any other by solves."""
-    prob = res.problem
-    n_g = prob.n_g
-    G, w = cols.shape
+    """(G, w, w) cofactors of the global unknowns ``cols`` (G, w) (n_g: fixed → 0), from the
+    route's cofactors (:meth:`~.precision.Cofactors.blocks`)."""
     if res.cofactors is None:
         raise ValueError("the statistics of the observations need the precision: adjust with covariance = true")
-    Qg = getattr(res.cofactors, "Qg", None)
-    if Qg is not None:
-        Qp = np.zeros((n_g + 1, n_g + 1))
-        Qp[:n_g, :n_g] = Qg
-        return Qp[cols[:, :, None], cols[:, None, :]]
-    out = np.zeros((G, w, w))
-    Q_eo = np.zeros((prob.m + 1, 7, 7))
-    Q_eo[:prob.m, :6, :6] = res.cov_eo / res.variance_factor
-    photo = np.full(n_g + 1, prob.m)
-    comp = np.full(n_g + 1, 6)
-    m = prob.g_eo >= 0
-    photo[prob.g_eo[m]], comp[prob.g_eo[m]] = np.nonzero(m)
-    ph = photo[cols]
-    fixed = cols >= n_g
-    first = np.where(fixed, prob.m + 1, ph).min(axis=1)
-    one = (np.where(fixed, first[:, None], ph) == first[:, None]).all(axis=1) & (first < prob.m)
-    c = comp[cols]
-    out[one] = Q_eo[first[one][:, None, None], c[one][:, :, None], c[one][:, None, :]]
-    for j in np.flatnonzero(~one):
-        ok = ~fixed[j]
-        if ok.any():
-            cj = cols[j, ok]
-            out[j][np.ix_(ok, ok)] = res.cofactor_columns(cj)[cj]
-    return out
+    return res.cofactors.blocks(cols)
 
 
 def global_rows(res) -> dict:
