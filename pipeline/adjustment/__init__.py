@@ -31,8 +31,8 @@ from .initial import ResectionResult, initial_values, intersection, resection
 from .lm import ITERATION_CALLBACK, solve_bundle
 from .problem import BundleProblem
 from .records import Convergence, Iteration, IterationEvent, Timings
-from .reliability import (GlobalRowStats, OwnEffects, effect_vectors, global_rows, linearised_model, own_effects,
-                          parameter_covariance, row_mdb)
+from .reliability import (GlobalRowStats, OwnEffects, ParameterVectors, effect_vectors, global_rows, linearised_model,
+                          own_effects, parameter_covariance, row_mdb)
 from .reproject import project_block, reprojection_px, reprojection_summary
 from .settings import BundleSettings, BundleState, Distance, camera_meta
 from .variance import (LinearComponents, VarianceComponents, VarianceGroup, estimate_components, group_parts,
@@ -49,7 +49,7 @@ __all__ = [
     "project_block", "reprojection_px", "reprojection_summary",
     "estimate_components", "VarianceComponents", "VarianceGroup", "linear_components", "LinearComponents",
     "group_parts", "image_group_labels",
-    "own_effects", "OwnEffects", "effect_vectors", "parameter_covariance", "linearised_model", "row_mdb",
+    "own_effects", "OwnEffects", "effect_vectors", "ParameterVectors", "parameter_covariance", "linearised_model", "row_mdb",
     "global_rows", "GlobalRowStats",
     "adjust_block", "BundleConfig", "BundleReport", "configure_block", "bundle_settings", "ScaleBar",
     "SolverConfig", "StatTestsConfig", "RobustConfig", "VarianceComponentsConfig", "APSelectionConfig",

@@ -44,7 +44,7 @@ from baarda.pipeline.stats.snapshot import Snapshot
 from .collinearity import EO_NAMES
 from .lm import final_system
 
-__all__ = ["OwnEffects", "own_effects", "effect_vectors", "parameter_covariance", "parameter_names_of",
+__all__ = ["OwnEffects", "own_effects", "effect_vectors", "ParameterVectors", "parameter_covariance", "parameter_names_of",
            "row_mdb", "bar_delta0", "linearised_model", "GlobalRowStats", "global_rows"]
 
 
@@ -342,12 +342,22 @@ def _pick(X, pos):
 
 
 # --------------------------------------------------------------------------------------------------
-def effect_vectors(res, rows, delta0: float = 4.13, bias=None) -> dict:
+@dataclass(frozen=True, eq=False)
+class ParameterVectors:
+    """``r`` vectors over every parameter of the bundle, split by kind: ``cameras`` (a tuple per
+    camera of (r, 3 + p) over ``[c, xp, yp, ap…]``), ``eo`` (r, m, 6), ``points`` (r, n, 3) —
+    object units / rad; zero for fixed parameters, nan for points and photos not adjusted."""
+
+    cameras: tuple
+    eo: np.ndarray
+    points: np.ndarray
+
+
+def effect_vectors(res, rows, delta0: float = 4.13, bias=None) -> ParameterVectors:
     """Full effect of the MDB (or ``bias``) of chosen scalar rows on **every** parameter (one solve
     per row).  ``rows``: scalar row indices ``2 i + c`` (observation i, c = 0 x / 1 y).
 
-    Returns ``cameras`` (list per camera of (r, 3 + p)), ``eo`` (r, m, 6), ``points`` (r, n, 3)
-    (object units / rad; zero for fixed parameters, nan for points and photos not adjusted)."""
+    Returns a :class:`ParameterVectors`, one vector per row."""
     prob, lin, red, Qx = _system(res)
     rows = np.asarray(rows, int).reshape(-1)
     k_all = len(res.residuals)
@@ -374,7 +384,7 @@ def effect_vectors(res, rows, delta0: float = 4.13, bias=None) -> dict:
     return _scatter(res, xg, y)
 
 
-def _scatter(res, xg, y) -> dict:
+def _scatter(res, xg, y) -> ParameterVectors:
     """Global vector (n_g, r) and eliminated points (n_e, 3, r) → per-parameter arrays."""
     prob = res.problem
     r = xg.shape[1]
@@ -391,7 +401,7 @@ def _scatter(res, xg, y) -> dict:
     if prob.n_e:
         pts[:, prob.elim_points] = np.moveaxis(y, -1, 0)
     pts[:, ~prob.point_used] = np.nan
-    return {"cameras": cams, "eo": eo, "points": pts}
+    return ParameterVectors(tuple(cams), eo, pts)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -456,11 +466,11 @@ def parameter_covariance(res, specs) -> tuple[list[str], np.ndarray]:
     C = np.zeros((r, r))
     for j, (kind, i, t, _) in enumerate(params):
         if kind == "camera":
-            C[:, j] = out["cameras"][i][:, t]
+            C[:, j] = out.cameras[i][:, t]
         elif kind == "photo":
-            C[:, j] = out["eo"][:, i, t]
+            C[:, j] = out.eo[:, i, t]
         else:
-            C[:, j] = out["points"][:, i, t]
+            C[:, j] = out.points[:, i, t]
     C = np.nan_to_num(0.5 * (C + C.T)) * res.variance_factor
     return names, C
 
