@@ -137,12 +137,12 @@ def solve_bundle(block: Block, settings: BundleSettings | None = None, *, obs_ac
             f"no convergence after {settings.max_iter} iterations: vᵀPv = {cost:.6g}, last correction moved an "
             f"observation by {history[-1].max_step_sigma:.3g} σ (threshold {settings.tol_obs:g}); "
             "raise max_iter, check the initial values, or look for gross errors", state=st,
-            history=Convergence(tuple(history)))
+            history=Convergence.of(history))
     lin = red = None
     if final:
         lin, red = final_system(prob, route, st, parts[-1])
     timings = Timings(setup=t_setup, linearize=t_lin, solve=t_solve, residuals=t_res, total=time.perf_counter() - t0)
-    return prob, st, SolveInfo(Convergence(tuple(history)), it, timings, cost, parts[-1], route, lin, red)
+    return prob, st, SolveInfo(Convergence.of(history), it, timings, cost, parts[-1], route, lin, red)
 
 
 class SimilarityGauge:

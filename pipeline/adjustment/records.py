@@ -28,45 +28,41 @@ class Iteration:
 
 @dataclass(frozen=True, eq=False)
 class Convergence:
-    """The iterations of an adjustment, iteration 0 (the start) first: a sequence of
-    :class:`Iteration` with one read-only column per quantity (``iteration``, ``vtpv``, ``lam``,
-    ``max_step_sigma``, ``exact_similarity``)."""
+    """The iterations of an adjustment, iteration 0 (the start) first, as a column table: one
+    read-only array per quantity of :class:`Iteration` (``iteration``, ``vtpv``, ``lam``,
+    ``max_step_sigma``, ``exact_similarity``).  ``conv[i]`` is the :class:`Iteration` ``i`` (a
+    slice gives a tuple of them); built with :meth:`of`."""
 
-    steps: tuple[Iteration, ...]
+    iteration: np.ndarray
+    vtpv: np.ndarray
+    lam: np.ndarray
+    max_step_sigma: np.ndarray
+    exact_similarity: np.ndarray
+
+    @classmethod
+    def of(cls, steps) -> Convergence:
+        """From a sequence of :class:`Iteration`."""
+        cols = {}
+        for f in dataclasses.fields(Iteration):
+            col = np.array([getattr(s, f.name) for s in steps], _DTYPES[f.name])
+            col.flags.writeable = False
+            cols[f.name] = col
+        return cls(**cols)
 
     def __len__(self) -> int:
-        return len(self.steps)
-
-    def __iter__(self):
-        return iter(self.steps)
+        return len(self.iteration)
 
     def __getitem__(self, i):
-        return self.steps[i]
+        if isinstance(i, slice):
+            return tuple(self[j] for j in range(len(self))[i])
+        return Iteration(int(self.iteration[i]), float(self.vtpv[i]), float(self.lam[i]),
+                         float(self.max_step_sigma[i]), bool(self.exact_similarity[i]))
 
-    def _column(self, name: str, dtype) -> np.ndarray:
-        out = np.array([getattr(s, name) for s in self.steps], dtype)
-        out.flags.writeable = False
-        return out
+    def __iter__(self):
+        return (self[j] for j in range(len(self)))
 
-    @property
-    def iteration(self) -> np.ndarray:
-        return self._column("iteration", int)
 
-    @property
-    def vtpv(self) -> np.ndarray:
-        return self._column("vtpv", float)
-
-    @property
-    def lam(self) -> np.ndarray:
-        return self._column("lam", float)
-
-    @property
-    def max_step_sigma(self) -> np.ndarray:
-        return self._column("max_step_sigma", float)
-
-    @property
-    def exact_similarity(self) -> np.ndarray:
-        return self._column("exact_similarity", bool)
+_DTYPES = {"iteration": int, "vtpv": float, "lam": float, "max_step_sigma": float, "exact_similarity": bool}
 
 
 @dataclass(frozen=True, slots=True)
