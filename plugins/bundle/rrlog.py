@@ -25,7 +25,6 @@ from baarda.pipeline.geometry import rotation_from_opk_many
 from baarda.pipeline.camera import get_ap_model
 
 from .protocol import image_units
-from .report import gnss_parts
 from baarda.pipeline.recording import (log_series, point_ellipsoids, role_colors, thin, view_from_photo,
                                        view_vectors)
 
@@ -122,12 +121,13 @@ def log_bundle(rec, rep, report: str, max_photos: int | None = None) -> None:
                             labels=[f"{m * uscale:.{2 if unit == 'px' else 1}f} {unit}" for m in mag]), static=True)
         rec.log(f"cameras/{_safe(block.cameras.ids[j])}/distortion_scale", rr.AnyValues(arrow_scale=dscale),
                 static=True)
-    if rep.gnss is not None:
-        gn = gnss_parts(rep)         # GNSS antennas: observed positions, residual arrows computed → observed (scaled)
-        g_obs, g_v = gn["observed"], gn["v"]
+    if rep.gnss is not None:     # GNSS antennas: observed positions, residual arrows computed → observed (scaled)
+        gs, gnss = rep.gnss.rows, block.gnss
+        g_obs, g_v = gnss.XYZ[gs.index], gs.v
+        g_photos = block.photos.ids[gnss.photo[gs.index]].astype(str).tolist()
         g_rms = float(np.sqrt(np.mean(g_v ** 2)))
         g_sc = 0.03 * float(np.ptp(st.X0[res.photo_used], axis=0).max()) / g_rms if g_rms > 0 else 1.0
-        rec.log("world/gnss/antennas", rr.Points3D(g_obs, labels=gn["photos"], radii=rr.Radius.ui_points(5.0)), static=True)
+        rec.log("world/gnss/antennas", rr.Points3D(g_obs, labels=g_photos, radii=rr.Radius.ui_points(5.0)), static=True)
         rec.log("world/gnss/residuals", rr.Arrows3D(origins=g_obs - g_v * g_sc, vectors=g_v * g_sc), static=True)
         rec.log("world/gnss/arrow_scale", rr.AnyValues(arrow_scale=g_sc), static=True)
     rec.log("bundle/summary", rr.AnyValues(sigma0_hat=res.sigma0_hat, dof=res.dof, vtpv=res.vtpv,
