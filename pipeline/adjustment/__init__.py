@@ -35,8 +35,8 @@ from .reliability import (GlobalRowStats, OwnEffects, ParameterVectors, effect_v
                           own_effects, parameter_covariance, row_mdb)
 from .reproject import project_block, reprojection_px, reprojection_summary
 from .settings import BundleSettings, BundleState, Distance, camera_meta
-from .variance import (LinearComponents, VarianceComponents, VarianceGroup, estimate_components, group_parts,
-                       image_group_labels, linear_components)
+from .variance import (GroupPart, LinearComponents, VarianceComponents, VarianceGroup, estimate_components,
+                       group_parts, image_group_labels, linear_components)
 from .workflow import (EO_LABELS, APSelectionConfig, BundleConfig, BundleReport, OutputConfig, RobustConfig, ScaleBar,
                        SolverConfig, StatTestsConfig, VarianceComponentsConfig, adjust_block, bundle_settings,
                        configure_block)
@@ -48,7 +48,7 @@ __all__ = [
     "BundleProblem", "Convergence", "Iteration", "IterationEvent", "Timings",
     "project_block", "reprojection_px", "reprojection_summary",
     "estimate_components", "VarianceComponents", "VarianceGroup", "linear_components", "LinearComponents",
-    "group_parts", "image_group_labels",
+    "group_parts", "GroupPart", "image_group_labels",
     "own_effects", "OwnEffects", "effect_vectors", "ParameterVectors", "parameter_covariance", "linearised_model", "row_mdb",
     "global_rows", "GlobalRowStats",
     "adjust_block", "BundleConfig", "BundleReport", "configure_block", "bundle_settings", "ScaleBar",
