@@ -137,13 +137,27 @@ def model_coordinates(ro: RelativeOrientation, model_id: str, photos: tuple[str,
                             is_pc=np.array(is_pc), photos=tuple(photos))
 
 
+@dataclass(frozen=True)
+class ModelBlockOptions:
+    """The choices :func:`independent_model_block` ran with (its keyword arguments of the same names)."""
+
+    method: str
+    parameters: str
+    pairing: str
+    model_weights: str
+    projection_centres: bool
+    sigma_pc_scale: float
+    sigma0: float
+
+
 @dataclass(frozen=True, eq=False)
 class IndependentModelResult:
     """Everything :func:`independent_model_block` computed.
 
     pairs : [(model id, left photo id, right photo id)]; relative : the relative orientations
     (same order); models : the model coordinates handed to the block adjustment; block : the
-    :class:`~baarda.pipeline.imodels.block.ModelBlockAdjustment`; notes / warnings : text.
+    :class:`~baarda.pipeline.imodels.block.ModelBlockAdjustment`; notes / warnings : text;
+    options : the :class:`ModelBlockOptions` it ran with.
     """
 
     pairs: list
@@ -152,7 +166,7 @@ class IndependentModelResult:
     block: ModelBlockAdjustment
     notes: list = field(default_factory=list)
     warnings: list = field(default_factory=list)
-    options: dict = field(default_factory=dict)
+    options: ModelBlockOptions | None = None
 
     @property
     def check(self) -> CheckPoints:
@@ -237,7 +251,7 @@ def independent_model_block(block: Block, *,
                                         weights=model_weights, projection_centres=projection_centres,
                                         sigma_pc_scale=sigma_pc_scale, pc_prefix=pc_prefix))
     adj = adjust_model_block(models, block.points, sigma0=sigma0, max_iter=max_iter, pc_prefix=pc_prefix)
-    opts = dict(method=method, parameters=parameters, pairing=pairing, model_weights=model_weights,
-                projection_centres=projection_centres, sigma_pc_scale=sigma_pc_scale, sigma0=sigma0)
+    opts = ModelBlockOptions(method=method, parameters=parameters, pairing=pairing, model_weights=model_weights,
+                             projection_centres=projection_centres, sigma_pc_scale=sigma_pc_scale, sigma0=sigma0)
     return IndependentModelResult(pairs=out_pairs, relative=rel, models=models, block=adj,
                                   notes=notes, warnings=warnings, options=opts)

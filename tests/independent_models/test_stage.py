@@ -94,6 +94,6 @@ def test_stage_defaults_are_the_workflow_defaults(tmp_path):
     block, _ = make_block(n_strips=2, n_photos=3, noise_mm=0.004, rng=np.random.default_rng(4))
     res = run_stage(IndependentModels, {"block": _weighted(block)}, {}, tmp_path=tmp_path)
     ref = independent_model_block(_weighted(block))
-    assert ref.options["model_weights"] == "propagated"
+    assert ref.options.model_weights == "propagated"
     assert res.summary["check_points"]["Sz"] == ref.check.Sz
     assert res.summary["block"]["sigma0_hat"] == ref.sigma0_hat
