@@ -150,7 +150,7 @@ def _with_aps(block, cfg: MethodStudyConfig, settings):
 
     sel = select_aps(block, settings, rho_max=cfg.rho_max, alpha=cfg.ap_alpha, on_singular="weak-priors")
     label = {"correlation": "bundle", "weak-priors": "testfield study"}[sel.method]
-    return sel.result, [k["parameter"] for k in sel.kept], label
+    return sel.result, [k.parameter for k in sel.kept], label
 
 
 def run_realisation(cfg: MethodStudyConfig, seed: int, repetition: int) -> list[dict]:
