@@ -77,7 +77,7 @@ def run_baarda(block, *, datum_on: str = "points", tol_rel: float = 1e-6, max_it
     c0, t0 = time.process_time(), time.perf_counter()
     res = adjust(block, settings)
     total, cpu = time.perf_counter() - t0, time.process_time() - c0
-    tm = dict(res.timings)
+    tm = res.timings.summary()
     cov = tm.get("covariance", 0.0) if redundancy else 0.0
     return {"result": res, "iterations": res.iterations, "own_cost": res.vtpv / 2, "seconds": total - cov,
             "cpu_seconds": cpu - cov, "threads": threads, "redundancy_seconds": cov, "timings": tm,

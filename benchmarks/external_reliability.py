@@ -4,7 +4,7 @@ builds on, on simulated aerial blocks (the scale benchmark's simulator).
     .venv/bin/python benchmarks/external_reliability.py [--sizes 300 2000] [--seed 7]
 
 Per size: the block is adjusted with the covariance (``solver = "auto"``: dense below ≈ 330 photos,
-sparse above); the baseline is the adjustment's own precision time (``timings["covariance"]``:
+sparse above); the baseline is the adjustment's own precision time (``timings.covariance``:
 selected inversion / cofactors, redundancy numbers); then ``own_effects`` (the MDB of every row on
 its own point and photo) is timed and the ratio printed, with the peak resident memory before and
 after.  As a check, the full effect vectors of three rows (``effect_vectors``: one solve of the
@@ -56,12 +56,12 @@ def run(n_photos: int, seed: int) -> dict:
     worst = 0.0
     for j, row in enumerate(rows):
         k, c = divmod(int(row), 2)
-        ref = np.r_[ev["points"][j, obs.point[k]], ev["eo"][j, obs.photo[k]]]
+        ref = np.r_[ev.points[j, obs.point[k]], ev.eo[j, obs.photo[k]]]
         got = np.r_[eff.point[k, c], eff.eo[k, c]]
         worst = max(worst, float(np.abs(got - ref).max() / np.abs(ref).max()))
     return {"photos": n_photos, "rows": int(res.row_active.sum()), "route": res.solver_route,
-            "adjust_s": t_adj, "precision_s": res.timings["covariance"], "own_effects_s": t_eff,
-            "ratio": t_eff / res.timings["covariance"], "full_3_rows_s": t_full, "agreement": worst,
+            "adjust_s": t_adj, "precision_s": res.timings.covariance, "own_effects_s": t_eff,
+            "ratio": t_eff / res.timings.covariance, "full_3_rows_s": t_full, "agreement": worst,
             "hwm_before_gb": hwm0, "hwm_after_gb": hwm1,
             "largest_point_sigma": float(np.nanmax(eff.point_in_sigma))}
 

@@ -28,16 +28,16 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def split(timings: dict) -> dict:
+def split(timings) -> dict:
     """set-up / solve / covariance seconds from a BundleResult's timings.
 
-    ``timings["setup"]`` does not include building the :class:`BundleProblem` (``adjust`` builds
+    ``timings.setup`` does not include building the :class:`BundleProblem` (``adjust`` builds
     it before ``solve_bundle`` starts its clock), so set-up here is everything that is neither
     solve nor covariance: ``total − (linearize + solve) − covariance`` (initial values, problem
     set-up, final residuals and check points)."""
-    solve = timings.get("linearize", 0.0) + timings.get("solve", 0.0)
-    cov = timings.get("covariance", 0.0)
-    total = timings.get("total", float("nan"))
+    solve = timings.linearize + timings.solve
+    cov = timings.covariance
+    total = timings.total
     return {"setup": total - solve - cov, "solve": solve, "covariance": cov, "total": total}
 
 

@@ -163,7 +163,7 @@ def child_baarda(a) -> dict:
         t0 = time.perf_counter()
         res = adjust(block, settings)
         wall = time.perf_counter() - t0
-        tm = dict(res.timings)
+        tm = res.timings.summary()
         solve = tm.get("linearize", 0.0) + tm.get("solve", 0.0)
         if best is None or solve < best["solve_seconds"]:
             r = np.asarray(res.redundancy)[np.asarray(res.obs_active)]

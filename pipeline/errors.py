@@ -55,11 +55,14 @@ class InputError(BaardaError):
 class AdjustmentError(BaardaError):
     """An adjustment cannot be computed: singular system, missing datum, no convergence.
 
-    ``state`` may carry the last iterate so that the caller can save it.
+    ``state`` may carry the last iterate so that the caller can save it, ``history`` the iterations
+    that led to it (a :class:`baarda.pipeline.adjustment.Convergence`; None when the error is not one
+    of convergence).
     """
 
-    def __init__(self, message: str, state: object | None = None):
+    def __init__(self, message: str, state: object | None = None, history: object | None = None):
         self.state = state
+        self.history = history
         super().__init__(message)
 
 

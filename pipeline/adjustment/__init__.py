@@ -5,7 +5,7 @@ Modules, in the order of the mathematics: :mod:`.settings` (what is asked), :mod
 priors, datum), :mod:`.layout` (the column layout of the unknowns), :mod:`.normal` (normal
 equations, the reduced camera system's pieces), :mod:`.route` (the dense and the sparse route,
 one interface, chosen once), :mod:`.factor` (the solution), :mod:`.sparse` (the sparse route's
-Cholesky), :mod:`.lm` (the Levenberg–Marquardt iteration), :mod:`.precision` (cofactors,
+Cholesky), :mod:`.lm` (the Levenberg–Marquardt iteration, its records in :mod:`.records`), :mod:`.precision` (cofactors,
 redundancy numbers), :mod:`.diagnose` (a singular system named), :mod:`.initial` (resection,
 intersection, initial values), :mod:`.apselect` (additional-parameter selection), :mod:`.adjust`
 (the entry point and its result), :mod:`.reproject` (a block's reprojection errors),
@@ -30,12 +30,13 @@ from .diagnose import parameter_names
 from .initial import ResectionResult, initial_values, intersection, resection
 from .lm import ITERATION_CALLBACK, solve_bundle
 from .problem import BundleProblem
-from .reliability import (GlobalRowStats, OwnEffects, effect_vectors, global_rows, linearised_model, own_effects,
-                          parameter_covariance, row_mdb)
+from .records import Convergence, Iteration, IterationEvent, Timings
+from .reliability import (GlobalRowStats, OwnEffects, ParameterVectors, effect_vectors, global_rows, linearised_model,
+                          own_effects, parameter_covariance, row_mdb)
 from .reproject import project_block, reprojection_px, reprojection_summary
 from .settings import BundleSettings, BundleState, Distance, camera_meta
-from .variance import (LinearComponents, VarianceComponents, VarianceGroup, estimate_components, group_parts,
-                       image_group_labels, linear_components)
+from .variance import (GroupPart, LinearComponents, VarianceComponents, VarianceGroup, estimate_components,
+                       group_parts, image_group_labels, linear_components)
 from .workflow import (EO_LABELS, APSelectionConfig, BundleConfig, BundleReport, OutputConfig, RobustConfig, ScaleBar,
                        SolverConfig, StatTestsConfig, VarianceComponentsConfig, adjust_block, bundle_settings,
                        configure_block)
@@ -44,11 +45,11 @@ __all__ = [
     "adjust", "BundleResult", "result_of", "BundleSettings", "BundleState", "Distance", "padded_ap", "camera_meta",
     "select_aps", "APSelection", "project_observations", "EO_NAMES", "IOP_NAMES", "parameter_names",
     "resection", "ResectionResult", "intersection", "initial_values", "solve_bundle", "ITERATION_CALLBACK",
-    "BundleProblem",
+    "BundleProblem", "Convergence", "Iteration", "IterationEvent", "Timings",
     "project_block", "reprojection_px", "reprojection_summary",
     "estimate_components", "VarianceComponents", "VarianceGroup", "linear_components", "LinearComponents",
-    "group_parts", "image_group_labels",
-    "own_effects", "OwnEffects", "effect_vectors", "parameter_covariance", "linearised_model", "row_mdb",
+    "group_parts", "GroupPart", "image_group_labels",
+    "own_effects", "OwnEffects", "effect_vectors", "ParameterVectors", "parameter_covariance", "linearised_model", "row_mdb",
     "global_rows", "GlobalRowStats",
     "adjust_block", "BundleConfig", "BundleReport", "configure_block", "bundle_settings", "ScaleBar",
     "SolverConfig", "StatTestsConfig", "RobustConfig", "VarianceComponentsConfig", "APSelectionConfig",

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from baarda.pipeline.accuracy import check_point_rmse
+from baarda.pipeline.accuracy import CheckPoints
 from baarda.pipeline.model import Block
 from baarda.pipeline.stats.robust import scale_covariance
 from baarda.pipeline.stats.snapshot import GroupBlocks, Snapshot
@@ -19,8 +19,9 @@ from ..camera import get_ap_model
 from .collinearity import EO_NAMES, project_observations
 from .initial import initial_values
 from .lm import final_system, solve_bundle
-from .precision import reliability_rows
+from .precision import Cofactors, reliability_rows
 from .problem import BundleProblem
+from .records import Convergence, Timings
 from .route import Route
 from .settings import BundleSettings, BundleState
 
@@ -61,7 +62,7 @@ class BundleResult:
     vtpv: float
     dof: int
     iterations: int
-    history: list
+    history: Convergence             # the iterations (iteration 0 the start)
     residuals: np.ndarray            # (k_all, 2) observed − computed for every observation (inactive too)
     obs_active: np.ndarray           # (k_all,) bool, observations used
     row_active: np.ndarray           # (k_all, 2) bool
@@ -72,13 +73,12 @@ class BundleResult:
     cov_points: np.ndarray           # (n, 3, 3) (nan for points not in the adjustment)
     redundancy: np.ndarray           # (k_all, 2) r_i = (Qvv P)_ii (0 inactive)
     PQvvP: np.ndarray                # (k_all, 2, 2) blocks of P Qvv P
-    check: dict
-    timings: dict
+    check: CheckPoints               # check points: role 'check' with surveyed coordinates
+    timings: Timings
     warnings: list
     Qx: np.ndarray | None = field(default=None, repr=False)   # cofactors of the global unknowns (dense route)
-    cofactors: object = field(default=None, repr=False)       # DenseCofactors / SparseCofactors
+    cofactors: Cofactors | None = field(default=None, repr=False)   # DenseCofactors / SparseCofactors
     route: Route | None = field(default=None, repr=False)      # the solver route the adjustment used
-    extras: dict = field(default_factory=dict, repr=False)     # stage-level results (tests, AP selection)
 
     # -- derived -------------------------------------------------------------------------------
     @property
@@ -260,8 +260,7 @@ class BundleResult:
     def summary(self) -> dict:
         return {"sigma0_hat": self.sigma0_hat, "vtpv": self.vtpv, "dof": self.dof, "iterations": self.iterations,
                 "observations": int(self.obs_active.sum()), "unknowns": self.problem.n_unknowns,
-                "check_points": {k: v for k, v in self.check.items() if k != "errors"},
-                "timings": self.timings}
+                "check_points": self.check.summary(), "timings": self.timings.summary()}
 
 
 def result_of(snapshot: Snapshot | None, default: "BundleResult") -> "BundleResult":
@@ -306,9 +305,6 @@ def adjust(block: Block, settings: BundleSettings | None = None, *, row_active=N
     t_prob = time.perf_counter() - t_prob
     st0 = start if start is not None else prob.initial_state(work)
     prob, st, info = solve_bundle(block, settings, start=st0, problem=prob, final=False)
-    timings = dict(info.timings)
-    timings["setup"] += t_prob                    # building the problem is set-up too
-    timings["initial_values"] = t_init
     t1 = time.perf_counter()
     want_cov = settings.covariance if covariance is None else covariance
     k_all = len(block.observations)
@@ -354,13 +350,13 @@ def adjust(block: Block, settings: BundleSettings | None = None, *, row_active=N
             sv_pred[out_obs] = np.sqrt(var_l + settings.sigma0 ** 2 * aq)
         sv_pred[~out_rows] = np.nan
         snapshot = _snapshot(block, prob, v_all, red_all, PQ_all, vtpv, dof, settings.sigma0, sv_pred)
-    timings["covariance"] = time.perf_counter() - t1
-    timings["total"] = time.perf_counter() - t0
+    timings = dataclasses.replace(info.timings, setup=info.timings.setup + t_prob,   # building the problem is set-up too
+                                  initial_values=t_init, covariance=time.perf_counter() - t1,
+                                  total=time.perf_counter() - t0)
     # check points: role 'check' with surveyed coordinates, adjusted as tie points
     pts = block.points
     chk = np.flatnonzero((pts.role == "check") & prob.point_used & np.isfinite(pts.XYZ).all(axis=1))
-    check = check_point_rmse(st.XYZ[chk], pts.XYZ[chk])
-    check["ids"] = pts.ids[chk].tolist()
+    check = CheckPoints.of(pts.ids[chk], st.XYZ[chk], pts.XYZ[chk])
     return BundleResult(block_in=block, settings=settings, state=st, problem=prob, sigma0=settings.sigma0,
                         vtpv=vtpv, dof=dof, iterations=info.iterations, history=info.history,
                         residuals=v_all, obs_active=prob.obs_active.copy(), row_active=prob.row_active.copy(),

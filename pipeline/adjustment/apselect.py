@@ -39,16 +39,44 @@ from .collinearity import IOP_NAMES
 from .diagnose import parameter_names
 from .settings import BundleSettings, camera_meta
 
-__all__ = ["APSelection", "select_aps", "WeakPriorSelection", "select_aps_weak_priors"]
+__all__ = ["APSelection", "APRemoval", "APKept", "select_aps", "WeakPriorSelection", "select_aps_weak_priors"]
 
 
-@dataclass
+@dataclass(frozen=True)
+class APRemoval:
+    """One parameter the selection fixed: by which ``rule`` (``"correlation"`` or
+    ``"significance"``) and why (``reason``, text); ``rho`` and its ``partner`` for a correlation,
+    ``t`` for a significance step (nan / "" where they do not apply)."""
+
+    camera: str
+    parameter: str
+    rule: str
+    reason: str
+    rho: float = float("nan")
+    partner: str = ""
+    t: float = float("nan")
+
+
+@dataclass(frozen=True)
+class APKept:
+    """One parameter left free: its ``value``, ``sigma``, ``t`` and whether ``t`` is significant."""
+
+    camera: str
+    parameter: str
+    value: float
+    sigma: float
+    t: float
+    significant: bool
+
+
+@dataclass(frozen=True, eq=False)
 class APSelection:
-    """What the selection did, step by step, and the final result."""
+    """What the selection did, step by step (:class:`APRemoval`), what it kept free
+    (:class:`APKept`), and the final result."""
 
     result: BundleResult
-    steps: list = field(default_factory=list)        # dicts: camera, parameter, rule, reason
-    kept: list = field(default_factory=list)         # dicts: camera, parameter, value, sigma, t, significant
+    steps: tuple = ()
+    kept: tuple = ()
     rho_max: float = 0.75
     alpha: float = 0.05
     critical_t: float = float("nan")
@@ -57,8 +85,8 @@ class APSelection:
 
     def summary(self) -> dict:
         return {"rho_max": self.rho_max, "alpha": self.alpha, "critical_t": self.critical_t,
-                "removed": [f"{s['camera']}:{s['parameter']}" for s in self.steps],
-                "kept": [f"{k['camera']}:{k['parameter']}" for k in self.kept]}
+                "removed": [f"{s.camera}:{s.parameter}" for s in self.steps],
+                "kept": [f"{k.camera}:{k.parameter}" for k in self.kept]}
 
     def markdown(self) -> str:
         lines = [f"AP selection: remove |ρ| > {self.rho_max:g} one after another (the AP of the pair with the "
@@ -66,13 +94,13 @@ class APSelection:
         if self.steps:
             lines += ["| step | camera | removed | rule | reason |", "|---|---|---|---|---|"]
             for i, s in enumerate(self.steps, 1):
-                lines.append(f"| {i} | {s['camera']} | {s['parameter']} | {s['rule']} | {s['reason']} |")
+                lines.append(f"| {i} | {s.camera} | {s.parameter} | {s.rule} | {s.reason} |")
         else:
             lines.append("No parameter removed.")
         lines += ["", "| camera | kept | value | σ | t | significant |", "|---|---|---|---|---|---|"]
         for k in self.kept:
-            lines.append(f"| {k['camera']} | {k['parameter']} | {k['value']:.6g} | {k['sigma']:.3g} | "
-                         f"{k['t']:.2f} | {'yes' if k['significant'] else 'no'} |")
+            lines.append(f"| {k.camera} | {k.parameter} | {k.value:.6g} | {k.sigma:.3g} | "
+                         f"{k.t:.2f} | {'yes' if k.significant else 'no'} |")
         return "\n".join(lines)
 
 
@@ -166,8 +194,8 @@ def _select_correlation(block, settings, rho_max, alpha, significance, result, m
             ta, tb = tv[(j, a)][2], tv[(j, b)][2]
             drop, keep = (a, b) if ta <= tb else (b, a)
             why = (f"|ρ| = {rho:.3f} with {names[j][keep]}; |t| {tv[(j, drop)][2]:.2f} ≤ {tv[(j, keep)][2]:.2f}")
-        steps.append({"camera": str(cam_ids[j]), "parameter": names[j][drop], "rule": "correlation",
-                      "reason": why, "rho": float(rho), "partner": names[j][keep]})
+        steps.append(APRemoval(str(cam_ids[j]), names[j][drop], "correlation", why, rho=float(rho),
+                               partner=names[j][keep]))
         cur = _fix(cur, j, drop)
         res = adjust(cur, settings, start=_start(res, j, drop))
     # 2. significance
@@ -179,16 +207,16 @@ def _select_correlation(block, settings, rho_max, alpha, significance, result, m
         if significance == "report" or not weak:
             break
         tmin, (j, t) = min(weak)
-        steps.append({"camera": str(cam_ids[j]), "parameter": names[j][t], "rule": "significance",
-                      "reason": f"|t| = {tmin:.2f} ≤ {crit:.3f} (α = {alpha:g})", "t": float(tmin)})
+        steps.append(APRemoval(str(cam_ids[j]), names[j][t], "significance",
+                               f"|t| = {tmin:.2f} ≤ {crit:.3f} (α = {alpha:g})", t=float(tmin)))
         cur = _fix(cur, j, t)
         res = adjust(cur, settings, start=_start(res, j, t))
         crit = float(stats.t.isf(alpha / 2, max(res.dof, 1)))
     kept = []
     for (j, t), (val, sd, tt) in sorted(_t_values(res, _candidates(cur, res)).items()):
-        kept.append({"camera": str(cam_ids[j]), "parameter": names[j][t], "value": val, "sigma": sd, "t": tt,
-                     "significant": bool(tt > crit)})
-    return APSelection(result=res, steps=steps, kept=kept, rho_max=rho_max, alpha=alpha, critical_t=crit)
+        kept.append(APKept(str(cam_ids[j]), names[j][t], val, sd, tt, bool(tt > crit)))
+    return APSelection(result=res, steps=tuple(steps), kept=tuple(kept), rho_max=rho_max, alpha=alpha,
+                       critical_t=crit)
 
 
 def _start(res: BundleResult, j: int, t: int):
@@ -223,12 +251,12 @@ def _from_weak_priors(block, settings, rho_max, alpha) -> APSelection:
         sd = float(np.sqrt(max(res.cov_cameras[0][t, t], 0.0)))
         val = float(res.state.cam_params[0, t]) - (float(block.cameras.c[0]) if n == "c" else 0.0)
         tt = abs(val) / sd if sd > 0 else np.inf
-        kept.append({"camera": cid, "parameter": n, "value": float(res.state.cam_params[0, t]), "sigma": sd, "t": tt,
-                     "significant": bool(tt > crit) if np.isfinite(crit) else True})
-    steps = [{"camera": cid, "parameter": n, "rule": "significance" if np.isnan(rho) else "correlation",
-              "reason": why if np.isnan(rho) else f"|ρ| = {rho:.3f} with {why}", "rho": rho}
-             for n, rho, why in sel.removed]
-    return APSelection(result=res, steps=steps, kept=kept, rho_max=rho_max, alpha=alpha, critical_t=crit,
+        kept.append(APKept(cid, n, float(res.state.cam_params[0, t]), sd, tt,
+                           bool(tt > crit) if np.isfinite(crit) else True))
+    steps = tuple(APRemoval(cid, n, "significance" if np.isnan(rho) else "correlation",
+                            why if np.isnan(rho) else f"|ρ| = {rho:.3f} with {why}", rho=rho)
+                  for n, rho, why in sel.removed)
+    return APSelection(result=res, steps=steps, kept=tuple(kept), rho_max=rho_max, alpha=alpha, critical_t=crit,
                        method="weak-priors")
 
 

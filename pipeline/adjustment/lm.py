@@ -21,27 +21,30 @@ from baarda.pipeline.model import Block
 from . import kernels
 from .normal import Linearisation
 from .problem import BundleProblem
+from .records import Convergence, Iteration, IterationEvent, Timings
 from .route import ReducedSystem, Route, choose_route
 from .settings import BundleSettings, BundleState
 
 __all__ = ["solve_bundle", "SolveInfo", "final_system", "SimilarityGauge", "ITERATION_CALLBACK"]
 
 ITERATION_CALLBACK = contextvars.ContextVar("iteration_callback", default=None)
-"""An optional observer ``callback(info)`` of each iteration (its history entry, ``max_iter``, ``seconds``
-since the start), set by a stage for its progress display; it never changes the iteration."""
+"""An optional observer ``callback(event)`` of each iteration (an :class:`~.records.IterationEvent`: the
+step, ``max_iter``, ``seconds`` since the start), set by a stage for its progress display; it never
+changes the iteration."""
 
 
 @dataclass(frozen=True, slots=True, eq=False)
 class SolveInfo:
-    """What :func:`solve_bundle` reports besides the problem and the state: the ``history`` (one
-    entry per iteration, iteration 0 the start), ``iterations``, ``timings`` (s), the final
+    """What :func:`solve_bundle` reports besides the problem and the state: the ``history``
+    (:class:`~.records.Convergence`, iteration 0 the start), ``iterations``, ``timings``
+    (:class:`~.records.Timings`), the final
     ``vtpv``, the solution's projection ``proj``, the :class:`~.route.Route` chosen at the start
     and — with ``final`` — the linearisation ``lin`` and undamped reduced system ``red`` at the
     solution (what the precision needs)."""
 
-    history: list
+    history: Convergence
     iterations: int
-    timings: dict
+    timings: Timings
     vtpv: float
     proj: object
     route: Route
@@ -67,17 +70,17 @@ def solve_bundle(block: Block, settings: BundleSettings | None = None, *, obs_ac
     gauge = SimilarityGauge.of(prob)
     parts = prob.residual_parts(st)
     cost = prob.cost(st, parts)
-    timings = {"setup": time.perf_counter() - t0, "linearize": 0.0, "solve": 0.0, "residuals": 0.0}
-    history = []
+    t_setup = time.perf_counter() - t0
+    t_lin = t_solve = t_res = 0.0
     lam = 0.0
-    history.append({"iteration": 0, "vtpv": cost, "lambda": 0.0, "max_step_sigma": float("nan")})
+    history = [Iteration(0, cost, 0.0, float("nan"))]
     converged = False
     it = 0
     eps_cost = 1e-12 * max(1, prob.n_obs_rows)
     nu = 2.0
     for it in range(1, settings.max_iter + 1):
         lin = prob.normals.linearize(st, parts[-1], sparse=route.sparse_normals)   # the accepted step's projection
-        timings["linearize"] += lin.t
+        t_lin += lin.t
         while True:
             ts = time.perf_counter()
             red = route.reduced_system(prob, lin, st, lam)
@@ -87,7 +90,7 @@ def solve_bundle(block: Block, settings: BundleSettings | None = None, *, obs_ac
             max_step = float(np.max(np.abs(pred))) if pred.size else 0.0
             gain = cost - _linear_cost(prob, lin, pred, dx, dp)
             tr = time.perf_counter()
-            timings["solve"] += tr - ts
+            t_solve += tr - ts
             new, new_parts, new_cost = _trial(prob, prob.apply(st, dx[:prob.n_g], dp))
             rho = _gain_ratio(cost, new_cost, gain)
             exact = False
@@ -98,7 +101,7 @@ def solve_bundle(block: Block, settings: BundleSettings | None = None, *, obs_ac
                     new, new_parts, new_cost = alt
                     rho = _gain_ratio(cost, new_cost, gain)
                     exact = True
-            timings["residuals"] += time.perf_counter() - tr
+            t_res += time.perf_counter() - tr
             if gain <= eps_cost and new_cost <= cost + eps_cost:
                 break                                 # nothing left to gain: converged
             if new_cost <= cost * (1 + 1e-10) + eps_cost or not settings.damping:
@@ -122,25 +125,24 @@ def solve_bundle(block: Block, settings: BundleSettings | None = None, *, obs_ac
                     "check the initial values and the datum", state=st)
         rel = abs(cost - new_cost) / max(cost, 1e-300)
         st, parts, cost = new, new_parts, new_cost
-        history.append({"iteration": it, "vtpv": cost, "lambda": lam, "max_step_sigma": max_step,
-                        "exact_similarity": exact})
+        history.append(Iteration(it, cost, lam, max_step, exact))
         if (callback := ITERATION_CALLBACK.get()) is not None:
-            callback({**history[-1], "max_iter": settings.max_iter, "seconds": time.perf_counter() - t0})
+            callback(IterationEvent(history[-1], settings.max_iter, time.perf_counter() - t0))
         if (lam == 0.0 and max_step < settings.tol_obs) or rel < settings.tol_rel or gain <= eps_cost \
-                or abs(cost - history[-2]["vtpv"]) <= eps_cost:
+                or abs(cost - history[-2].vtpv) <= eps_cost:
             converged = True
             break
     if not converged:
-        err = AdjustmentError(
+        raise AdjustmentError(
             f"no convergence after {settings.max_iter} iterations: vᵀPv = {cost:.6g}, last correction moved an "
-            f"observation by {history[-1]['max_step_sigma']:.3g} σ (threshold {settings.tol_obs:g}); "
-            "raise max_iter, check the initial values, or look for gross errors", state=st)
-        err.history = history
-        raise err
+            f"observation by {history[-1].max_step_sigma:.3g} σ (threshold {settings.tol_obs:g}); "
+            "raise max_iter, check the initial values, or look for gross errors", state=st,
+            history=Convergence.of(history))
     lin = red = None
     if final:
         lin, red = final_system(prob, route, st, parts[-1])
-    return prob, st, SolveInfo(history, it, timings, cost, parts[-1], route, lin, red)
+    timings = Timings(setup=t_setup, linearize=t_lin, solve=t_solve, residuals=t_res, total=time.perf_counter() - t0)
+    return prob, st, SolveInfo(Convergence.of(history), it, timings, cost, parts[-1], route, lin, red)
 
 
 class SimilarityGauge:

@@ -44,7 +44,7 @@ class Precision:
     Q_cam: list
     Q_eo: np.ndarray
     Q_gpt: np.ndarray
-    cofactors: object
+    cofactors: Cofactors
 
 
 def dense_precision(prob: BundleProblem, lin, red, by_pairs: bool, chunk_bytes: float = 6.4e7) -> Precision:
@@ -286,7 +286,7 @@ def sparse_precision(prob, lin, red, st) -> Precision:
     datum = _s_transform(prob, red, Q_eo, Q_gpt, gpt, Qpp, Q_diag) if prob.n_c else None
     if n_e:
         Qpp *= prob.elim_free[:, :, None] & prob.elim_free[:, None, :]
-    return Precision(None, Qpp, H, Q_cam, Q_eo, Q_gpt, SparseCofactors(fac, Q_diag, datum))
+    return Precision(None, Qpp, H, Q_cam, Q_eo, Q_gpt, SparseCofactors(fac, Q_diag, datum, prob.g_eo, Q_eo))
 
 
 def front_cofactors(front, Z, d, ipos, posg):
@@ -339,11 +339,26 @@ def _s_transform(prob, red, Q_eo, Q_gpt, gpt, Qpp, Q_diag):
     return Gg, T, Yg, CY
 
 
-class DenseCofactors:
-    """Cofactors of the global unknowns from the dense inverse."""
+class Cofactors:
+    """The cofactors of the global unknowns, one interface for both routes: the ``diagonal()``
+    (n_g,), ``columns(cols)`` (n_g, len(cols)) and ``blocks(cols)`` (G, w, w) for index groups
+    ``cols`` (G, w) where ``n_g`` marks a fixed unknown (its rows and columns 0)."""
 
-    def __init__(self, Qg: np.ndarray):
-        self.Qg = Qg
+    def diagonal(self) -> np.ndarray:
+        raise NotImplementedError
+
+    def columns(self, cols) -> np.ndarray:
+        raise NotImplementedError
+
+    def blocks(self, cols) -> np.ndarray:
+        raise NotImplementedError
+
+
+@dataclass(frozen=True, eq=False)
+class DenseCofactors(Cofactors):
+    """Cofactors of the global unknowns from the dense inverse ``Qg`` (n_g, n_g)."""
+
+    Qg: np.ndarray
 
     def diagonal(self) -> np.ndarray:
         return np.diag(self.Qg).copy()
@@ -351,16 +366,57 @@ class DenseCofactors:
     def columns(self, cols) -> np.ndarray:
         return self.Qg[:, np.asarray(cols, int)].copy()
 
+    def blocks(self, cols) -> np.ndarray:
+        """Gathered from ``Qg``."""
+        n_g = len(self.Qg)
+        cols = np.asarray(cols, int)
+        Qp = np.zeros((n_g + 1, n_g + 1))
+        Qp[:n_g, :n_g] = self.Qg
+        return Qp[cols[:, :, None], cols[:, None, :]]
 
-class SparseCofactors:
+
+@dataclass(frozen=True, eq=False)
+class SparseCofactors(Cofactors):
     """Cofactors of the global unknowns from the sparse factor: the diagonal (from the selected
-    inversion) and any columns on demand (solves; a free network's S-transformation applied)."""
+    inversion) and any columns on demand (solves; a free network's S-transformation applied).
+    ``g_eo`` (m, 6) the orientations' columns (−1 fixed) and ``Q_eo`` (m, 6, 6) their cofactor
+    blocks (the selected inversion) serve :meth:`blocks` within one photo's orientation."""
 
-    def __init__(self, factor, diag: np.ndarray, datum=None):
-        self.factor, self.diag, self.datum = factor, diag, datum
+    factor: object
+    diag: np.ndarray
+    datum: tuple | None = None
+    g_eo: np.ndarray | None = None
+    Q_eo: np.ndarray | None = None
 
     def diagonal(self) -> np.ndarray:
         return self.diag.copy()
+
+    def blocks(self, cols) -> np.ndarray:
+        """A group within one photo's orientation from its cofactor block, any other by solves."""
+        cols = np.asarray(cols, int)
+        n_g = len(self.diag)
+        G, w = cols.shape
+        m = 0 if self.g_eo is None else len(self.g_eo)
+        out = np.zeros((G, w, w))
+        Q_eo = np.zeros((m + 1, 7, 7))
+        photo = np.full(n_g + 1, m)
+        comp = np.full(n_g + 1, 6)
+        if m:
+            Q_eo[:m, :6, :6] = self.Q_eo
+            on = self.g_eo >= 0
+            photo[self.g_eo[on]], comp[self.g_eo[on]] = np.nonzero(on)
+        ph = photo[cols]
+        fixed = cols >= n_g
+        first = np.where(fixed, m + 1, ph).min(axis=1)
+        one = (np.where(fixed, first[:, None], ph) == first[:, None]).all(axis=1) & (first < m)
+        c = comp[cols]
+        out[one] = Q_eo[first[one][:, None, None], c[one][:, :, None], c[one][:, None, :]]
+        for j in np.flatnonzero(~one):
+            ok = ~fixed[j]
+            if ok.any():
+                cj = cols[j, ok]
+                out[j][np.ix_(ok, ok)] = self.columns(cj)[cj]
+        return out
 
     def columns(self, cols) -> np.ndarray:
         cols = np.asarray(cols, int)

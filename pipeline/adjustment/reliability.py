@@ -44,7 +44,7 @@ from baarda.pipeline.stats.snapshot import Snapshot
 from .collinearity import EO_NAMES
 from .lm import final_system
 
-__all__ = ["OwnEffects", "own_effects", "effect_vectors", "parameter_covariance", "parameter_names_of",
+__all__ = ["OwnEffects", "own_effects", "effect_vectors", "ParameterVectors", "parameter_covariance", "parameter_names_of",
            "row_mdb", "bar_delta0", "linearised_model", "GlobalRowStats", "global_rows"]
 
 
@@ -110,38 +110,11 @@ class GlobalRowStats:
 
 
 def _cofactor_blocks(res, cols: np.ndarray) -> np.ndarray:
-    """(G, w, w) cofactors of the global unknowns ``cols`` (G, w) (n_g: fixed → 0).  Dense route:
-    gathered from ``K⁻¹``; sparse route: a row group within one photo's orientation from the
-    orientations' cofactors (the selected inversion), any other by solves."""
-    prob = res.problem
-    n_g = prob.n_g
-    G, w = cols.shape
+    """(G, w, w) cofactors of the global unknowns ``cols`` (G, w) (n_g: fixed → 0), from the
+    route's cofactors (:meth:`~.precision.Cofactors.blocks`)."""
     if res.cofactors is None:
         raise ValueError("the statistics of the observations need the precision: adjust with covariance = true")
-    Qg = getattr(res.cofactors, "Qg", None)
-    if Qg is not None:
-        Qp = np.zeros((n_g + 1, n_g + 1))
-        Qp[:n_g, :n_g] = Qg
-        return Qp[cols[:, :, None], cols[:, None, :]]
-    out = np.zeros((G, w, w))
-    Q_eo = np.zeros((prob.m + 1, 7, 7))
-    Q_eo[:prob.m, :6, :6] = res.cov_eo / res.variance_factor
-    photo = np.full(n_g + 1, prob.m)
-    comp = np.full(n_g + 1, 6)
-    m = prob.g_eo >= 0
-    photo[prob.g_eo[m]], comp[prob.g_eo[m]] = np.nonzero(m)
-    ph = photo[cols]
-    fixed = cols >= n_g
-    first = np.where(fixed, prob.m + 1, ph).min(axis=1)
-    one = (np.where(fixed, first[:, None], ph) == first[:, None]).all(axis=1) & (first < prob.m)
-    c = comp[cols]
-    out[one] = Q_eo[first[one][:, None, None], c[one][:, :, None], c[one][:, None, :]]
-    for j in np.flatnonzero(~one):
-        ok = ~fixed[j]
-        if ok.any():
-            cj = cols[j, ok]
-            out[j][np.ix_(ok, ok)] = res.cofactor_columns(cj)[cj]
-    return out
+    return res.cofactors.blocks(cols)
 
 
 def global_rows(res) -> dict:
@@ -369,12 +342,22 @@ def _pick(X, pos):
 
 
 # --------------------------------------------------------------------------------------------------
-def effect_vectors(res, rows, delta0: float = 4.13, bias=None) -> dict:
+@dataclass(frozen=True, eq=False)
+class ParameterVectors:
+    """``r`` vectors over every parameter of the bundle, split by kind: ``cameras`` (a tuple per
+    camera of (r, 3 + p) over ``[c, xp, yp, ap…]``), ``eo`` (r, m, 6), ``points`` (r, n, 3) —
+    object units / rad; zero for fixed parameters, nan for points and photos not adjusted."""
+
+    cameras: tuple
+    eo: np.ndarray
+    points: np.ndarray
+
+
+def effect_vectors(res, rows, delta0: float = 4.13, bias=None) -> ParameterVectors:
     """Full effect of the MDB (or ``bias``) of chosen scalar rows on **every** parameter (one solve
     per row).  ``rows``: scalar row indices ``2 i + c`` (observation i, c = 0 x / 1 y).
 
-    Returns ``cameras`` (list per camera of (r, 3 + p)), ``eo`` (r, m, 6), ``points`` (r, n, 3)
-    (object units / rad; zero for fixed parameters, nan for points and photos not adjusted)."""
+    Returns a :class:`ParameterVectors`, one vector per row."""
     prob, lin, red, Qx = _system(res)
     rows = np.asarray(rows, int).reshape(-1)
     k_all = len(res.residuals)
@@ -401,7 +384,7 @@ def effect_vectors(res, rows, delta0: float = 4.13, bias=None) -> dict:
     return _scatter(res, xg, y)
 
 
-def _scatter(res, xg, y) -> dict:
+def _scatter(res, xg, y) -> ParameterVectors:
     """Global vector (n_g, r) and eliminated points (n_e, 3, r) → per-parameter arrays."""
     prob = res.problem
     r = xg.shape[1]
@@ -418,7 +401,7 @@ def _scatter(res, xg, y) -> dict:
     if prob.n_e:
         pts[:, prob.elim_points] = np.moveaxis(y, -1, 0)
     pts[:, ~prob.point_used] = np.nan
-    return {"cameras": cams, "eo": eo, "points": pts}
+    return ParameterVectors(tuple(cams), eo, pts)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -483,11 +466,11 @@ def parameter_covariance(res, specs) -> tuple[list[str], np.ndarray]:
     C = np.zeros((r, r))
     for j, (kind, i, t, _) in enumerate(params):
         if kind == "camera":
-            C[:, j] = out["cameras"][i][:, t]
+            C[:, j] = out.cameras[i][:, t]
         elif kind == "photo":
-            C[:, j] = out["eo"][:, i, t]
+            C[:, j] = out.eo[:, i, t]
         else:
-            C[:, j] = out["points"][:, i, t]
+            C[:, j] = out.points[:, i, t]
     C = np.nan_to_num(0.5 * (C + C.T)) * res.variance_factor
     return names, C
 

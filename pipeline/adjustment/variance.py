@@ -46,10 +46,22 @@ from .reliability import global_rows
 from .settings import BundleSettings, Distance, block_distances
 
 __all__ = ["VarianceGroup", "VarianceComponents", "LinearComponents", "linear_components",
-           "estimate_components", "group_parts", "image_group_labels", "scale_block", "component_test"]
+           "estimate_components", "group_parts", "GroupPart", "image_group_labels", "scale_block", "component_test"]
 
 
 # ---------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class GroupPart:
+    """One observation group's share of an adjustment (:func:`group_parts`): ``n`` scalar rows,
+    ``omega`` (Ω_g = v_gᵀ P_g v_g in the adjustment's weights) and ``redundancy`` (r_g)."""
+
+    name: str
+    kind: str                 # image | control | eo | interior | distance | gnss
+    n: int
+    omega: float
+    redundancy: float
+
+
 @dataclass(frozen=True)
 class VarianceGroup:
     """One group's estimate: ``factor`` multiplies the group's a-priori σ."""
@@ -186,22 +198,22 @@ def image_group_labels(block: Block, by: str | Sequence | np.ndarray = "camera",
     return lab
 
 
-def group_parts(result: BundleResult, image_labels: np.ndarray) -> list[dict]:
-    """Per group of ``result``: ``name, kind, n, omega`` (Ω_g, in the adjustment's weights) and
-    ``redundancy`` (r_g).  Image rows from the result's residuals and redundancy numbers; a prior
+def group_parts(result: BundleResult, image_labels: np.ndarray) -> tuple[GroupPart, ...]:
+    """A :class:`GroupPart` per group of ``result``: ``name, kind, n, omega`` (Ω_g, in the
+    adjustment's weights) and ``redundancy`` (r_g).  Image rows from the result's residuals and redundancy numbers; a prior
     on an unknown ``j`` has ``r = 1 − p_j Q_jj``, a scale bar ``r = 1 − p a Q aᵀ`` (``a`` the
     distance's gradient), a GNSS antenna coordinate ``r = (Qvv P)_ii`` of its 3 × 3 block
     (:func:`~.reliability.global_rows`).  Over all groups ``Σ r_g = dof``."""
     prob = result.problem
     st = result.state
     _, e, dg, dpv, dd, _ = prob.residual_parts(st)
-    out: dict[str, dict] = {}
+    out: dict[str, list] = {}                      # name → [kind, n, omega, redundancy], summed
 
     def add(name, kind, n, om, r):
-        d = out.setdefault(name, {"name": name, "kind": kind, "n": 0, "omega": 0.0, "redundancy": 0.0})
-        d["n"] += int(n)
-        d["omega"] += float(om)
-        d["redundancy"] += max(float(r), 0.0)      # a share of 0 computes as ±1e-14
+        d = out.setdefault(name, [kind, 0, 0.0, 0.0])
+        d[1] += int(n)
+        d[2] += float(om)
+        d[3] += max(float(r), 0.0)      # a share of 0 computes as ±1e-14
 
     # image coordinates (observations prob.oi; switched-off rows have zero weight and r = 0)
     oi = prob.oi
@@ -238,7 +250,7 @@ def group_parts(result: BundleResult, image_labels: np.ndarray) -> list[dict]:
             sl = prob.grow_slices[kind]
             name = {"distance": "scale bars", "gnss": "GNSS"}[kind]
             add(name, kind, sl.stop - sl.start, np.sum(dd[sl] ** 2), np.sum(gs.r))
-    return list(out.values())
+    return tuple(GroupPart(name, *d) for name, d in out.items())
 
 
 def scale_block(block: Block, settings: BundleSettings, factors: dict, image_labels: np.ndarray
@@ -299,9 +311,8 @@ def estimate_components(block: Block, settings: BundleSettings | None = None, *,
     while True:
         parts = group_parts(res, labels)
         if estimable is None:           # decided once, on the a-priori weights
-            estimable = {p["name"] for p in parts if p["redundancy"] >= min_redundancy and p["omega"] > 0}
-        est = {p["name"]: p["omega"] / (p["redundancy"] * s0sq) for p in parts
-               if p["name"] in estimable and p["redundancy"] > 0}
+            estimable = {p.name for p in parts if p.redundancy >= min_redundancy and p.omega > 0}
+        est = {p.name: p.omega / (p.redundancy * s0sq) for p in parts if p.name in estimable and p.redundancy > 0}
         history.append(est)
         if all(abs(v - 1.0) < tol for v in est.values()):
             converged = True
@@ -315,11 +326,11 @@ def estimate_components(block: Block, settings: BundleSettings | None = None, *,
         it += 1
     groups = []
     for p in parts:
-        ok = p["name"] in est
-        f = factors.get(p["name"], 1.0)          # the factor the last adjustment used
-        r = p["redundancy"]
+        ok = p.name in est
+        f = factors.get(p.name, 1.0)             # the factor the last adjustment used
+        r = p.redundancy
         T, pv, rej = component_test(f, r, alpha) if ok else (float("nan"), float("nan"), False)
-        groups.append(VarianceGroup(name=p["name"], kind=p["kind"], n=p["n"], redundancy=r, omega=p["omega"],
+        groups.append(VarianceGroup(name=p.name, kind=p.kind, n=p.n, redundancy=r, omega=p.omega,
                                     factor=float(f), sigma_factor=float(f / np.sqrt(2 * r)) if ok else float("nan"),
                                     T=T, p_value=pv, rejected=rej, estimable=ok))
     return VarianceComponents(groups=groups, iterations=it, converged=converged, history=history, first=res0,

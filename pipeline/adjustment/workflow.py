@@ -553,9 +553,7 @@ def adjust_block(block: Block, config: BundleConfig | None = None, *,
 
 def _with_block(err: AdjustmentError, block: Block) -> AdjustmentError:
     """A copy of ``err`` (message, state, history) that also carries the configured block."""
-    new = AdjustmentError(str(err), state=getattr(err, "state", None))
-    if hasattr(err, "history"):
-        new.history = err.history
+    new = AdjustmentError(str(err), state=err.state, history=err.history)
     new.block = block
     return new
 

@@ -33,7 +33,7 @@ import scipy.sparse as sp
 
 from baarda.pipeline.errors import AdjustmentError
 from baarda.pipeline.geometry import opk_from_rotation
-from baarda.pipeline.accuracy import check_point_rmse
+from baarda.pipeline.accuracy import CheckPoints
 from baarda.pipeline.model import Points
 from baarda.pipeline.stats.linear import LinearModel, factor_normal_equations, solve_normal
 from baarda.pipeline.stats.snapshot import Snapshot
@@ -107,7 +107,8 @@ class ModelBlockAdjustment:
     v_object : (g, 3) the same rotated and scaled into the object system.
     control_point : (c,) point index and control_axis : (c,) 0/1/2 of each weighted control row;
     v_control : (c,) control residuals ``X_surveyed − X_adjusted`` (observed − computed).
-    check : dict with ``ids``, ``dXYZ`` (adjusted − surveyed) and ``rmse`` (:func:`check_point_rmse`).
+    check : the check points (:class:`~baarda.pipeline.accuracy.CheckPoints`: ``ids``, ``errors``
+    adjusted − surveyed, ``Sx`` … ``Sz``).
     sigma0_hat, dof, iterations, converged, history (vᵀPv per iteration).
     snapshot : rows = 3 per observation group (x, y, z) then the control rows; active : rows used.
     """
@@ -128,7 +129,7 @@ class ModelBlockAdjustment:
     control_point: np.ndarray
     control_axis: np.ndarray
     v_control: np.ndarray
-    check: dict
+    check: CheckPoints
     sigma0_hat: float
     dof: int
     iterations: int
@@ -139,10 +140,6 @@ class ModelBlockAdjustment:
     _inputs: dict = field(default_factory=dict, repr=False)
     _lin: dict = field(default_factory=dict, repr=False)
 
-    @property
-    def rmse(self) -> dict:
-        return self.check["rmse"]
-
     def transform(self, model_index: int, xyz) -> np.ndarray:
         """Model coordinates of model ``model_index`` into the object system."""
         p = self.params[model_index]
@@ -152,7 +149,7 @@ class ModelBlockAdjustment:
     def report(self) -> dict:
         return {"models": int(len(self.model_ids)), "points": int(self.in_adjustment.sum()),
                 "sigma0_hat": self.sigma0_hat, "dof": self.dof, "iterations": self.iterations,
-                "converged": self.converged, "check_rmse": self.check["rmse"]}
+                "converged": self.converged, "check_rmse": self.check.rmse()}
 
     def refit(self, active) -> Snapshot:
         """Adjust again with the snapshot rows where ``active`` is True (Refittable)."""
@@ -463,10 +460,8 @@ def adjust_model_block(models: Sequence[ModelCoordinates], points: Points | None
     v_object[~act_g] = np.nan
     v_control = np.where(act_c, r_c, np.nan)
     chk = np.flatnonzero(role == "check")
-    check = {"ids": np.array([all_keys[i] for i in chk]),
-             "dXYZ": XYZ[chk] - np.array([ctrl[all_keys[i]][0] for i in chk]).reshape(-1, 3)}
-    check["rmse"] = {k: v for k, v in check_point_rmse(XYZ[chk], XYZ[chk] - check["dXYZ"]).items()
-                     if k != "errors"}                                 # errors are check["dXYZ"]
+    check = CheckPoints.of([all_keys[i] for i in chk], XYZ[chk],
+                           np.array([ctrl[all_keys[i]][0] for i in chk]).reshape(-1, 3))
     Qp = np.array([Qxx[7 * i:7 * i + 7, 7 * i:7 * i + 7] for i in range(n_m)])
     return ModelBlockAdjustment(
         model_ids=np.array(ids), params=params, Qparams=Qp, point_ids=np.array(all_keys),

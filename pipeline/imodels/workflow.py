@@ -4,7 +4,7 @@
 photos), orients each pair relatively (:mod:`baarda.pipeline.imodels.relor`), intersects the model points
 and the projection centres, and adjusts all models at once (:mod:`baarda.pipeline.imodels.block`) with
 the block's control.  It returns everything a report, a study or a recording needs — the check-point
-RMSE is ``result.rmse``.  Pure: no files, no rerun.
+RMSE is ``result.check`` (:class:`~baarda.pipeline.accuracy.CheckPoints`).  Pure: no files, no rerun.
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ from typing import Callable, Literal, Sequence
 
 import numpy as np
 
+from baarda.pipeline.accuracy import CheckPoints
 from baarda.pipeline.errors import AdjustmentError, InputError
 from baarda.pipeline.model import Block
 
@@ -136,13 +137,27 @@ def model_coordinates(ro: RelativeOrientation, model_id: str, photos: tuple[str,
                             is_pc=np.array(is_pc), photos=tuple(photos))
 
 
+@dataclass(frozen=True)
+class ModelBlockOptions:
+    """The choices :func:`independent_model_block` ran with (its keyword arguments of the same names)."""
+
+    method: str
+    parameters: str
+    pairing: str
+    model_weights: str
+    projection_centres: bool
+    sigma_pc_scale: float
+    sigma0: float
+
+
 @dataclass(frozen=True, eq=False)
 class IndependentModelResult:
     """Everything :func:`independent_model_block` computed.
 
     pairs : [(model id, left photo id, right photo id)]; relative : the relative orientations
     (same order); models : the model coordinates handed to the block adjustment; block : the
-    :class:`~baarda.pipeline.imodels.block.ModelBlockAdjustment`; notes / warnings : text.
+    :class:`~baarda.pipeline.imodels.block.ModelBlockAdjustment`; notes / warnings : text;
+    options : the :class:`ModelBlockOptions` it ran with.
     """
 
     pairs: list
@@ -151,12 +166,12 @@ class IndependentModelResult:
     block: ModelBlockAdjustment
     notes: list = field(default_factory=list)
     warnings: list = field(default_factory=list)
-    options: dict = field(default_factory=dict)
+    options: ModelBlockOptions | None = None
 
     @property
-    def rmse(self) -> dict:
-        """Check-point RMSE ``{"Sx", "Sy", "Sxy", "Sz", "n"}`` (adjusted − surveyed)."""
-        return self.block.check["rmse"]
+    def check(self) -> CheckPoints:
+        """The check points of the block adjustment: ids, errors adjusted − surveyed, ``Sx`` … ``Sz``."""
+        return self.block.check
 
     @property
     def sigma0_hat(self) -> float:
@@ -236,7 +251,7 @@ def independent_model_block(block: Block, *,
                                         weights=model_weights, projection_centres=projection_centres,
                                         sigma_pc_scale=sigma_pc_scale, pc_prefix=pc_prefix))
     adj = adjust_model_block(models, block.points, sigma0=sigma0, max_iter=max_iter, pc_prefix=pc_prefix)
-    opts = dict(method=method, parameters=parameters, pairing=pairing, model_weights=model_weights,
-                projection_centres=projection_centres, sigma_pc_scale=sigma_pc_scale, sigma0=sigma0)
+    opts = ModelBlockOptions(method=method, parameters=parameters, pairing=pairing, model_weights=model_weights,
+                             projection_centres=projection_centres, sigma_pc_scale=sigma_pc_scale, sigma0=sigma0)
     return IndependentModelResult(pairs=out_pairs, relative=rel, models=models, block=adj,
                                   notes=notes, warnings=warnings, options=opts)

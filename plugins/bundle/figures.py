@@ -174,17 +174,18 @@ def checkpoint_errors(res):
 
 
 def convergence(history):
+    """vᵀPv and the largest correction per iteration of a :class:`~baarda.pipeline.adjustment.Convergence`."""
     plt = _plt()
-    it = [h["iteration"] for h in history]
+    it = history.iteration
     fig, a = plt.subplots(figsize=(6.5, 3.4))
-    vtpv = np.array([h["vtpv"] for h in history], float)
+    vtpv = history.vtpv
     (a.semilogy if np.any(vtpv > 0) else a.plot)(it, np.where(vtpv > 0, vtpv, np.nan) if np.any(vtpv > 0) else vtpv,
                                                  "o-", color="#1f4e9c", label="vᵀPv")
-    steps = [(h["iteration"], h["max_step_sigma"]) for h in history
-             if np.isfinite(h.get("max_step_sigma", np.nan)) and h["max_step_sigma"] > 0]
-    if steps:
+    step = history.max_step_sigma
+    shown = np.isfinite(step) & (step > 0)
+    if shown.any():
         a2 = a.twinx()
-        a2.semilogy(*zip(*steps), "s--", color="#d35400", label="largest correction / σ")
+        a2.semilogy(it[shown], step[shown], "s--", color="#d35400", label="largest correction / σ")
         a2.set_ylabel("largest correction (σ of an observation)", fontsize=8, color="#d35400")
     a.set_xlabel("iteration")
     a.set_ylabel("vᵀPv")
@@ -276,7 +277,7 @@ def bundle_figures(res, decision=None) -> dict:
             if fig is not None:
                 out[f"distortion_{cams.ids[j]}"] = (fig, f"Distortion of camera {cams.ids[j]} with ±1σ")
     out["network"] = (network(res), "Network: plan and elevation with standard error ellipses")
-    if res.check.get("n"):
+    if res.check:
         out["checkpoints"] = (checkpoint_errors(res), "Check-point error vectors")
     out["convergence"] = (convergence(res.history), "Convergence of vᵀPv")
     return out

@@ -14,7 +14,7 @@ from contextlib import contextmanager
 from contextvars import ContextVar
 from dataclasses import dataclass, field
 
-from baarda.pipeline.adjustment import ITERATION_CALLBACK
+from baarda.pipeline.adjustment import ITERATION_CALLBACK, IterationEvent
 
 HEADER = "adj iter        vtpv   vtpv_change  max_step/σ      lambda   time(s)"
 
@@ -41,10 +41,11 @@ def current_work() -> Work | None:
     return CURRENT.get()
 
 
-def iteration_line(adjustment: int, info: dict, previous: float | None) -> str:
-    change = "" if previous is None else f"{previous - info['vtpv']:13.6e}"
-    return (f"{adjustment:3d} {info['iteration']:4d} {info['vtpv']:11.6e} {change:>13} "
-            f"{info['max_step_sigma']:11.3e} {info['lambda']:11.3e} {info['seconds']:9.3f}")
+def iteration_line(adjustment: int, event: IterationEvent, previous: float | None) -> str:
+    s = event.step
+    change = "" if previous is None else f"{previous - s.vtpv:13.6e}"
+    return (f"{adjustment:3d} {s.iteration:4d} {s.vtpv:11.6e} {change:>13} "
+            f"{s.max_step_sigma:11.3e} {s.lam:11.3e} {event.seconds:9.3f}")
 
 
 @contextmanager
@@ -53,19 +54,20 @@ def iteration_progress(ctx, max_iter: int):
     bar = ctx.progress.bar(max_iter, "adjustment 1, iteration")
     detail = ctx.progress.detail
 
-    def on_iteration(info: dict) -> None:
-        if info["iteration"] == 1:                      # a new adjustment starts
+    def on_iteration(event: IterationEvent) -> None:
+        s = event.step
+        if s.iteration == 1:                            # a new adjustment starts
             work.adjustments += 1
             work.last_vtpv = None
             if work.adjustments > 1:
-                bar.reset(info["max_iter"], f"adjustment {work.adjustments}, iteration")
+                bar.reset(event.max_iter, f"adjustment {work.adjustments}, iteration")
             if detail:
                 bar.line(HEADER)
         work.iterations += 1
         if detail:
-            bar.line(iteration_line(work.adjustments, info, work.last_vtpv))
-        work.last_vtpv = info["vtpv"]
-        bar.update(1, vtpv=f"{info['vtpv']:.6g}")
+            bar.line(iteration_line(work.adjustments, event, work.last_vtpv))
+        work.last_vtpv = s.vtpv
+        bar.update(1, vtpv=f"{s.vtpv:.6g}")
 
     token_cb = ITERATION_CALLBACK.set(on_iteration)
     token_work = CURRENT.set(work)

@@ -169,8 +169,8 @@ def bundle_protocol(res, rejections=None, *, alpha0: float, beta0: float) -> dic
     n_fixed = int(((pts.sigma == 0).all(axis=1) & res.point_used).sum())
     if n_fixed:
         out.setdefault("control", {"unit": ou})["n_fixed"] = n_fixed
-    if res.check.get("n"):
-        out["check"] = {k: res.check.get(k) for k in ("n", "Sx", "Sy", "Sxy", "Sz")}
+    if res.check:
+        out["check"] = {k: getattr(res.check, k) for k in ("n", "Sx", "Sy", "Sxy", "Sz")}
         out["check"]["unit"] = ou
 
     # reliability: the largest MDB of an image coordinate and its effect on the points

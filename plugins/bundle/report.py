@@ -133,10 +133,10 @@ def report_text(rep, work=None, protocol=None) -> str:
                  "(T2d, T2d_critical, T2d_flagged)")
     L.extend(_ids_lines(rep))
     L.extend(_robust_lines(rep.robust))
-    if res.check.get("n"):
+    if res.check:
         c = res.check
-        L.append(f"- check points ({c['n']}, adjusted − surveyed): Sx = {_f(c['Sx'])}, Sy = {_f(c['Sy'])}, "
-                 f"Sxy = {_f(c['Sxy'])}, Sz = {_f(c['Sz'])} ({block.object_unit})")
+        L.append(f"- check points ({c.n}, adjusted − surveyed): Sx = {_f(c.Sx)}, Sy = {_f(c.Sy)}, "
+                 f"Sxy = {_f(c.Sxy)}, Sz = {_f(c.Sz)} ({block.object_unit})")
     t = res.timings
     w = work
     if w is not None and w.adjustments > 1:
@@ -144,8 +144,8 @@ def report_text(rep, work=None, protocol=None) -> str:
                  "in all: every re-adjustment of the stage, and the statistics); the last adjustment:")
     elif w is not None:
         L.append(f"- stage time: {w.seconds:.3f} s (the adjustment and its statistics); the adjustment:")
-    L.append(f"- time: {t.get('total', 0):.3f} s (initial values {t.get('initial_values', 0):.3f}, linearise "
-             f"{t.get('linearize', 0):.3f}, solve {t.get('solve', 0):.3f}, covariance {t.get('covariance', 0):.3f}; "
+    L.append(f"- time: {t.total:.3f} s (initial values {t.initial_values:.3f}, linearise "
+             f"{t.linearize:.3f}, solve {t.solve:.3f}, covariance {t.covariance:.3f}; "
              f"{res.solver_route} reduced system)")
     for w in res.warnings:
         L.append(f"- warning: {w}")
@@ -454,8 +454,9 @@ def tables(rep) -> dict:
     tables["correlations"] = TableData({"camera": [c[0] for c in corr_rows], "p1": [c[1] for c in corr_rows],
                                         "p2": [c[2] for c in corr_rows], "rho": [c[3] for c in corr_rows]},
                                        "correlations between the estimated camera parameters")
-    tables["convergence"] = TableData({k: [h[k] for h in res.history] for k in
-                                       ("iteration", "vtpv", "lambda", "max_step_sigma")},
+    h = res.history
+    tables["convergence"] = TableData({"iteration": h.iteration.tolist(), "vtpv": h.vtpv.tolist(),
+                                       "lambda": h.lam.tolist(), "max_step_sigma": h.max_step_sigma.tolist()},
                                       "vᵀPv, damping and largest correction (in σ of an observation) per iteration")
     tables.update(bundle_external.tables(rep))
     if rep.gnss is not None:

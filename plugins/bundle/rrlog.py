@@ -43,11 +43,13 @@ def _format(block, j, xy):
     return f
 
 
-def log_bundle(rec, res, decision, options, report: str, max_photos: int | None = None) -> None:
-    """Every used photo is logged unless ``max_photos`` is given (then every k-th, and the
-    recording's notes say so)."""
+def log_bundle(rec, rep, report: str, max_photos: int | None = None) -> None:
+    """The recording of the workflow's :class:`~baarda.pipeline.adjustment.BundleReport` ``rep``.
+    Every used photo is logged unless ``max_photos`` is given (then every k-th, and the recording's
+    notes say so)."""
     import rerun as rr
 
+    res, decision, options = rep.result, rep.decision, rep.config.output
     block = res.block_in
     st = res.state
     pts, photos, obs = block.points, block.photos, block.observations
@@ -119,12 +121,13 @@ def log_bundle(rec, res, decision, options, report: str, max_photos: int | None 
                             labels=[f"{m * uscale:.{2 if unit == 'px' else 1}f} {unit}" for m in mag]), static=True)
         rec.log(f"cameras/{_safe(block.cameras.ids[j])}/distortion_scale", rr.AnyValues(arrow_scale=dscale),
                 static=True)
-    gn = (res.extras or {}).get("gnss")
-    if gn is not None:         # GNSS antennas: observed positions, residual arrows computed → observed (scaled)
-        g_obs, g_v = gn["observed"], gn["v"]
+    if rep.gnss is not None:     # GNSS antennas: observed positions, residual arrows computed → observed (scaled)
+        gs, gnss = rep.gnss.rows, block.gnss
+        g_obs, g_v = gnss.XYZ[gs.index], gs.v
+        g_photos = block.photos.ids[gnss.photo[gs.index]].astype(str).tolist()
         g_rms = float(np.sqrt(np.mean(g_v ** 2)))
         g_sc = 0.03 * float(np.ptp(st.X0[res.photo_used], axis=0).max()) / g_rms if g_rms > 0 else 1.0
-        rec.log("world/gnss/antennas", rr.Points3D(g_obs, labels=gn["photos"], radii=rr.Radius.ui_points(5.0)), static=True)
+        rec.log("world/gnss/antennas", rr.Points3D(g_obs, labels=g_photos, radii=rr.Radius.ui_points(5.0)), static=True)
         rec.log("world/gnss/residuals", rr.Arrows3D(origins=g_obs - g_v * g_sc, vectors=g_v * g_sc), static=True)
         rec.log("world/gnss/arrow_scale", rr.AnyValues(arrow_scale=g_sc), static=True)
     rec.log("bundle/summary", rr.AnyValues(sigma0_hat=res.sigma0_hat, dof=res.dof, vtpv=res.vtpv,
@@ -134,13 +137,13 @@ def log_bundle(rec, res, decision, options, report: str, max_photos: int | None 
     # one view each (their scales differ by orders of magnitude); a series that stays the same for the
     # whole run (λ = 0 when no step was damped) is a static value under convergence/<group>/constants
     hist = res.history
-    it = [int(h["iteration"]) for h in hist]
-    log_series(rec, "convergence/cost", it, {"vtpv": [float(h["vtpv"]) for h in hist]})
-    log_series(rec, "convergence/sigma0", it, {"sigma0_hat": [float(np.sqrt(h["vtpv"] / dof)) for h in hist]})
-    log_series(rec, "convergence/damping", it, {"lambda": [float(h["lambda"]) for h in hist]})
-    log_series(rec, "convergence/step", it, {"max_step_sigma": [float(h["max_step_sigma"]) for h in hist]})
+    it = hist.iteration.tolist()
+    log_series(rec, "convergence/cost", it, {"vtpv": hist.vtpv.tolist()})
+    log_series(rec, "convergence/sigma0", it, {"sigma0_hat": np.sqrt(hist.vtpv / dof).tolist()})
+    log_series(rec, "convergence/damping", it, {"lambda": hist.lam.tolist()})
+    log_series(rec, "convergence/step", it, {"max_step_sigma": hist.max_step_sigma.tolist()})
     # iterated data snooping inside the bundle: one step per rejection (the same groups as blunder-rejection)
-    ids = (getattr(res, "extras", None) or {}).get("ids")
+    ids = rep.ids
     if ids is not None and ids.history:
         steps = [int(h.iteration) for h in ids.history]
         log_series(rec, "ids/global_test", steps, {"T": [float(h.T) for h in ids.history]},

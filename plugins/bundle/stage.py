@@ -8,7 +8,6 @@ report text, tables and summary (:mod:`.report`), figures and the recording.
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 
 import numpy as np
@@ -68,10 +67,7 @@ class BundleAdjustment:
     def log(self, result: StageResult, rec, ctx: Context) -> None:
         from .rrlog import log_bundle
 
-        rep = result.data["report"]
-        res = copy.copy(rep.result)     # the recording reads the GNSS antennas and IDS steps from ``extras``
-        res.extras = {"ids": rep.ids, "gnss": bundle_report.gnss_parts(rep) if rep.gnss is not None else None}
-        log_bundle(rec, res, rep.decision, rep.config.output, result.report)
+        log_bundle(rec, result.data["report"], result.report)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -88,9 +84,8 @@ def _save_state(err: AdjustmentError, block: Block, ctx: Context) -> None:
         fname = f"{ctx.stage_id}_last_{name}.csv"
         write_table(ctx.run_dir / fname, table)
         names.append(fname)
-    new = AdjustmentError(f"{err} — the last state is saved in {ctx.run_dir}: {', '.join(names)}", state=st)
-    if hasattr(err, "history"):
-        new.history = err.history
+    new = AdjustmentError(f"{err} — the last state is saved in {ctx.run_dir}: {', '.join(names)}", state=st,
+                          history=err.history)
     raise new from err
 
 

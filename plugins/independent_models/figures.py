@@ -19,17 +19,17 @@ def check_point_sets(result, bundle=None) -> list:
     (adjusted − surveyed) at the surveyed positions, and the bundle's where ``bundle`` is given."""
     blk = result.block
     chk = blk.check
-    ids = [str(i) for i in chk["ids"]]
+    ids = [str(i) for i in chk.ids]
     where = {str(p): k for k, p in enumerate(blk.point_ids)}
-    d = np.asarray(chk["dXYZ"], float).reshape(-1, 3)
+    d = np.asarray(chk.errors, float).reshape(-1, 3)
     xy = (np.asarray(blk.XYZ, float)[[where[i] for i in ids]] - d)[:, :2] if ids else np.zeros((0, 2))
     sets = [{"label": "independent models", "ids": ids, "xy": xy, "d": d, "sigma": None, "color": "#c0392b"}]
     if bundle is not None:
         sid, res = bundle
         pts = res.block_in.points
         pos = {str(p): k for k, p in enumerate(pts.ids)}
-        bids = [str(i) for i in res.check["ids"]]
-        bd = np.asarray(res.check["errors"], float).reshape(-1, 3)
+        bids = [str(i) for i in res.check.ids]
+        bd = np.asarray(res.check.errors, float).reshape(-1, 3)
         sets.append({"label": "bundle" if sid == "bundle" else f"bundle ({sid})", "ids": bids, "xy": np.asarray(pts.XYZ, float)[[pos[i] for i in bids], :2],
                      "d": bd, "sigma": None, "color": "#1f4e9c"})
     return sets
@@ -130,7 +130,7 @@ def independent_model_figures(result, stats, tables, unit: str, bundle=None) -> 
     """Every figure: name → (figure, caption).  ``bundle`` ``(stage id, BundleResult)`` of the run's
     bundle with check points (the ``bundle`` artefact the stage reads), or None."""
     out = {}
-    if len(result.block.check["ids"]):
+    if len(result.block.check.ids):
         out["checkpoints"] = (check_points(result, unit, bundle),
                               "Check-point errors (adjusted − surveyed) of the independent-model block"
                               + (f" beside the bundle's ({bundle[0]}) of this run" if bundle else "")

@@ -27,22 +27,22 @@ def summary(result: IndependentModelResult, stats: dict, block) -> dict:
              "rcond": ro.rcond, "n_flagged": int(st["snooping"].flagged.sum()),
              "flagged": st["snooping"].flagged_labels}
         models.append(d)
-    rm = blk.check["rmse"]
+    rm = blk.check
     unit = block.object_unit
-    check_points = {"n": int(rm["n"]), **{k: float(rm[k]) for k in ("Sx", "Sy", "Sxy", "Sz")}, "unit": unit}
+    check_points = {"n": int(rm.n), **{k: float(getattr(rm, k)) for k in ("Sx", "Sy", "Sxy", "Sz")}, "unit": unit}
     f, u = (100.0, "cm") if unit == "m" else (1.0, unit)
     headline = (f"{len(result.relative)} models; block σ̂0 = {blk.sigma0_hat:.3g} (dof {blk.dof}, global test "
                 f"{'rejected' if gt.rejected else 'accepted'}), {int(ds.flagged.sum())} coordinate(s) flagged"
-                + (f"; check points ({rm['n']}): Sxy {rm['Sxy'] * f:.4g} {u}, Sz {rm['Sz'] * f:.4g} {u}"
-                   if rm["n"] else "; no check points"))
+                + (f"; check points ({rm.n}): Sxy {rm.Sxy * f:.4g} {u}, Sz {rm.Sz * f:.4g} {u}"
+                   if rm.n else "; no check points"))
     return {
         "headline": headline, "check_points": check_points,
-        "models": len(result.relative), "method": result.options["method"],
-        "parameters": result.options["parameters"],
+        "models": len(result.relative), "method": result.options.method,
+        "parameters": result.options.parameters,
         "block": {"sigma0_hat": blk.sigma0_hat, "dof": blk.dof, "iterations": blk.iterations,
                   "global_test": gt.summary(), "n_flagged": int(ds.flagged.sum()),
                   "flagged": ds.flagged_labels, "points": int(blk.in_adjustment.sum())},
-        "check_rmse": dict(blk.check["rmse"]), "object_unit": block.object_unit,
+        "check_rmse": blk.check.rmse(), "object_unit": block.object_unit,
         "per_model": models, "ro_removed": stats.get("ro_removed", {}),
     }
 
@@ -121,12 +121,12 @@ def tables(result: IndependentModelResult, stats: dict, block) -> dict:
     transformations = TableData(tr, f"7-parameter similarity of each model into the object system "
                                     f"(X = s Mᵀ x + T, {unit}); standard deviations a posteriori")
     s0 = blk.sigma0_hat if np.isfinite(blk.sigma0_hat) else 1.0
-    sx = np.sqrt(np.maximum(np.einsum("pii->pi", blk.cov_XYZ), 0)) * s0 / result.options["sigma0"]
+    sx = np.sqrt(np.maximum(np.einsum("pii->pi", blk.cov_XYZ), 0)) * s0 / result.options.sigma0
     points = TableData({"point": blk.point_ids.tolist(), "role": blk.role.tolist(),
                         "models": blk.n_models, "in_adjustment": blk.in_adjustment,
                         "X": blk.XYZ[:, 0], "Y": blk.XYZ[:, 1], "Z": blk.XYZ[:, 2],
                         "sX": sx[:, 0], "sY": sx[:, 1], "sZ": sx[:, 2],
-                        **im_reliability.point_columns(blk.cov_XYZ, (s0 / result.options["sigma0"]) ** 2)},
+                        **im_reliability.point_columns(blk.cov_XYZ, (s0 / result.options.sigma0) ** 2)},
                        f"adjusted object points ({unit}); σ a posteriori; projection centres 'pc:<photo>'; "
                        "1-σ error ellipsoid (semi-axes, direction of the largest), plan ellipse, height σ")
     ds = stats["block"]["snooping"]
@@ -152,8 +152,8 @@ def tables(result: IndependentModelResult, stats: dict, block) -> dict:
                          "v": blk.v_control, "r": s.r[3 * G:3 * G + C], "w": ds.w[3 * G:3 * G + C]},
                         f"weighted control coordinates: residual surveyed − adjusted ({unit}), redundancy, w")
     chk = blk.check
-    check = TableData({"point": chk["ids"].tolist(), "dX": chk["dXYZ"][:, 0], "dY": chk["dXYZ"][:, 1],
-                       "dZ": chk["dXYZ"][:, 2]}, f"check points: adjusted − surveyed ({unit})")
+    check = TableData({"point": list(chk.ids), "dX": chk.errors[:, 0], "dY": chk.errors[:, 1],
+                       "dZ": chk.errors[:, 2]}, f"check points: adjusted − surveyed ({unit})")
     return {"models": models, "ro_tests": ro_tests, "ro_points": ro_points,
             "transformations": transformations, "points": points, "residuals": residuals,
             "control": control, "check_points": check}
@@ -165,7 +165,7 @@ def report(result: IndependentModelResult, stats: dict, s: dict, block) -> str:
     lines = [f"{s['models']} models, relative orientation by **{s['method']}** "
              f"({s['parameters']} parameters); block adjustment with one 7-parameter similarity per "
              f"model over {s['block']['points']} points "
-             f"({'with' if result.options['projection_centres'] else 'without'} projection centres).", ""]
+             f"({'with' if result.options.projection_centres else 'without'} projection centres).", ""]
     rows = []
     for d, st in zip(s["per_model"], stats["models"]):
         gt = st["global"]

@@ -146,7 +146,7 @@ class IndependentModels(Stage):
 
         d = result.data
         name = next((f.stage for f in reversed(ctx.findings) if f.use == "bundle"), "bundle") if ctx else "bundle"
-        bundle = (name, d["bundle"]) if d.get("bundle") is not None and d["bundle"].check.get("ids") else None
+        bundle = (name, d["bundle"]) if d.get("bundle") is not None and d["bundle"].check.ids else None
         return independent_model_figures(d["result"], d["stats"], result.tables, d["block"].object_unit, bundle)
 
     def log(self, result: StageResult, rec, ctx: Context) -> None:
@@ -234,11 +234,11 @@ def log_independent_models(rec, result: IndependentModelResult, stats: dict, roo
             labels=[f"{blk.point_ids[p]} {'XYZ'[a]}" for p, a in zip(cp, blk.control_axis)]), static=True)
         lines.append(f"- {root}/block/control_residuals: surveyed − adjusted ×{kc:.3g}")
     chk = blk.check
-    if len(chk["ids"]):
-        idx = [int(np.flatnonzero(blk.point_ids == i)[0]) for i in chk["ids"]]
-        kk = _auto_scale(chk["dXYZ"], extent, arrow_scale)
+    if len(chk.ids):
+        idx = [int(np.flatnonzero(blk.point_ids == i)[0]) for i in chk.ids]
+        kk = _auto_scale(chk.errors, extent, arrow_scale)
         rec.log(f"{root}/block/check_errors", rr.Arrows3D(
-            origins=pts[idx] - chk["dXYZ"], vectors=chk["dXYZ"] * kk, labels=chk["ids"].tolist(),
+            origins=pts[idx] - chk.errors, vectors=chk.errors * kk, labels=list(chk.ids),
             colors=[[40, 170, 60]]), static=True)
         lines.append(f"- {root}/block/check_errors: adjusted − surveyed (from the surveyed point) ×{kk:.3g}")
     # convergence of the block adjustment: σ̂0 per iteration through the one series writer (a single

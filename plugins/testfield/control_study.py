@@ -63,7 +63,7 @@ def _run(block, with_aps: bool, cfg: ControlStudyConfig):
         return adjust(block, settings), [], ""
     sel = select_aps(block, settings, rho_max=cfg.rho_max, alpha=cfg.ap_alpha, on_singular="weak-priors",
                      method="correlation" if cfg.ap_selection == "bundle" else "weak-priors")
-    return sel.result, [k["parameter"] for k in sel.kept], SELECTION_LABEL[sel.method]
+    return sel.result, [k.parameter for k in sel.kept], SELECTION_LABEL[sel.method]
 
 
 def control_study(cfg: ControlStudyConfig, seed: int, progress: Callable | None = None,

@@ -118,8 +118,8 @@ def _bundle_settings():
 def _bundle_row(res, block, sigma_control_m: float) -> dict:
     """Check-point errors and the precision the bundle predicts for them (a-priori σ0)."""
     chk = res.check
-    ids = list(chk.get("ids", []))
-    err = np.asarray(chk.get("errors", np.zeros((0, 3))), float).reshape(-1, 3)
+    ids = list(chk.ids)
+    err = np.asarray(chk.errors, float).reshape(-1, 3)
     idx = block.points.index_of(ids) if ids else np.zeros(0, int)
     Q = res.cov_points[idx] / res.variance_factor if len(idx) else np.zeros((0, 3, 3))
     return {"ids": ids, "errors": err, "pred": _predicted(Q, sigma_control_m), "dof": int(res.dof),
@@ -136,10 +136,10 @@ def _predicted(Q: np.ndarray, sigma_control_m: float) -> np.ndarray:
 def _im_row(res, sigma_control_m: float) -> dict:
     blk = res.block
     chk = blk.check
-    ids = [str(i) for i in chk["ids"]]
+    ids = [str(i) for i in chk.ids]
     pos = {p: k for k, p in enumerate(blk.point_ids.tolist())}
     Q = blk.cov_XYZ[[pos[i] for i in ids]] if ids else np.zeros((0, 3, 3))
-    return {"ids": ids, "errors": np.asarray(chk["dXYZ"], float).reshape(-1, 3),
+    return {"ids": ids, "errors": np.asarray(chk.errors, float).reshape(-1, 3),
             "pred": _predicted(Q, sigma_control_m), "dof": int(blk.dof), "sigma0_hat": float(blk.sigma0_hat)}
 
 
@@ -150,7 +150,7 @@ def _with_aps(block, cfg: MethodStudyConfig, settings):
 
     sel = select_aps(block, settings, rho_max=cfg.rho_max, alpha=cfg.ap_alpha, on_singular="weak-priors")
     label = {"correlation": "bundle", "weak-priors": "testfield study"}[sel.method]
-    return sel.result, [k["parameter"] for k in sel.kept], label
+    return sel.result, [k.parameter for k in sel.kept], label
 
 
 def run_realisation(cfg: MethodStudyConfig, seed: int, repetition: int) -> list[dict]:

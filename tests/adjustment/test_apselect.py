@@ -28,13 +28,13 @@ def test_selection_removes_correlated_and_insignificant_aps():
     free = [t for t in range(3, 10) if res.problem.g_cam[0, t] >= 0]
     sub = R[np.ix_(free, free)] - np.eye(len(free))
     assert sub.max() <= 0.75                                   # the rule holds at the end
-    kept = {k["parameter"] for k in sel.kept}
+    kept = {k.parameter for k in sel.kept}
     assert {"K1", "B1"} <= kept                                # the real ones stay
     assert not {"K2", "K3"} & kept
     assert abs(res.sigma0_hat - 1) < 0.1
-    assert all(k["significant"] for k in sel.kept)
+    assert all(k.significant for k in sel.kept)
     for s in sel.steps:                                        # every removal says why
-        assert s["rule"] in ("correlation", "significance") and s["reason"]
+        assert s.rule in ("correlation", "significance") and s.reason
     md = sel.markdown()
     assert "| camera | kept |" in md
 
@@ -42,5 +42,5 @@ def test_selection_removes_correlated_and_insignificant_aps():
 def test_report_mode_keeps_everything_uncorrelated():
     blk, _ = make_block(model="ebner12", n_photos=8, n_points=50, noise_mm=0.001, rng=np.random.default_rng(2))
     sel = select_aps(blk, significance="report", rho_max=0.99)
-    assert all(s["rule"] == "correlation" for s in sel.steps)
+    assert all(s.rule == "correlation" for s in sel.steps)
     assert len(sel.kept) + len(sel.steps) == 12

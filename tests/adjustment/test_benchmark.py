@@ -20,8 +20,8 @@ def _print(name, res, wall):
     t = res.timings
     print(f"\n{name}: {len(res.block_in.photos)} photos, {int(res.problem.point_used.sum())} points, "
           f"{int(res.obs_active.sum())} obs; {res.iterations} iterations; total {wall:.2f} s "
-          f"(initial {t['initial_values']:.2f}, linearise {t['linearize']:.2f}, solve {t['solve']:.2f}, "
-          f"covariance {t['covariance']:.2f}); sigma0_hat {res.sigma0_hat:.4f}; mode {res.problem.normals.gram_mode}")
+          f"(initial {t.initial_values:.2f}, linearise {t.linearize:.2f}, solve {t.solve:.2f}, "
+          f"covariance {t.covariance:.2f}); sigma0_hat {res.sigma0_hat:.4f}; mode {res.problem.normals.gram_mode}")
 
 
 def test_benchmark_aicon(shared_data):

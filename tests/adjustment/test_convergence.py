@@ -98,7 +98,7 @@ def test_rig_reaches_the_independent_minimum_in_a_few_iterations(seed):
     block = rig_block(np.random.default_rng(seed))
     _, _, info = solve_bundle(block, BundleSettings(**RIG), final=False)
     assert info.iterations <= 8
-    assert any(h.get("exact_similarity") for h in info.history)
+    assert info.history.exact_similarity.any()
     ref = reference_minimum(block)
     assert info.vtpv == pytest.approx(ref, rel=1e-9)
 
@@ -118,8 +118,8 @@ def test_rig_creeps_with_additive_steps(monkeypatch):
     with pytest.raises(AdjustmentError, match="no convergence after 50 iterations") as e:
         solve_bundle(block, BundleSettings(**RIG), final=False)
     hist = e.value.history
-    assert hist[-1]["vtpv"] > reference_minimum(block) * (1 + 1e-8)     # the exact steps: within 1e-9
-    assert sum(h["lambda"] > 0 for h in hist) > 25                      # held by the damping: the creep
+    assert hist[-1].vtpv > reference_minimum(block) * (1 + 1e-8)       # the exact steps: within 1e-9
+    assert np.sum(hist.lam > 0) > 25                              # held by the damping: the creep
 
 
 def test_well_conditioned_free_network_iterates_as_before(monkeypatch):
@@ -127,7 +127,7 @@ def test_well_conditioned_free_network_iterates_as_before(monkeypatch):
     block = rig_block(np.random.default_rng(6), spread=0.5)
     s = BundleSettings(datum="free", max_iter=50, covariance=False)
     _, st_a, info_a = solve_bundle(block, s, final=False)
-    assert not any(h.get("exact_similarity") for h in info_a.history)
+    assert not info_a.history.exact_similarity.any()
     monkeypatch.setattr(SimilarityGauge, "of", classmethod(lambda cls, prob: None))
     _, st_b, info_b = solve_bundle(block, s, final=False)
     assert info_a.vtpv == info_b.vtpv

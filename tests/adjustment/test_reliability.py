@@ -107,8 +107,8 @@ def test_effect_vectors_full_and_on_both_routes():
             k, c = divmod(int(row), 2)
             dx = Q @ A.T @ P[:, 2 * loc[k] + c] * mdb[k, c]
             for u, (kind, i, t) in enumerate(unknowns):
-                got = ev["cameras"][i][j, t] if kind == "cam" else ev["eo"][j, i, t] if kind == "eo" else \
-                    ev["points"][j, i, t]
+                got = ev.cameras[i][j, t] if kind == "cam" else ev.eo[j, i, t] if kind == "eo" else \
+                    ev.points[j, i, t]
                 assert got == pytest.approx(dx[u], rel=2e-4, abs=2e-4 * np.abs(dx).max()), (solver, kind, i, t)
         if solver == "sparse":
             _check_own(res)

@@ -123,12 +123,12 @@ def test_group_shares_add_up_to_dof_and_vtpv():
     for solver in ("dense", "sparse"):
         res = adjust(blk, BundleSettings(distances=(Distance("110", "120", d + 3e-4, 1e-3),), solver=solver))
         parts = group_parts(res, labels)
-        assert {p["name"] for p in parts} == {"image camera A", "image camera B", "control", "eo", "interior",
+        assert {p.name for p in parts} == {"image camera A", "image camera B", "control", "eo", "interior",
                                               "scale bars"}
-        assert sum(p["redundancy"] for p in parts) == pytest.approx(res.dof, rel=1e-9)
-        assert sum(p["omega"] for p in parts) == pytest.approx(res.vtpv, rel=1e-9)
-        assert all(0 <= p["redundancy"] <= p["n"] + 1e-9 for p in parts)
-        sums[solver] = {p["name"]: p["redundancy"] for p in parts}
+        assert sum(p.redundancy for p in parts) == pytest.approx(res.dof, rel=1e-9)
+        assert sum(p.omega for p in parts) == pytest.approx(res.vtpv, rel=1e-9)
+        assert all(0 <= p.redundancy <= p.n + 1e-9 for p in parts)
+        sums[solver] = {p.name: p.redundancy for p in parts}
     for k in sums["dense"]:
         assert sums["dense"][k] == pytest.approx(sums["sparse"][k], rel=1e-7, abs=1e-9)
 

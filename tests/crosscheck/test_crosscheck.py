@@ -86,7 +86,7 @@ def test_equivalent_models_agree(case, start, request, tmp_path):
     assert q["covariance_intrinsics"]["max"] < 1e-4
     assert s["pycolmap"]["termination"] == "CONVERGENCE"
     if start == "initial":   # pycolmap started where baarda started
-        assert q["cost"]["pycolmap_initial"] == pytest.approx(res.history[0]["vtpv"] / 2, rel=1e-9)
+        assert q["cost"]["pycolmap_initial"] == pytest.approx(res.history[0].vtpv / 2, rel=1e-9)
 
 
 def test_parameter_mapping(brown):

@@ -137,7 +137,7 @@ def test_sxb_agrees_with_dbat(sxb):
         assert np.allclose(np.sqrt(np.diag(res.cov_points[k])), [sx, sy, sz], rtol=0.03, atol=1e-4), pid
         assert int((block.observations.point == k).sum()) == rays
     chk = res.check
-    got = dict(zip(chk["ids"], chk["errors"]))
+    got = dict(zip(chk.ids, chk.errors))
     for pid, (err, s) in SXB_CHECK.items():
         assert np.allclose(got[pid], err, atol=0.0011), (pid, got[pid])
         k = ids.index(pid)

@@ -125,10 +125,10 @@ def test_bundle_stage_reports_the_antennas(tmp_path):
     res = out.artefacts["bundle"]
     from baarda.pipeline.adjustment import group_parts, image_group_labels
 
-    parts = {p["name"]: p for p in group_parts(res, image_group_labels(res.block_in, "all"))}
+    parts = {p.name: p for p in group_parts(res, image_group_labels(res.block_in, "all"))}
     assert set(parts) == {"image", "control", "GNSS"}
-    assert sum(p["redundancy"] for p in parts.values()) == pytest.approx(res.dof, rel=1e-9)
-    assert np.sum(tab["rE"]) + np.sum(tab["rN"]) + np.sum(tab["rU"]) == pytest.approx(parts["GNSS"]["redundancy"])
+    assert sum(p.redundancy for p in parts.values()) == pytest.approx(res.dof, rel=1e-9)
+    assert np.sum(tab["rE"]) + np.sum(tab["rN"]) + np.sum(tab["rU"]) == pytest.approx(parts["GNSS"].redundancy)
     flagged = [p for p, f in zip(tab["photo"], tab["flagged"]) if f]
     assert flagged == [blk.photos.ids[7]]
     assert abs(tab["wU"][7]) > 10

@@ -34,8 +34,8 @@ def test_noise_free_block_recovers_truth(method, parameters):
     e_pts, e_pc = _truth_errors(res, block, truth)
     assert e_pts < 1e-12 and e_pc < 1e-12  # metres, object extent ≈ 2 m
     assert res.block.sigma0_hat < 1e-6  # σ = 4 µm a priori: residuals are rounding only
-    rm = res.rmse
-    assert rm["n"] == int((block.points.role == "check").sum()) and rm["Sz"] < 1e-12
+    rm = res.check
+    assert rm.n == int((block.points.role == "check").sum()) and rm.Sz < 1e-12
 
 
 def test_converges_from_poor_initial_values():
@@ -64,7 +64,7 @@ def test_noise_statistics_plausible():
     n_z = int((res.block.role == "z").sum())
     assert s.dof == s.n - 7 * 6 - 3 * n_unknown_pts + n_z
     # check points: errors of the size the propagated precision predicts (σ of a few 0.01 mm)
-    assert res.rmse["Sxy"] < 2e-4 and res.rmse["Sz"] < 5e-4
+    assert res.check.Sxy < 2e-4 and res.check.Sz < 5e-4
 
 
 def test_partial_and_weighted_control():

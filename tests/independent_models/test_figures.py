@@ -49,9 +49,9 @@ def test_keys_and_check_points_alone(run):
     assert all(isinstance(v, tuple) and v[1] for v in figs.values())
     plan, bx, by, bz = figs["checkpoints"][0].axes
     chk = out.data["result"].block.check
-    assert [t.get_text() for t in bz.get_xticklabels()] == [str(i) for i in chk["ids"]]
+    assert [t.get_text() for t in bz.get_xticklabels()] == [str(i) for i in chk.ids]
     for ax, c in ((bx, 0), (by, 1), (bz, 2)):
-        assert np.allclose([p.get_height() for p in _bars(ax, "independent models")], chk["dXYZ"][:, c])
+        assert np.allclose([p.get_height() for p in _bars(ax, "independent models")], chk.errors[:, c])
     q = plan.collections[0]                           # the vectors at the surveyed positions
     t = out.tables["check_points"].columns
     assert np.allclose(np.hypot(q.U, q.V) / np.hypot(q.U, q.V).max(),
@@ -71,8 +71,8 @@ def test_beside_an_earlier_bundle(run, tmp_path):
     plan, bx, by, bz = figs["checkpoints"][0].axes
     ids = [t.get_text() for t in bz.get_xticklabels()]
     got = {ids[round(p.get_x() + p.get_width() / 2)]: p.get_height() for p in _bars(bz, "bundle")}
-    want = dict(zip(res.check["ids"], np.asarray(res.check["errors"])[:, 2]))
-    assert got == pytest.approx(want) and len(got) == res.check["n"]
+    want = dict(zip(res.check.ids, np.asarray(res.check.errors)[:, 2]))
+    assert got == pytest.approx(want) and len(got) == res.check.n
 
 
 def test_y_parallaxes_and_residuals_are_the_stage_numbers(run):

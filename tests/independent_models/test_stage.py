@@ -49,7 +49,7 @@ def test_run_and_log(tmp_path):
     art = res.artefacts["adjustment"]
     assert isinstance(art, AdjustmentArtefact) and art.obs_rows.shape == (art.snapshot.n, 2)
     assert art.refit(art.snapshot.active).n == art.snapshot.n
-    assert res.artefacts["independent-models"].rmse == s["check_rmse"]
+    assert res.artefacts["independent-models"].check.rmse() == s["check_rmse"]
     # the comparison convention (docs/plugins.md): headline, check_points dict and table
     cp, tab = s["check_points"], res.tables["check_points"]
     assert cp["unit"] == "m" and cp["n"] == len(tab) == 22 and "22" in s["headline"]
@@ -94,6 +94,6 @@ def test_stage_defaults_are_the_workflow_defaults(tmp_path):
     block, _ = make_block(n_strips=2, n_photos=3, noise_mm=0.004, rng=np.random.default_rng(4))
     res = run_stage(IndependentModels, {"block": _weighted(block)}, {}, tmp_path=tmp_path)
     ref = independent_model_block(_weighted(block))
-    assert ref.options["model_weights"] == "propagated"
-    assert res.summary["check_points"]["Sz"] == ref.rmse["Sz"]
+    assert ref.options.model_weights == "propagated"
+    assert res.summary["check_points"]["Sz"] == ref.check.Sz
     assert res.summary["block"]["sigma0_hat"] == ref.sigma0_hat

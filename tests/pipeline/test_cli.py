@@ -182,10 +182,9 @@ def test_iteration_callback_reports_every_iteration_of_the_adjustment():
     finally:
         ITERATION_CALLBACK.reset(token)
     assert len(seen) >= 2
-    assert [h["iteration"] for h in seen] == [h["iteration"] for h in res.history[1:]]
-    np.testing.assert_array_equal([h["vtpv"] for h in seen], [h["vtpv"] for h in res.history[1:]])
-    assert all(h["max_iter"] == BundleSettings().max_iter for h in seen)
-    assert all(b["seconds"] >= a["seconds"] for a, b in zip(seen, seen[1:]))
+    assert [e.step for e in seen] == list(res.history[1:])      # the observer sees each step as recorded
+    assert all(e.max_iter == BundleSettings().max_iter for e in seen)
+    assert all(b.seconds >= a.seconds for a, b in zip(seen, seen[1:]))
     # without the observer the numbers are the same
     res2 = adjust(block, BundleSettings())
     np.testing.assert_array_equal(res2.state.XYZ, res.state.XYZ)
