@@ -245,11 +245,16 @@ class BundleConfig:
         known = {"c", "xp", "yp"}
         for m in models:
             known |= set(get_ap_model(m).params)
-        for name in self.sigma:
-            if self.ap_model and name not in known:
-                close = difflib.get_close_matches(name, sorted(known), n=1, cutoff=0.5)
-                raise ValueError(f"sigma.{name}: not a parameter of the camera model(s) "
-                                 f"({', '.join(sorted(known))})" + (f"; did you mean {close[0]!r}?" if close else ""))
+        # with ap_model given, every camera's model is known here (else it comes with the block: the
+        # same check is made by configure_block, so `baarda validate` catches what it can)
+        for where, names in (("fix", self.fix), ("free", self.free), ("sigma", list(self.sigma))):
+            for name in names:
+                if self.ap_model and name not in known:
+                    close = difflib.get_close_matches(name, sorted(known), n=1, cutoff=0.5)
+                    label = f"sigma.{name}" if where == "sigma" else f"{where}: {name!r}"
+                    raise ValueError(f"{label}: not a parameter of the camera model(s) "
+                                     f"({', '.join(sorted(known))})"
+                                     + (f"; did you mean {close[0]!r}?" if close else ""))
         if self.sigma_eo and len(self.sigma_eo) != 6:
             raise ValueError(f"sigma_eo: expected 6 non-negative numbers [X0, Y0, Z0, ω, φ, κ (deg)], "
                              f"got {self.sigma_eo!r}")

@@ -118,3 +118,13 @@ def test_an_adjustment_error_carries_the_configured_block(bad_block):
     with pytest.raises(AdjustmentError) as e:
         adjust_block(bad_block, BundleConfig(ap_model="ebner12", solver=SolverConfig(max_iter=1)))
     assert e.value.block.cameras.ap_model[0] == "ebner12" and e.value.state is not None
+
+
+@pytest.mark.parametrize("kw", [{"fix": ["K4"]}, {"free": ["K9"]}, {"sigma": {"P3": 0.1}}])
+def test_parameter_names_checked_against_the_given_model(kw):
+    """With ap_model given, a name in fix/free/sigma that the model lacks is refused when the config is
+    built (so `baarda validate` says it); without ap_model the block's models decide, at the stage."""
+    with pytest.raises(ValueError, match="not a parameter of the camera model"):
+        BundleConfig(ap_model="brown", **kw)
+    BundleConfig(**kw)
+    BundleConfig(ap_model="brown", fix=["K3"], free=["P1"], sigma={"K1": 0.1})
