@@ -67,3 +67,14 @@ def test_dbat_project(shared_beside, monkeypatch, tmp_path):
     assert stage.artefacts["bundle"].sigma0_hat == pytest.approx(res.sigma0_hat, rel=1e-12)
     np.testing.assert_allclose(stage.artefacts["bundle"].state.XYZ, res.state.XYZ, rtol=1e-12)
     assert stage.summary["data_snooping"]["n_flagged"] == int(ns["report"].snooping.flagged.sum())
+
+
+def test_the_readmes_example(shared_beside, monkeypatch):
+    """README.md's 'From Python' example runs as written and gives the COLMAP example's numbers."""
+    code = re.findall(r"```python\n(.*?)```", (ROOT / "README.md").read_text(encoding="utf-8"), re.S)
+    assert len(code) == 1
+    monkeypatch.chdir(ROOT)
+    ns: dict = {"__name__": "readme_example"}
+    exec(compile(code[0], "README.md", "exec"), ns)
+    doc = _run(_block("read_colmap"), "colmap", monkeypatch)
+    assert ns["report"].result.sigma0_hat == doc["report"].result.sigma0_hat
