@@ -30,21 +30,22 @@ difference is more than the noise of ``repetitions`` draws.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from functools import partial
-from typing import Callable
+from typing import Callable, Literal
 
 import numpy as np
 
 from baarda.pipeline.accuracy import check_point_rmse
 
 from baarda.pipeline.errors import AdjustmentError
-from baarda.pipeline.synthetic.testfield import (FOCAL_MM, SINGLE_MODEL_PHOTOS, STRIPS, TestFieldConfig,
-                                        simulate_testfield)
+from baarda.pipeline.options import option
+from baarda.pipeline.synthetic.testfield import (CASES, FOCAL_MM, SINGLE_MODEL_PHOTOS, STRIPS, SimulatedErrors,
+                                                 TestFieldConfig, simulate_testfield)
 from .paper_tables import PAPER_TABLE2, PAPER_TABLE3, PAPER_TABLE4
 from baarda.plugins.testfield.study_config import StudyConfig
 
-__all__ = ["MethodStudyConfig", "method_study", "run_realisation", "summarise", "compare",
+__all__ = ["MethodStudyConfig", "resolve", "method_study", "run_realisation", "summarise", "compare",
            "field_geometry", "conclusions", "VARIANTS", "PAPER_TABLE4", "PAPER_TABLE5", "PAPER_PERCENT"]
 
 BUNDLE = "bundle, no APs"
@@ -82,27 +83,77 @@ PAPER_PERCENT = {
 """The paper's differences in percent, ``100 (S_a − S_b)/S_b``."""
 
 
+PAPER_CASE = 5
+"""The control case of the paper's Tables 4 and 5."""
+
+
 @dataclass(frozen=True)
 class MethodStudyConfig(StudyConfig):
-    """The method study's part of the configuration (see the ``testfield-method-study`` stage's
-    options): one control case and the methods compared."""
+    """The method study's configuration: one control case and the methods compared (Tables 4, 5).
 
-    case: int = 5
-    im_model_weights: str = "propagated"
-    single_model: bool = True
-    methods: tuple = VARIANTS
+    Also the ``testfield-method-study`` stage's option table (one definition).  ``case`` and the
+    simulated errors (:class:`~baarda.pipeline.synthetic.testfield.SimulatedErrors`) may be
+    ``None``: "take it from the testfield block the stage reads, else the default" — resolved by
+    :func:`resolve`, the one place that says so (:func:`method_study` resolves without a block)."""
+
+    seed: int | None = option(None, "seed of the realisations; default: the project's seed for this stage")
+    case: int | None = option(None, f"control configuration 1–6 (docs/testfield.md); default: that of the "
+                                    f"testfield block this stage reads, else the paper's case {PAPER_CASE}")
+    with_ap_errors: bool | None = option(None, "simulate the known systematic image errors; default: as the "
+                                               "testfield block, else as the simulator (true)")
+    sigma_image_um: float | None = option(None, "image noise per coordinate (µm); default: the testfield "
+                                                "block's, else the simulator's (40, the paper's σ̂0 level)")
+    sigma_control_mm: float | None = option(None, "control survey noise per coordinate (mm); default: the "
+                                                  "testfield block's, else the simulator's (0.05)")
+    systematic_scale: float | None = option(None, "factor on the systematic image errors; default: the "
+                                                  "testfield block's, else the simulator's (1)")
+    im_model_weights: Literal["propagated", "intersection", "equal"] = option(
+        "propagated", "weights of the independent models' model coordinates (docs/independent-models.md)")
+    single_model: bool = option(True, "also adjust the single stereo model at 4.0 m (Table 4)")
+    methods: tuple[str, ...] = option(VARIANTS, "the methods to run (any of: " + ", ".join(VARIANTS) + ")")
+    in_comparison: bool = option(True, "the stage: put every method's check-point RMSE in "
+                                       "summary['check_points'] so the comparison stage lists and plots them")
 
     def __post_init__(self):
-        super().__post_init__()
+        super().__post_init__()     # every range: declared with option() or implied by the name
+        if self.case is not None and self.case not in CASES:
+            raise ValueError(f"case must be one of {list(CASES)}, got {self.case}")
         bad = [m for m in self.methods if m not in VARIANTS]
-        if bad:
-            raise ValueError(f"unknown method {bad[0]!r}; the study runs {', '.join(VARIANTS)}")
+        if bad or not self.methods:
+            raise ValueError(f"methods: expected a non-empty list drawn from {list(VARIANTS)}, "
+                             f"got {list(self.methods)}")
+        object.__setattr__(self, "methods", tuple(self.methods))
 
     def runs(self, method: str) -> bool:
         return method in self.methods and (self.single_model or method not in (SINGLE_AP, SINGLE))
 
     def testfield(self, block: str = "block", ap_model: str = "none") -> TestFieldConfig:
-        return self.field(self.case, block, ap_model)
+        cfg = resolve(self)[0]
+        return cfg.field(cfg.case, block, ap_model)
+
+
+FROM_BLOCK = ("case", "sigma_image_um", "sigma_control_mm", "with_ap_errors", "systematic_scale")
+"""The fields that ``None`` means "from the testfield block, else the default"."""
+
+
+def resolve(cfg: MethodStudyConfig, block=None) -> tuple[MethodStudyConfig, dict]:
+    """``cfg`` with every ``None`` of :data:`FROM_BLOCK` filled: from the testfield block's
+    configuration (``block.meta["testfield"]["config"]``) if given, else the default (the paper's
+    case, :class:`SimulatedErrors`'s declaration).  Returns (config, where each came from:
+    ``"option"``, ``"testfield block"`` or ``"default"``)."""
+    tf = {}
+    if block is not None and isinstance(getattr(block, "meta", None), dict):
+        tf = block.meta.get("testfield", {}).get("config", {}) or {}
+    defaults = {"case": PAPER_CASE, **{f.name: f.default for f in fields(SimulatedErrors)}}
+    values, source = {}, {}
+    for k in FROM_BLOCK:
+        if getattr(cfg, k) is not None:
+            source[k] = "option"
+        elif k in tf:
+            values[k], source[k] = tf[k], "testfield block"
+        else:
+            values[k], source[k] = defaults[k], "default"
+    return (replace(cfg, **values) if values else cfg), source
 
 
 # --------------------------------------------------------------------------------------------
@@ -161,6 +212,7 @@ def run_realisation(cfg: MethodStudyConfig, seed: int, repetition: int) -> list[
     from baarda.pipeline.adjustment import adjust
     from baarda.pipeline.imodels import independent_model_block
 
+    cfg = resolve(cfg)[0]
     settings = _bundle_settings()
     sc = cfg.sigma_control_mm * 1e-3
     rng = lambda: np.random.default_rng([seed, repetition])  # noqa: E731 — same draws for every method
@@ -214,6 +266,7 @@ def field_geometry(cfg: MethodStudyConfig) -> dict:
     point — for the block and the single model — and the first-order precision of a normal-case
     stereo pair, ``σ_XY ≈ (H/c) σ``, ``σ_Z ≈ (H/B)(H/c) σ`` (σ per image coordinate; a parallax
     from two independent measurements has √2 σ)."""
+    cfg = resolve(cfg)[0]
     out = {}
     kinds = [("block", STRIPS)] + ([("single model", (SINGLE_MODEL_PHOTOS,))]
                                    if cfg.runs(SINGLE) or cfg.runs(SINGLE_AP) else [])
@@ -358,7 +411,9 @@ def method_study(cfg: MethodStudyConfig, seed: int, progress: Callable | None = 
     ``mapper(fn, repetitions)`` runs the realisations (any callable with the signature of the
     built-in ``map``, e.g. :func:`baarda.pipeline.montecarlo.mapper`'s, which reports its own
     progress); without one they run here and ``progress(i, total)`` is called after each.  Each
-    realisation has its own seed (:func:`run_realisation`), so the result is the same either way."""
+    realisation has its own seed (:func:`run_realisation`), so the result is the same either way.
+    ``None`` fields of ``cfg`` take their defaults (:func:`resolve` without a block)."""
+    cfg = resolve(cfg)[0]
     one = partial(run_realisation, cfg, seed)
     if mapper is None:
         rows = []
@@ -377,8 +432,3 @@ def method_study(cfg: MethodStudyConfig, seed: int, progress: Callable | None = 
     return {"config": cfg, "seed": seed, "rows": rows, "variants": summarise(rows),
             "comparisons": {name: {"a": a, "b": b, **compare(rows, a, b)} for name, (a, b) in pairs.items()},
             "conclusions": conclusions(rows, cfg), "geometry": field_geometry(cfg)}
-
-
-def with_options(cfg: MethodStudyConfig, **changes) -> MethodStudyConfig:
-    """``cfg`` with the given fields replaced (``None`` values are ignored)."""
-    return replace(cfg, **{k: v for k, v in changes.items() if v is not None})

@@ -1,6 +1,7 @@
 """Stage ``method-study``: paper 001's Tables 4 and 5 on the simulated test field.
 
-Numerics in :mod:`.method_study` (pure); this module maps options, writes the CSV tables, the
+Numerics in :mod:`.method_study` (pure; its :class:`~.method_study.MethodStudyConfig` is this stage's
+option table); this module resolves what the options leave to the testfield block, writes the CSV tables, the
 summary the ``comparison`` stage collects (``summary["check_points"]``: one entry per method) and
 the recording; the report in the shape of the paper's tables is :mod:`.method_study_report`'s.
 See docs/method-study.md.
@@ -8,75 +9,15 @@ See docs/method-study.md.
 
 from __future__ import annotations
 
-import dataclasses
 import re
-from typing import Literal
 
 import numpy as np
 
 from baarda.pipeline import montecarlo
-from baarda.pipeline.options import option
 from baarda.pipeline.stage import Context, Stage, StageResult, TableData
-from baarda.pipeline.synthetic.testfield import CASES
 
-from .method_study import KEYS, PAPER_PERCENT, VARIANTS, MethodStudyConfig, method_study, with_options
+from .method_study import KEYS, PAPER_PERCENT, VARIANTS, MethodStudyConfig, method_study, resolve
 from .method_study_report import table4_rows, table5_rows, study_report
-from .study_config import StudyRuns
-
-
-@dataclasses.dataclass(frozen=True)
-class MethodStudyOptions(StudyRuns):
-    """repetitions, rho_max and ap_alpha: :class:`~.study_config.StudyRuns`, declared once."""
-
-    seed: int | None = option(None, "seed of the realisations; default: the project's seed for this stage")
-    case: int | None = option(None, "control configuration 1–6 (docs/testfield.md); default: that of the "
-                                    "testfield block this stage reads, else the paper's case 5")
-    sigma_image_um: float | None = option(None, "image noise per coordinate (µm); default: the testfield "
-                                                "block's, else the simulator's (40, the paper's σ̂0 level)")
-    sigma_control_mm: float | None = option(None, "control survey noise per coordinate (mm); default: the "
-                                                  "testfield block's, else 0.05")
-    with_ap_errors: bool | None = option(None, "simulate the known systematic image errors; default: as the "
-                                               "testfield block, else true")
-    systematic_scale: float | None = option(None, "factor on the systematic image errors; default: the "
-                                                  "testfield block's, else 1")
-    im_model_weights: Literal["propagated", "intersection", "equal"] = option(
-        "propagated", "weights of the independent models' model coordinates (docs/independent-models.md)")
-    single_model: bool = option(True, "also adjust the single stereo model at 4.0 m (Table 4)")
-    methods: list[str] = option(list(VARIANTS), "the methods to run (any of: " + ", ".join(VARIANTS) + ")")
-    in_comparison: bool = option(True, "put every method's check-point RMSE in summary['check_points'] so "
-                                       "the comparison stage lists and plots them")
-
-    def __post_init__(self):
-        super().__post_init__()     # every range: declared with option() or implied by the name
-        if self.case is not None and self.case not in CASES:
-            raise ValueError(f"case must be one of {list(CASES)}, got {self.case}")
-        bad = [m for m in self.methods if m not in VARIANTS]
-        if bad or not self.methods:
-            raise ValueError(f"methods: expected a non-empty list drawn from {list(VARIANTS)}, got {self.methods}")
-
-
-FROM_BLOCK = ("case", "sigma_image_um", "sigma_control_mm", "with_ap_errors", "systematic_scale")
-
-
-def study_config(options: MethodStudyOptions, block=None) -> tuple[MethodStudyConfig, dict]:
-    """The study's configuration: options first, then the testfield block's configuration
-    (``block.meta["testfield"]["config"]``), then the defaults.  Returns (config, where each
-    simulation setting came from)."""
-    tf = {}
-    if block is not None and isinstance(getattr(block, "meta", None), dict):
-        tf = block.meta.get("testfield", {}).get("config", {}) or {}
-    values, source = {}, {}
-    for k in FROM_BLOCK:
-        if getattr(options, k) is not None:
-            values[k], source[k] = getattr(options, k), "option"
-        elif k in tf:
-            values[k], source[k] = tf[k], "testfield block"
-        else:
-            source[k] = "default"
-    cfg = with_options(MethodStudyConfig(), repetitions=options.repetitions, rho_max=options.rho_max,
-                       ap_alpha=options.ap_alpha, im_model_weights=options.im_model_weights,
-                       single_model=options.single_model, methods=tuple(options.methods), **values)
-    return cfg, source
 
 
 class MethodStudy(Stage):
@@ -85,11 +26,11 @@ class MethodStudy(Stage):
                "models, single model at 4.0 m vs block at 1.4 m, over seeded realisations")
     reads = ("block?",)
     writes = ("method-study",)
-    Options = MethodStudyOptions
+    Options = MethodStudyConfig
 
-    def run(self, inputs, options: MethodStudyOptions, ctx: Context) -> StageResult:
-        cfg, source = study_config(options, inputs.get("block"))
-        seed = options.seed if options.seed is not None else int(ctx.rng.integers(2 ** 31))
+    def run(self, inputs, options: MethodStudyConfig, ctx: Context) -> StageResult:
+        cfg, source = resolve(options, inputs.get("block"))
+        seed = cfg.seed if cfg.seed is not None else int(ctx.rng.integers(2 ** 31))
         bar = iter(ctx.progress.track(range(cfg.repetitions), total=cfg.repetitions, what="realisation"))
         step = lambda i, n: next(bar, None)  # noqa: E731
         study = method_study(cfg, seed, progress=step, mapper=montecarlo.mapper(progress=step))
@@ -100,7 +41,7 @@ class MethodStudy(Stage):
         for v, n in failed.items():
             msg = next(r["error"] for r in study["rows"] if r["variant"] == v and r["error"])
             ctx.warn(f"{v}: {n} of {cfg.repetitions} realisation(s) failed (first: {msg})")
-        summary = _summary(study, options.in_comparison)
+        summary = _summary(study, cfg.in_comparison)
         return StageResult(artefacts={"method-study": study}, summary=summary, report=study_report(study),
                            tables=_tables(study), data=study)
 

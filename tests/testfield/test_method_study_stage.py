@@ -10,8 +10,8 @@ from baarda.pipeline.errors import InputError
 from baarda.pipeline.recording import read_recording
 from baarda.pipeline.testing import check_stage, log_stage, run_stage
 from baarda.pipeline.synthetic.testfield import TestFieldConfig, simulate_testfield
-from baarda.plugins.testfield.method_study_stage import MethodStudy, MethodStudyOptions, study_config
-from baarda.plugins.testfield.method_study import BUNDLE, BUNDLE_AP, IM, SINGLE_AP, VARIANTS
+from baarda.plugins.testfield.method_study_stage import MethodStudy
+from baarda.plugins.testfield.method_study import MethodStudyConfig, resolve, BUNDLE, BUNDLE_AP, IM, SINGLE_AP, VARIANTS
 
 
 def test_protocol():
@@ -22,11 +22,20 @@ def test_protocol():
 def test_configuration_comes_from_the_testfield_block_unless_an_option_says_otherwise():
     block, _ = simulate_testfield(TestFieldConfig(case=3, sigma_image_um=12.0, systematic_scale=2.0),
                                   np.random.default_rng(0))
-    cfg, src = study_config(MethodStudyOptions(sigma_image_um=40.0), block)
+    cfg, src = resolve(MethodStudyConfig(sigma_image_um=40.0), block)
     assert (cfg.case, cfg.sigma_image_um, cfg.systematic_scale) == (3, 40.0, 2.0)
     assert src["case"] == "testfield block" and src["sigma_image_um"] == "option"
-    cfg, src = study_config(MethodStudyOptions(), None)
+    cfg, src = resolve(MethodStudyConfig(), None)
     assert (cfg.case, cfg.sigma_image_um) == (5, 40.0) and src["case"] == "default"
+    assert resolve(cfg, block)[0] == cfg            # resolved once, nothing left to the block
+
+
+def test_the_options_are_the_library_configuration():
+    assert MethodStudy.Options is MethodStudyConfig
+    for bad in ({"sigma_image_um": 0.0}, {"rho_max": 1.0}, {"case": 7}, {"methods": ()}):
+        with pytest.raises(ValueError):
+            MethodStudyConfig(**bad)
+    assert MethodStudyConfig(methods=["bundle, no APs"]).methods == ("bundle, no APs",)
 
 
 def test_bad_options_are_input_errors(tmp_path):
