@@ -84,7 +84,7 @@ def source_tables(block) -> dict:
     }, "object points as read (prior coordinates and σ; tie points have none)")
     ph = block.photos
     photos = TableData({
-        "photo": ph.ids.tolist(), "file": [d.images.get(str(i)) or "" for i in ph.ids],
+        "photo": ph.ids.tolist(), "file": ph.image_path.tolist(),
         "marks": np.bincount(obs.photo, minlength=len(ph)),
     }, "photos: image file (empty when not found) and number of marks")
     return {"points": points, "photos": photos}

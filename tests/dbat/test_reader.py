@@ -175,3 +175,14 @@ def test_script_info_is_typed_frozen_and_pickles(shared_data):
         d.image_numbers[b.photos.ids[0]] = "99"
     again = pickle.loads(pickle.dumps(b)).meta["dbat"]
     assert again == d and again.images_found == d.images_found
+
+
+def test_source_table_names_each_photos_image_file(shared_data):
+    """The ``dbat`` source's photos table gives the file found for each photo (photo ids are file
+    names, the script's image numbers are not: the table once looked files up by photo id and
+    stayed empty)."""
+    from baarda.plugins.dbat.report import source_tables
+
+    b = dbat_block(read_dbat(shared_data / "dbat-camcal" / "camcaldemo.xml"))
+    files = source_tables(b)["photos"].columns["file"]
+    assert len(files) == 21 and all(Path(f).stem == pid for f, pid in zip(files, b.photos.ids))
