@@ -20,14 +20,16 @@ from __future__ import annotations
 
 import math
 import shlex
-from dataclasses import dataclass, field, replace
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
 import numpy as np
 
 from baarda.pipeline.errors import InputError, quote
 from baarda.pipeline.errors import finite_number as _num
-from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points, ScaleBars, SourceInfo
+from baarda.pipeline.model import (FIXED, FREE, Block, Cameras, FrozenMap, Observations, Photos, Points, ScaleBars,
+                                   SourceInfo)
 
 SUFFIXES = ("ior", "eor", "obc", "phc", "scale")
 AP_NAMES = ("A1", "A2", "A3", "B1", "B2", "C1", "C2")
@@ -304,7 +306,7 @@ def aicon_block(export: AiconExport, *, sigma_image_um: float | None = None, sel
     """The export as a :class:`~baarda.pipeline.model.Block` (object unit mm).
 
     * camera: ``c = −c_AICON`` (positive), ``xp, yp = x0, y0``, ``ap_model = "aicon"`` with
-      ``ap = (A1, A2, A3, B1, B2, C1, C2)``; ``r0`` in ``meta["aicon"]["r0"][camera]`` and
+      ``ap = (A1, A2, A3, B1, B2, C1, C2)``; ``r0`` in ``meta["aicon"].r0[camera]`` and
       ``Block.ap_meta[camera]["r0"]``.  With ``self_calibration`` c, xp, yp and the APs named in
       ``free_ap`` are free (default :data:`VENDOR_FREE_AP`: A1 A2 B1 B2, as AICON ran it; A3, C1, C2
       stay fixed at the exported values); ``free_ap = None`` frees every AP that is not exactly 0 in
@@ -316,8 +318,8 @@ def aicon_block(export: AiconExport, *, sigma_image_um: float | None = None, sel
 
     Unless ``keep_unused``, points without coordinates in the ``.obc`` and points with fewer than
     two active measurements are left out with their measurements (listed in
-    ``meta["aicon"]["dropped_points"]``); with it, coordinate-less points become tie points with
-    unknown (nan) XYZ.
+    ``meta["aicon"].dropped_without_coordinates`` and ``.dropped_few_rays``); with it,
+    coordinate-less points become tie points with unknown (nan) XYZ.
     """
     ph, pt, ms = export.images, export.points, export.measurements
     cam_index = {c.id: k for k, c in enumerate(export.cameras)}
@@ -377,24 +379,96 @@ def aicon_block(export: AiconExport, *, sigma_image_um: float | None = None, sel
                 raise InputError(f"scale bar point {q} is not an object point of the export",
                                  path=Path(export.files["scale"]), line=ln, field="point_a" if q == a else "point_b")
     phc_file = export.files["phc"]
-    meta = {
-        "aicon": {
-            "prefix": str(export.prefix), "files": dict(export.files),
-            "r0": {c.id: c.r0 for c in cams}, "c_file": {c.id: c.c for c in cams},
-            "ap_names": list(AP_NAMES),
-            "residuals_file": -ms["vxy"][rows],   # AICON's v (computed − observed), baarda's sign
-            "dropped_points": {"without_coordinates": without_coords,
-                               "fewer_than_two_active_rays": [] if keep_unused else few_rays},
-            "dropped_measurements": int(len(ms["point"]) - len(rows)),
-            "disabled_measurements": int((~active[rows]).sum()),
-            "point_sigma_file": pt["sigma"][[k for k, p in enumerate(pt["id"]) if p in pidx]],
-        },
-    }
+    info = AiconInfo(
+        prefix=str(export.prefix), files=export.files, r0={c.id: c.r0 for c in cams},
+        c_file={c.id: c.c for c in cams}, ap_names=AP_NAMES,
+        residuals_file=-ms["vxy"][rows],   # AICON's v (computed − observed), baarda's sign
+        dropped_without_coordinates=without_coords,
+        dropped_few_rays=[] if keep_unused else few_rays,
+        dropped_measurements=int(len(ms["point"]) - len(rows)),
+        disabled_measurements=int((~active[rows]).sum()),
+        point_sigma_file=pt["sigma"][[k for k, p in enumerate(pt["id"]) if p in pidx]])
+    meta = {"aicon": info}
     source = SourceInfo(path=str(phc_file), format="AICON 3D Studio",
                         lines={(int(o), int(q)): (phc_file, int(ms["line"][k]))
                                for o, q, k in zip(obs.photo, obs.point, rows)})
     return Block(cameras=cameras, photos=photos, points=points, observations=obs, object_unit="mm", meta=meta,
                  scale_bars=ScaleBars.make(distances), ap_meta={c.id: {"r0": c.r0} for c in cams}, source=source)
+
+
+def _read_only(a) -> np.ndarray:
+    arr = np.array(a, dtype=float, copy=True)
+    arr.flags.writeable = False
+    return arr
+
+
+class _Frozen:
+    """Pickles through the constructor, so arrays come back read-only (an unpickled array is writable)."""
+
+    def __reduce__(self):
+        return (type(self), tuple(getattr(self, f.name) for f in fields(self)))
+
+
+@dataclass(frozen=True, eq=False)
+class AiconExported(_Frozen):
+    """The export's initial values, kept when the ``aicon`` source perturbs them (read-only arrays):
+    projection centres ``X0`` (n, 3) mm, ``opk`` (n, 3) rad, per camera ``c`` (mm) and ``ap`` (m, 7),
+    object points ``XYZ`` (p, 3) mm."""
+
+    X0: np.ndarray
+    opk: np.ndarray
+    c: np.ndarray
+    ap: np.ndarray
+    XYZ: np.ndarray
+
+    def __post_init__(self):
+        for f in fields(self):
+            object.__setattr__(self, f.name, _read_only(getattr(self, f.name)))
+
+
+@dataclass(frozen=True, eq=False)
+class AiconInfo(_Frozen):
+    """What the ``aicon`` source keeps of an export beside the block (``Block.meta["aicon"]``, private
+    to this plugin).  Immutable and picklable: arrays read-only, mappings :class:`FrozenMap`.
+
+    ``prefix`` the export's common prefix, ``files`` kind (``ior``, ``eor``, ``obc``, ``phc``,
+    ``scale``) → file; per camera id ``r0`` (mm) and ``c_file`` (AICON's c, negative); ``ap_names``
+    the seven APs; ``residuals_file`` (k, 2) mm the export's residual of each measurement read, in
+    baarda's sign (computed − observed); points left out: ``dropped_without_coordinates`` (no .obc
+    coordinates) and ``dropped_few_rays`` (fewer than two active rays), with
+    ``dropped_measurements``; ``disabled_measurements`` those read inactive;
+    ``point_sigma_file`` (p, 3) mm the .obc σ of each point read; ``perturbation`` the source's
+    perturbation options and ``exported`` the export's own initial values when it perturbed them
+    (else None)."""
+
+    prefix: str
+    files: Mapping[str, str]
+    r0: Mapping[str, float]
+    c_file: Mapping[str, float]
+    ap_names: tuple[str, ...]
+    residuals_file: np.ndarray
+    dropped_without_coordinates: tuple[str, ...]
+    dropped_few_rays: tuple[str, ...]
+    dropped_measurements: int
+    disabled_measurements: int
+    point_sigma_file: np.ndarray
+    perturbation: object | None = None
+    exported: AiconExported | None = None
+
+    def __post_init__(self):
+        for name in ("files", "r0", "c_file"):
+            object.__setattr__(self, name, FrozenMap(getattr(self, name)))
+        for name in ("ap_names", "dropped_without_coordinates", "dropped_few_rays"):
+            object.__setattr__(self, name, tuple(str(v) for v in getattr(self, name)))
+        for name in ("residuals_file", "point_sigma_file"):
+            object.__setattr__(self, name, _read_only(getattr(self, name)))
+        object.__setattr__(self, "dropped_measurements", int(self.dropped_measurements))
+        object.__setattr__(self, "disabled_measurements", int(self.disabled_measurements))
+
+    @property
+    def dropped_points(self) -> int:
+        """How many points were left out."""
+        return len(self.dropped_without_coordinates) + len(self.dropped_few_rays)
 
 
 def perturb_initial_values(block: Block, rng: np.random.Generator, *, sigma_position: float = 0.0,

@@ -19,7 +19,8 @@ from baarda.pipeline.options import option
 from baarda.pipeline.report import markdown_table
 from baarda.pipeline.stage import Context, SourceStage, Stage, StageResult, TableData
 
-from .reader import AP_NAMES, VENDOR_FREE_AP, aicon_block, perturb_initial_values, read_aicon
+from .reader import (AP_NAMES, VENDOR_FREE_AP, AiconExported, AiconInfo, aicon_block, perturb_initial_values,
+                     read_aicon)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -82,16 +83,16 @@ class AiconSource(SourceStage):
                                            sigma_angle_deg=p.sigma_angle_deg, sigma_c=p.sigma_c,
                                            sigma_point=p.sigma_point, zero_distortion=p.zero_distortion)
             meta = dict(block.meta)
-            meta["aicon"] = {**meta["aicon"], "perturbation": dataclasses.asdict(p),
-                             "exported": {"X0": exported.photos.X0, "opk": exported.photos.opk,
-                                          "c": exported.cameras.c, "ap": exported.cameras.ap,
-                                          "XYZ": exported.points.XYZ}}
+            meta["aicon"] = dataclasses.replace(
+                meta["aicon"], perturbation=p,
+                exported=AiconExported(X0=exported.photos.X0, opk=exported.photos.opk, c=exported.cameras.c,
+                                       ap=exported.cameras.ap, XYZ=exported.points.XYZ))
             block = block.replace(meta=meta)
-        a = block.meta["aicon"]
-        summary = {**block.summary(), "prefix": a["prefix"],
-                   "disabled_measurements": a["disabled_measurements"],
-                   "dropped_measurements": a["dropped_measurements"],
-                   "dropped_points": sum(len(v) for v in a["dropped_points"].values()),
+        a: AiconInfo = block.meta["aicon"]
+        summary = {**block.summary(), "prefix": a.prefix,
+                   "disabled_measurements": a.disabled_measurements,
+                   "dropped_measurements": a.dropped_measurements,
+                   "dropped_points": a.dropped_points,
                    "distances": len(block.scale_bars),
                    "perturbed": options.perturb is not None}
         return StageResult(artefacts={"block": block}, summary=summary,
@@ -129,21 +130,20 @@ class AiconSource(SourceStage):
 
 
 def _report(block, exported, options) -> str:
-    a = block.meta["aicon"]
+    a: AiconInfo = block.meta["aicon"]
     s = block.summary()
     cam = exported.cameras
-    lines = [f"Read `{a['prefix']}.*`: {s['cameras']} camera(s), {s['photos']} images, {s['points']} object "
-             f"points, {s['observations']} image measurements ({a['disabled_measurements']} disabled in the "
+    lines = [f"Read `{a.prefix}.*`: {s['cameras']} camera(s), {s['photos']} images, {s['points']} object "
+             f"points, {s['observations']} image measurements ({a.disabled_measurements} disabled in the "
              f"export → inactive), {len(block.scale_bars)} scale bar(s). Object unit mm.", ""]
-    dp = a["dropped_points"]
-    if any(dp.values()):
-        lines += [f"Left out: {len(dp['without_coordinates'])} point(s) without .obc coordinates and "
-                  f"{len(dp['fewer_than_two_active_rays'])} with fewer than two active measurements, with their "
-                  f"{a['dropped_measurements']} measurement(s) (option `keep_unused`).", ""]
+    if a.dropped_points:
+        lines += [f"Left out: {len(a.dropped_without_coordinates)} point(s) without .obc coordinates and "
+                  f"{len(a.dropped_few_rays)} with fewer than two active measurements, with their "
+                  f"{a.dropped_measurements} measurement(s) (option `keep_unused`).", ""]
     rows = []
     for k, cid in enumerate(cam.ids):
-        rows.append([cid, f"{cam.c[k]:.5f}", f"{a['c_file'][cid]:.5f}", f"{cam.xp[k]:.5f}", f"{cam.yp[k]:.5f}",
-                     f"{a['r0'][cid]:g}"] + [f"{v:.5e}" for v in exported.cameras.ap[k]])
+        rows.append([cid, f"{cam.c[k]:.5f}", f"{a.c_file[cid]:.5f}", f"{cam.xp[k]:.5f}", f"{cam.yp[k]:.5f}",
+                     f"{a.r0[cid]:g}"] + [f"{v:.5e}" for v in exported.cameras.ap[k]])
     lines += [markdown_table(["camera", "c (baarda) = −c (AICON)", "c (AICON)", "xp", "yp", "r0", *AP_NAMES], rows), ""]
     for a_, b_, d, sg in block.scale_bars.rows():
         lines.append(f"Scale bar {a_}–{b_}: {d:.4f} ± {sg:.4f} mm.")

@@ -32,11 +32,11 @@ and the field.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import os
 import re
 import xml.parsers.expat
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -45,7 +45,7 @@ import numpy as np
 from baarda.pipeline.errors import InputError, quote
 from baarda.pipeline.errors import finite_number as _num
 from baarda.pipeline.geometry import mm_from_pixels
-from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points, SourceInfo
+from baarda.pipeline.model import FIXED, FREE, Block, Cameras, FrozenMap, Observations, Photos, Points, SourceInfo
 
 AP_NAMES = ("K1", "K2", "K3", "P1", "P2", "aspect", "skew")
 """Order of the parameters in ``Cameras.ap`` (the ``brown-backward`` model)."""
@@ -154,6 +154,71 @@ class DbatCamera:
         """DBAT's pixel size: sensor width / W (the height decides when the width is ``auto``)."""
         w, h = self.sensor
         return (w / self.image[0]) if w is not None else h / self.image[1]
+
+
+@dataclass(frozen=True)
+class DbatMarksInfo:
+    """One marks file as read: its path, number of marks, the distinct σ (px) and where σ came from."""
+
+    file: str
+    count: int
+    sigma_px: tuple[float, ...]
+    sigma_source: str
+
+    def __post_init__(self):
+        object.__setattr__(self, "count", int(self.count))
+        object.__setattr__(self, "sigma_px", tuple(float(v) for v in self.sigma_px))
+
+
+@dataclass(frozen=True)
+class DbatInfo:
+    """What the ``dbat`` source keeps of a script beside the block (``Block.meta["dbat"]``, private to
+    this plugin: read by its stages and ``dbat-export``).  Immutable and picklable: sequences are
+    tuples, mappings :class:`FrozenMap`.
+
+    ``script`` the XML file, ``name`` the project's name, ``camera`` as written in the script;
+    ``io_initial`` / ``eo_initial`` (``"default"`` | ``"loaded"``), ``estimate_io`` DBAT's name of an
+    interior parameter (``cc`` … ``skew``) → estimated, ``min_rays`` (``check_ray_count``),
+    ``operations`` / ``unknown_operations`` (those baarda does not carry out); ``labels`` point id →
+    label; ``images`` image number → the file found (None: not found), ``image_paths`` image number →
+    path as listed, ``image_numbers`` photo id → image number; ``marks`` one
+    :class:`DbatMarksInfo` per marks file; ``dropped_points`` (fewer than ``min_rays`` rays) and
+    their ``dropped_marks``; ``unmeasured_control`` control points without marks;
+    ``control_files`` / ``check_files`` the point files read."""
+
+    script: str
+    name: str
+    camera: DbatCamera
+    io_initial: str
+    estimate_io: Mapping[str, bool]
+    min_rays: int
+    operations: tuple[str, ...]
+    eo_initial: str
+    unknown_operations: tuple[str, ...]
+    labels: Mapping[str, str]
+    images: Mapping[str, str | None]
+    image_paths: Mapping[str, str]
+    image_numbers: Mapping[str, str]
+    marks: tuple[DbatMarksInfo, ...]
+    dropped_points: tuple[str, ...]
+    dropped_marks: int
+    unmeasured_control: tuple[str, ...]
+    control_files: tuple[str, ...]
+    check_files: tuple[str, ...]
+
+    def __post_init__(self):
+        for name in ("estimate_io", "labels", "images", "image_paths", "image_numbers"):
+            object.__setattr__(self, name, FrozenMap(getattr(self, name)))
+        for name in ("operations", "unknown_operations", "marks", "dropped_points", "unmeasured_control",
+                     "control_files", "check_files"):
+            object.__setattr__(self, name, tuple(getattr(self, name)))
+        object.__setattr__(self, "min_rays", int(self.min_rays))
+        object.__setattr__(self, "dropped_marks", int(self.dropped_marks))
+
+    @property
+    def images_found(self) -> int:
+        """How many listed images were found."""
+        return sum(v is not None for v in self.images.values())
 
 
 @dataclass(frozen=True)
@@ -819,22 +884,16 @@ def dbat_block(script: DbatScript) -> Block:
             opk[img_index[iid]] = a
         photos = photos.replace(X0=X0, opk=opk)
     unused_ctrl = [pid for pid, r in zip(ids, role) if r == "full" and rays[pid] == 0]
-    meta = {
-        "dbat": {
-            "script": str(script.path), "name": script.name, "camera": dataclasses.asdict(cam), "io_initial": script.io_initial,
-            "estimate_io": dict(script.estimate_io), "min_rays": script.min_rays, "operations": script.operations,
-            "eo_initial": script.eo_initial,
-            "unknown_operations": script.unknown_operations, "labels": labels,
-            "images": {k: (str(v) if v is not None else None) for k, v in script.image_files.items()},
-            "image_paths": dict(script.images),
-            "image_numbers": dict(zip(photo_ids(script.images), script.images)),
-            "marks": [{"file": str(m.file), "count": len(m.point), "sigma_px": sorted(set(m.sigma_px.tolist())),
-                       "sigma_source": m.sigma_source} for m in script.marks],
-            "dropped_points": dropped, "dropped_marks": int((~keep_obs).sum()),
-            "unmeasured_control": unused_ctrl,
-            "control_files": [str(s.file) for s in script.control],
-            "check_files": [str(s.file) for s in script.check],
-        },
-    }
+    info = DbatInfo(
+        script=str(script.path), name=script.name, camera=cam, io_initial=script.io_initial,
+        estimate_io=script.estimate_io, min_rays=script.min_rays, operations=script.operations,
+        eo_initial=script.eo_initial, unknown_operations=script.unknown_operations, labels=labels,
+        images={k: (str(v) if v is not None else None) for k, v in script.image_files.items()},
+        image_paths=script.images, image_numbers=dict(zip(photo_ids(script.images), script.images)),
+        marks=[DbatMarksInfo(file=str(m.file), count=len(m.point), sigma_px=sorted(set(m.sigma_px.tolist())),
+                             sigma_source=m.sigma_source) for m in script.marks],
+        dropped_points=dropped, dropped_marks=int((~keep_obs).sum()), unmeasured_control=unused_ctrl,
+        control_files=[str(s.file) for s in script.control], check_files=[str(s.file) for s in script.check])
+    meta = {"dbat": info}
     return Block(cameras, photos, points, obs, object_unit=script.object_unit, meta=meta,
                  source=SourceInfo(path=str(script.path), format="DBAT"))

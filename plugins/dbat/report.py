@@ -9,7 +9,7 @@ import numpy as np
 from baarda.pipeline.report import markdown_table
 from baarda.pipeline.stage import TableData
 
-from .reader import AP_NAMES, DBAT_SIGN
+from .reader import AP_NAMES, DBAT_SIGN, DbatInfo
 
 
 def _fmt_sigma(s):
@@ -20,33 +20,33 @@ def _fmt_sigma(s):
 
 
 def source_report(block) -> str:
-    d = block.meta["dbat"]
-    cam = d["camera"]
+    d: DbatInfo = block.meta["dbat"]
+    cam = d.camera
     pts, obs = block.points, block.observations
     c = block.cameras
-    W, H = cam["image"]
+    W, H = cam.image
     p = float(c.pixel_mm[0])
-    lines = [f"Read the DBAT script `{d['script']}` ({d['name'] or 'no name'}): {len(block.photos)} photos "
-             f"({sum(v is not None for v in d['images'].values())} image files found), "
+    lines = [f"Read the DBAT script `{d.script}` ({d.name or 'no name'}): {len(block.photos)} photos "
+             f"({d.images_found} image files found), "
              f"{int((pts.role == 'full').sum())} control, {int((pts.role == 'check').sum())} check and "
              f"{int((pts.role == 'tie').sum())} tie points, {len(obs)} marks. Object unit "
              f"{block.object_unit}. No orientations: the bundle resects every photo from the control points "
              "and intersects the rest.", ""]
-    rows = [[m["file"].rsplit("/", 1)[-1], m["count"], ", ".join(f"{s:g}" for s in m["sigma_px"]),
-             m["sigma_source"]] for m in d["marks"]]
+    rows = [[m.file.rsplit("/", 1)[-1], m.count, ", ".join(f"{s:g}" for s in m.sigma_px),
+             m.sigma_source] for m in d.marks]
     lines += [markdown_table(["marks file", "marks", "σ (px)", "σ from"], rows), ""]
-    if d["dropped_points"]:
-        lines += [f"Left out (DBAT's check_ray_count, min_rays = {d['min_rays']}): {len(d['dropped_points'])} "
-                  f"tie/check point(s) with fewer rays and their {d['dropped_marks']} mark(s).", ""]
-    if d["unmeasured_control"]:
+    if d.dropped_points:
+        lines += [f"Left out (DBAT's check_ray_count, min_rays = {d.min_rays}): {len(d.dropped_points)} "
+                  f"tie/check point(s) with fewer rays and their {d.dropped_marks} mark(s).", ""]
+    if d.unmeasured_control:
         lines += [f"Control points without any mark (they do not enter the adjustment): "
-                  f"{', '.join(d['unmeasured_control'])}.", ""]
-    sw = cam["sensor"][0]
-    lines += [f"Camera *{cam['name']}*: DBAT lens model {cam['model']} → baarda `{c.ap_model[0]}`; "
-              f"{W} × {H} px, sensor {'auto' if sw is None else f'{sw:g}'} × {cam['sensor'][1]:g} mm, pixel "
+                  f"{', '.join(d.unmeasured_control)}.", ""]
+    sw = cam.sensor[0]
+    lines += [f"Camera *{cam.name}*: DBAT lens model {cam.model} → baarda `{c.ap_model[0]}`; "
+              f"{W} × {H} px, sensor {'auto' if sw is None else f'{sw:g}'} × {cam.sensor[1]:g} mm, pixel "
               f"{p * 1000:.5f} µm (DBAT's pixel: sensor width / W, or height / H when the width is auto). "
-              f"Initial values: `{d['io_initial']}`.", ""]
-    est = d["estimate_io"]
+              f"Initial values: `{d.io_initial}`.", ""]
+    est = d.estimate_io
     names = ["c", "xp", "yp", *AP_NAMES]
     dbat_names = ["cc", "px", "py", "K1", "K2", "K3", "P1", "P2", "aspect", "skew"]
     vals = [c.c[0], c.xp[0], c.yp[0], *c.ap[0]]
@@ -57,34 +57,34 @@ def source_report(block) -> str:
     lines += [markdown_table(["baarda", "DBAT", "initial (baarda frame)", "in the bundle"], rows), ""]
     ctrl = np.flatnonzero(pts.role == "full")
     rays = np.bincount(obs.point, minlength=len(pts))
-    rows = [[pts.ids[i], d["labels"].get(str(pts.ids[i]), ""), *[f"{v:.4f}" for v in pts.XYZ[i]],
+    rows = [[pts.ids[i], d.labels.get(str(pts.ids[i]), ""), *[f"{v:.4f}" for v in pts.XYZ[i]],
              _fmt_sigma(pts.sigma[i]), int(rays[i])] for i in ctrl]
     lines += ["Control points (prior):", "",
               markdown_table(["point", "label", "X", "Y", "Z", "σ X/Y/Z", "rays"], rows), ""]
     chk = np.flatnonzero(pts.role == "check")
     if chk.size:
-        rows = [[pts.ids[i], d["labels"].get(str(pts.ids[i]), ""), *[f"{v:.4f}" for v in pts.XYZ[i]], int(rays[i])]
+        rows = [[pts.ids[i], d.labels.get(str(pts.ids[i]), ""), *[f"{v:.4f}" for v in pts.XYZ[i]], int(rays[i])]
                 for i in chk]
         lines += ["Check points (adjusted as tie points, compared afterwards):", "",
                   markdown_table(["point", "label", "X", "Y", "Z", "rays"], rows), ""]
-    if d["unknown_operations"]:
-        lines += [f"Operations baarda does not carry out: {', '.join(d['unknown_operations'])}.", ""]
-    lines.append(f"Operations in the script: {', '.join(d['operations']) or 'none'}.")
+    if d.unknown_operations:
+        lines += [f"Operations baarda does not carry out: {', '.join(d.unknown_operations)}.", ""]
+    lines.append(f"Operations in the script: {', '.join(d.operations) or 'none'}.")
     return "\n".join(lines)
 
 
 def source_tables(block) -> dict:
     pts, obs = block.points, block.observations
-    d = block.meta["dbat"]
+    d: DbatInfo = block.meta["dbat"]
     rays = np.bincount(obs.point, minlength=len(pts))
     points = TableData({
-        "point": pts.ids.tolist(), "label": [d["labels"].get(str(i), "") for i in pts.ids],
+        "point": pts.ids.tolist(), "label": [d.labels.get(str(i), "") for i in pts.ids],
         "role": pts.role.tolist(), "X": pts.XYZ[:, 0], "Y": pts.XYZ[:, 1], "Z": pts.XYZ[:, 2],
         "sX": pts.sigma[:, 0], "sY": pts.sigma[:, 1], "sZ": pts.sigma[:, 2], "rays": rays,
     }, "object points as read (prior coordinates and σ; tie points have none)")
     ph = block.photos
     photos = TableData({
-        "photo": ph.ids.tolist(), "file": [d["images"].get(str(i)) or "" for i in ph.ids],
+        "photo": ph.ids.tolist(), "file": ph.image_path.tolist(),
         "marks": np.bincount(obs.photo, minlength=len(ph)),
     }, "photos: image file (empty when not found) and number of marks")
     return {"points": points, "photos": photos}

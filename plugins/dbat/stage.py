@@ -20,7 +20,7 @@ from baarda.pipeline.options import option
 from baarda.pipeline.report import markdown_table
 from baarda.pipeline.stage import Context, SourceStage, Stage, StageResult, TableData
 
-from .reader import dbat_block, read_dbat
+from .reader import DbatInfo, dbat_block, read_dbat
 from .report import (camera_comparison, quality_headline, quality_report, quality_tables, source_report,
                      source_tables)
 
@@ -50,14 +50,14 @@ class DbatSource(SourceStage):
         block = dbat_block(script)
         if options.crs is not None:
             block = _in_crs(block, options.crs, ctx)
-        d = block.meta["dbat"]
+        d: DbatInfo = block.meta["dbat"]
         pts = block.points
-        summary = {**block.summary(), "script": d["script"], "name": d["name"],
+        summary = {**block.summary(), "script": d.script, "name": d.name,
                    "control": int((pts.role == "full").sum()), "check": int((pts.role == "check").sum()),
-                   "tie": int((pts.role == "tie").sum()), "marks": [m["count"] for m in d["marks"]],
-                   "dropped_points": len(d["dropped_points"]), "dropped_marks": d["dropped_marks"],
-                   "photos_found": sum(v is not None for v in d["images"].values()),
-                   "estimated": [k for k, v in d["estimate_io"].items() if v]}
+                   "tie": int((pts.role == "tie").sum()), "marks": [m.count for m in d.marks],
+                   "dropped_points": len(d.dropped_points), "dropped_marks": d.dropped_marks,
+                   "photos_found": d.images_found,
+                   "estimated": [k for k, v in d.estimate_io.items() if v]}
         report = source_report(block)
         if block.crs is not None:
             summary["crs"] = options.crs
@@ -152,12 +152,12 @@ class DbatReport(Stage):
             summary["camera_vs_earlier"] = {k: (q["camera"][k][0] - earlier["camera"][k][0]) for k in q["camera"]
                                             if k in earlier["camera"]}
         summary["headline"] = quality_headline(q, earlier)
-        dbat = res.block_in.meta.get("dbat", {})
+        dbat: DbatInfo | None = res.block_in.meta.get("dbat")
         return StageResult(artefacts={"dbat_report": q}, summary=summary, report=report,
                            tables=quality_tables(q),
                            data={"quality": q, "earlier": earlier, "rho_high": options.rho_high,
-                                 "script": dbat.get("script"),
-                                 "marks": sum(int(m["count"]) for m in dbat.get("marks", [])) or None})
+                                 "script": dbat.script if dbat else None,
+                                 "marks": (sum(m.count for m in dbat.marks) if dbat else 0) or None})
 
     def plots(self, result: StageResult, ctx: Context) -> dict:
         """Figures for report.html: the camera against DBAT's published report and an earlier
@@ -170,7 +170,7 @@ class DbatReport(Stage):
 
 def _quality(res) -> dict:
     from .quality import corrected_space_residuals, intersection_angles, point_comparison
-    from .reader import DbatCamera, dbat_from_baarda
+    from .reader import dbat_from_baarda
 
     block = res.block_in
     st = res.state
@@ -187,12 +187,12 @@ def _quality(res) -> dict:
     v = res.residuals[act]
     rays = np.bincount(obs.point[act], minlength=len(pts))
     ang = np.rad2deg(intersection_angles(st.XYZ, st.X0, obs.photo[act], obs.point[act], len(pts)))
-    dbat = block.meta.get("dbat", {})
+    dbat: DbatInfo | None = block.meta.get("dbat")
     camera = {}
     names = res.cam_param_names[0]
     table = res.camera_table(0)
-    if dbat.get("camera"):
-        cam = DbatCamera(**{k: (tuple(x) if isinstance(x, list) else x) for k, x in dbat["camera"].items()})
+    if dbat is not None:
+        cam = dbat.camera
         vals = dbat_from_baarda(st.cam_params[0, 0], st.cam_params[0, 1], st.cam_params[0, 2], st.cam_params[0, 3:], cam)
         for key, bn in zip(("cc", "px", "py", "K1", "K2", "K3", "P1", "P2", "as", "sk"), names):
             row = next(r for r in table if r["parameter"] == bn)
@@ -219,12 +219,12 @@ def _quality(res) -> dict:
         "rms_px": float(np.sqrt(np.mean(np.sum(v ** 2, axis=1)))) / pix,
         "rms_mm": float(np.sqrt(np.mean(np.sum(v ** 2, axis=1)))),
         "rms_px_corrected": float(np.sqrt(np.mean(np.sum(rc[ok] ** 2, axis=1)))) / pix if ok.any() else float("nan"),
-        "camera": {k: (float(a), float(b)) for k, (a, b, _, _) in camera.items()}, "dbat_camera": bool(dbat.get("camera")),
+        "camera": {k: (float(a), float(b)) for k, (a, b, _, _) in camera.items()}, "dbat_camera": dbat is not None,
         "camera_rows": camera, "correlation": res.correlation_camera(0), "names": names,
         "control": point_comparison(pts, ctrl, st.XYZ, res.cov_points),
         "check": point_comparison(pts, chk, st.XYZ, res.cov_points),
         "rays": rays, "angles_deg": ang, "ids": pts.ids, "role": pts.role, "tie": tie,
-        "labels": dbat.get("labels", {}), "object_unit": block.object_unit,
+        "labels": dict(dbat.labels) if dbat else {}, "object_unit": block.object_unit,
         "angle_stats": {"control": stats(ctrl), "check": stats(chk), "tie": stats(tie)},
         "ray_stats": {k: (v_["rays_hist"] if v_ else {}) for k, v_ in
                       (("control", stats(ctrl)), ("check", stats(chk)), ("tie", stats(tie)))},

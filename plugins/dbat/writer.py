@@ -36,7 +36,7 @@ from baarda.pipeline.geometry import pixels_from_mm
 from baarda.pipeline.options import option
 from baarda.pipeline.stage import Context, StageResult
 
-from .reader import AP_NAMES, DbatCamera, dbat_from_baarda
+from .reader import AP_NAMES, DbatCamera, DbatInfo, dbat_from_baarda
 
 MODEL = "brown-backward"
 _IO_TAGS = (("cc", "c"), ("px", "xp"), ("py", "yp"))
@@ -170,9 +170,9 @@ def dbat_files(block, *, name: str = "baarda", prior=None) -> tuple[dict[str, st
         files["reference/check.txt"] = head + "# id, label, x, y, z\n" + "".join(
             f"{pts.ids[k]}, {pts.ids[k]}, {_g(XYZp[k, 0])}, {_g(XYZp[k, 1])}, {_g(XYZp[k, 2])}\n" for k in chk)
     # images: DBAT's numbers (those the block was read with, else 1 … m), the photo id as file name
-    dbat = block.meta.get("dbat") or {}
-    numbers = dbat.get("image_numbers") or {}
-    paths = dbat.get("image_paths") or {}
+    dbat: DbatInfo | None = block.meta.get("dbat")
+    numbers = dbat.image_numbers if dbat else {}
+    paths = dbat.image_paths if dbat else {}
     used = {str(v) for v in numbers.values()}
     nums, nxt = [], 1
     for pid in ph.ids.tolist():
@@ -205,7 +205,7 @@ def dbat_files(block, *, name: str = "baarda", prior=None) -> tuple[dict[str, st
         + "".join(f"{nums[obs.photo[r]]}, {pts.ids[obs.point[r]]}, {_g(u)}, {_g(v)}, {_g(s)}\n"
                   for r, (u, v), s in zip(act, uv, sxy))
     # the script
-    min_rays = int(dbat.get("min_rays", 2))
+    min_rays = dbat.min_rays if dbat else 2
     io = "".join(f"          <{t}>{'true' if v else 'false'}</{t}>\n" for t, v in _io_flags(est))
     ctrl_fmt = "id,label,x,y,z,sx,sy,sz" if weighted else "id,label,x,y,z"
     eo_xml = ("\n    <prior_eo>\n      <file format=\"id,x,y,z,omega,phi,kappa\" units=\"degrees\">prior/eo.txt</file>\n"

@@ -89,7 +89,7 @@ def test_block_conventions_reproduce_phc(block):
     assert cam.ap_model[0] == "aicon" and cam.c[0] == pytest.approx(28.78507)
     A1, A2, A3, B1, B2, C1, C2 = cam.ap[0]
     r0 = block.ap_meta[cam.ids[0]]["r0"]
-    assert r0 == block.meta["aicon"]["r0"][cam.ids[0]] == 13.488
+    assert r0 == block.meta["aicon"].r0[cam.ids[0]] == 13.488
     obs = block.observations
     act = obs.active
     ph, pt = block.photos, block.points
@@ -102,7 +102,7 @@ def test_block_conventions_reproduce_phc(block):
     y = cam.yp[0] + yb + yb * dr + B2 * (r2 + 2 * yb**2) + 2 * B1 * xb * yb
     v = obs.xy[act] - np.column_stack([x, y])
     assert np.sqrt(np.mean(v**2)) * 1e3 < 0.5
-    np.testing.assert_allclose(v, block.meta["aicon"]["residuals_file"][act], atol=2e-5)
+    np.testing.assert_allclose(v, block.meta["aicon"].residuals_file[act], atol=2e-5)
 
 
 def test_bundle_aicon_model_agrees(block):
@@ -125,7 +125,7 @@ def test_counts_flags_and_scale(block, export_dir):
     s = block.summary()
     assert (s["photos"], s["points"]) == (115, 150)
     assert s["observations"] == 10030 and s["active_observations"] == 9972
-    assert block.meta["aicon"]["disabled_measurements"] == 58
+    assert block.meta["aicon"].disabled_measurements == 58
     assert block.scale_bars.rows() == [("506", "507", 1389.688, 0.01)]
     assert block.object_unit == "mm"
     # as AICON ran it: A1 A2 B1 B2 free, A3 (= 0), C1, C2 fixed at the file's values; IOP free
@@ -143,6 +143,34 @@ def test_counts_flags_and_scale(block, export_dir):
     full = aicon_block(read_aicon(export_dir), keep_unused=True)
     assert full.summary()["observations"] == 10366 and full.summary()["points"] == 195
     assert np.isnan(full.points.XYZ[full.points.index_of(["1087"])]).all()
+
+
+def test_export_info_is_typed_frozen_and_pickles(block):
+    """What the source keeps of the export (``meta["aicon"]``) is a frozen :class:`AiconInfo`:
+    arrays read-only (also after pickling: blocks go to worker processes), mappings read-only."""
+    import dataclasses
+    import pickle
+
+    from baarda.plugins.aicon.reader import AiconExported, AiconInfo
+
+    a = block.meta["aicon"]
+    assert isinstance(a, AiconInfo) and a.perturbation is None and a.exported is None
+    assert a.dropped_points == len(a.dropped_without_coordinates) + len(a.dropped_few_rays) == 45
+    assert a.residuals_file.shape == (len(block.observations), 2)
+    assert a.point_sigma_file.shape == (len(block.points), 3)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        a.prefix = "x"
+    with pytest.raises(TypeError):
+        a.r0["1"] = 0.0
+    p = dataclasses.replace(a, exported=AiconExported(X0=block.photos.X0, opk=block.photos.opk, c=block.cameras.c,
+                                                      ap=block.cameras.ap, XYZ=block.points.XYZ))
+    again = pickle.loads(pickle.dumps(block.replace(meta={"aicon": p}))).meta["aicon"]
+    for arr in (again.residuals_file, again.point_sigma_file, again.exported.X0, again.exported.XYZ):
+        with pytest.raises(ValueError):
+            arr[0] = 0.0
+    np.testing.assert_array_equal(again.residuals_file, a.residuals_file)
+    np.testing.assert_array_equal(again.exported.ap, block.cameras.ap)
+    assert dict(again.r0) == dict(a.r0) and again.dropped_few_rays == a.dropped_few_rays
 
 
 def test_prefix_forms(export_dir):

@@ -32,8 +32,8 @@ def test_camcal_is_read(shared_data):
     assert np.isinf(b.cameras.sigma_ap[0, :6]).all() and b.cameras.sigma_ap[0, 6] == 0
     assert (b.cameras.c[0], b.cameras.xp[0], b.cameras.yp[0]) == (7.5, 0.0, 0.0)
     assert not b.photos.has_orientation.any()
-    assert all(v is not None for v in b.meta["dbat"]["images"].values())   # found beside images.txt
-    assert b.photos.ids[0] == "P8250021" and b.meta["dbat"]["image_numbers"]["P8250021"] == "1"
+    assert all(v is not None for v in b.meta["dbat"].images.values())   # found beside images.txt
+    assert b.photos.ids[0] == "P8250021" and b.meta["dbat"].image_numbers["P8250021"] == "1"
     # a mark in pixels (origin at the image corner, y down) → mm (centre, y up) and back
     first = s.marks[0]
     k = next(i for i in range(len(b.observations)) if b.observations.photo[i] == int(first.image[0]) - 1
@@ -152,3 +152,37 @@ def test_filters_keep_and_remove(shared_data):
     assert "351" not in s.control[0].ids and "410" not in s.control[0].ids and len(s.control[0].ids) == 14
     assert s.check[0].ids == ["410", "351"] or sorted(s.check[0].ids) == ["351", "410"]
     assert s.check[0].filters == [("keep", ["351", "410"])]
+
+
+def test_script_info_is_typed_frozen_and_pickles(shared_data):
+    """What the source keeps of the script (``meta["dbat"]``) is a frozen :class:`DbatInfo`: no
+    dict read by key, nothing changeable in place, and it travels to worker processes."""
+    import dataclasses
+    import pickle
+
+    from baarda.plugins.dbat.reader import DbatCamera, DbatInfo, DbatMarksInfo
+
+    b = dbat_block(read_dbat(shared_data / "dbat-sxb" / "sxb.xml"))
+    d = b.meta["dbat"]
+    assert isinstance(d, DbatInfo) and isinstance(d.camera, DbatCamera)
+    assert all(isinstance(m, DbatMarksInfo) for m in d.marks) and sum(m.count for m in d.marks) >= len(b.observations)
+    assert isinstance(d.operations, tuple) and isinstance(d.dropped_points, tuple)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        d.min_rays = 3
+    with pytest.raises(TypeError):
+        d.estimate_io["cc"] = False
+    with pytest.raises(TypeError):
+        d.image_numbers[b.photos.ids[0]] = "99"
+    again = pickle.loads(pickle.dumps(b)).meta["dbat"]
+    assert again == d and again.images_found == d.images_found
+
+
+def test_source_table_names_each_photos_image_file(shared_data):
+    """The ``dbat`` source's photos table gives the file found for each photo (photo ids are file
+    names, the script's image numbers are not: the table once looked files up by photo id and
+    stayed empty)."""
+    from baarda.plugins.dbat.report import source_tables
+
+    b = dbat_block(read_dbat(shared_data / "dbat-camcal" / "camcaldemo.xml"))
+    files = source_tables(b)["photos"].columns["file"]
+    assert len(files) == 21 and all(Path(f).stem == pid for f, pid in zip(files, b.photos.ids))

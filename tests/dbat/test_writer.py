@@ -120,10 +120,10 @@ def test_sxb_orientations_are_written_as_dbat_reports_them(shared_data, tmp_path
     assert np.allclose(rows[n][3:], (0.829772, -0.417236, -89.914549), atol=2e-5)
     # read back: the orientations are the initial values, to the last digits written
     back = dbat_block(read_dbat(tmp_path / "sxb" / "sxb.xml"))
-    assert back.meta["dbat"]["eo_initial"] == "loaded"
+    assert back.meta["dbat"].eo_initial == "loaded"
     assert np.abs(back.photos.X0 - res.block.photos.X0).max() < 1e-9
     assert np.abs(back.photos.opk - res.block.photos.opk).max() < 1e-14
-    assert "spatial_resection" not in back.meta["dbat"]["operations"]
+    assert "spatial_resection" not in back.meta["dbat"].operations
 
 
 def test_camcal_source_round_trip(shared_data, tmp_path):
@@ -132,8 +132,8 @@ def test_camcal_source_round_trip(shared_data, tmp_path):
     write_dbat(src, tmp_path / "camcal", name="camcal")
     back = dbat_block(read_dbat(tmp_path / "camcal" / "camcal.xml"))
     compare(src, back, xy_tol=1e-12)
-    assert back.meta["dbat"]["estimate_io"] == src.meta["dbat"]["estimate_io"]
-    assert back.meta["dbat"]["image_numbers"] == src.meta["dbat"]["image_numbers"]
+    assert back.meta["dbat"].estimate_io == src.meta["dbat"].estimate_io
+    assert back.meta["dbat"].image_numbers == src.meta["dbat"].image_numbers
     assert time.perf_counter() - t0 < 3.0
 
 

@@ -18,6 +18,10 @@ Reads counted: ``X.meta["k"]``, ``X.meta.get("k")``, ``"k" in X.meta`` and the s
 to ``X.meta`` / ``dict(X.meta)`` / ``{**X.meta, …}`` or a parameter named ``meta``.  Writes counted:
 the keys of a dict literal given as ``meta=`` or bound to a name ``meta``, and ``meta["k"] = …`` /
 ``meta.setdefault("k", …)`` on such a name.
+
+A source whose specifics :data:`TYPED_META` lists keeps them as a frozen dataclass of its own
+(``DbatInfo``, ``AiconInfo``), never a dict: the scan refuses a dict written under such a key, and
+the blocks the two readers make are checked (frozen, read-only inside, picklable).
 """
 
 from __future__ import annotations
@@ -38,6 +42,16 @@ and configuration (``pipeline/synthetic/testfield.py``, read by ``testfield``'s 
 and keypoints (``pipeline/colmap/reader.py``, read back by ``pipeline/colmap/writer.py`` and the
 ``colmap-export`` stage).  Any other key a plugin reads
 it must write itself."""
+
+TYPED_META = {"dbat": "DbatInfo", "aicon": "AiconInfo"}
+"""``meta`` keys whose value is a frozen dataclass of the plugin that writes it (its typed
+extension of the block), never a dict record read by key."""
+
+
+def _is_dict_value(node) -> bool:
+    """A dict literal, comprehension, ``dict(...)`` call or ``{**x, ...}``: an untyped record."""
+    return isinstance(node, (ast.Dict, ast.DictComp)) or (
+        isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "dict")
 
 
 def _is_meta_attr(node) -> bool:
@@ -69,7 +83,12 @@ class _Scan(ast.NodeVisitor):
         self.reads: list[tuple[str, int]] = []
         self.writes: list[tuple[str, int]] = []
         self.reaches: list[tuple[str, int]] = []
+        self.dict_writes: list[tuple[str, int]] = []       # a key written with a dict as its value
         self.names: list[set[str]] = [set()]
+
+    def _dict_items(self, d: ast.Dict, line: int):
+        self.dict_writes += [(k.value, line) for k, v in zip(d.keys, d.values)
+                             if isinstance(k, ast.Constant) and isinstance(k.value, str) and _is_dict_value(v)]
 
     # scopes: names bound to a block's meta, per function
     def _function(self, node):
@@ -92,8 +111,11 @@ class _Scan(ast.NodeVisitor):
                     self.names[-1].discard(t.id)
                 if t.id == "meta" and isinstance(node.value, ast.Dict):
                     self.writes += [(k, node.lineno) for k in _str_keys(node.value)]
+                    self._dict_items(node.value, node.lineno)
             if isinstance(t, ast.Subscript) and self._is_meta(t.value) and isinstance(t.slice, ast.Constant):
                 self.writes.append((t.slice.value, node.lineno))
+                if _is_dict_value(node.value):
+                    self.dict_writes.append((t.slice.value, node.lineno))
         self.generic_visit(node)
 
     def visit_Subscript(self, node):
@@ -121,6 +143,7 @@ class _Scan(ast.NodeVisitor):
         for kw in node.keywords:
             if kw.arg == "meta" and isinstance(kw.value, ast.Dict):
                 self.writes += [(k, node.lineno) for k in _str_keys(kw.value)]
+                self._dict_items(kw.value, node.lineno)
         if isinstance(f, ast.Name) and f.id in ("getattr", "hasattr") and len(node.args) >= 2:
             what = node.args[1]
             if isinstance(what, ast.Constant) and what.value in ("previous", "artefacts"):
@@ -139,7 +162,7 @@ class _Scan(ast.NodeVisitor):
 def scan(root: Path) -> dict:
     """``{"reads": {owner: [(key, file, line)]}, "writes": {owner: {key}}, "reaches": [...]}`` where
     owner is a plugin's name or ``"pipeline"``."""
-    reads, writes, reaches = defaultdict(list), defaultdict(set), []
+    reads, writes, reaches, dict_writes = defaultdict(list), defaultdict(set), [], []
     for folder in ("pipeline", "plugins"):
         for path in sorted((root / folder).rglob("*.py")):
             rel = path.relative_to(root)
@@ -148,9 +171,10 @@ def scan(root: Path) -> dict:
             s.visit(ast.parse(path.read_text(encoding="utf-8"), str(rel)))
             reads[owner] += [(k, str(rel), line) for k, line in s.reads]
             writes[owner] |= {k for k, _ in s.writes}
+            dict_writes += [(k, str(rel), line) for k, line in s.dict_writes]
             if folder == "plugins":
                 reaches += [(what, str(rel), line) for what, line in s.reaches]
-    return {"reads": reads, "writes": writes, "reaches": reaches}
+    return {"reads": reads, "writes": writes, "reaches": reaches, "dict_writes": dict_writes}
 
 
 def violations(root: Path) -> list[str]:
@@ -170,6 +194,8 @@ def violations(root: Path) -> list[str]:
                 out.append(f"{file}:{line}: plugin {owner!r} reads meta[{key!r}], which it does not write")
     out += [f"{file}:{line}: {what} reaches past the declared artefacts (declare them in reads; "
             "ctx.findings for a run's findings)" for what, file, line in found["reaches"]]
+    out += [f"{file}:{line}: meta[{key!r}] written as a dict (a typed extension: {TYPED_META[key]})"
+            for key, file, line in found["dict_writes"] if key in TYPED_META]
     return out
 
 
@@ -208,6 +234,12 @@ def test_the_scan_sees_what_it_polices(tmp_path):
     assert sum("reads meta['shared']" in p for p in problems) == 2
     assert "plugin 'reader' reads meta['lib'], which it does not write" in text   # a library key off the list
     assert len(problems) == 9
+    (tmp_path / "plugins" / "dbat").mkdir()
+    (tmp_path / "plugins" / "dbat" / "reader.py").write_text(
+        'def make(b):\n    meta = {"dbat": {"script": "x"}}\n    meta = dict(b.meta)\n    meta["dbat"] = dict(a=1)\n'
+        '    return Block(1, meta={"dbat": DbatInfo(script="x"), "aicon": {}})\n')
+    typed = [p for p in violations(tmp_path) if "written as a dict" in p]
+    assert len(typed) == 3 and sum("meta['aicon']" in p for p in typed) == 1, typed
 
 
 def test_the_context_offers_findings_not_previous_results():
@@ -255,3 +287,53 @@ def test_typed_block_fields_are_frozen_survive_selection_and_pickle():
         blk.photos.image_path[0] = "b.png"
     with pytest.raises(dataclasses.FrozenInstanceError):
         blk.source.path = "y"
+
+
+def _sources(shared_data):
+    from baarda.plugins.aicon.reader import aicon_block, read_aicon
+    from baarda.plugins.dbat import dbat_block, read_dbat
+
+    yield "dbat", dbat_block(read_dbat(shared_data / "dbat-sxb" / "sxb.xml"))
+    d = shared_data / "aicon-closerange"
+    if (d / "example.ior").exists():
+        yield "aicon", aicon_block(read_aicon(d))
+
+
+def test_source_specifics_are_frozen_dataclasses_that_pickle(shared_data):
+    """The DBAT and AICON readers keep their specifics as the frozen dataclass :data:`TYPED_META`
+    names: nothing inside is a dict or a writable array, and it comes back equal, frozen and
+    read-only from a pickle (blocks go to worker processes)."""
+    import pickle
+    from collections.abc import Mapping
+
+    import numpy as np
+
+    def check(value, where):
+        for f in dataclasses.fields(value):
+            v = getattr(value, f.name)
+            assert not isinstance(v, (dict, list)), f"{where}.{f.name} is a {type(v).__name__}"
+            if isinstance(v, np.ndarray):
+                assert not v.flags.writeable, f"{where}.{f.name} is a writable array"
+            if isinstance(v, Mapping):
+                with pytest.raises(TypeError):
+                    v["new"] = 1
+            if dataclasses.is_dataclass(v):
+                check(v, f"{where}.{f.name}")
+            if isinstance(v, tuple):
+                for k, item in enumerate(v):
+                    if dataclasses.is_dataclass(item):
+                        check(item, f"{where}.{f.name}[{k}]")
+
+    seen = set()
+    for key, block in _sources(shared_data):
+        value = block.meta[key]
+        assert type(value).__name__ == TYPED_META[key]
+        assert dataclasses.is_dataclass(value) and type(value).__dataclass_params__.frozen
+        again = pickle.loads(pickle.dumps(block)).meta[key]
+        assert type(again) is type(value)
+        for v in (value, again):
+            check(v, f"meta[{key!r}]")
+            with pytest.raises(dataclasses.FrozenInstanceError):
+                setattr(v, dataclasses.fields(v)[0].name, None)
+        seen.add(key)
+    assert "dbat" in seen
