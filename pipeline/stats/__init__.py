@@ -11,7 +11,7 @@ from baarda.pipeline.stats.baarda import (DataSnoopingResult, ExternalReliabilit
                                    external_reliability, global_test, mdb, w_test)
 from baarda.pipeline.stats.critical import (alpha_prime, critical_normal, delta0, global_power,
                                      w_power)
-from baarda.pipeline.stats.ids import IDSResult, IDSStep, SnoopingConfig, iterated_data_snooping
+from baarda.pipeline.stats.ids import IDSResult, IDSStep, SnoopingConfig, SnoopingLevels, iterated_data_snooping
 from baarda.pipeline.stats.joint import JointTestResult, joint_test_2d
 from baarda.pipeline.stats.linear import (LinearAdjustment, LinearModel, factor_normal_equations,
                                    solve_normal)
@@ -33,7 +33,7 @@ __all__ = [
     "DataSnoopingResult", "data_snooping", "ExternalReliability", "external_reliability",
     "tau_distribution", "tau_critical", "tau_critical_max",
     "PopeResult", "PopeStep", "PopeIteratedResult", "pope_test", "pope_iterated",
-    "IDSResult", "IDSStep", "iterated_data_snooping", "SnoopingConfig",
+    "IDSResult", "IDSStep", "iterated_data_snooping", "SnoopingLevels", "SnoopingConfig",
     "RRRResult", "rrr", "recursive_residuals",
     "JointTestResult", "joint_test_2d",
     "ROBUST_METHODS", "DEFAULT_C", "RobustTuning", "RobustConfig", "RobustResult", "irls", "robust_weights", "robust_rho",

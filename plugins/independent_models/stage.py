@@ -17,15 +17,19 @@ from baarda.pipeline.api import AdjustmentArtefact, Context, InputError, Stage, 
 from baarda.pipeline.options import check_bounds
 from baarda.pipeline.imodels import IndependentModelResult, independent_model_block
 from baarda.pipeline.recording import log_series, role_colors
-from baarda.pipeline.stats import (RobustConfig, data_snooping, global_test, irls, iterated_data_snooping,
-                                   weighted_refit)
+from baarda.pipeline.stats import (RobustConfig, SnoopingLevels, data_snooping, global_test, irls,
+                                   iterated_data_snooping, weighted_refit)
 
 from . import reliability as im_reliability
 from . import report as im_report
 
 
 @dataclasses.dataclass(frozen=True)
-class IndependentModelsOptions:
+class IndependentModelsOptions(SnoopingLevels):
+    """The stage's options; ``alpha0`` and ``beta0`` are the statistics library's
+    :class:`~baarda.pipeline.stats.SnoopingLevels`, the ``robust`` table its
+    :class:`~baarda.pipeline.stats.RobustConfig` (declared once for every stage)."""
+
     RENAMED: ClassVar[dict[str, str]] = {"critical": "critical_w", "pc_sigma_factor": "sigma_pc_scale"}
     MOVED: ClassVar[dict[str, str]] = {"robust": "robust.method", "robust_c": "robust.c"}
     method: Literal["coplanarity", "collinearity"] = option(
@@ -53,8 +57,6 @@ class IndependentModelsOptions:
     sigma_pc_scale: float = option(1.0, "projection centres get the median model-point covariance "
                                          "times this factor squared")
     sigma0: float = option(1.0, "a-priori σ0 of the image covariances")
-    alpha0: float = option(0.001, "significance level of the w-test (two-sided, per observation)")
-    beta0: float = option(0.80, "power for the MDBs and the B-method")
     critical_w: float | None = option(None, "critical value of the w-test (default Φ⁻¹(1 − α0/2) = 3.29 "
                                           "for 0.1 %; 4.13 for Baarda's B-method)")
     ro_snooping: Literal["report", "iterated"] = option(

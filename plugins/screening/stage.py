@@ -21,7 +21,11 @@ from .screen import FLAG_METHODS, PairScreening, ScreeningSettings, screen_pair
 
 
 @dataclasses.dataclass(frozen=True)
-class ScreeningOptions:
+class ScreeningOptions(stats.SnoopingLevels):
+    """The stage's options; ``alpha0`` and ``beta0`` (data snooping, the MDB) are the statistics
+    library's :class:`~baarda.pipeline.stats.SnoopingLevels`, the ``robust`` table its
+    :class:`~baarda.pipeline.stats.RobustConfig` (declared once for every stage)."""
+
     RENAMED: ClassVar[dict[str, str]] = {"deactivate": "action"}
     RENAMED_VALUES: ClassVar[dict[str, dict[str, str]]] = {"on_too_few": {"fail": "error"}}
     MOVED: ClassVar[dict[str, str]] = {"robust": "robust.method", "robust_c": "robust.c"}
@@ -29,8 +33,6 @@ class ScreeningOptions:
         0.2, "a-priori σ (mm) of one right-image coordinate about the Helmert transformation, "
              "including relief displacement the 2-D transformation cannot model (used by the "
              "global test, data snooping, MDB and the swap check; Pope's τ uses σ̂0 instead)")
-    alpha0: float = option(0.001, "significance level of data snooping (two-sided, per residual)")
-    beta0: float = option(0.80, "power β0 for the MDB (δ0 from α0 and β0)")
     alpha_pope: float = option(0.001, "significance level of Pope's τ test (two-sided, per residual)")
     threshold_mm: float = option(2.0, "flag residuals whose magnitude exceeds this (mm)")
     format_margin_mm: float = option(0.0, "tolerance beyond the camera format before a coordinate "

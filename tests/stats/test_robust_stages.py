@@ -156,7 +156,8 @@ def _field(cls, name):
 def test_the_robust_and_snooping_options_are_declared_once():
     """bundle, helmert-screening and independent-models nest the statistics library's RobustConfig;
     blunder-rejection nests its RobustTuning (c, standardise; the weight function is its method);
-    the bundle's tests group and blunder-rejection share SnoopingConfig's alpha0 … ids_stop."""
+    the bundle's tests group and blunder-rejection share SnoopingConfig's alpha0 … ids_stop,
+    helmert-screening and independent-models its base SnoopingLevels (alpha0, beta0)."""
     for cls in (BundleConfig, ScreeningOptions, IndependentModelsOptions):
         assert _field(cls, "robust").type in ("RobustConfig", "stats.RobustConfig")
         assert isinstance(cls().robust, stats.RobustConfig)
@@ -167,6 +168,9 @@ def test_the_robust_and_snooping_options_are_declared_once():
     for name in ("alpha0", "beta0", "max_rejections", "ids_stop"):
         assert _field(StatTestsConfig, name) is _field(stats.SnoopingConfig, name)
         assert _field(BlunderOptions, name) is _field(stats.SnoopingConfig, name)
+    for name in ("alpha0", "beta0"):
+        for cls in (ScreeningOptions, IndependentModelsOptions, stats.SnoopingConfig):
+            assert _field(cls, name) is _field(stats.SnoopingLevels, name)
 
 
 @pytest.mark.parametrize("cls, raw, message", [
