@@ -39,6 +39,11 @@ residual vector ``v``), so every adjustment can use it: :func:`weighted_linear_r
 :class:`LinearModel`, :func:`scale_covariance` for the bundle (its observations' 2×2 covariances
 multiplied by ``1/ω``).  Pure: arrays in, arrays out, inputs never modified.
 
+The options are declared here once: :class:`RobustConfig` (``method``, ``c``, ``standardise``) is the
+``[stage.options.robust]`` table of ``bundle``, ``helmert-screening`` and ``independent-models``;
+its base :class:`RobustTuning` (``c``, ``standardise``) that of ``blunder-rejection``, whose
+``method = "robust-…"`` names the weight function.
+
 References: Huber (1981) *Robust Statistics*; Krarup, Juhl & Kubik (1980) *Götterdämmerung over
 least squares adjustment*, 14th ISP Congress, Hamburg, Comm. III; Kubik, Weng & Frederiksen
 (1985) *Oh, gross errors!*, Australian Journal of Geodesy, Photogrammetry and Surveying 42.
