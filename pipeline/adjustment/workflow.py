@@ -86,39 +86,17 @@ class SolverConfig:
 
 
 @dataclasses.dataclass(frozen=True)
-class StatTestsConfig:
-    """``[bundle.tests]``: the tests of the observations and the blunder handling."""
+class StatTestsConfig(stats.SnoopingConfig):
+    """``[bundle.tests]``: the tests of the observations and the blunder handling (``alpha0``, ``beta0``,
+    ``max_rejections``, ``ids_stop`` declared once in :class:`baarda.pipeline.stats.SnoopingConfig`,
+    shared with blunder-rejection)."""
 
     blunders: Literal["none", "data-snooping", "ids"] = option(
         "none", "blunder handling inside the bundle: none, data snooping (flag), iterated data snooping (reject)")
-    alpha0: float = option(0.001, "significance level of the w-test (two-sided, per observation)", gt=0.0, lt=1.0)
-    beta0: float = option(0.80, "power for the MDBs", gt=0.0, lt=1.0)
-    max_rejections: int = option(50, "iterated data snooping: at most this many rejected coordinates", ge=0)
-    ids_stop: Literal["global-test", "w-test"] = option(
-        "global-test", "iterated data snooping stops when the global test accepts (Kok), or goes on while "
-                       "any |w| exceeds the critical value (for a-priori σ scaled from these data, where "
-                       "the global test accepts by construction)")
-
-    def __post_init__(self):
-        _check_bounds(self)
 
 
-@dataclasses.dataclass(frozen=True)
-class RobustConfig:
-    """``[bundle.robust]``: robust estimation by IRLS (docs/statistics.md)."""
-
-    method: Literal["none", "huber", "danish", "l1"] = option(
-        "none", "none, or Huber, Danish or L1 weights on the image coordinates; the adjusted values, σ̂0 and the "
-                "tests are those of the final weighted adjustment, the down-weighted coordinates are listed (report, "
-                "results.json, robust_wx/robust_wy in bundle_observations.csv)")
-    c: float = option(0.0, "tuning constant in standardised residuals; 0 = Huber 1.5, Danish 2.5 (L1: the floor "
-                           "of |u|, 0.001)", ge=0.0)
-    standardise: Literal["redundancy", "apriori", "current"] = option(
-        "redundancy", "residuals divided by σ √r of the unweighted adjustment, by the a-priori σ, or by σ √r of the "
-                      "current weighted adjustment (a covariance computation per iteration)")
-
-    def __post_init__(self):
-        _check_bounds(self)
+RobustConfig = stats.RobustConfig
+"""``[bundle.robust]``: robust estimation by IRLS, the statistics library's group (docs/statistics.md)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -229,7 +207,10 @@ class BundleConfig:
         "error", "photos with < 3 points, points in < 2 photos: stop with an error, or drop them with a warning")
     solver: SolverConfig = option(SolverConfig(), "the iteration and the linear algebra")
     tests: StatTestsConfig = option(StatTestsConfig(), "tests of the observations, blunder handling")
-    robust: RobustConfig = option(RobustConfig(), "robust estimation by IRLS")
+    robust: RobustConfig = option(
+        RobustConfig(), "robust estimation by IRLS, weights on the image coordinates: the adjusted values, σ̂0 and the "
+                        "tests are those of the final weighted adjustment, the down-weighted coordinates are listed "
+                        "(report, results.json, robust_wx/robust_wy in bundle_observations.csv)")
     variance_components: VarianceComponentsConfig = option(
         VarianceComponentsConfig(), "variance components per observation group")
     ap_selection: APSelectionConfig = option(APSelectionConfig(), "selection of additional parameters")

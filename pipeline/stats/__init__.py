@@ -11,13 +11,13 @@ from baarda.pipeline.stats.baarda import (DataSnoopingResult, ExternalReliabilit
                                    external_reliability, global_test, mdb, w_test)
 from baarda.pipeline.stats.critical import (alpha_prime, critical_normal, delta0, global_power,
                                      w_power)
-from baarda.pipeline.stats.ids import IDSResult, IDSStep, iterated_data_snooping
+from baarda.pipeline.stats.ids import IDSResult, IDSStep, SnoopingConfig, SnoopingLevels, iterated_data_snooping
 from baarda.pipeline.stats.joint import JointTestResult, joint_test_2d
 from baarda.pipeline.stats.linear import (LinearAdjustment, LinearModel, factor_normal_equations,
                                    solve_normal)
 from baarda.pipeline.stats.pope import (PopeIteratedResult, PopeResult, PopeStep, pope_iterated,
                                  pope_test)
-from baarda.pipeline.stats.robust import (DEFAULT_C, ROBUST_METHODS, RobustResult, irls,
+from baarda.pipeline.stats.robust import (DEFAULT_C, ROBUST_METHODS, RobustConfig, RobustResult, RobustTuning, irls,
                                           robust_rho, robust_weights, scale_covariance,
                                           weighted_linear_refit, weighted_refit)
 from baarda.pipeline.stats.rrr import RRRResult, recursive_residuals, rrr
@@ -33,9 +33,9 @@ __all__ = [
     "DataSnoopingResult", "data_snooping", "ExternalReliability", "external_reliability",
     "tau_distribution", "tau_critical", "tau_critical_max",
     "PopeResult", "PopeStep", "PopeIteratedResult", "pope_test", "pope_iterated",
-    "IDSResult", "IDSStep", "iterated_data_snooping",
+    "IDSResult", "IDSStep", "iterated_data_snooping", "SnoopingLevels", "SnoopingConfig",
     "RRRResult", "rrr", "recursive_residuals",
     "JointTestResult", "joint_test_2d",
-    "ROBUST_METHODS", "DEFAULT_C", "RobustResult", "irls", "robust_weights", "robust_rho",
+    "ROBUST_METHODS", "DEFAULT_C", "RobustTuning", "RobustConfig", "RobustResult", "irls", "robust_weights", "robust_rho",
     "weighted_linear_refit", "scale_covariance", "weighted_refit",
 ]

@@ -20,11 +20,12 @@ from typing import Literal
 
 import numpy as np
 
+from baarda.pipeline.options import check_bounds, option
 from baarda.pipeline.stats.baarda import data_snooping, global_test
 from baarda.pipeline.stats.critical import critical_normal
 from baarda.pipeline.stats.snapshot import Refittable, Snapshot
 
-__all__ = ["IDSStep", "IDSResult", "iterated_data_snooping"]
+__all__ = ["IDSStep", "IDSResult", "iterated_data_snooping", "SnoopingLevels", "SnoopingConfig"]
 
 
 @dataclass(frozen=True)
@@ -99,3 +100,32 @@ def iterated_data_snooping(model: Refittable, snap: Snapshot, alpha0: float = 0.
         reason += " (stop = 'w-test': the global test does not stop the rejections)"
     return IDSResult(removed, [str(snap.labels[i]) for i in removed], history, current,
                      active, reason, K)
+
+
+@dataclass(frozen=True)
+class SnoopingLevels:
+    """The level and power of the w-test, declared once for every stage that tests its residuals
+    (``alpha0``, ``beta0``): the base of :class:`SnoopingConfig`, and of the options of
+    helmert-screening and independent-models."""
+
+    alpha0: float = option(0.001, "significance level of the w-test, i.e. of data snooping (two-sided, per "
+                                  "observation; K = Φ⁻¹(1 − α0/2))", gt=0.0, lt=1.0)
+    beta0: float = option(0.80, "power β0 (δ0 for the MDBs; the B-method α′ of IDS's global test)", gt=0.0, lt=1.0)
+
+    def __post_init__(self):
+        check_bounds(self)
+
+
+@dataclass(frozen=True)
+class SnoopingConfig(SnoopingLevels):
+    """The levels of the w-test (:class:`SnoopingLevels`) and the limits of iterated rejection, declared
+    once: the bundle's ``[bundle.tests]`` group (``StatTestsConfig`` adds ``blunders``) and
+    blunder-rejection's options (which inherit them as top-level options) —
+    :func:`iterated_data_snooping`'s ``alpha0``, ``beta0``, ``max_iter`` and ``stop``."""
+
+    max_rejections: int = option(50, "iterated rejection (IDS; blunder-rejection's Pope too): at most this many "
+                                     "rejected rows", ge=0)
+    ids_stop: Literal["global-test", "w-test"] = option(
+        "global-test", "iterated data snooping stops when the global test accepts (Kok), or goes on while "
+                       "any |w| exceeds the critical value (for a-priori σ scaled from these data, where "
+                       "the global test accepts by construction)")

@@ -39,6 +39,11 @@ residual vector ``v``), so every adjustment can use it: :func:`weighted_linear_r
 :class:`LinearModel`, :func:`scale_covariance` for the bundle (its observations' 2×2 covariances
 multiplied by ``1/ω``).  Pure: arrays in, arrays out, inputs never modified.
 
+The options are declared here once: :class:`RobustConfig` (``method``, ``c``, ``standardise``) is the
+``[stage.options.robust]`` table of ``bundle``, ``helmert-screening`` and ``independent-models``;
+its base :class:`RobustTuning` (``c``, ``standardise``) that of ``blunder-rejection``, whose
+``method = "robust-…"`` names the weight function.
+
 References: Huber (1981) *Robust Statistics*; Krarup, Juhl & Kubik (1980) *Götterdämmerung over
 least squares adjustment*, 14th ISP Congress, Hamburg, Comm. III; Kubik, Weng & Frederiksen
 (1985) *Oh, gross errors!*, Australian Journal of Geodesy, Photogrammetry and Surveying 42.
@@ -51,16 +56,44 @@ from typing import Any, Callable, Literal
 
 import numpy as np
 
+from baarda.pipeline.options import check_bounds, option
+
 from .linear import LinearModel
 
 __all__ = ["ROBUST_METHODS", "DEFAULT_C", "robust_weights", "robust_rho", "irls", "RobustResult",
-           "weighted_linear_refit", "scale_covariance", "weighted_refit"]
+           "weighted_linear_refit", "scale_covariance", "weighted_refit", "RobustTuning", "RobustConfig"]
 
 ROBUST_METHODS = ("huber", "danish", "l1")
 #: default tuning constants (standardised residuals): Huber's 1.5 (≈ 95 % efficiency at the normal,
 #: Huber 1981); Danish 2.5, so that ω < 0.5 ⇔ |u| > 2.5 √(1 + ln 2) = 3.25 ≈ the w-test's 3.29;
 #: for L1 the floor of |u| (weights 1/|u| are capped at 1/floor).
 DEFAULT_C = {"huber": 1.5, "danish": 2.5, "l1": 1e-3}
+
+
+@dataclass(frozen=True)
+class RobustTuning:
+    """The tuning of an IRLS estimator (:func:`irls`'s ``c`` and ``standardise``): the
+    ``[stage.options.robust]`` table of blunder-rejection, whose ``method = "robust-…"`` names the
+    weight function, and the base of :class:`RobustConfig`."""
+
+    c: float = option(0.0, "tuning constant in standardised residuals; 0 = Huber 1.5, Danish 2.5 (L1: the floor "
+                           "of |u|, 0.001)", ge=0.0)
+    standardise: Literal["redundancy", "apriori", "current"] = option(
+        "redundancy", "residuals divided by σ √r of the first (unweighted) adjustment, by the a-priori σ, or by "
+                      "σ √r of the current weighted adjustment (the bundle: a covariance computation per iteration)")
+
+    def __post_init__(self):
+        check_bounds(self)
+
+
+@dataclass(frozen=True)
+class RobustConfig(RobustTuning):
+    """Robust estimation by IRLS: the weight function and its tuning — the ``[stage.options.robust]``
+    table of ``bundle``, ``helmert-screening`` and ``independent-models`` (one declaration; each
+    stage's doc of the group says what the weights act on there)."""
+
+    method: Literal["none", "huber", "danish", "l1"] = option(
+        "none", "none, or Huber, Danish or L1 weights (docs/statistics.md, Robust estimation)")
 
 
 def _check(method: str, c: float | None) -> float:

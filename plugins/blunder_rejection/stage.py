@@ -2,74 +2,23 @@
 
 Reads the ``adjustment`` artefact (:class:`.artefact.AdjustmentArtefact`) and the block; writes
 ``blunders`` (:class:`BlunderReport`) and the block, with the rejected observations marked
-inactive when ``action = "remove"``.  Statistics: :mod:`baarda.pipeline.stats`; method wiring:
-:mod:`.decide`.
+inactive when ``action = "remove"``.  Statistics: :mod:`baarda.pipeline.stats`; the options
+(:class:`~.decide.BlunderOptions`) and the method wiring: :mod:`.decide`.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from typing import ClassVar, Literal
 
 import numpy as np
 
 from baarda.pipeline.errors import InputError
-from baarda.pipeline.options import option
 from baarda.pipeline.report import TABLE_DECIMALS
 from baarda.pipeline.stage import Context, StageResult, TableData
 
 from baarda.pipeline.contracts import AdjustmentArtefact
-from .decide import METHODS, ROBUST_METHODS, BlunderSettings, MethodResult, row_statistics, run_methods
-
-
-@dataclasses.dataclass(frozen=True)
-class BlunderOptions:
-    RENAMED: ClassVar[dict[str, str]] = {"max_iter": "max_rejections"}
-    method: Literal["data-snooping", "ids", "pope", "rrr", "all", "robust-huber", "robust-danish", "robust-l1"] = option(
-        "all", "method: data-snooping (one pass, σ0 a priori), ids (Kok's iterated data snooping), "
-               "pope (iterated τ test, σ̂0), rrr (recursive residual rejection), or all of them side by side; "
-               "robust-huber / robust-danish / robust-l1: robust estimation by IRLS, the rows ending with a "
-               "weight below 0.5 are rejected (docs/statistics.md)")
-    decide_by: Literal["data-snooping", "ids", "pope", "rrr"] = option(
-        "rrr", "with method = all: the method whose rejections act on the block")
-    action: Literal["flag", "remove"] = option(
-        "flag", "flag: report only; remove: mark the rejected observations inactive in the block")
-    alpha0: float = option(0.001, "data snooping / IDS: two-sided level per residual (K = Φ⁻¹(1 − α0/2))")
-    beta0: float = option(0.80, "power β0 (δ0, MDB and the B-method α′ of IDS's global test)")
-    critical_w: float = option(0.0, "data snooping / IDS: critical value K; 0 = from alpha0 (3.29), "
-                                    "4.13 = Baarda's B-method value")
-    alpha_pope: float = option(0.001, "Pope: two-sided level per residual (τ critical value, dof of each step)")
-    alpha_rrr: float = option(0.001, "RRR: probability that the whole procedure rejects anything in clean data")
-    rho: int = option(0, "RRR: number of suspects; 0 = ⌈0.20 (n − u)⌉, which rounds Benciolini et al.'s "
-                         "0.15 < ρ/(n − u) < 0.20 up and can leave that range (3 for n − u = 14). "
-                         "Give at least one more than the gross errors you expect: an error left among "
-                         "the non-suspects masks the others (paper 000's Data 1 needs ρ = 4)")
-    n_sim: int = option(20000, "RRR: Monte Carlo repetitions of the whole procedure for the critical value H")
-    rrr_critical: float = option(0.0, "RRR: use this critical value H instead of the Monte Carlo one (0 = simulate)")
-    max_rejections: int = option(50, "IDS / Pope: most rows removed")
-    ids_stop: Literal["global-test", "w-test"] = option(
-        "global-test", "IDS: stop when the global test accepts (Kok), or go on while any |w| exceeds K "
-                       "(for a-priori σ scaled from these residuals, where the global test accepts by construction)")
-    robust_c: float = option(0.0, "robust methods: tuning constant in standardised residuals; 0 = Huber 1.5, "
-                                  "Danish 2.5 (L1: the floor of |u|, 0.001)", ge=0.0)
-    robust_standardise: Literal["redundancy", "apriori", "current"] = option(
-        "redundancy", "robust methods: residuals divided by σ √r of the given adjustment, by the a-priori σ, or by "
-                      "σ √r of the current weighted adjustment")
-
-    def __post_init__(self):
-        for name in ("alpha0", "beta0", "alpha_pope", "alpha_rrr"):
-            if not 0 < getattr(self, name) < 1:
-                raise ValueError(f"{name} must lie strictly between 0 and 1, got {getattr(self, name)}")
-        if self.rho < 0 or self.n_sim < 0 or self.max_rejections < 0:
-            raise ValueError("rho, n_sim and max_rejections must not be negative")
-        if self.n_sim == 0 and not self.rrr_critical > 0 and self.method in ("rrr", "all"):
-            raise ValueError("n_sim = 0 needs an explicit rrr_critical")
-
-    def settings(self) -> BlunderSettings:
-        return BlunderSettings(self.alpha0, self.beta0, self.critical_w or None, self.alpha_pope,
-                               self.alpha_rrr, self.rho, self.n_sim, self.rrr_critical or None, self.max_rejections,
-                               self.ids_stop, self.robust_c, self.robust_standardise)
+from .decide import METHODS, ROBUST_METHODS, BlunderOptions, MethodResult, row_statistics, run_methods
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -96,12 +45,11 @@ class BlunderRejection:
         if not isinstance(art, AdjustmentArtefact):
             raise InputError(f"the 'adjustment' artefact is a {type(art).__name__}, expected an "
                              "AdjustmentArtefact (baarda.pipeline.contracts)", None, None, "adjustment")
-        settings = options.settings()
         methods = list(METHODS) if options.method == "all" else [options.method]
         if options.method == "rrr" and not art.supports_rrr:
             raise InputError(f"method 'rrr' needs a linear model; the adjustment '{art.name}' offers only "
                              "refit() — use data-snooping, ids or pope", None, None, "method")
-        results = run_methods(art, methods, settings, ctx.rng, progress=ctx.progress)
+        results = run_methods(art, methods, options, ctx.rng, progress=ctx.progress)
         if options.method in ROBUST_METHODS and results[options.method].skipped:
             raise InputError(f"method '{options.method}' cannot run: {results[options.method].skipped}",
                              None, None, "method")
@@ -120,7 +68,7 @@ class BlunderRejection:
             active[acted_obs] = False
             out_block = block.replace(observations=block.observations.replace(active=active))
         report = BlunderReport(art.name, results, decide, options.action, acted_rows, acted_obs)
-        stats = row_statistics(art, settings)
+        stats = row_statistics(art, options)
         return StageResult(
             artefacts={"blunders": report, "block": out_block},
             summary=_summary(report, block, art) | {"rrr_note": _rho_note(report, options, art.snapshot.dof)}

@@ -14,17 +14,24 @@ from typing import ClassVar, Literal
 import numpy as np
 
 from baarda.pipeline.api import AdjustmentArtefact, Context, InputError, Stage, StageResult, option
+from baarda.pipeline.options import check_bounds
 from baarda.pipeline.imodels import IndependentModelResult, independent_model_block
 from baarda.pipeline.recording import log_series, role_colors
-from baarda.pipeline.stats import data_snooping, global_test, iterated_data_snooping
+from baarda.pipeline.stats import (RobustConfig, SnoopingLevels, data_snooping, global_test, irls,
+                                   iterated_data_snooping, weighted_refit)
 
 from . import reliability as im_reliability
 from . import report as im_report
 
 
 @dataclasses.dataclass(frozen=True)
-class IndependentModelsOptions:
+class IndependentModelsOptions(SnoopingLevels):
+    """The stage's options; ``alpha0`` and ``beta0`` are the statistics library's
+    :class:`~baarda.pipeline.stats.SnoopingLevels`, the ``robust`` table its
+    :class:`~baarda.pipeline.stats.RobustConfig` (declared once for every stage)."""
+
     RENAMED: ClassVar[dict[str, str]] = {"critical": "critical_w", "pc_sigma_factor": "sigma_pc_scale"}
+    MOVED: ClassVar[dict[str, str]] = {"robust": "robust.method", "robust_c": "robust.c"}
     method: Literal["coplanarity", "collinearity"] = option(
         "coplanarity", "relative orientation: coplanarity condition (Gauss–Helmert) or collinearity "
                        "with the model points as unknowns (same optimum)")
@@ -50,8 +57,6 @@ class IndependentModelsOptions:
     sigma_pc_scale: float = option(1.0, "projection centres get the median model-point covariance "
                                          "times this factor squared")
     sigma0: float = option(1.0, "a-priori σ0 of the image covariances")
-    alpha0: float = option(0.001, "significance level of the w-test (two-sided, per observation)")
-    beta0: float = option(0.80, "power for the MDBs and the B-method")
     critical_w: float | None = option(None, "critical value of the w-test (default Φ⁻¹(1 − α0/2) = 3.29 "
                                           "for 0.1 %; 4.13 for Baarda's B-method)")
     ro_snooping: Literal["report", "iterated"] = option(
@@ -63,17 +68,13 @@ class IndependentModelsOptions:
                                              "instead of stopping")
     arrow_scale: float | None = option(None, "scale of residual arrows in the recording (default: the "
                                              "largest arrow is 5 % of the block's extent)")
-    robust: Literal["none", "huber", "danish", "l1"] = option(
-        "none", "also estimate the model block robustly (IRLS on its linearisation at the solution, "
-                "docs/statistics.md) and report the down-weighted model coordinates (weight < 0.5); report only")
-    robust_c: float = option(0.0, "robust estimation: tuning constant in standardised residuals; 0 = Huber 1.5, "
-                                  "Danish 2.5 (L1: the floor of |u|, 0.001)", ge=0.0)
+    robust: RobustConfig = option(
+        RobustConfig(), "also estimate the model block robustly (IRLS on its linearisation at the solution, "
+                        "docs/statistics.md) and report the down-weighted model coordinates (weight < 0.5); "
+                        "report only")
 
     def __post_init__(self):
-        if not (0.0 < self.alpha0 < 1.0 and 0.0 < self.beta0 < 1.0):
-            raise ValueError("alpha0 and beta0 must lie between 0 and 1")
-        if not (self.sigma0 > 0 and self.sigma_pc_scale > 0):
-            raise ValueError("sigma0 and sigma_pc_scale must be positive")
+        check_bounds(self)
 
 
 class IndependentModels(Stage):
@@ -253,9 +254,8 @@ def log_independent_models(rec, result: IndependentModelResult, stats: dict, roo
 
 def _robust(model_block, o):
     """IRLS on the model block's linearisation at its solution (report only)."""
-    if o.robust == "none":
+    r = o.robust
+    if r.method == "none":
         return None
-    from baarda.pipeline.stats import irls, weighted_refit
-
     refit, _ = weighted_refit(model_block, model_block.snapshot.active)
-    return irls(refit, model_block.snapshot, o.robust, o.robust_c or None, max_iter=200)
+    return irls(refit, model_block.snapshot, r.method, r.c or None, standardise=r.standardise, max_iter=200)

@@ -13,6 +13,7 @@ from typing import ClassVar, Literal
 import numpy as np
 
 from baarda.pipeline.api import AdjustmentArtefact, Context, InputError, Stage, StageResult, option, stats
+from baarda.pipeline.options import check_bounds
 
 from . import report as screening_report
 from .helmert import stack_models
@@ -20,15 +21,18 @@ from .screen import FLAG_METHODS, PairScreening, ScreeningSettings, screen_pair
 
 
 @dataclasses.dataclass(frozen=True)
-class ScreeningOptions:
+class ScreeningOptions(stats.SnoopingLevels):
+    """The stage's options; ``alpha0`` and ``beta0`` (data snooping, the MDB) are the statistics
+    library's :class:`~baarda.pipeline.stats.SnoopingLevels`, the ``robust`` table its
+    :class:`~baarda.pipeline.stats.RobustConfig` (declared once for every stage)."""
+
     RENAMED: ClassVar[dict[str, str]] = {"deactivate": "action"}
     RENAMED_VALUES: ClassVar[dict[str, dict[str, str]]] = {"on_too_few": {"fail": "error"}}
+    MOVED: ClassVar[dict[str, str]] = {"robust": "robust.method", "robust_c": "robust.c"}
     sigma0_mm: float = option(
         0.2, "a-priori σ (mm) of one right-image coordinate about the Helmert transformation, "
              "including relief displacement the 2-D transformation cannot model (used by the "
              "global test, data snooping, MDB and the swap check; Pope's τ uses σ̂0 instead)")
-    alpha0: float = option(0.001, "significance level of data snooping (two-sided, per residual)")
-    beta0: float = option(0.80, "power β0 for the MDB (δ0 from α0 and β0)")
     alpha_pope: float = option(0.001, "significance level of Pope's τ test (two-sided, per residual)")
     threshold_mm: float = option(2.0, "flag residuals whose magnitude exceeds this (mm)")
     format_margin_mm: float = option(0.0, "tolerance beyond the camera format before a coordinate "
@@ -45,23 +49,16 @@ class ScreeningOptions:
     on_too_few: Literal["error", "skip"] = option(
         "error", "a pair with fewer than 3 common points: stop with an error, or skip the pair")
     arrow_scale: float = option(10.0, "scale of the residual arrows in the recording")
-    robust: Literal["none", "huber", "danish", "l1"] = option(
-        "none", "also estimate the Helmert transformations robustly (IRLS, docs/statistics.md) and report the "
-                "down-weighted coordinates (weight < 0.5) with their weights; report only, flags are unchanged")
-    robust_c: float = option(0.0, "robust estimation: tuning constant in standardised residuals; 0 = Huber 1.5, "
-                                  "Danish 2.5 (L1: the floor of |u|, 0.001)", ge=0.0)
+    robust: stats.RobustConfig = option(
+        stats.RobustConfig(), "also estimate the Helmert transformations robustly (IRLS, docs/statistics.md) and "
+                              "report the down-weighted right-image coordinates (weight < 0.5) with their weights; "
+                              "report only, flags are unchanged")
 
     def __post_init__(self):
+        check_bounds(self)
         bad = [m for m in self.flag_by if m not in FLAG_METHODS]
         if bad:
             raise ValueError(f"flag_by: unknown check {bad[0]!r}; expected some of {', '.join(FLAG_METHODS)}")
-        for name in ("alpha0", "beta0", "alpha_pope"):
-            if not 0 < getattr(self, name) < 1:
-                raise ValueError(f"{name} must lie strictly between 0 and 1, got {getattr(self, name)}")
-        if not self.sigma0_mm > 0:
-            raise ValueError(f"sigma0_mm must be positive, got {self.sigma0_mm}")
-        if not self.threshold_mm > 0:
-            raise ValueError(f"threshold_mm must be positive, got {self.threshold_mm}")
 
     def settings(self) -> ScreeningSettings:
         return ScreeningSettings(self.sigma0_mm, self.alpha0, self.beta0, self.alpha_pope,
@@ -255,9 +252,10 @@ def _common(block, li: int, ri: int):
 
 def _robust(adj: AdjustmentArtefact, options):
     """IRLS on the stacked pair models (report only)."""
-    if options.robust == "none":
+    r = options.robust
+    if r.method == "none":
         return None
     refit, _ = stats.weighted_refit(adj.model, adj.snapshot.active)
-    return stats.irls(refit, adj.snapshot, options.robust, options.robust_c or None, max_iter=200)
+    return stats.irls(refit, adj.snapshot, r.method, r.c or None, standardise=r.standardise, max_iter=200)
 
 

@@ -49,8 +49,6 @@ def test_every_moved_flat_name_points_at_a_field():
 
 @pytest.mark.parametrize("make, field", [
     (lambda: SolverConfig(max_iter=0), "max_iter"),
-    (lambda: StatTestsConfig(alpha0=1.5), "alpha0"),
-    (lambda: RobustConfig(c=-1.0), "c"),
     (lambda: VarianceComponentsConfig(iterations=0), "iterations"),
     (lambda: BundleConfig(sigma0=0.0), "sigma0"),
 ])
@@ -58,6 +56,19 @@ def test_declared_bounds_hold_for_a_config_built_in_python(make, field):
     with pytest.raises(InputError) as e:
         make()
     assert e.value.field == field
+
+
+@pytest.mark.parametrize("make, field", [
+    (lambda: StatTestsConfig(alpha0=1.5), "alpha0"),
+    (lambda: StatTestsConfig(max_rejections=-1), "max_rejections"),
+    (lambda: RobustConfig(c=-1.0), "c"),
+])
+def test_declared_bounds_of_the_statistics_library_groups(make, field):
+    """The tests group's alpha0 … ids_stop and the robust group are the statistics library's
+    SnoopingConfig and RobustConfig (shared with other stages): options.check_bounds, a ValueError
+    naming the field."""
+    with pytest.raises(ValueError, match=f"^{field}: must be"):
+        make()
 
 
 def test_rules_between_fields():

@@ -228,11 +228,11 @@ def test_view_opens_the_recordings_in_run_order(tmp_path, capsys):
 def test_rrr_monte_carlo_progress_changes_nothing(tmp_path):
     """A bar over RRR's Monte Carlo tasks (Progress.mapper) gives the very critical value."""
     from baarda.pipeline.runner import run_project
-    from baarda.plugins.blunder_rejection.decide import BlunderSettings, run_rrr
+    from baarda.plugins.blunder_rejection.decide import BlunderOptions, run_rrr
 
     out = run_project(DEMO, tmp_path / "r", verbose=False)
     art = next(a for a in [out.artefacts.get("adjustment")] if a is not None)
-    s = BlunderSettings(n_sim=2000)
+    s = BlunderOptions(n_sim=2000)
     plain = run_rrr(art, s, np.random.default_rng(5))
     stream = io.StringIO()
     shown = run_rrr(art, s, np.random.default_rng(5),

@@ -100,7 +100,7 @@ from tests.screening.test_paper000 import screen as paper000_screen
 @pytest.mark.parametrize("method", ["danish", "huber"])
 def test_screening_reports_robust_weights(tmp_path, method):
     plain = paper000_screen("data1", tmp_path)
-    res = paper000_screen("data1", tmp_path, robust=method)
+    res = paper000_screen("data1", tmp_path, robust={"method": method})
     t = res.tables["robust"].columns
     down = [r for r, d in zip(t["row"], t["downweighted"]) if d]
     assert {"X9", "X5", "Y5"} <= set(down)
@@ -128,7 +128,7 @@ def test_independent_models_reports_robust_weights(tmp_path, method):
     k = np.flatnonzero((obs.photo == 1) & (obs.point == obs.point[obs.photo == 1][5]))[0]
     xy[k, 0] += 0.08
     res = run_stage(IndependentModels, {"block": block.replace(observations=obs.replace(xy=xy))},
-                    {"robust": method}, tmp_path=tmp_path)
+                    {"robust": {"method": method}}, tmp_path=tmp_path)
     s = res.summary["robust"]
     assert s["converged"] and s["method"] == method
     assert "point 105" in s["downweighted"][0]["label"] and "12-13" in " ".join(
@@ -136,3 +136,93 @@ def test_independent_models_reports_robust_weights(tmp_path, method):
     assert "### Robust estimation (" + method in res.report
     t = res.tables["robust"].columns
     assert sum(t["downweighted"]) == s["n_downweighted"]
+
+
+# ------------------------------------------------------------------ one schema per parameter
+import dataclasses
+
+from baarda.pipeline import stats
+from baarda.pipeline.adjustment import BundleConfig, StatTestsConfig
+from baarda.pipeline.options import parse_options
+from baarda.plugins.blunder_rejection.decide import BlunderOptions
+from baarda.plugins.independent_models.stage import IndependentModelsOptions
+from baarda.plugins.screening.stage import ScreeningOptions
+
+
+def _field(cls, name):
+    return {f.name: f for f in dataclasses.fields(cls)}[name]
+
+
+def test_the_robust_and_snooping_options_are_declared_once():
+    """bundle, helmert-screening and independent-models nest the statistics library's RobustConfig;
+    blunder-rejection nests its RobustTuning (c, standardise; the weight function is its method);
+    the bundle's tests group and blunder-rejection share SnoopingConfig's alpha0 … ids_stop,
+    helmert-screening and independent-models its base SnoopingLevels (alpha0, beta0)."""
+    for cls in (BundleConfig, ScreeningOptions, IndependentModelsOptions):
+        assert _field(cls, "robust").type in ("RobustConfig", "stats.RobustConfig")
+        assert isinstance(cls().robust, stats.RobustConfig)
+    assert type(BlunderOptions().robust) is stats.RobustTuning
+    assert issubclass(stats.RobustConfig, stats.RobustTuning)
+    for name in ("c", "standardise"):
+        assert _field(stats.RobustConfig, name) is _field(stats.RobustTuning, name)
+    for name in ("alpha0", "beta0", "max_rejections", "ids_stop"):
+        assert _field(StatTestsConfig, name) is _field(stats.SnoopingConfig, name)
+        assert _field(BlunderOptions, name) is _field(stats.SnoopingConfig, name)
+    for name in ("alpha0", "beta0"):
+        for cls in (ScreeningOptions, IndependentModelsOptions, stats.SnoopingConfig):
+            assert _field(cls, name) is _field(stats.SnoopingLevels, name)
+
+
+@pytest.mark.parametrize("cls, raw, message", [
+    (ScreeningOptions, {"robust": "huber"}, "robust is now written as robust.method"),
+    (ScreeningOptions, {"robust_c": 2.0}, "robust_c is now written as robust.c"),
+    (IndependentModelsOptions, {"robust": "danish"}, "robust is now written as robust.method"),
+    (IndependentModelsOptions, {"robust_c": 2.0}, "robust_c is now written as robust.c"),
+    (BlunderOptions, {"robust_c": 2.0}, "robust_c is now written as robust.c"),
+    (BlunderOptions, {"robust_standardise": "apriori"}, "robust_standardise is now written as robust.standardise"),
+])
+def test_old_flat_robust_names_say_their_new_spelling(cls, raw, message):
+    with pytest.raises(InputError, match=f"^p.toml:4, field '{list(raw)[0]}': {message} "
+                                         r"\(in a \[stage.options.robust\] table\)$"):
+        parse_options(cls, raw, path="p.toml", line=4)
+
+
+def test_nested_robust_tables_parse():
+    o = parse_options(ScreeningOptions, {"robust": {"method": "huber", "c": 2.0}})
+    assert o.robust == stats.RobustConfig(method="huber", c=2.0)
+    b = parse_options(BlunderOptions, {"method": "robust-l1", "robust": {"standardise": "current"}})
+    assert b.robust == stats.RobustTuning(standardise="current")
+
+
+@pytest.mark.parametrize("make, name", [
+    (lambda: BlunderOptions(alpha0=1.5), "alpha0"),
+    (lambda: BlunderOptions(alpha_rrr=0.0), "alpha_rrr"),
+    (lambda: BlunderOptions(rho=-1), "rho"),
+    (lambda: BlunderOptions(n_sim=-5), "n_sim"),
+    (lambda: BlunderOptions(max_rejections=-1), "max_rejections"),
+    (lambda: BlunderOptions(rrr_critical=-0.1), "rrr_critical"),
+    (lambda: stats.RobustTuning(c=-1.0), "c"),
+    (lambda: stats.SnoopingConfig(beta0=1.0), "beta0"),
+    (lambda: ScreeningOptions(threshold_mm=0.0), "threshold_mm"),
+    (lambda: ScreeningOptions(alpha_pope=1.0), "alpha_pope"),
+    (lambda: IndependentModelsOptions(sigma_pc_scale=0.0), "sigma_pc_scale"),
+    (lambda: IndependentModelsOptions(beta0=0.0), "beta0"),
+])
+def test_declared_bounds_of_options_built_in_python(make, name):
+    with pytest.raises(ValueError, match=f"^{name}: must be"):
+        make()
+
+
+def test_blunder_rejection_bounds_from_a_project_name_the_field():
+    with pytest.raises(InputError, match=r"^p.toml:7, field 'robust.c': must be at least 0, got -1$"):
+        parse_options(BlunderOptions, {"robust": {"c": -1.0}}, path="p.toml", line=7)
+    with pytest.raises(InputError, match=r"^p.toml:7, field 'rho': must be at least 0, got -2$"):
+        parse_options(BlunderOptions, {"rho": -2}, path="p.toml", line=7)
+    with pytest.raises(InputError, match="n_sim = 0 needs an explicit rrr_critical"):
+        parse_options(BlunderOptions, {"n_sim": 0}, path="p.toml", line=7)
+
+
+def test_screening_robust_standardise_reaches_the_irls(tmp_path):
+    res = paper000_screen("data1", tmp_path, robust={"method": "huber", "standardise": "apriori", "c": 2.0})
+    s = res.summary["robust"]
+    assert s["standardise"] == "apriori" and s["c"] == 2.0
