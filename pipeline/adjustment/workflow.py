@@ -32,7 +32,7 @@ from baarda.pipeline import stats
 from baarda.pipeline.camera import ap_model_names, get_ap_model
 from baarda.pipeline.errors import AdjustmentError, InputError
 from baarda.pipeline.model import Block
-from baarda.pipeline.options import REQUIRED, _check_range, option, option_range
+from baarda.pipeline.options import REQUIRED, check_bounds, option
 from baarda.pipeline.stats.critical import delta0 as _delta0
 
 from .adjust import BundleResult, adjust, padded_ap, result_of
@@ -45,15 +45,6 @@ EO_LABELS = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
 """The components of a photo's orientation as ``covariance_of`` names them."""
 
 
-def _check_bounds(cfg) -> None:
-    """The declared (or name-implied) range of every number field: the one validation mechanism of
-    :mod:`baarda.pipeline.options`, applied to a config built in Python as well."""
-    for f in dataclasses.fields(cfg):
-        default = f.default if f.default is not dataclasses.MISSING else None
-        name = f.metadata.get("key", f.name)
-        _check_range(getattr(cfg, f.name), name, option_range(name, default, f.metadata.get("range")), {})
-
-
 @dataclasses.dataclass(frozen=True)
 class ScaleBar:
     """One scale bar: a measured distance between two object points."""
@@ -64,7 +55,7 @@ class ScaleBar:
     sigma: float = option(REQUIRED, "its standard deviation (object units)", gt=0.0)
 
     def __post_init__(self):
-        _check_bounds(self)
+        check_bounds(self)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -82,7 +73,7 @@ class SolverConfig:
     covariance: bool = option(True, "compute covariances, redundancy numbers and w-tests")
 
     def __post_init__(self):
-        _check_bounds(self)
+        check_bounds(self)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -115,7 +106,7 @@ class VarianceComponentsConfig:
     iterations: int = option(20, "at most this many re-adjustments", ge=1)
 
     def __post_init__(self):
-        _check_bounds(self)
+        check_bounds(self)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -129,7 +120,7 @@ class APSelectionConfig:
         "remove", "remove insignificant APs one at a time, or only report them")
 
     def __post_init__(self):
-        _check_bounds(self)
+        check_bounds(self)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -149,7 +140,7 @@ class OutputConfig:
     arrow_scale: float = option(0.0, "scale of residual arrows in the recording (0: automatic)", ge=0.0)
 
     def __post_init__(self):
-        _check_bounds(self)
+        check_bounds(self)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -217,7 +208,7 @@ class BundleConfig:
     output: OutputConfig = option(OutputConfig(), "external reliability, ellipsoids, covariances on demand")
 
     def __post_init__(self):
-        _check_bounds(self)
+        check_bounds(self)
         names = ap_model_names()
         models = [self.ap_model] * bool(self.ap_model) + list(self.ap_models.values())
         for m in models:

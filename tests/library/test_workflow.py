@@ -53,9 +53,11 @@ def test_every_moved_flat_name_points_at_a_field():
     (lambda: BundleConfig(sigma0=0.0), "sigma0"),
 ])
 def test_declared_bounds_hold_for_a_config_built_in_python(make, field):
-    with pytest.raises(InputError) as e:
+    """The bundle's own groups and the statistics library's meet their bounds the same way
+    (options.check_bounds: a ValueError naming the field; from a project file, parse_options names
+    the file, line and dotted option instead)."""
+    with pytest.raises(ValueError, match=f"^{field}: must be"):
         make()
-    assert e.value.field == field
 
 
 @pytest.mark.parametrize("make, field", [
