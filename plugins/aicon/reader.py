@@ -26,9 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
-from baarda.pipeline.errors import InputError, quote
+from baarda.pipeline.api import Block, InputError
+from baarda.pipeline.errors import quote
 from baarda.pipeline.errors import finite_number as _num
-from baarda.pipeline.model import (FIXED, FREE, Block, Cameras, FrozenMap, Observations, Photos, Points, ScaleBars,
+from baarda.pipeline.model import (FIXED, FREE, Cameras, FrozenMap, Observations, Photos, Points, ScaleBars,
                                    SourceInfo)
 
 SUFFIXES = ("ior", "eor", "obc", "phc", "scale")

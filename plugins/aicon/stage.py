@@ -14,10 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from baarda.pipeline.errors import InputError
-from baarda.pipeline.options import option
+from baarda.pipeline.api import Context, InputError, SourceStage, Stage, StageResult, TableData, option
 from baarda.pipeline.report import markdown_table
-from baarda.pipeline.stage import Context, SourceStage, Stage, StageResult, TableData
 
 from .reader import (AP_NAMES, VENDOR_FREE_AP, AiconExported, AiconInfo, aicon_block, perturb_initial_values,
                      read_aicon)

@@ -17,9 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from baarda.pipeline.errors import InputError
-from baarda.pipeline.options import option
-from baarda.pipeline.stage import Context, StageResult
+from baarda.pipeline.api import Context, InputError, StageResult, option
 
 WRITABLE_MODELS = {"aicon": 7, "brown": 7, "none": 0}
 

@@ -26,9 +26,10 @@ import numpy as np
 
 from baarda.pipeline.geometry.rotations import rotation_from_rotvec
 
-from baarda.pipeline.errors import InputError, quote
+from baarda.pipeline.api import Block, InputError
+from baarda.pipeline.errors import quote
 from baarda.pipeline.geometry import opk_from_rotation
-from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points, SourceInfo
+from baarda.pipeline.model import FIXED, FREE, Cameras, Observations, Photos, Points, SourceInfo
 
 from baarda.pipeline.camera.convert import BROWN
 

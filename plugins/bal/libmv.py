@@ -26,8 +26,8 @@ import numpy as np
 
 from baarda.pipeline.geometry.rotations import nearest_rotation
 
-from baarda.pipeline.errors import InputError
-from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points, SourceInfo
+from baarda.pipeline.api import Block, InputError
+from baarda.pipeline.model import FIXED, FREE, Cameras, Observations, Photos, Points, SourceInfo
 
 from baarda.pipeline.geometry.image import mm_from_pixels
 from baarda.pipeline.geometry.pose import pose_from_cv

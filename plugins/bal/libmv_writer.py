@@ -24,11 +24,9 @@ from pathlib import Path
 import numpy as np
 
 from baarda.pipeline.camera.convert import opencv_from_brown
-from baarda.pipeline.errors import InputError
+from baarda.pipeline.api import Context, InputError, StageResult, option
 from baarda.pipeline.geometry.image import pixels_from_mm
 from baarda.pipeline.geometry.pose import cv_from_pose
-from baarda.pipeline.options import option
-from baarda.pipeline.stage import Context, StageResult
 
 from .libmv import LibmvProblem
 

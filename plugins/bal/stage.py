@@ -6,12 +6,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-from baarda.pipeline.errors import InputError
-from baarda.pipeline.options import option
-from baarda.pipeline.stage import Context, SourceStage, Stage, StageResult
+from baarda.pipeline.api import Context, InputError, SourceStage, Stage, StageResult, log_block, option
 
 from baarda.pipeline.adjustment import reprojection_summary
-from baarda.pipeline.recording import log_block
 
 from .bal import behind_camera, block_from_bal, read_bal
 from .libmv import block_from_libmv, read_libmv

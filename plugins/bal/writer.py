@@ -21,10 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from baarda.pipeline.errors import InputError
+from baarda.pipeline.api import Context, InputError, StageResult, option
 from baarda.pipeline.geometry import rotation_from_opk_many
-from baarda.pipeline.options import option
-from baarda.pipeline.stage import Context, StageResult
 
 from baarda.pipeline.camera.convert import BROWN
 

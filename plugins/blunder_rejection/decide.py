@@ -14,13 +14,13 @@ from typing import ClassVar, Literal
 import numpy as np
 
 from baarda.pipeline import montecarlo
-from baarda.pipeline.options import check_bounds, option
+from baarda.pipeline.api import AdjustmentArtefact, option
+from baarda.pipeline.options import check_bounds
 from baarda.pipeline.stats import (RobustTuning, SnoopingConfig, data_snooping, estimated_errors, irls,
                                    iterated_data_snooping, mdb, pope_iterated, pope_test, rrr, w_test,
                                    weighted_refit)
 from baarda.pipeline.stats.critical import delta0 as _delta0
 
-from baarda.pipeline.contracts import AdjustmentArtefact
 
 METHODS = ("data-snooping", "ids", "pope", "rrr")
 #: robust estimators (IRLS, baarda.pipeline.stats.robust): run on request, not by method = "all"

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from baarda.pipeline import stats
+from baarda.pipeline.api import stats
 from baarda.pipeline.protocol import MOST_LABELS, snapshot_protocol
 
 UNITS = {"helmert-screening": "mm", "independent-models": "mm"}

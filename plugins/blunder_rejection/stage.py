@@ -13,11 +13,9 @@ import math
 
 import numpy as np
 
-from baarda.pipeline.errors import InputError
+from baarda.pipeline.api import AdjustmentArtefact, Context, InputError, StageResult, TableData
 from baarda.pipeline.report import TABLE_DECIMALS
-from baarda.pipeline.stage import Context, StageResult, TableData
 
-from baarda.pipeline.contracts import AdjustmentArtefact
 from .decide import METHODS, ROBUST_METHODS, BlunderOptions, MethodResult, row_statistics, run_methods
 
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from baarda.pipeline.adjustment import EO_LABELS
-from baarda.pipeline.stage import TableData
+from baarda.pipeline.api import TableData
 from baarda.pipeline.stats.ellipses import ellipse_columns
 
 from .protocol import image_units

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from baarda.pipeline import stats
+from baarda.pipeline.api import stats
 from baarda.pipeline.camera import get_ap_model
 
 from baarda.pipeline.plots import map_ticks, redundancy_numbers, role_points, w_distribution

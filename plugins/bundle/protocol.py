@@ -13,7 +13,7 @@ import dataclasses
 import numpy as np
 
 from baarda.pipeline.adjustment import adjust
-from baarda.pipeline.errors import AdjustmentError
+from baarda.pipeline.api import AdjustmentError
 from baarda.pipeline.camera.convert import opencv_rms, opencv_style, pixel_source
 from baarda.pipeline.protocol import MOST_LABELS, rms, snapshot_protocol
 

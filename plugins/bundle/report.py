@@ -10,11 +10,9 @@ from __future__ import annotations
 import numpy as np
 from scipy import stats as sps
 
-from baarda.pipeline import stats
+from baarda.pipeline.api import Block, TableData, stats
 from baarda.pipeline.adjustment import EO_NAMES, BundleResult
-from baarda.pipeline.model import Block
 from baarda.pipeline.report import markdown_table
-from baarda.pipeline.stage import TableData
 
 from . import external as bundle_external
 from .protocol import bundle_protocol, camera_rows, image_units, protocol_lines

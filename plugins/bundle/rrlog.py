@@ -25,8 +25,8 @@ from baarda.pipeline.geometry import rotation_from_opk_many
 from baarda.pipeline.camera import get_ap_model
 
 from .protocol import image_units
-from baarda.pipeline.recording import (log_series, point_ellipsoids, role_colors, thin, view_from_photo,
-                                       view_vectors)
+from baarda.pipeline.api import point_ellipsoids, role_colors, thin, view_from_photo, view_vectors
+from baarda.pipeline.recording import log_series
 
 RED, GREY, BLUE = [230, 40, 40], [150, 150, 150], [40, 90, 230]
 

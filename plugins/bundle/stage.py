@@ -12,13 +12,11 @@ import dataclasses
 
 import numpy as np
 
-from baarda.pipeline.adjustment import EO_NAMES, BundleConfig, adjust_block
+from baarda.pipeline.api import (AdjustmentArtefact, AdjustmentError, Block, BundleConfig, Context, InputError,
+                                 StageResult, TableData)
+from baarda.pipeline.adjustment import EO_NAMES, adjust_block
 from baarda.pipeline.camera import get_ap_model
-from baarda.pipeline.contracts import AdjustmentArtefact
-from baarda.pipeline.errors import AdjustmentError, InputError
-from baarda.pipeline.model import Block
 from baarda.pipeline.report import write_table
-from baarda.pipeline.stage import Context, StageResult, TableData
 
 from . import external as bundle_external
 from . import report as bundle_report

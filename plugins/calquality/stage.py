@@ -14,8 +14,7 @@ import numpy as np
 
 from baarda.pipeline.adjustment import calquality as cq
 from baarda.pipeline.camera.convert import pixel_source
-from baarda.pipeline.options import option
-from baarda.pipeline.stage import Context, Stage, StageResult, TableData
+from baarda.pipeline.api import Context, Stage, StageResult, TableData, option
 
 
 @dataclass(frozen=True)
@@ -98,7 +97,7 @@ class CalibrationQuality(Stage):
                 except ValueError as e:
                     ctx.warn(f"camera {cid}: no cross-validation: {e}")
                 except Exception as e:   # an adjustment of one half that cannot be solved
-                    from baarda.pipeline.errors import AdjustmentError
+                    from baarda.pipeline.api import AdjustmentError
 
                     if not isinstance(e, AdjustmentError):
                         raise

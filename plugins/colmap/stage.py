@@ -9,8 +9,8 @@ from typing import Literal
 import numpy as np
 
 from baarda.pipeline.adjustment import reprojection_summary
-from baarda.pipeline.api import (Context, InputError, SourceStage, Stage, StageResult, log_block, option, read_colmap,
-                                 write_colmap)
+from baarda.pipeline.api import (Context, InputError, SourceStage, Stage, StageResult, log_block, option,
+                                 read_colmap, write_colmap)
 from baarda.pipeline.camera.convert import COLMAP_PARAMS
 
 

@@ -11,8 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from baarda.pipeline.errors import InputError
-from baarda.pipeline.model import Block, Cameras, Observations, Pairs, Photos, Points, SourceInfo
+from baarda.pipeline.api import Block, InputError
+from baarda.pipeline.model import Cameras, Observations, Pairs, Photos, Points, SourceInfo
 
 from .interior import MIN_FIDUCIALS, InteriorFit, fit_interior
 from .parser import ComparatorFile

@@ -12,7 +12,8 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from baarda.pipeline.errors import InputError, quote
+from baarda.pipeline.api import InputError
+from baarda.pipeline.errors import quote
 from baarda.pipeline.model import ROLES
 
 from .interior import KINDS

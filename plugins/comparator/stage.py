@@ -14,9 +14,8 @@ from typing import ClassVar, Literal
 
 import numpy as np
 
-from baarda.pipeline.errors import InputError
-from baarda.pipeline.options import REQUIRED, option
-from baarda.pipeline.stage import Context, Stage, StageResult, TableData
+from baarda.pipeline.api import Context, InputError, Stage, StageResult, TableData, option
+from baarda.pipeline.options import REQUIRED
 
 from .block import build_block, interior_orientation, tolerance_violations
 from .parser import parse_comparator
@@ -101,7 +100,7 @@ class ComparatorSource(Stage):
     def log(self, result: StageResult, rec, ctx: Context) -> None:
         import rerun as rr
 
-        from baarda.pipeline.recording import entity_part, view_from_photo, view_vectors
+        from baarda.pipeline.api import entity_part, view_from_photo, view_vectors
 
         block = result.data["block"]
         obs = block.observations

@@ -22,10 +22,8 @@ from typing import Literal
 
 import numpy as np
 
-from baarda.pipeline.errors import InputError
+from baarda.pipeline.api import Context, InputError, StageResult, option
 from baarda.pipeline.model import Points
-from baarda.pipeline.options import option
-from baarda.pipeline.stage import Context, StageResult
 
 from .block import IMPLICIT_CAMERA
 

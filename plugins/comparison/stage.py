@@ -17,9 +17,8 @@ import dataclasses
 
 import numpy as np
 
-from baarda.pipeline.options import option
+from baarda.pipeline.api import Stage, StageResult, TableData, option
 from baarda.pipeline.report import markdown_table
-from baarda.pipeline.stage import Stage, StageResult, TableData
 
 from .plot import checkpoint_chart, png_bytes
 

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from baarda.pipeline.errors import BaardaError
+from baarda.pipeline.api import BaardaError
 from baarda.pipeline.geometry import rotation_angle
 
 from .plan import CrossCheckPlan, plan_crosscheck

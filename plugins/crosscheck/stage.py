@@ -16,10 +16,8 @@ from typing import ClassVar, Literal
 import numpy as np
 
 from baarda.pipeline.adjustment import BundleResult
-from baarda.pipeline.errors import InputError
-from baarda.pipeline.options import option
+from baarda.pipeline.api import Context, InputError, Stage, StageResult, TableData, option
 from baarda.pipeline.report import markdown_table
-from baarda.pipeline.stage import Context, Stage, StageResult, TableData
 
 from .compare import CrossCheck, CrossCheckError, Tolerances, crosscheck, exceeded
 from .pycolmap_ba import SolverSettings
@@ -228,7 +226,7 @@ def log_crosscheck(rec, cc: CrossCheck, result, arrow_scale: float = 0.0, report
     """Both solutions and their differences under ``crosscheck/…`` (called from ``log`` only)."""
     import rerun as rr
 
-    from baarda.pipeline.recording import log_text, log_values
+    from baarda.pipeline.api import log_text, log_values
 
     st, sol, plan = result.state, cc.solution, cc.plan
     used = plan.point_variable | plan.point_constant

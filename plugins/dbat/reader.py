@@ -42,10 +42,11 @@ from pathlib import Path
 
 import numpy as np
 
-from baarda.pipeline.errors import InputError, quote
+from baarda.pipeline.api import Block, InputError
+from baarda.pipeline.errors import quote
 from baarda.pipeline.errors import finite_number as _num
 from baarda.pipeline.geometry import mm_from_pixels
-from baarda.pipeline.model import FIXED, FREE, Block, Cameras, FrozenMap, Observations, Photos, Points, SourceInfo
+from baarda.pipeline.model import FIXED, FREE, Cameras, FrozenMap, Observations, Photos, Points, SourceInfo
 
 AP_NAMES = ("K1", "K2", "K3", "P1", "P2", "aspect", "skew")
 """Order of the parameters in ``Cameras.ap`` (the ``brown-backward`` model)."""

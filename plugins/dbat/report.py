@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from baarda.pipeline.report import markdown_table
-from baarda.pipeline.stage import TableData
+from baarda.pipeline.api import TableData
 
 from .reader import AP_NAMES, DBAT_SIGN, DbatInfo
 

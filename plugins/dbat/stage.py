@@ -15,10 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from baarda.pipeline.errors import InputError
-from baarda.pipeline.options import option
+from baarda.pipeline.api import Context, InputError, SourceStage, Stage, StageResult, TableData, option
 from baarda.pipeline.report import markdown_table
-from baarda.pipeline.stage import Context, SourceStage, Stage, StageResult, TableData
 
 from .reader import DbatInfo, dbat_block, read_dbat
 from .report import (camera_comparison, quality_headline, quality_report, quality_tables, source_report,

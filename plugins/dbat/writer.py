@@ -31,10 +31,8 @@ from xml.sax.saxutils import escape
 
 import numpy as np
 
-from baarda.pipeline.errors import InputError
+from baarda.pipeline.api import Context, InputError, StageResult, option
 from baarda.pipeline.geometry import pixels_from_mm
-from baarda.pipeline.options import option
-from baarda.pipeline.stage import Context, StageResult
 
 from .reader import AP_NAMES, DbatCamera, DbatInfo, dbat_from_baarda
 

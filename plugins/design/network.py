@@ -15,7 +15,8 @@ from scipy import stats as sps
 
 from baarda.pipeline.adjustment import BundleSettings, BundleState, adjust, camera_meta, project_observations
 from baarda.pipeline.camera import get_ap_model
-from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points
+from baarda.pipeline.api import Block
+from baarda.pipeline.model import FIXED, FREE, Cameras, Observations, Photos, Points
 
 __all__ = ["PlannedCamera", "plan_block", "realise", "realisation_errors", "truth_state", "ratio_test",
            "RatioTest", "joint_test"]

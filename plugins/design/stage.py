@@ -114,7 +114,7 @@ class DesignSource(SourceStage):
         return plan_figures(result.data)
 
     def log(self, result: StageResult, rec, ctx: Context) -> None:
-        from baarda.pipeline.recording import log_block
+        from baarda.pipeline.api import log_block
 
         log_block(rec, result.data["block"], root="planned")
 

@@ -13,10 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from baarda.pipeline.crs import LocalFrame, crs_label, frame_of_block, parse_crs
-from baarda.pipeline.errors import InputError
+from baarda.pipeline.api import Context, InputError, StageResult, option
 from baarda.pipeline.model import ROLES
-from baarda.pipeline.options import option
-from baarda.pipeline.stage import Context, StageResult
 
 from .writer import export_points, write_csv, write_ply
 

@@ -15,9 +15,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from baarda.pipeline.errors import InputError
+from baarda.pipeline.api import Block, InputError
 from baarda.pipeline.geometry import mm_from_pixels, rotation_from_opk_many
-from baarda.pipeline.model import FREE, Block, Cameras, Gnss, Observations, Photos, Points, SourceInfo
+from baarda.pipeline.model import FREE, Cameras, Gnss, Observations, Photos, Points, SourceInfo
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from baarda.pipeline.errors import InputError, quote
+from baarda.pipeline.api import InputError
+from baarda.pipeline.errors import quote
 from baarda.pipeline.errors import finite_number as _num
 
 GCP_FIELDS = ("geo_x", "geo_y", "geo_z", "im_x", "im_y", "image_name", "gcp_name")

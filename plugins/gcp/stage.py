@@ -13,10 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from baarda.pipeline.crs import LocalFrame, frame_of_block, local_frame
-from baarda.pipeline.errors import InputError
-from baarda.pipeline.options import option
+from baarda.pipeline.api import Context, InputError, SourceStage, StageResult, TableData, option
 from baarda.pipeline.report import markdown_table
-from baarda.pipeline.stage import Context, SourceStage, StageResult, TableData
 
 from .block import CameraSpec, apply_gnss, gcp_block
 from .reader import read_cameras_json, read_gcp_list, read_gnss_csv

@@ -18,11 +18,9 @@ from pathlib import Path
 import numpy as np
 
 from baarda.pipeline.crs import LocalFrame, crs_label, frame_of_block, parse_crs
-from baarda.pipeline.errors import InputError
+from baarda.pipeline.api import Context, InputError, StageResult, option
 from baarda.pipeline.geometry import pixels_from_mm
 from baarda.pipeline.model import ROLES
-from baarda.pipeline.options import option
-from baarda.pipeline.stage import Context, StageResult
 
 SURVEYED = ("full", "xy", "z", "check")
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from baarda.pipeline.stage import TableData
+from baarda.pipeline.api import TableData
 from baarda.pipeline.stats import external_reliability, mdb
 from baarda.pipeline.stats.critical import delta0 as _delta0
 from baarda.pipeline.stats.ellipses import ellipse_columns

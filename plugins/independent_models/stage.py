@@ -13,12 +13,13 @@ from typing import ClassVar, Literal
 
 import numpy as np
 
-from baarda.pipeline.api import AdjustmentArtefact, Context, InputError, Stage, StageResult, option
+from baarda.pipeline.api import (AdjustmentArtefact, Context, InputError, RobustConfig, Stage, StageResult,
+                                 option, role_colors)
 from baarda.pipeline.options import check_bounds
 from baarda.pipeline.imodels import IndependentModelResult, independent_model_block
-from baarda.pipeline.recording import log_series, role_colors
-from baarda.pipeline.stats import (RobustConfig, SnoopingLevels, data_snooping, global_test, irls,
-                                   iterated_data_snooping, weighted_refit)
+from baarda.pipeline.recording import log_series
+from baarda.pipeline.stats import (SnoopingLevels, data_snooping, global_test, irls, iterated_data_snooping,
+                                   weighted_refit)
 
 from . import reliability as im_reliability
 from . import report as im_report

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from baarda.pipeline.errors import InputError
+from baarda.pipeline.api import InputError
 from baarda.pipeline.geometry import opk_from_rotation
 
 from baarda.pipeline.imodels.relor import relative_orientation

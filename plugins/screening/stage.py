@@ -178,7 +178,7 @@ class HelmertScreening:
     def log(self, result: StageResult, rec, ctx: Context) -> None:
         import rerun as rr
 
-        from baarda.pipeline.recording import entity_part, view_from_photo, view_vectors
+        from baarda.pipeline.api import entity_part, view_from_photo, view_vectors
 
         art: ScreeningArtefact = result.data["artefact"]
         scale = result.data["arrow_scale"]

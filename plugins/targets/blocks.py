@@ -8,7 +8,8 @@ import numpy as np
 
 from baarda.pipeline.camera.convert import BROWN
 from baarda.pipeline.geometry.image import mm_from_pixels
-from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Pairs, Photos, Points, SourceInfo
+from baarda.pipeline.api import Block
+from baarda.pipeline.model import FIXED, FREE, Cameras, Observations, Pairs, Photos, Points, SourceInfo
 
 from .boards import object_points
 from .calib import initial_focal_px, resect

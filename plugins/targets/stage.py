@@ -19,15 +19,12 @@ from typing import Literal
 
 import numpy as np
 
-from baarda.pipeline.errors import InputError
+from baarda.pipeline.api import Context, InputError, Stage, StageResult, TableData, entity_part, log_block, option
 from baarda.pipeline.geometry import rotation_from_opk
-from baarda.pipeline.options import option
-from baarda.pipeline.stage import Context, Stage, StageResult, TableData
 
 from baarda.pipeline.geometry.image import pixels_from_mm
 from baarda.pipeline.adjustment import project_block
 from baarda.pipeline.camera.convert import BROWN
-from baarda.pipeline.recording import entity_part, log_block
 
 from .blocks import IOP, detection_block
 from .boards import BoardGeometry, aruco_dictionary

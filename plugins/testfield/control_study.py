@@ -33,9 +33,8 @@ import numpy as np
 from baarda.pipeline.accuracy import check_point_rmse
 from baarda.pipeline.adjustment import BundleSettings, adjust, select_aps
 from baarda.pipeline import montecarlo
-from baarda.pipeline.errors import AdjustmentError
+from baarda.pipeline.api import AdjustmentError, Context, Stage, StageResult, TableData
 from baarda.pipeline.report import markdown_table
-from baarda.pipeline.stage import Context, Stage, StageResult, TableData
 
 from baarda.pipeline.synthetic.testfield import simulate_testfield
 

@@ -38,8 +38,7 @@ import numpy as np
 
 from baarda.pipeline.accuracy import check_point_rmse
 
-from baarda.pipeline.errors import AdjustmentError
-from baarda.pipeline.options import option
+from baarda.pipeline.api import AdjustmentError, option
 from baarda.pipeline.synthetic.testfield import (CASES, FOCAL_MM, SINGLE_MODEL_PHOTOS, STRIPS, SimulatedErrors,
                                                  TestFieldConfig, simulate_testfield)
 from .paper_tables import PAPER_TABLE2, PAPER_TABLE3, PAPER_TABLE4

@@ -14,7 +14,7 @@ import re
 import numpy as np
 
 from baarda.pipeline import montecarlo
-from baarda.pipeline.stage import Context, Stage, StageResult, TableData
+from baarda.pipeline.api import Context, Stage, StageResult, TableData
 
 from .method_study import KEYS, PAPER_PERCENT, VARIANTS, MethodStudyConfig, method_study, resolve
 from .method_study_report import table4_rows, table5_rows, study_report

@@ -25,8 +25,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from baarda.pipeline.model import Block, Observations
-from baarda.pipeline.options import check_bounds, option
+from baarda.pipeline.api import Block, option
+from baarda.pipeline.model import Observations
+from baarda.pipeline.options import check_bounds
 from baarda.plugins.testfield.drawing import projected_targets, render_targets
 from baarda.pipeline.synthetic.testfield import Truth
 

@@ -26,10 +26,9 @@ from pathlib import Path
 import numpy as np
 
 from baarda.pipeline.geometry import mm_from_pixels
-from baarda.pipeline.errors import InputError
-from baarda.pipeline.options import option, parse_options
+from baarda.pipeline.api import Context, InputError, Stage, StageResult, TableData, option
+from baarda.pipeline.options import parse_options
 from baarda.pipeline.report import markdown_table
-from baarda.pipeline.stage import Context, Stage, StageResult, TableData
 from baarda.pipeline.synthetic.testfield import TestFieldConfig
 
 from .source import DISPLAY_PIXEL_MM, log_testfield, simulate_field

@@ -10,11 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from baarda.pipeline.errors import InputError
+from baarda.pipeline.api import Context, InputError, SourceStage, Stage, StageResult, TableData, role_colors
 from baarda.pipeline.geometry import rotation_from_opk_many
 from baarda.pipeline.report import markdown_table
-from baarda.pipeline.recording import role_colors
-from baarda.pipeline.stage import Context, SourceStage, Stage, StageResult, TableData
 
 from baarda.pipeline.synthetic.testfield import (TestFieldConfig, constraint_count, control_configuration,
                                                 degrees_of_freedom, simulate_testfield)

@@ -13,7 +13,8 @@ from __future__ import annotations
 from dataclasses import dataclass, fields
 from typing import Literal
 
-from baarda.pipeline.options import check_bounds, option
+from baarda.pipeline.api import option
+from baarda.pipeline.options import check_bounds
 from baarda.pipeline.synthetic.testfield import CASES, SimulatedErrors, TestFieldConfig
 
 __all__ = ["StudyRuns", "StudyConfig", "ControlStudyConfig"]

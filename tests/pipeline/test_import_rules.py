@@ -330,3 +330,24 @@ def test_no_import_cycles():
     graph = _module_graph()
     comps = _strongly_connected(graph)
     assert not comps, f"{len(comps)} import cycle(s):\n" + "\n".join(_describe(graph, c) for c in comps)
+
+
+def test_plugins_take_what_the_public_face_exports_from_it():
+    """A built-in plugin imports every name that ``baarda.pipeline.api`` exports from the api, as a
+    third-party plugin would (``docs/plugins.md``), not from the engine module behind it; names the
+    api does not export may come from the engine and the libraries."""
+    import importlib
+
+    api = importlib.import_module("baarda.pipeline.api")
+    public = set(api.__all__)
+    bad = []
+    for p in _files("plugins"):
+        for node in ast.walk(ast.parse(p.read_text(encoding="utf-8"))):
+            if not (isinstance(node, ast.ImportFrom) and node.level == 0 and node.module
+                    and node.module.startswith("baarda.pipeline") and node.module != "baarda.pipeline.api"):
+                continue
+            mod = importlib.import_module(node.module)
+            for a in node.names:
+                if a.name in public and getattr(mod, a.name, None) is getattr(api, a.name):
+                    bad.append(f"{_where(p, node.lineno)}: {a.name} from {node.module}; import it from baarda.pipeline.api")
+    assert not bad, "\n".join(bad)
