@@ -23,7 +23,7 @@ def test_aicon_robust_against_ids(repo_root, shared_data, tmp_path):
     k = next(k for k, spec in enumerate(project.stages) if spec.use == "bundle")
     store = {}
     for spec in project.stages[:k]:                  # the source: the block the bundle stage reads
-        ctx = stage_context(project, spec, run_dir=tmp_path, previous=[])
+        ctx = stage_context(project, spec, run_dir=tmp_path)
         inputs = {n.rstrip("?"): store[n.rstrip("?")] for n in spec.cls.reads if n.rstrip("?") in store}
         store.update(spec.cls().run(inputs, spec.options, ctx).artefacts)
     report = adjust_block(store["block"], project.stages[k].options)   # the bundle stage's workflow
