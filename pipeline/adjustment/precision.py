@@ -16,6 +16,7 @@ bounded (n_x × 3·chunk).
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
 import numpy as np
@@ -339,19 +340,22 @@ def _s_transform(prob, red, Q_eo, Q_gpt, gpt, Qpp, Q_diag):
     return Gg, T, Yg, CY
 
 
-class Cofactors:
+class Cofactors(ABC):
     """The cofactors of the global unknowns, one interface for both routes: the ``diagonal()``
     (n_g,), ``columns(cols)`` (n_g, len(cols)) and ``blocks(cols)`` (G, w, w) for index groups
     ``cols`` (G, w) where ``n_g`` marks a fixed unknown (its rows and columns 0)."""
 
+    @abstractmethod
     def diagonal(self) -> np.ndarray:
-        raise NotImplementedError
+        """The diagonal of the cofactor matrix of the global unknowns (n_g,)."""
 
+    @abstractmethod
     def columns(self, cols) -> np.ndarray:
-        raise NotImplementedError
+        """Its columns ``cols`` (n_g, len(cols))."""
 
+    @abstractmethod
     def blocks(self, cols) -> np.ndarray:
-        raise NotImplementedError
+        """Its diagonal blocks for index groups ``cols`` (G, w) → (G, w, w)."""
 
 
 @dataclass(frozen=True, eq=False)
