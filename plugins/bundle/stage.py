@@ -13,8 +13,8 @@ import dataclasses
 import numpy as np
 
 from baarda.pipeline.api import (AdjustmentArtefact, AdjustmentError, Block, BundleConfig, Context, InputError,
-                                 StageResult, TableData)
-from baarda.pipeline.adjustment import EO_NAMES, adjust_block
+                                 StageResult, TableData, adjust)
+from baarda.pipeline.adjustment import EO_NAMES
 from baarda.pipeline.camera import get_ap_model
 from baarda.pipeline.report import write_table
 
@@ -22,7 +22,7 @@ from . import external as bundle_external
 from . import report as bundle_report
 
 OPTION_FIELDS = {f.name for f in dataclasses.fields(BundleConfig)} | {"fix/free/sigma"}
-"""The names an :class:`InputError` of :func:`adjust_block` may carry for an option (not for the block's data)."""
+"""The names an :class:`InputError` of :func:`baarda.pipeline.api.adjust` may carry for an option (not for the block's data)."""
 
 
 class BundleAdjustment:
@@ -36,7 +36,7 @@ class BundleAdjustment:
 
         with iteration_progress(ctx, options.solver.max_iter) as work:
             try:
-                rep = adjust_block(inputs["block"], options, progress=ctx.progress.message, threads=ctx.threads)
+                rep = adjust(inputs["block"], options, progress=ctx.progress.message, threads=ctx.threads)
             except AdjustmentError as e:
                 _save_state(e, getattr(e, "block", inputs["block"]), ctx)
                 raise
