@@ -48,10 +48,16 @@ from .options import NoOptions, output_problem
 
 @dataclass
 class TableData:
-    """A table for CSV output: ordered columns of equal length, plus a one-line description."""
+    """A table for the run directory: ordered columns of equal length, plus a one-line description.
+
+    ``units`` maps a column to its unit as a person writes it ("px", "µm", "mm", "m", "deg", ""
+    for unitless); column names carry the same unit as a suffix (``v_px``, ``mdb_um``, ``X_m``).
+    ``detail`` marks per-observation / per-point tables (skipped by ``outputs = "summary"``)."""
 
     columns: dict[str, Any]
     description: str = ""
+    units: Mapping[str, str] = field(default_factory=dict)
+    detail: bool = False
 
     def __post_init__(self):
         lengths = {k: len(v) for k, v in self.columns.items()}
