@@ -205,6 +205,23 @@ class CongruenceResult:
     history: tuple = field(default=())
 
 
+def _check_defect(Qdd, G, kind: str) -> None:
+    """``Q_dd + G Gᵀ`` must be regular (Rao: rank(Q_dd : G) full): every direction in which the epochs'
+    cofactors are singular (their datum defect, e.g. ``E G`` for inner constraints on a subset E of the
+    points) must have a component along the datum directions of ``kind``; else the test would weigh an
+    undetermined direction (two free networks without scale, compared in a rigid datum)."""
+    w, V = np.linalg.eigh((Qdd + Qdd.T) / 2)
+    null = V[:, w <= 1e-9 * max(float(w[-1]), 1e-300)]
+    if null.shape[1] == 0:
+        return
+    sv = np.linalg.svd(G.T @ null, compute_uv=False)
+    missing = int(null.shape[1] - np.sum(sv > 1e-6))
+    if missing > 0:
+        raise ValueError(f"the epochs' cofactors are singular in {null.shape[1]} direction(s), {missing} of "
+                         f"them not covered by a {kind} datum (two free networks without scale compare in a "
+                         "'similarity' datum; or give the epochs scale bars / control)")
+
+
 def _omega(d, P, D):
     """Least-squares fit of d = D a + e with weight P: returns (Ω, a, N⁻¹)."""
     N = D.T @ P @ D
@@ -247,6 +264,7 @@ def congruence(X1, Q1, X2, Q2, *, sigma0: float = 1.0, kind: str = "similarity",
     d = (X2 - X1).reshape(-1)
     G = similarity_basis((X1 + X2) / 2 if basis_at is None else _as_points(basis_at, dim), kind)
     Qdd = Q1 + Q2
+    _check_defect(Qdd, G, kind)
     Qreg = Qdd + G @ G.T * (np.trace(Qdd) / m if np.trace(Qdd) > 0 else 1.0)
     P = np.linalg.inv(Qreg)
     P = (P + P.T) / 2

@@ -41,6 +41,7 @@ SECONDS = {
     "dbat/sxb.toml": 0.3,
     "design/design.toml": 4.2,
     "gnss/gnss.toml": 3.8,
+    "monitoring/testfield-epochs.toml": 11.0,
     "odm/odm-br-gcp.toml": 5.6,
     "paper000/data1.toml": 0.6,
     "paper000/data2.toml": 0.6,
@@ -67,6 +68,7 @@ COVERED = {
     "colmap/colmap.toml": "tests/pipeline/test_recordings.py",
     "dbat/camcal.toml": "tests/pipeline/test_recordings.py",
     "calibration/charuco.toml": "tests/pipeline/test_recordings.py",
+    "monitoring/testfield-epochs.toml": "tests/congruence/test_congruence_stage.py",
 }
 
 

@@ -120,7 +120,7 @@ def test_mdd_power_and_false_alarms_by_monte_carlo():
     p6 = base.points[6]
     w, V = np.linalg.eigh(np.linalg.inv(p6.Q))
     worst = V[:, 0] * p6.mdd
-    n_sim = 1500
+    n_sim = 800
     false_alarm = detected = 0
     for _ in range(n_sim):
         x1 = (Lq @ rng.normal(size=14)) * sigma
@@ -144,3 +144,28 @@ def test_lambda0_and_variance_ratio():
     r = variance_ratio_test(1.0, 50, 1.0, 60)
     assert not r["differ"] and r["p"] > 0.9
     assert variance_ratio_test(2.0, 50, 1.0, 60)["differ"]
+
+
+def test_inner_constraints_on_a_subset_give_the_same_test():
+    """Free networks whose datum is held by a subset of points (Q singular along E G, not G): same Ω."""
+    rng = np.random.default_rng(6)
+    h_true = np.array([10.0, 11.5, 9.2, 10.7, 12.1])
+    A, l1, h1, Q1, _ = _levelling(rng, h_true, PAIRS)
+    _, l2, h2, Q2, _ = _levelling(rng, h_true + np.array([0, 2.0, 0, 0, 0]), PAIRS)
+    full = congruence(h1, Q1, h2, Q2, kind="translation", localise=False)
+    x1, Q1s, _ = s_transform(h1, Q1, h1, [0, 2, 4], kind="translation")
+    x2, Q2s, _ = s_transform(h2, Q2, h1, [0, 2, 4], kind="translation")
+    sub = congruence(x1, Q1s, x2, Q2s, kind="translation", localise=False)
+    assert sub.T0 == pytest.approx(full.T0, rel=1e-9)
+
+
+def test_rigid_datum_for_scale_free_networks_is_refused():
+    rng = np.random.default_rng(7)
+    X = rng.uniform(0, 10, (6, 3))
+    G = similarity_basis(X, "similarity")
+    L = rng.normal(size=(18, 18))
+    S = np.eye(18) - G @ G.T                      # cofactors singular along all 7 similarity directions
+    Q = S @ (L @ L.T) @ S
+    with pytest.raises(ValueError, match="not covered by a rigid datum"):
+        congruence(X, Q, X + 0.01, Q, kind="rigid")
+    congruence(X, Q, X + 0.01, Q, kind="similarity")
