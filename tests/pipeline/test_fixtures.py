@@ -42,6 +42,7 @@ SECONDS = {
     "design/design.toml": 4.2,
     "gnss/gnss.toml": 3.8,
     "monitoring/testfield-epochs.toml": 11.0,
+    "monitoring/vdi2634.toml": 3.0,
     "odm/odm-br-gcp.toml": 5.6,
     "paper000/data1.toml": 0.6,
     "paper000/data2.toml": 0.6,
@@ -69,6 +70,7 @@ COVERED = {
     "dbat/camcal.toml": "tests/pipeline/test_recordings.py",
     "calibration/charuco.toml": "tests/pipeline/test_recordings.py",
     "monitoring/testfield-epochs.toml": "tests/congruence/test_congruence_stage.py",
+    "monitoring/vdi2634.toml": "tests/acceptance/test_length_test.py",
 }
 
 
