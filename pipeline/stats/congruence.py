@@ -20,10 +20,11 @@ model (Rao's unified least squares), which is what :func:`congruence` does.
 * **Global congruence test** (nothing moved, ``M = ∅``): ``T = Ω(∅) / (h σ0²)`` with
   ``h = dim·n − rank G`` degrees of freedom; ``T ~ χ²(h)/h`` when σ0 is known, or ``F(h, f)``
   against the epochs' pooled ``σ̂0² = (Ω1 + Ω2)/(f1 + f2)`` with ``f = f1 + f2``.
-* **Localisation** (Kok/Niemeier, iterated): while the remaining congruence is rejected, each point
-  ``i`` still held stable gets the test value of the hypothesis "point i moved",
-  ``T_i = (Ω(M) − Ω(M ∪ {i})) / (dim σ0²)`` (a dim-dimensional w-test), the largest is declared
-  moved, and the test is repeated on the rest.  The datum of the result is that of the points
+* **Localisation** (Kok/Niemeier, iterated): each point ``i`` still held stable gets the test value of
+  the hypothesis "point i moved", ``T_i = (Ω(M) − Ω(M ∪ {i})) / (dim σ0²)`` (a dim-dimensional
+  w-test); while the remaining congruence is rejected at ``alpha`` or the largest ``T_i`` exceeds its
+  critical value at ``alpha_point``, that point is declared moved and the tests are repeated on the
+  rest (the global test alone has little power against one moved point among many).  The datum of the result is that of the points
   still held stable.
 * **Displacements**: ``∇̂_i`` and its cofactor ``N_i⁻¹``, ``N_i = C̄_iᵀ P C̄_i`` with ``C̄_i`` the
   part of ``C_i`` not explained by the datum (and the other moved points); the **minimal detectable
@@ -233,7 +234,7 @@ def _omega(d, P, D):
 
 
 def congruence(X1, Q1, X2, Q2, *, sigma0: float = 1.0, kind: str = "similarity", datum_points=None,
-               alpha: float = 0.05, alpha_point: float | None = None, beta0: float = 0.80,
+               alpha: float = 0.05, alpha_point: float = 0.001, beta0: float = 0.80,
                sigma0_hat: tuple | None = None, localise: bool = True,
                n_max_moved: int | None = None, basis_at=None) -> CongruenceResult:
     """Congruence test of two epochs and localisation of moved points (see the module text).
@@ -244,8 +245,8 @@ def congruence(X1, Q1, X2, Q2, *, sigma0: float = 1.0, kind: str = "similarity",
     points declared stable (the datum); ``None`` lets localisation find them among all points.
     ``sigma0_hat = ((s1, f1), (s2, f2))``: the epochs' estimated variance factors and dof — the tests
     then use the pooled estimate and the F distribution (else σ0 known, χ²). ``alpha`` is the
-    level of the global test; ``alpha_point`` that of the per-point tests and their MDD (default
-    ``alpha``). ``basis_at`` (n, dim): the coordinates the datum directions are computed at (default
+    level of the global test; ``alpha_point`` that of the per-point tests and their MDD (0.1 %, as
+    data snooping's α0: many points are tested). ``basis_at`` (n, dim): the coordinates the datum directions are computed at (default
     the mean of the epochs; a linear network passes its approximate coordinates)."""
     X1 = _as_points(X1)
     n, dim = X1.shape
@@ -260,7 +261,7 @@ def congruence(X1, Q1, X2, Q2, *, sigma0: float = 1.0, kind: str = "similarity",
     for name, v in (("alpha", alpha), ("beta0", beta0)):
         if not 0 < v < 1:
             raise ValueError(f"{name} must lie strictly between 0 and 1, got {v}")
-    alpha_point = alpha if alpha_point is None else float(alpha_point)
+    alpha_point = float(alpha_point)
     d = (X2 - X1).reshape(-1)
     G = similarity_basis((X1 + X2) / 2 if basis_at is None else _as_points(basis_at, dim), kind)
     Qdd = Q1 + Q2
@@ -320,7 +321,8 @@ def congruence(X1, Q1, X2, Q2, *, sigma0: float = 1.0, kind: str = "similarity",
     T, p, dof, history = T0, p0, h, []
     found: list[int] = []
     limit = n_max_moved if n_max_moved is not None else len(stable) - math.ceil(G.shape[1] / dim) - 1
-    while localise and T > dist_isf(alpha, dof) and len(found) < limit:
+    crit_point = dist_isf(alpha_point, dim)
+    while localise and len(found) < limit:
         best, best_T = None, -1.0
         for i in stable:
             if i in found:
@@ -332,7 +334,7 @@ def congruence(X1, Q1, X2, Q2, *, sigma0: float = 1.0, kind: str = "similarity",
             Ti = (Om - Om_i) / (dim * s0 * s0)
             if Ti > best_T:
                 best, best_T = i, Ti
-        if best is None:
+        if best is None or (T <= dist_isf(alpha, dof) and best_T <= crit_point):
             break
         found.append(best)
         moved.append(best)

@@ -129,7 +129,8 @@ class CongruenceOptions:
         "rigid", "datum transformation between the epochs: 'rigid' (3 shifts + 3 rotations), 'similarity' (+ scale) "
                  "or 'translation'")
     alpha: float = option(0.05, "level of the global congruence test", gt=0.0, lt=1.0)
-    alpha_point: float = option(0.05, "level of each point's 3-D displacement test (and of its MDD)", gt=0.0, lt=1.0)
+    alpha_point: float = option(0.001, "level of each point's 3-D displacement test and of its MDD (0.1 %, as data "
+                                       "snooping's α0: every point is tested)", gt=0.0, lt=1.0)
     beta0: float = option(0.80, "power of the MDD (minimal detectable displacement)", gt=0.0, lt=1.0)
     variance: Literal["a-posteriori", "a-priori"] = option(
         "a-posteriori", "σ0 of the tests: the epochs' pooled σ̂0 (F tests) or the a-priori σ0 (χ² tests)")

@@ -41,6 +41,7 @@ SECONDS = {
     "dbat/sxb.toml": 0.3,
     "design/design.toml": 4.2,
     "gnss/gnss.toml": 3.8,
+    "monitoring/aicon-epochs.toml": 20.7,
     "monitoring/testfield-epochs.toml": 11.0,
     "monitoring/vdi2634.toml": 3.0,
     "odm/odm-br-gcp.toml": 5.6,

@@ -116,7 +116,7 @@ def test_mdd_power_and_false_alarms_by_monte_carlo():
     sigma = 0.01
     Lq = np.linalg.cholesky(Q + 1e-12 * np.eye(14))
     datum = [0, 1, 2, 3, 4, 5]           # point 6 is the object point under test
-    base = congruence(X0, Q, X0, Q, sigma0=sigma, kind="rigid", basis_at=X0, datum_points=datum, localise=False)
+    base = congruence(X0, Q, X0, Q, sigma0=sigma, alpha_point=0.05, kind="rigid", basis_at=X0, datum_points=datum, localise=False)
     p6 = base.points[6]
     w, V = np.linalg.eigh(np.linalg.inv(p6.Q))
     worst = V[:, 0] * p6.mdd
@@ -125,12 +125,12 @@ def test_mdd_power_and_false_alarms_by_monte_carlo():
     for _ in range(n_sim):
         x1 = (Lq @ rng.normal(size=14)) * sigma
         x2 = (Lq @ rng.normal(size=14)) * sigma
-        r0 = congruence(X0 + x1.reshape(-1, 2), Q, X0 + x2.reshape(-1, 2), Q, sigma0=sigma, kind="rigid",
+        r0 = congruence(X0 + x1.reshape(-1, 2), Q, X0 + x2.reshape(-1, 2), Q, sigma0=sigma, alpha_point=0.05, kind="rigid",
                         basis_at=X0, datum_points=datum, localise=False)
         false_alarm += not r0.accepted0
         x2b = x2.copy()
         x2b[12:14] += worst
-        r1 = congruence(X0 + x1.reshape(-1, 2), Q, X0 + x2b.reshape(-1, 2), Q, sigma0=sigma, kind="rigid",
+        r1 = congruence(X0 + x1.reshape(-1, 2), Q, X0 + x2b.reshape(-1, 2), Q, sigma0=sigma, alpha_point=0.05, kind="rigid",
                         basis_at=X0, datum_points=datum, localise=False)
         detected += r1.points[6].p < 0.05
     mc = lambda p: 4 * np.sqrt(p * (1 - p) / n_sim)  # noqa: E731
