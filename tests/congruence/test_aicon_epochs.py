@@ -10,15 +10,12 @@ import pytest
 
 from baarda.pipeline.runner import run_project
 
-from conftest import needs_shared_beside
-
 ROOT = Path(__file__).resolve().parents[2]
 TRUE = {"1010": (0.12, -0.10, 0.12), "1045": (0.0, 0.0, 0.05), "40": (0.03, 0.0, 0.0), "1060": (0.0, 0.003, 0.0)}
 
 
 @pytest.mark.slow
-@needs_shared_beside
-def test_aicon_two_epochs_find_the_displaced_targets(tmp_path):
+def test_aicon_two_epochs_find_the_displaced_targets(tmp_path, shared_beside):
     out = run_project(ROOT / "fixtures" / "monitoring" / "aicon-epochs.toml", tmp_path / "run", verbose=False)
     assert out.ok, out.message
     res = json.loads((out.run_dir / "results.json").read_text())
