@@ -138,16 +138,6 @@ class Blunder:
 
 
 @dataclass(frozen=True)
-class Displacement:
-    """A known displacement of one target (object unit m), for a simulated monitoring epoch."""
-
-    point: str | int = option(REQUIRED, "point id")
-    dX: float = option(0.0, "displacement in X (m)")
-    dY: float = option(0.0, "displacement in Y (m)")
-    dZ: float = option(0.0, "displacement in Z (m)")
-
-
-@dataclass(frozen=True)
 class TestFieldConfig(SimulatedErrors):
     """What to simulate — also the option table of the ``testfield`` stage (one definition).
 
@@ -171,9 +161,6 @@ class TestFieldConfig(SimulatedErrors):
     blunders: tuple[Blunder, ...] = option((), "gross errors added to image observations: a list of tables "
                                                "{photo, point, dx, dy} (mm)")
     margin_mm: float = option(2.0, "a target is measured when its true image lies this far inside the format")
-    displacements: tuple[Displacement, ...] = option(
-        (), "known target displacements of this epoch (monitoring): a list of tables {point, dX, dY, dZ} (m); the "
-            "targets are imaged and surveyed at their displaced positions")
 
     def __post_init__(self):
         super().__post_init__()
@@ -418,14 +405,6 @@ def simulate_testfield(config: TestFieldConfig, rng: np.random.Generator) -> tup
     """
     photo_ids = _photo_ids(config)
     point_ids, XYZ = target_field()
-    for dsp in config.displacements:
-        if not isinstance(dsp, Displacement):
-            raise ValueError(f"a displacement is a Displacement(point, dX, dY, dZ) (m); got {dsp!r}")
-        hit = np.flatnonzero(point_ids == str(dsp.point))
-        if hit.size == 0:
-            raise ValueError(f"displacements: no target {dsp.point!r} (targets 1…{len(point_ids)})")
-        XYZ = XYZ.copy()
-        XYZ[hit[0]] += (float(dsp.dX), float(dsp.dY), float(dsp.dZ))
     X0, opk = true_orientation(photo_ids)
     sys_params = ({k: v * config.systematic_scale for k, v in SYSTEMATIC_ERRORS.items()}
                   if config.with_ap_errors else {})
@@ -493,7 +472,6 @@ def _config_dict(config: TestFieldConfig) -> dict:
     """What was simulated, as plain values (the seed is the generator's business, not the field's)."""
     d = {f.name: getattr(config, f.name) for f in dataclasses.fields(config) if f.name != "seed"}
     d["blunders"] = [dataclasses.asdict(b) for b in config.blunders]
-    d["displacements"] = [dataclasses.asdict(b) for b in config.displacements]
     return d
 
 

@@ -25,8 +25,7 @@ def simulate_field(config: TestFieldConfig, rng: np.random.Generator, project_fi
     try:
         return simulate_testfield(config, rng)
     except ValueError as e:
-        raise InputError(str(e), path=project_file,
-                         field="displacements" if str(e).startswith("displacements") else "blunders") from None
+        raise InputError(str(e), path=project_file, field="blunders") from None
 
 
 class TestFieldSource(SourceStage):

@@ -42,7 +42,7 @@ SECONDS = {
     "design/design.toml": 4.2,
     "gnss/gnss.toml": 3.8,
     "monitoring/aicon-epochs.toml": 20.7,
-    "monitoring/testfield-epochs.toml": 11.0,
+    "monitoring/panel-epochs.toml": 9.0,
     "monitoring/vdi2634.toml": 3.0,
     "odm/odm-br-gcp.toml": 5.6,
     "paper000/data1.toml": 0.6,
@@ -70,7 +70,7 @@ COVERED = {
     "colmap/colmap.toml": "tests/pipeline/test_recordings.py",
     "dbat/camcal.toml": "tests/pipeline/test_recordings.py",
     "calibration/charuco.toml": "tests/pipeline/test_recordings.py",
-    "monitoring/testfield-epochs.toml": "tests/congruence/test_congruence_stage.py",
+    "monitoring/panel-epochs.toml": "tests/congruence/test_congruence_stage.py",
     "monitoring/vdi2634.toml": "tests/acceptance/test_length_test.py",
 }
 
