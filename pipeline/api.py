@@ -18,6 +18,7 @@ from . import stats
 from .adjustment import (APSelectionConfig, BundleConfig, BundleReport, OutputConfig, RobustConfig, ScaleBar,
                          SolverConfig, StatTestsConfig, VarianceComponentsConfig)
 from .adjustment import adjust_block as adjust
+from .adjustment import parameter_covariance, project_block
 from .contracts import AdjustmentArtefact
 from .errors import AdjustmentError, BaardaError, InputError
 from .model import Block
@@ -36,7 +37,8 @@ __all__ = [
     "Stage", "SourceStage", "StageResult", "TableData", "Context", "Progress", "option", "NoOptions",
     # the bundle workflow as a library (docs/library.md)
     "adjust", "BundleConfig", "BundleReport", "SolverConfig", "StatTestsConfig", "RobustConfig",
-    "VarianceComponentsConfig", "APSelectionConfig", "OutputConfig", "ScaleBar",
+    "VarianceComponentsConfig", "APSelectionConfig", "OutputConfig", "ScaleBar", "parameter_covariance",
+    "project_block",
     # errors
     "InputError", "AdjustmentError", "BaardaError",
     # data and contracts

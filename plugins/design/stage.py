@@ -57,6 +57,8 @@ class DesignOptions:
     sigma_px: float = option(0.1, "a-priori σ of each image coordinate (pixels)")
     sigma_control_mm: float = option(0.0, "a-priori σ of each control coordinate (mm); 0 fixes the control")
     margin_px: float = option(0.0, "a target is observed when its image lies this far inside the format")
+    noise: bool = option(False, "add Gaussian noise of σ sigma_px to every image coordinate (a simulated measurement, "
+                                "e.g. of an acceptance test; seeded by the project); default: the exact projections")
 
 
 class DesignSource(SourceStage):
@@ -75,6 +77,10 @@ class DesignSource(SourceStage):
         block = plan_block(cam, sid, X0, opk, tid, XYZ, role, sigma_image_mm=options.sigma_px * cam.pixel_mm,
                            sigma_control=options.sigma_control_mm * to_obj,
                            margin_mm=options.margin_px * cam.pixel_mm, object_unit=ctx.object_unit)
+        if options.noise:
+            obs = block.observations
+            noisy = np.array(obs.xy, float) + ctx.rng.normal(0.0, options.sigma_px * cam.pixel_mm, size=obs.xy.shape)
+            block = block.replace(observations=obs.replace(xy=noisy))
         obs = block.observations
         rays = np.bincount(obs.point, minlength=len(tid))
         per_station = np.bincount(obs.photo, minlength=len(sid))
@@ -99,8 +105,10 @@ class DesignSource(SourceStage):
                   f"AP model {cam.ap_model}; free: {', '.join(cam.free) or 'none'}. A-priori σ: "
                   f"{options.sigma_px} px ({summary['sigma_image_um']:.3g} µm) per image coordinate, control "
                   f"{options.sigma_control_mm or 'fixed'}{' mm' if options.sigma_control_mm else ''}.\n\n"
-                  "The observations are the exact projections; the `bundle` stage with `variance = \"a-priori\"` "
-                  "predicts the precision and reliability (docs/design.md).\n")
+                  + ("The observations are the projections plus simulated noise of that σ (`noise = true`).\n"
+                     if options.noise else
+                     "The observations are the exact projections; the `bundle` stage with `variance = \"a-priori\"` "
+                     "predicts the precision and reliability (docs/design.md).\n"))
         tables = {"rays": TableData({"target": list(tid), "role": list(role), "rays": rays.tolist()},
                                     "planned rays per target")}
         return StageResult(artefacts={"block": block}, summary=summary, report=report, tables=tables,

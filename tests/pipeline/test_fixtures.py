@@ -41,6 +41,9 @@ SECONDS = {
     "dbat/sxb.toml": 0.3,
     "design/design.toml": 4.2,
     "gnss/gnss.toml": 3.8,
+    "monitoring/aicon-epochs.toml": 20.7,
+    "monitoring/panel-epochs.toml": 9.0,
+    "monitoring/vdi2634.toml": 3.0,
     "odm/odm-br-gcp.toml": 5.6,
     "paper000/data1.toml": 0.6,
     "paper000/data2.toml": 0.6,
@@ -67,6 +70,8 @@ COVERED = {
     "colmap/colmap.toml": "tests/pipeline/test_recordings.py",
     "dbat/camcal.toml": "tests/pipeline/test_recordings.py",
     "calibration/charuco.toml": "tests/pipeline/test_recordings.py",
+    "monitoring/panel-epochs.toml": "tests/congruence/test_congruence_stage.py",
+    "monitoring/vdi2634.toml": "tests/acceptance/test_length_test.py",
 }
 
 

@@ -1,0 +1,1 @@
+"""Monitoring: the ``epoch`` stage keeps an adjusted epoch, ``congruence`` compares epochs."""

@@ -1,0 +1,45 @@
+"""datum-transform (S-transformation without re-adjusting) against re-adjusting with that datum."""
+
+import csv
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from baarda.pipeline.runner import run_project
+
+ROOT = Path(__file__).resolve().parents[2]
+DATUM = ["T01", "T06", "T25", "T30", "T15"]
+
+
+def _project(tmp_path, datum_points=None, transform=False):
+    text = (ROOT / "fixtures" / "monitoring" / "panel-epochs.toml").read_text()
+    head = text.split('[[stage]]\nuse = "epoch"\nid = "epoch-1"')[0]
+    head = head.replace('"../design/', f'"{ROOT}/fixtures/design/').replace(
+        '"panel-targets-1.csv"', f'"{ROOT}/fixtures/monitoring/panel-targets-1.csv"')
+    if datum_points:
+        head = head.replace('datum = "free"\n', f'datum = "free"\ndatum_points = {DATUM!r}\n'.replace("'", '"'))
+    if transform:
+        head += '[[stage]]\nuse = "datum-transform"\n[stage.options]\npoints = ' + str(DATUM).replace("'", '"') + "\n"
+    name = "t.toml" if transform else "d.toml"
+    (tmp_path / name).write_text(head)
+    out = run_project(tmp_path / name, tmp_path / ("run-" + name), verbose=False)
+    assert out.ok, out.message
+    return out.run_dir
+
+
+def _read(path):
+    with open(path, encoding="utf-8") as fh:
+        return {r["point"]: r for r in csv.DictReader(fh)}
+
+
+def test_s_transformation_equals_adjusting_in_that_datum(tmp_path):
+    a = _read(_project(tmp_path, transform=True) / "datum-transform_points.csv")
+    b = _read(_project(tmp_path, datum_points=True) / "bundle-1_points.csv")
+    col = lambda r, names: np.array([float(r[n]) for n in names])  # noqa: E731
+    for p in a:
+        xa, xb = col(a[p], ("X_m", "Y_m", "Z_m")), col(b[p], [k for k in ("X_m", "Y_m", "Z_m", "X", "Y", "Z") if k in b[p]][:3])
+        sa = col(a[p], ("sigma_X_m", "sigma_Y_m", "sigma_Z_m"))
+        sb = col(b[p], [k for k in ("sigma_X_m", "sigma_Y_m", "sigma_Z_m", "sX", "sY", "sZ") if k in b[p]][:3])
+        assert np.abs(xa - xb).max() < 1e-7, p          # σ of a coordinate ≈ 40 µm
+        assert np.abs(sa / sb - 1).max() < 1e-3, p      # first order: datum directions at the approximations
