@@ -9,12 +9,10 @@ inactive when ``action = "remove"``.  Statistics: :mod:`baarda.pipeline.stats`; 
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import numpy as np
 
 from baarda.pipeline.api import AdjustmentArtefact, Context, InputError, StageResult, TableData
-from baarda.pipeline.report import TABLE_DECIMALS
 
 from .decide import METHODS, ROBUST_METHODS, BlunderOptions, MethodResult, row_statistics, run_methods
 
@@ -233,8 +231,8 @@ def _table(report: BlunderReport, art: AdjustmentArtefact, block, stats) -> Tabl
     cols = {"row": list(range(n)), "label": [str(s) for s in snap.labels],
             "observation": [_obs_label(art, block, i) for i in range(n)],
             "active": [bool(a) for a in snap.active]}
-    for k, nd in TABLE_DECIMALS.items():
-        cols[k] = [None if not math.isfinite(x) else round(float(x), nd) for x in stats[k]]
+    for k in ("v", "r", "w", "tau", "nabla_hat", "mdb"):          # full precision; NaN: an empty cell
+        cols[k] = np.asarray(stats[k], dtype=float)
     for m, r in report.methods.items():
         key = m.replace("-", "_")
         by_row = {d.row: d for d in r.decisions}
@@ -243,6 +241,6 @@ def _table(report: BlunderReport, art: AdjustmentArtefact, block, stats) -> Tabl
                                     f"{'<' if by_row[i].statistic == 'weight' else '>'}{by_row[i].critical:.4g}"
                                     f"@{by_row[i].step}" if i in by_row else "" for i in range(n)]
         if m in ROBUST_METHODS and not r.skipped:
-            cols[f"{key}_weight"] = [round(float(x), 6) for x in r.raw.weights]
+            cols[f"{key}_weight"] = np.asarray(r.raw.weights, dtype=float)
     return TableData(cols, "every scalar observation of the adjustment with v, r, w, τ, ∇̂, MDB and the "
                            "decision of each method (statistic > critical @ step)")
