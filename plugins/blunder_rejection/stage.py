@@ -243,4 +243,4 @@ def _table(report: BlunderReport, art: AdjustmentArtefact, block, stats) -> Tabl
         if m in ROBUST_METHODS and not r.skipped:
             cols[f"{key}_weight"] = np.asarray(r.raw.weights, dtype=float)
     return TableData(cols, "every scalar observation of the adjustment with v, r, w, τ, ∇̂, MDB and the "
-                           "decision of each method (statistic > critical @ step)")
+                           "decision of each method (statistic > critical @ step)", detail=True)

@@ -456,6 +456,7 @@ def tables(rep) -> dict:
     tables["convergence"] = TableData({"iteration": h.iteration.tolist(), "vtpv": h.vtpv.tolist(),
                                        "lambda": h.lam.tolist(), "max_step_sigma": h.max_step_sigma.tolist()},
                                       "vᵀPv, damping and largest correction (in σ of an observation) per iteration")
+    tables["observations"].detail = tables["points"].detail = True     # outputs = "summary" skips them
     tables.update(bundle_external.tables(rep))
     if rep.gnss is not None:
         tables["gnss"] = gnss_parts(rep)["table"]

@@ -200,7 +200,7 @@ def _tables(cc: CrossCheck, result) -> dict:
     d = sol.XYZ[j] - st.XYZ[j]
     points = TableData({"id": pts.ids[j].tolist(), "X_baarda": st.XYZ[j, 0], "Y_baarda": st.XYZ[j, 1],
                         "Z_baarda": st.XYZ[j, 2], "dX": d[:, 0], "dY": d[:, 1], "dZ": d[:, 2]},
-                       "object points: baarda's adjusted coordinates and pycolmap − baarda")
+                       "object points: baarda's adjusted coordinates and pycolmap − baarda", detail=True)
     ph = result.block_in.photos
     k = np.flatnonzero(plan.photo_variable)
     dX = sol.X0[k] - st.X0[k]

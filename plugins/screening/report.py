@@ -55,7 +55,7 @@ def robust_tables(rob, adj: AdjustmentArtefact, block) -> dict:
         "u": np.asarray(rob.u, dtype=float),
         "downweighted": [bool(x) for x in np.isin(np.arange(n), rob.downweighted)]},
         f"robust estimation ({rob.method}, c = {rob.c:g}): every right-image coordinate's final IRLS weight and "
-        "standardised residual u")}
+        "standardised residual u", detail=True)}
 
 
 def summary(art: ScreeningArtefact, flagged_obs, block, options) -> dict:
@@ -193,4 +193,4 @@ def tables(art: ScreeningArtefact) -> dict:
             cols["flagged"].append(bool(s.flagged[k]))
     return {"observations": TableData(cols, "Helmert screening: every right-image coordinate with residual "
                                             "(observed − computed, mm), redundancy number, w, τ, ∇̂, MDB and "
-                                            "the decision of each check")}
+                                            "the decision of each check", detail=True)}
