@@ -23,8 +23,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Mapping
 
+import csv
+import io
+
 import numpy as np
 import pyarrow as pa
+import pyarrow.compute as pa_compute
 import pyarrow.csv as pa_csv
 import pyarrow.parquet as pq
 
@@ -33,8 +37,8 @@ from .stage import TableData
 OUTPUTS = ("full", "summary")
 """Values of the run option ``outputs``: every table, or only the tables not marked ``detail``."""
 
-CSV_OPTIONS = pa_csv.WriteOptions(include_header=True, quoting_style="needed")
-"""Strings quoted (a comma or quote inside one stays one cell), numbers and booleans bare."""
+_STRUCTURAL = r'[,"\r\n]'
+"""Characters that make a CSV cell need quotes."""
 
 
 def column_array(values: Any, name: str = "") -> pa.Array:
@@ -92,9 +96,28 @@ def _column_description(col: str, unit: str) -> str:
 
 
 def write_csv(path: str | Path, table: TableData | pa.Table) -> None:
-    """``table`` as CSV text (header, one line per row), written by Arrow."""
+    """``table`` as CSV text (header, one line per row), written by Arrow.
+
+    Quotes only where a cell needs them (as Python's ``csv`` module writes): the header line by
+    :mod:`csv`, the rows by Arrow, unquoted unless a string holds a comma, quote or line break
+    (then Arrow quotes every string)."""
     t = table if isinstance(table, pa.Table) else to_arrow(table)
-    pa_csv.write_csv(t, str(path), write_options=CSV_OPTIONS)
+    head = io.StringIO()
+    csv.writer(head, lineterminator="\n").writerow(t.column_names)
+    with open(path, "wb") as fh:
+        fh.write(head.getvalue().encode("utf-8"))
+        if t.num_rows:
+            style = "needed" if _needs_quotes(t) else "none"
+            pa_csv.write_csv(t, fh, write_options=pa_csv.WriteOptions(include_header=False, quoting_style=style))
+
+
+def _needs_quotes(t: pa.Table) -> bool:
+    """Whether a string cell of ``t`` holds a comma, a quote or a line break (vectorised)."""
+    for col in t.columns:
+        if pa.types.is_string(col.type) or pa.types.is_large_string(col.type):
+            if pa_compute.any(pa_compute.match_substring_regex(col, _STRUCTURAL)).as_py():
+                return True
+    return False
 
 
 def write_parquet(path: str | Path, table: TableData | pa.Table) -> None:
