@@ -7,6 +7,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -168,3 +169,43 @@ def test_float64_text_reads_back_as_the_same_number(tmp_path):
     rows = (tmp_path / "x.csv").read_text().splitlines()[1:]
     assert all(float(a) == b for a, b in zip(rows, x)) and len(rows) == len(x)
     assert not any(math.isnan(float(a)) for a in rows)
+
+
+def _doc_snippets() -> list[str]:
+    text = (ROOT / "docs" / "report.md").read_text(encoding="utf-8")
+    section = text.split("## The tables: CSV and Parquet", 1)[1].split("\n## ", 1)[0]
+    return re.findall(r"```python\n(.*?)```", section, flags=re.S)
+
+
+def test_the_documented_ways_to_read_a_table_work(tmp_path, monkeypatch):
+    """docs/report.md's pyarrow / pandas / polars / DuckDB code on a bundle run (a library not
+    installed here: its snippet is skipped, the others still run)."""
+    import importlib.util
+    import io
+    from contextlib import redirect_stdout
+
+    snippets = _doc_snippets()
+    assert len(snippets) == 3
+    out = run_project(ROOT / "fixtures" / "testfield" / "block.toml", tmp_path / "run", verbose=False)
+    assert out.ok
+    monkeypatch.chdir(tmp_path)
+    ran = []
+    for code in snippets:
+        parts = re.split(r"\n(?=import )", code)              # the pyarrow part runs without pandas
+        for part in parts:
+            mod = re.match(r"import (\w+)", part.strip()).group(1)
+            if importlib.util.find_spec(mod) is None:
+                continue
+            scope: dict = {}
+            with redirect_stdout(io.StringIO()):
+                exec(compile(part, "docs/report.md", "exec"), scope)
+            ran.append(mod)
+            if mod == "pyarrow":
+                assert scope["t"].num_rows == json.loads((tmp_path / "run" / "results.json").read_text())[
+                    "stages"][-1]["tables"]["observations"]["rows"]
+                assert set(scope["units"]) == set(scope["t"].column_names)
+            if mod == "pandas":
+                assert len(scope["worst"]) == 10 and len(scope["obs_csv"]) == len(scope["obs"])
+                assert np.array_equal(scope["obs_csv"]["wx"].to_numpy(), scope["obs"]["wx"].to_numpy(), equal_nan=True)
+    assert "pyarrow" in ran
+    print("ran:", ran)
