@@ -44,7 +44,7 @@ _STRUCTURAL = r'[,"\r\n]'
 def column_array(values: Any, name: str = "") -> pa.Array:
     """One column as an Arrow array, without a Python loop over its cells where the values allow.
 
-    A numeric or boolean numpy array is taken as it is (floats: NaN becomes null); a numpy string
+    A numeric or boolean numpy array is taken as it is (floats as float64, NaN becomes null); a numpy string
     array becomes a string column; a list or an object array is converted by Arrow itself (None
     and NaN become null; ints and floats mixed become float64).  Only a column Arrow cannot type
     (strings mixed with numbers, nested lists) falls back to the text of each value (``str``), as
@@ -52,8 +52,10 @@ def column_array(values: Any, name: str = "") -> pa.Array:
     arr = values if isinstance(values, np.ndarray) else None
     if arr is not None and arr.ndim != 1:
         raise ValueError(f"column {name!r}: expected one dimension, got shape {arr.shape}")
-    if arr is not None and arr.dtype.kind in "biuf":
-        return pa.array(arr, from_pandas=arr.dtype.kind == "f")
+    if arr is not None and arr.dtype.kind == "f":             # float16/32 as the float64 they are exactly
+        return pa.array(arr.astype(np.float64, copy=False), from_pandas=True)
+    if arr is not None and arr.dtype.kind in "biu":
+        return pa.array(arr)
     if arr is not None and arr.dtype.kind in "US":
         return pa.array(arr.astype(str), type=pa.string())
     try:
@@ -63,6 +65,8 @@ def column_array(values: Any, name: str = "") -> pa.Array:
     if out is not None and not _nested(out.type):
         if pa.types.is_null(out.type):             # only None: a text column without values
             return pa.nulls(len(out), pa.string())
+        if pa.types.is_floating(out.type) and out.type != pa.float64():
+            return out.cast(pa.float64())
         return out
     cells = values.tolist() if arr is not None else list(values)
     return pa.array([None if _missing(v) else str(v) for v in cells], type=pa.string())

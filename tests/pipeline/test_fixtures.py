@@ -137,10 +137,14 @@ MOST_IN_RESULTS = 100
 
 
 def _long_lists(obj, where="results.json") -> list[str]:
-    """``where[…]: length`` of every list in ``obj`` longer than :data:`MOST_IN_RESULTS`."""
+    """``where[…]: length`` of every list in ``obj`` longer than :data:`MOST_IN_RESULTS`; the run's
+    manifest (``files``, every file of the run: what the next run may replace, pipeline/rundir.py)
+    is no data and not counted."""
     out = []
     if isinstance(obj, dict):
         for k, v in obj.items():
+            if k == "files" and isinstance(v, list) and all(isinstance(f, str) for f in v):
+                continue
             out += _long_lists(v, f"{where}.{k}")
     elif isinstance(obj, list):
         if len(obj) > MOST_IN_RESULTS:

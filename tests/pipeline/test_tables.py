@@ -209,3 +209,11 @@ def test_the_documented_ways_to_read_a_table_work(tmp_path, monkeypatch):
                 assert np.array_equal(scope["obs_csv"]["wx"].to_numpy(), scope["obs"]["wx"].to_numpy(), equal_nan=True)
     assert "pyarrow" in ran
     print("ran:", ran)
+
+
+def test_single_precision_is_written_as_the_double_it_is(tmp_path):
+    x = np.array([0.1, 1 / 3], np.float32)
+    write_table(tmp_path, "f", TableData({"x": x, "y": list(x)}))
+    rows = list(csv.DictReader((tmp_path / "f.csv").open()))
+    assert [float(r["x"]) for r in rows] == [float(v) for v in x] == [float(r["y"]) for r in rows]
+    assert pq.read_schema(tmp_path / "f.parquet").field("x").type == "double"
