@@ -104,34 +104,39 @@ def test_summary_outputs_skip_detail_tables(tmp_path):
         write_tables(tmp_path, "st", tables, outputs="some")
 
 
-def test_run_option_outputs_summary(tmp_path):
+@pytest.fixture(scope="module")
+def full_run(tmp_path_factory) -> Path:
+    """Paper 000's Data 1 run with every output."""
+    run = tmp_path_factory.mktemp("data1") / "full"
+    assert run_project(DATA1, run, verbose=False).ok
+    return run
+
+
+def test_run_option_outputs_summary(tmp_path, full_run):
     """``--set run.outputs=summary`` on paper 000's Data 1: the per-observation tables are not written,
     results.json and the report say which; the stages' numbers are those of the full run."""
-    full = run_project(DATA1, tmp_path / "full", verbose=False)
     short = run_project(DATA1, tmp_path / "short", verbose=False, overrides={"run.outputs": "summary"})
-    assert full.ok and short.ok and short.project.run.outputs == "summary"
+    assert short.ok and short.project.run.outputs == "summary"
     res = json.loads((tmp_path / "short" / "results.json").read_text())
     by_id = {s["id"]: s for s in res["stages"]}
     assert by_id["blunders"]["skipped_tables"] == ["observations"]
     assert by_id["screening"]["skipped_tables"] == ["observations"]
     assert not (tmp_path / "short" / "blunders_observations.csv").exists()
     assert not (tmp_path / "short" / "blunders_observations.parquet").exists()
-    assert (tmp_path / "full" / "blunders_observations.parquet").exists()
+    assert (full_run / "blunders_observations.parquet").exists()
     report = (tmp_path / "short" / "report.md").read_text(encoding="utf-8")
     assert "blunders_observations" in report and 'outputs = "summary"' in report
-    full_res = json.loads((tmp_path / "full" / "results.json").read_text())
+    full_res = json.loads((full_run / "results.json").read_text())
     assert [s["summary"] for s in full_res["stages"]] == [s["summary"] for s in res["stages"]]
     assert full_res["stages"][1]["tables"]["observations"]["rows"] == 18
     assert 'outputs = "summary"' in (tmp_path / "short" / "project.resolved.toml").read_text()
 
 
-def test_results_json_points_to_tables_with_units(tmp_path):
-    out = run_project(DATA1, tmp_path / "run", verbose=False)
-    assert out.ok
-    res = json.loads((tmp_path / "run" / "results.json").read_text())
+def test_results_json_points_to_tables_with_units(full_run):
+    res = json.loads((full_run / "results.json").read_text())
     for s in res["stages"]:
         for name, t in s["tables"].items():
-            pa_t = pq.read_table(tmp_path / "run" / t["parquet"])
+            pa_t = pq.read_table(full_run / t["parquet"])
             assert pa_t.num_rows == t["rows"] and pa_t.column_names == list(t["columns"])
             assert t["csv"] in res["files"] and t["parquet"] in res["files"]
 
@@ -217,3 +222,16 @@ def test_single_precision_is_written_as_the_double_it_is(tmp_path):
     rows = list(csv.DictReader((tmp_path / "f.csv").open()))
     assert [float(r["x"]) for r in rows] == [float(v) for v in x] == [float(r["y"]) for r in rows]
     assert pq.read_schema(tmp_path / "f.parquet").field("x").type == "double"
+
+
+def test_cli_set_run_outputs(tmp_path, capsys):
+    """``baarda validate/run --set run.outputs=…``: checked like any option, applied to the run."""
+    from baarda.pipeline.cli import main
+
+    assert main(["validate", str(DATA1), "--set", "run.outputs=nope"]) == 2
+    err = capsys.readouterr().err
+    assert "--set, field 'run.outputs': must be one of 'full', 'summary', got 'nope'" in err
+    assert main(["validate", str(DATA1), "--set", "run.outputs=summary"]) == 0
+    assert main(["run", str(DATA1), "--out", str(tmp_path / "run"), "--quiet", "--set", "run.outputs=summary"]) == 0
+    assert not list((tmp_path / "run").glob("*_observations.*"))      # paper 000's tables are all per observation
+    assert (tmp_path / "run" / "results.json").exists() and (tmp_path / "run" / "blunders_w.png").exists()
