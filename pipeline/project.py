@@ -6,6 +6,9 @@
     seed = 0                     # optional: seeds every stage's rng
     object_unit = "m"            # optional
 
+    [run]                        # optional: how the run writes its outputs (RunOptions)
+    outputs = "full"             # "summary": skip the per-observation / per-point tables
+
     [[stage]]
     use = "comparator"           # the stage's entry-point name (``baarda stages`` lists them)
     id = "source"                # optional; default: the ``use`` name (must be unique)
@@ -32,16 +35,25 @@ import types
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping, get_args, get_origin
+from typing import Any, Literal, Mapping, get_args, get_origin
 
 from .errors import BaardaError, InputError
-from .options import Where, output_problem, parse_options, to_plain
+from .options import Where, option, output_problem, parse_options, to_plain
 from .plausibility import check_block
 from .plugins import PluginManager
 from .stage import Context
 
 PROJECT_KEYS = {"name", "description", "seed", "object_unit"}
 STAGE_KEYS = {"use", "id", "options", "enabled"}
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """The project's ``[run]`` table: how a run writes its outputs (``--set run.outputs=summary``)."""
+
+    outputs: Literal["full", "summary"] = option(
+        "full", "'full': every table; 'summary': skip the per-observation and per-point tables (those "
+                "marked detail; the report names them), for batch runs that need the summaries only")
 
 
 @dataclass
@@ -69,6 +81,8 @@ class Project:
     """The file's TOML as parsed (:func:`with_overrides` builds variants from it; never modified)."""
     overrides: Overrides | None = None
     """The options set from outside the file (``--set``, a sweep row), already applied."""
+    run: RunOptions = field(default_factory=RunOptions)
+    """The ``[run]`` table (``outputs``)."""
 
     @property
     def directory(self) -> Path:
@@ -79,6 +93,7 @@ class Project:
         return {
             "project": {"name": self.name, "description": self.description, "seed": self.seed,
                         "object_unit": self.object_unit, "file": str(self.path)},
+            "run": to_plain(self.run),
             "stage": [{"use": s.use, "id": s.id, "package": s.package, "options": to_plain(s.options)}
                       for s in self.stages],
         }
@@ -125,6 +140,20 @@ class _Locator:
             if dotted is not None and table == "" and dotted.match(text):
                 return ln
         return self._find(start, end, parent) if parent else None
+
+    def table_key(self, table: str, key: str | None) -> int | None:
+        """The line of ``key`` in the top-level table ``[table]`` (its header's line for None or a
+        key not written there)."""
+        head = next((i + 1 for i, ln in enumerate(self.lines) if re.match(rf"\s*\[\s*{table}\s*\]", ln)), None)
+        if head is None or key is None:
+            return head
+        pat = re.compile(rf"\s*[\"']?{re.escape(key)}[\"']?\s*=")
+        for i in range(head, len(self.lines)):
+            if re.match(r"\s*\[", self.lines[i]):
+                break
+            if pat.match(self.lines[i]):
+                return i + 1
+        return head
 
     def top_key(self, key: str) -> int | None:
         pat = re.compile(rf"\s*{re.escape(key)}\s*=")
@@ -241,9 +270,9 @@ def _build(path: Path, text: str, data: dict, plugins: PluginManager,
     if overrides is not None and not isinstance(overrides, Overrides):
         overrides = Overrides(dict(overrides))
     loc = _Locator(text)
-    unknown_top = sorted(set(data) - {"project", "stage"})
+    unknown_top = sorted(set(data) - {"project", "run", "stage"})
     if unknown_top:
-        raise InputError(f"unknown table '{unknown_top[0]}' (expected [project] and [[stage]])",
+        raise InputError(f"unknown table '{unknown_top[0]}' (expected [project], [run] and [[stage]])",
                          path=path, line=loc.top_key(unknown_top[0]), field=unknown_top[0])
     proj = data.get("project", {})
     if not isinstance(proj, dict):
@@ -264,7 +293,9 @@ def _build(path: Path, text: str, data: dict, plugins: PluginManager,
     if overrides is not None and overrides.values and overrides.source == "--set":
         description = (description.strip() + f"\n\n(run with {overrides.describe()})").strip()
     project = Project(path=path.resolve(), name=str(proj.get("name", path.stem)), description=description,
-                      seed=seed, object_unit=unit, text=text, data=data, overrides=overrides)
+                      seed=seed, object_unit=unit, text=text, data=data, overrides=overrides,
+                      run=_run_options(data, path, loc, overrides, [s.get("id", s.get("use")) for s in
+                                                                    data.get("stage", []) if isinstance(s, dict)]))
 
     stages = data.get("stage", [])
     if not isinstance(stages, list) or not stages:
@@ -344,11 +375,39 @@ def _build(path: Path, text: str, data: dict, plugins: PluginManager,
     return project
 
 
+def _run_key(key: str, ids: list[str]) -> str | None:
+    """The option of the ``[run]`` table an override ``run.<option>`` sets (None for another key,
+    and when a stage has the id ``run``: then the key is that stage's)."""
+    return key[4:] if key.startswith("run.") and len(key) > 4 and "run" not in ids else None
+
+
+def _run_options(data: dict, path: Path, loc: _Locator, overrides: Overrides | None, ids: list) -> RunOptions:
+    """The ``[run]`` table, with the overrides ``run.<option>`` applied."""
+    raw = data.get("run", {})
+    if not isinstance(raw, dict):
+        raise InputError("[run] must be a table", path=path, line=loc.top_key("run"), field="run")
+    mine = {}
+    for key in (overrides.values if overrides is not None else {}):
+        opt = _run_key(key, ids)
+        if opt is not None:
+            raw = apply_override(raw, opt, overrides.values[key])
+            mine[opt] = key
+
+    def locate(key):
+        if key is not None and key in mine:
+            return Where(overrides.source, overrides.line, "run.", overrides.name_line)
+        return loc.table_key("run", key)
+
+    return parse_options(RunOptions, raw, path=path, locate=locate, prefix="run.")
+
+
 def _overrides_by_stage(overrides: Overrides, ids: list[str], project_name: str) -> dict[str, dict]:
     """``{stage id: {option path: override key}}``; a key naming no stage of the project is an
     :class:`InputError` on the override, with the closest stage id."""
     out: dict[str, dict] = {}
     for key in overrides.values:
+        if _run_key(key, ids) is not None:        # the [run] table's (see _run_options)
+            continue
         split = _split_key(key, ids)
         if split is None:                 # the stage id is what the key starts with: up to its first dot
             sid, dot, rest = key.partition(".")

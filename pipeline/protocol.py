@@ -8,9 +8,9 @@ flagged); the bundle stage adds photos, points, cameras and scale bars
 (``baarda.plugins.bundle.protocol``).  Keys (all optional except ``kind``)::
 
     kind, adjustment, sigma0, sigma0_hat, dof, global_test{T, critical, alpha, rejected},
-    unit, rms{x, y, all, n}, rms_per_camera[…], rms_per_photo[…], n_photos, opencv_rms_px,
+    unit, rms{x, y, all, n}, rms_per_camera[…], n_cameras, rms_per_photo[…], n_photos, opencv_rms_px,
     point_precision{…}, scale_bars[…], control{…}, check{…}, reliability{…}, tests{…},
-    cameras[…], warnings[…]
+    cameras[…], n_cameras_used, warnings[…]
 """
 
 from __future__ import annotations

@@ -1,4 +1,6 @@
-"""Writing a run directory: ``report.md``, ``results.json``, CSV tables, figures.
+"""Writing a run directory: ``results.json`` and the resolved project (JSON and TOML values), and
+Markdown tables for the reports.  The stages' tables (CSV and Parquet) are written by
+:mod:`baarda.pipeline.tables`.
 
 Files are written as soon as a stage finishes (``report.md`` and ``results.json`` are rewritten
 after every stage), so a failing stage never loses the results of the stages before it.
@@ -6,15 +8,12 @@ after every stage), so a failing stage never loses the results of the stages bef
 
 from __future__ import annotations
 
-import csv
 import json
 import math
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-from .stage import TableData
 
 
 def jsonable(obj: Any) -> Any:
@@ -39,27 +38,6 @@ def jsonable(obj: Any) -> Any:
     if isinstance(obj, Path):
         return str(obj)
     return obj
-
-
-def _cell(v: Any) -> Any:
-    if isinstance(v, (np.bool_, bool)):
-        return "true" if v else "false"
-    if isinstance(v, (float, np.floating)):
-        f = float(v)
-        if math.isnan(f):
-            return ""
-        return repr(f) if abs(f) >= 1e-4 or f == 0 else f"{f:.6e}"
-    if isinstance(v, np.integer):
-        return int(v)
-    return v
-
-
-def write_table(path: Path, table: TableData) -> None:
-    with open(path, "w", newline="", encoding="utf-8") as fh:
-        w = csv.writer(fh)
-        w.writerow(list(table.columns))
-        for row in table.rows():
-            w.writerow([_cell(v) for v in row.values()])
 
 
 def write_json(path: Path, data: Any) -> None:
@@ -139,7 +117,3 @@ def markdown_table(header: list[str], rows: list[list[Any]], floatfmt: str = ".4
     out += ["| " + " | ".join(fmt(v) for v in r) + " |" for r in rows]
     return "\n".join(out)
 
-
-TABLE_DECIMALS = {"v": 6, "r": 6, "w": 4, "tau": 4, "nabla_hat": 6, "mdb": 6}
-"""Decimals of per-row statistics in the stages' CSV tables (helmert-screening, blunder-rejection):
-lengths and redundancy numbers to 6, the test values w and τ to 4."""

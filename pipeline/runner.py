@@ -6,10 +6,12 @@ The run directory holds
 * ``report.md`` — one section per stage (rewritten after each stage);
 * ``report.html`` — the same as one self-contained page: the protocol summary first, then each
   stage with its figures embedded (:mod:`baarda.pipeline.html`; rewritten after each stage);
-* ``<stage>_<table>.csv`` — the stage's tables; ``<stage>_<figure>.png`` — its figures;
+* ``<stage>_<table>.csv`` and ``<stage>_<table>.parquet`` — the stage's tables, written by
+  :mod:`baarda.pipeline.tables` (the run option ``outputs = "summary"`` skips the per-observation and
+  per-point ones); ``<stage>_<figure>.png`` — its figures;
 * ``<stage>.rrd`` — the stage's rerun recording; all share the run's recording id;
-* ``results.json`` — a machine-readable summary per stage and the list of every file of the run,
-  written last.
+* ``results.json`` — a machine-readable summary per stage, pointers to its tables (file names, rows,
+  the unit of each column; never the tables' values) and the list of every file of the run, written last.
 
 The run is written into a staging directory and moved into place when it ends
 (:mod:`baarda.pipeline.rundir`): a failed re-run never touches the previous complete run.  A stage
@@ -37,9 +39,10 @@ from .plugins import PluginManager
 from .plausibility import check_block
 from .project import Project, load_project, stage_context
 from .recording import log_text, log_values, new_recording_id, open_recording
-from .report import jsonable, write_json, write_table, write_toml
+from .report import jsonable, write_json, write_toml
 from .rundir import RUN_MARKER, close_run, list_files, open_run
 from .stage import Finding, Progress, StageResult
+from .tables import skipped_note, write_tables
 
 
 @dataclass
@@ -56,6 +59,10 @@ class StageRecord:
     error: str | None = None
     html_figures: list = field(default_factory=list)
     """The stage's figures for ``report.html`` (:class:`baarda.pipeline.html.HtmlFigure`)."""
+    tables: dict = field(default_factory=dict)
+    """``{name: {"csv", "parquet", "rows", "columns": {column: unit}}}`` of the tables written."""
+    skipped: list[str] = field(default_factory=list)
+    """Tables not written (marked ``detail``; the run option ``outputs = "summary"``)."""
 
 
 @dataclass
@@ -149,7 +156,7 @@ def run_project(project_path: str | Path, out: str | Path | None = None, *,
             store.update(result.artefacts)
             rec.status, rec.summary, rec.report = "ok", jsonable(result.summary), result.report
             findings.append(Finding.of(spec.id, spec.use, result))
-            _write_outputs(run_dir, spec, stage, result, ctx, rec, recording_id)
+            _write_outputs(run_dir, spec, stage, result, ctx, rec, recording_id, outputs=project.run.outputs)
             rec.seconds = time.perf_counter() - t0      # all of the stage's work: its tables, recording, figures
             _write_report(run_dir, project, records, recording_id, started, shown=run.target)
             if verbose:
@@ -181,11 +188,13 @@ def _first_line(e: BaseException) -> str:
     return text[0][:200] if text else ""
 
 
-def _write_outputs(run_dir, spec, stage, result, ctx, rec, recording_id) -> None:
-    for name, table in result.tables.items():
-        fname = f"{spec.id}_{name}.csv"
-        write_table(run_dir / fname, table)
-        rec.files.append(fname)
+def _write_outputs(run_dir, spec, stage, result, ctx, rec, recording_id, outputs="full") -> None:
+    written = write_tables(run_dir, spec.id, result.tables, outputs=outputs)
+    rec.tables, rec.skipped = written.tables, written.skipped
+    rec.files += written.files
+    note = skipped_note(spec.id, written.skipped)
+    if note:
+        rec.report = (rec.report.rstrip() + "\n\n" + note) if rec.report.strip() else note
     for name, png in result.figures.items():
         fname = f"{spec.id}_{name}.png"
         (run_dir / fname).write_bytes(png)
@@ -285,7 +294,8 @@ def _write_results(run_dir, project, records, recording_id, started):
         "ok": all(r.status == "ok" for r in records),
         "stages": [{"id": r.id, "use": r.use, "package": r.package, "status": r.status,
                     "seconds": round(r.seconds, 4), "error": r.error, "warnings": r.warnings,
-                    "files": r.files, "summary": r.summary} for r in records],
+                    "files": r.files, "tables": r.tables, "skipped_tables": r.skipped,
+                    "summary": r.summary} for r in records],
         "files": list_files(run_dir),
     })
 

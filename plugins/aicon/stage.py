@@ -173,5 +173,5 @@ def _tables(block) -> dict:
         "point": pts.ids.tolist(), "X": pts.XYZ[:, 0], "Y": pts.XYZ[:, 1], "Z": pts.XYZ[:, 2],
         "rays": np.bincount(obs.point, minlength=len(pts)),
         "active_rays": np.bincount(obs.point, weights=obs.active, minlength=len(pts)).astype(int),
-    }, "object points: initial coordinates (mm) and measurement counts")
+    }, "object points: initial coordinates (mm) and measurement counts", detail=True)
     return {"photos": photos, "points": points}

@@ -9,12 +9,10 @@ inactive when ``action = "remove"``.  Statistics: :mod:`baarda.pipeline.stats`; 
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import numpy as np
 
 from baarda.pipeline.api import AdjustmentArtefact, Context, InputError, StageResult, TableData
-from baarda.pipeline.report import TABLE_DECIMALS
 
 from .decide import METHODS, ROBUST_METHODS, BlunderOptions, MethodResult, row_statistics, run_methods
 
@@ -137,6 +135,12 @@ def _obs_label(art: AdjustmentArtefact, block, row: int) -> str:
     return f"{ph}/{pt} {'xy'[c]}"
 
 
+SUMMARY_MOST = 20
+"""Rows listed per method in results.json (rejected labels, decisions, rows acted on; any list of
+a method's details): the first ones, their number beside them (``n_…``); every row is in the
+observations table (``blunders_observations``)."""
+
+
 def _summary(report: BlunderReport, block, art) -> dict:
     ids = block.observation_ids()
     per = [f"{m}: {', '.join(r.rejected_labels[:4]) or 'none'}{' …' if len(r.rejected_labels) > 4 else ''}"
@@ -144,12 +148,28 @@ def _summary(report: BlunderReport, block, art) -> dict:
     return {
         "headline": f"{report.adjustment}: " + "; ".join(per) + f" (decisive: {report.decide_by}, {report.action})",
         "adjustment": report.adjustment, "decide_by": report.decide_by, "action": report.action,
-        "methods": {m: ({"rejected": r.rejected_labels,
-                         "decisions": [dataclasses.asdict(d) for d in r.decisions]} if not r.skipped
-                        else {"skipped": r.skipped}) | {"details": _plain(r.summary)}
+        "methods": {m: ({"rejected": r.rejected_labels[:SUMMARY_MOST], "n_rejected": len(r.rejected_labels),
+                         "decisions": [dataclasses.asdict(d) for d in r.decisions[:SUMMARY_MOST]]} if not r.skipped
+                        else {"skipped": r.skipped}) | {"details": _capped(_plain(r.summary))}
                     for m, r in report.methods.items()},
-        "acted_on": [list(ids[i]) for i in report.acted_observations],
+        "acted_on": [list(ids[i]) for i in report.acted_observations[:SUMMARY_MOST]],
+        "n_acted_on": len(report.acted_observations),
     }
+
+
+def _capped(x):
+    """``x`` with every list longer than :data:`SUMMARY_MOST` cut to its first ones; a dict's
+    ``key`` cut so gets ``n_key``, its length."""
+    if isinstance(x, dict):
+        out = {}
+        for k, v in x.items():
+            out[k] = _capped(v)
+            if isinstance(v, list) and len(v) > SUMMARY_MOST and f"n_{k}" not in x:
+                out[f"n_{k}"] = len(v)
+        return out
+    if isinstance(x, list):
+        return [_capped(v) for v in x[:SUMMARY_MOST]]
+    return x
 
 
 def _plain(x):
@@ -233,8 +253,8 @@ def _table(report: BlunderReport, art: AdjustmentArtefact, block, stats) -> Tabl
     cols = {"row": list(range(n)), "label": [str(s) for s in snap.labels],
             "observation": [_obs_label(art, block, i) for i in range(n)],
             "active": [bool(a) for a in snap.active]}
-    for k, nd in TABLE_DECIMALS.items():
-        cols[k] = [None if not math.isfinite(x) else round(float(x), nd) for x in stats[k]]
+    for k in ("v", "r", "w", "tau", "nabla_hat", "mdb"):          # full precision; NaN: an empty cell
+        cols[k] = np.asarray(stats[k], dtype=float)
     for m, r in report.methods.items():
         key = m.replace("-", "_")
         by_row = {d.row: d for d in r.decisions}
@@ -243,6 +263,6 @@ def _table(report: BlunderReport, art: AdjustmentArtefact, block, stats) -> Tabl
                                     f"{'<' if by_row[i].statistic == 'weight' else '>'}{by_row[i].critical:.4g}"
                                     f"@{by_row[i].step}" if i in by_row else "" for i in range(n)]
         if m in ROBUST_METHODS and not r.skipped:
-            cols[f"{key}_weight"] = [round(float(x), 6) for x in r.raw.weights]
+            cols[f"{key}_weight"] = np.asarray(r.raw.weights, dtype=float)
     return TableData(cols, "every scalar observation of the adjustment with v, r, w, τ, ∇̂, MDB and the "
-                           "decision of each method (statistic > critical @ step)")
+                           "decision of each method (statistic > critical @ step)", detail=True)

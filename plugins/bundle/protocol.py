@@ -27,7 +27,9 @@ EFFECT_ITERATIONS = 2
 MOST_CAMERA_LINES = 8
 """Cameras named in report.md's RMS line (largest RMS first; all are in the protocol)."""
 PER_PHOTO_MOST = 30
-"""Photos listed in ``rms_per_photo`` (largest RMS first); ``n_photos`` counts them all."""
+"""Photos listed in ``rms_per_photo`` (largest RMS first); ``n_photos`` counts them all.  The same
+number of cameras in ``rms_per_camera`` (largest RMS first) and ``cameras`` (in block order),
+``n_cameras`` counting them all: every camera is in the tables (``bundle_cameras``)."""
 
 
 def image_units(block) -> tuple[str, float, str | None]:
@@ -126,7 +128,10 @@ def bundle_protocol(res, rejections=None, *, alpha0: float, beta0: float) -> dic
     if src:
         out["opencv_rms_px"] = opencv_rms(v[act.all(axis=1)])
     cam_of_obs = block.photos.camera[obs.photo]
-    out["rms_per_camera"] = _rms_rows(v, act, cam_of_obs, block.cameras.ids)
+    per_camera = _rms_rows(v, act, cam_of_obs, block.cameras.ids)
+    out["n_cameras"] = len(per_camera)
+    out["rms_per_camera"] = sorted(per_camera, key=lambda r: -r["all"])[:PER_PHOTO_MOST] \
+        if len(per_camera) > PER_PHOTO_MOST else per_camera
     per_photo = _rms_rows(v, act, obs.photo, block.photos.ids)
     per_photo.sort(key=lambda r: -r["all"])
     out["n_photos"] = len(per_photo)
@@ -184,7 +189,9 @@ def bundle_protocol(res, rejections=None, *, alpha0: float, beta0: float) -> dic
             out["tests"]["n_rejected"] = len(rejections.removed)
             out["tests"]["rejected"] = [str(x) for x in rejections.removed_labels[:MOST_LABELS]]
 
-    out["cameras"] = [_camera(res, j, src, scale) for j in range(len(block.cameras)) if res.camera_used[j]]
+    used = np.flatnonzero(res.camera_used)
+    out["n_cameras_used"] = int(used.size)
+    out["cameras"] = [_camera(res, j, src, scale) for j in used[:PER_PHOTO_MOST]]
     out["warnings"] = [str(w) for w in res.warnings]
     return out
 
@@ -258,9 +265,10 @@ def protocol_lines(p: dict) -> list[str]:
                  + (f"; OpenCV's RMS re-projection error (√(Σ|v|²/points)) {_f(p['opencv_rms_px'])} px"
                     if "opencv_rms_px" in p else ""))
         cams = p.get("rms_per_camera", [])
-        if len(cams) > 1:
+        n_cams = p.get("n_cameras", len(cams))
+        if n_cams > 1:
             worst = sorted(cams, key=lambda c: -c["all"])[:MOST_CAMERA_LINES]
-            L.append(f"  - per camera{' (largest ' + str(len(worst)) + ' of ' + str(len(cams)) + ')' if len(cams) > len(worst) else ''}: "
+            L.append(f"  - per camera{' (largest ' + str(len(worst)) + ' of ' + str(n_cams) + ')' if n_cams > len(worst) else ''}: "
                      + ", ".join(f"{c['id']} {_f(c['all'])} {u} ({c['n']})" for c in worst))
         worst = p.get("rms_per_photo", [])[:3]
         if worst:

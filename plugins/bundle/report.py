@@ -12,6 +12,7 @@ from scipy import stats as sps
 
 from baarda.pipeline.api import Block, TableData, stats
 from baarda.pipeline.adjustment import EO_NAMES, BundleResult
+from baarda.pipeline.protocol import MOST_LABELS
 from baarda.pipeline.report import markdown_table
 
 from . import external as bundle_external
@@ -62,7 +63,8 @@ def summary(rep) -> dict:
         out["joint_test"] = {"critical": jt.critical, "alpha": jt.alpha, "n_tested": int(jt.groups.size),
                              "n_flagged": int(jt.flagged.sum())}
     if rep.ids is not None:
-        out["ids"] = {"removed": rep.ids.removed_labels, "stop": rep.ids.stop_reason}
+        out["ids"] = {"removed": rep.ids.removed_labels[:MOST_LABELS], "n_removed": len(rep.ids.removed_labels),
+                      "stop": rep.ids.stop_reason}     # every one in bundle_observations, decision
     before = rep.before_ids
     if before is not None:     # the adjustment from the initial values, before any rejection
         r0 = before.result
@@ -70,7 +72,6 @@ def summary(rep) -> dict:
                                    "n_flagged": int(before.snooping.flagged.sum())}
     if rep.selection is not None:
         out["ap_selection"] = rep.selection.summary()
-    out["cameras"] = [r for j in range(len(res.block_in.cameras)) for r in camera_rows(res, j)]
     out["sigma0_um_equivalent"] = _sigma0_um(res)
     out["protocol"] = bundle_protocol(res, rep.ids, alpha0=o.tests.alpha0, beta0=o.tests.beta0)
     if isinstance(out.get("check_points"), dict) and out["check_points"].get("n"):
@@ -456,6 +457,7 @@ def tables(rep) -> dict:
     tables["convergence"] = TableData({"iteration": h.iteration.tolist(), "vtpv": h.vtpv.tolist(),
                                        "lambda": h.lam.tolist(), "max_step_sigma": h.max_step_sigma.tolist()},
                                       "vᵀPv, damping and largest correction (in σ of an observation) per iteration")
+    tables["observations"].detail = tables["points"].detail = True     # outputs = "summary" skips them
     tables.update(bundle_external.tables(rep))
     if rep.gnss is not None:
         tables["gnss"] = gnss_parts(rep)["table"]

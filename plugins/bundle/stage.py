@@ -16,7 +16,7 @@ from baarda.pipeline.api import (AdjustmentArtefact, AdjustmentError, Block, Bun
                                  StageResult, TableData, adjust)
 from baarda.pipeline.adjustment import EO_NAMES
 from baarda.pipeline.camera import get_ap_model
-from baarda.pipeline.report import write_table
+from baarda.pipeline.tables import write_table
 
 from . import external as bundle_external
 from . import report as bundle_report
@@ -71,7 +71,8 @@ class BundleAdjustment:
 # ---------------------------------------------------------------------------------------------
 def _save_state(err: AdjustmentError, block: Block, ctx: Context) -> None:
     """Write the last iterate an :class:`AdjustmentError` carries into the run directory
-    (``<stage>_last_eo.csv``, ``_last_points.csv``, ``_last_cameras.csv``) and raise the error again
+    (``<stage>_last_eo.csv``, ``_last_points.csv``, ``_last_cameras.csv``, each also as ``.parquet``) and
+    raise the error again
     with their names.  Returns without doing anything when there is no state or no run directory."""
     st = getattr(err, "state", None)
     if st is None or ctx.run_dir is None:
@@ -79,9 +80,7 @@ def _save_state(err: AdjustmentError, block: Block, ctx: Context) -> None:
     tables = _state_tables(st, block)
     names = []
     for name, table in tables.items():
-        fname = f"{ctx.stage_id}_last_{name}.csv"
-        write_table(ctx.run_dir / fname, table)
-        names.append(fname)
+        names.append(write_table(ctx.run_dir, f"{ctx.stage_id}_last_{name}", table, stage=ctx.stage_id)["csv"])
     new = AdjustmentError(f"{err} — the last state is saved in {ctx.run_dir}: {', '.join(names)}", state=st,
                           history=err.history)
     raise new from err

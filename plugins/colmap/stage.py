@@ -129,5 +129,6 @@ class ColmapExport(Stage):
                             f"{info['points3D']} points, {info['observations']} observations"
                             + (f"; {len(info['skipped_photos'])} photo(s) without orientation left out"
                                if info["skipped_photos"] else ""))
+        info["camera_models"] = sorted(set(info["camera_models"]))     # the models used, not one per camera
         return StageResult(summary=info, report=report)
 

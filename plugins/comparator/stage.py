@@ -176,5 +176,5 @@ def _tables(block, interior, tol_mm) -> dict:
         "x_mm": obs.xy[:, 0].tolist(), "y_mm": obs.xy[:, 1].tolist(),
         "sx_mm": np.sqrt(obs.cov[:, 0, 0]).tolist(), "sy_mm": np.sqrt(obs.cov[:, 1, 1]).tolist(),
         "line": [lines.get((int(p), int(q)), ("", None))[1] for p, q in zip(obs.photo, obs.point)],
-    }, "image observations in the image system (mm)")
+    }, "image observations in the image system (mm)", detail=True)
     return tables

@@ -137,12 +137,17 @@ class PycolmapCrossCheck(Stage):
         log_crosscheck(rec, result.data["cc"], result.data["result"], result.data["arrow_scale"], result.report)
 
 
+CAMERAS_MOST = 20
+"""Cameras listed in the summary (``n_cameras`` counts them all; every parameter is in the cameras table)."""
+
+
 def _summary(cc: CrossCheck, tol: Tolerances, failures: list) -> dict:
     q = {k: {a: b for a, b in v.items()} for k, v in cc.quantities.items()}
     return {"headline": _headline(cc, failures), "equivalent": cc.plan.exact, "covariance_comparable": cc.plan.covariance_comparable,
             "passed": not failures, "failures": failures, "start": cc.start, "object_size": cc.object_size,
             "quantities": q, "pycolmap": dict(cc.pycolmap),
-            "cameras": [{"id": p.id, "mode": p.mode, "colmap_model": p.colmap_model} for p in cc.plan.cameras],
+            "cameras": [{"id": p.id, "mode": p.mode, "colmap_model": p.colmap_model} for p in cc.plan.cameras[:CAMERAS_MOST]],
+            "n_cameras": len(cc.plan.cameras),
             "refine": cc.plan.refine, "notes": cc.notes}
 
 
@@ -200,7 +205,7 @@ def _tables(cc: CrossCheck, result) -> dict:
     d = sol.XYZ[j] - st.XYZ[j]
     points = TableData({"id": pts.ids[j].tolist(), "X_baarda": st.XYZ[j, 0], "Y_baarda": st.XYZ[j, 1],
                         "Z_baarda": st.XYZ[j, 2], "dX": d[:, 0], "dY": d[:, 1], "dZ": d[:, 2]},
-                       "object points: baarda's adjusted coordinates and pycolmap − baarda")
+                       "object points: baarda's adjusted coordinates and pycolmap − baarda", detail=True)
     ph = result.block_in.photos
     k = np.flatnonzero(plan.photo_variable)
     dX = sol.X0[k] - st.X0[k]

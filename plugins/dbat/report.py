@@ -81,7 +81,7 @@ def source_tables(block) -> dict:
         "point": pts.ids.tolist(), "label": [d.labels.get(str(i), "") for i in pts.ids],
         "role": pts.role.tolist(), "X": pts.XYZ[:, 0], "Y": pts.XYZ[:, 1], "Z": pts.XYZ[:, 2],
         "sX": pts.sigma[:, 0], "sY": pts.sigma[:, 1], "sZ": pts.sigma[:, 2], "rays": rays,
-    }, "object points as read (prior coordinates and σ; tie points have none)")
+    }, "object points as read (prior coordinates and σ; tie points have none)", detail=True)
     ph = block.photos
     photos = TableData({
         "photo": ph.ids.tolist(), "file": ph.image_path.tolist(),
@@ -191,7 +191,8 @@ def quality_headline(q, earlier=None) -> str:
 def quality_tables(q) -> dict:
     ids = q["ids"]
     points = TableData({"point": ids.tolist(), "role": q["role"].tolist(), "rays": q["rays"],
-                        "angle_deg": q["angles_deg"]}, "rays and largest intersection angle of every point")
+                        "angle_deg": q["angles_deg"]}, "rays and largest intersection angle of every point",
+                       detail=True)
     out = {"points": points}
     for kind in ("control", "check"):
         c = q[kind]

@@ -276,7 +276,7 @@ class DbatMarks(Stage):
         table = TableData({"photo": d["photo"], "mark_point": d["mark_point"], "point": d["point"],
                            "u_mark": d["uv_mark"][:, 0], "v_mark": d["uv_mark"][:, 1],
                            "du_px": d["duv"][:, 0], "dv_px": d["duv"][:, 1]},
-                          "paired marks and image points: differences in pixels (block − marks)")
+                          "paired marks and image points: differences in pixels (block − marks)", detail=True)
         return StageResult(artefacts={"dbat_marks_comparison": cmp}, summary=summary, report=report,
                            tables={"pairs": table}, data={"radius_px": options.match_radius_px})
 

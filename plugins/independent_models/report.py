@@ -154,6 +154,8 @@ def tables(result: IndependentModelResult, stats: dict, block) -> dict:
     chk = blk.check
     check = TableData({"point": list(chk.ids), "dX": chk.errors[:, 0], "dY": chk.errors[:, 1],
                        "dZ": chk.errors[:, 2]}, f"check points: adjusted − surveyed ({unit})")
+    for t in (ro_tests, ro_points, points, residuals):       # per point / per observation: outputs = "summary" skips them
+        t.detail = True
     return {"models": models, "ro_tests": ro_tests, "ro_points": ro_points,
             "transformations": transformations, "points": points, "residuals": residuals,
             "control": control, "check_points": check}

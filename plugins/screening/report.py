@@ -9,7 +9,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from baarda.pipeline.api import AdjustmentArtefact, TableData
-from baarda.pipeline.report import TABLE_DECIMALS
 
 if TYPE_CHECKING:
     from .stage import PairResult, ScreeningArtefact
@@ -52,11 +51,11 @@ def robust_tables(rob, adj: AdjustmentArtefact, block) -> dict:
     return {"robust": TableData({
         "row": [str(x) for x in rob.labels],
         "observation": ["/".join(map(str, ids[adj.obs_rows[i, 0]])) + " " + "xy"[adj.obs_rows[i, 1]] for i in range(n)],
-        "weight": [round(float(x), 6) for x in rob.weights],
-        "u": [None if not math.isfinite(x) else round(float(x), 4) for x in rob.u],
+        "weight": np.asarray(rob.weights, dtype=float),
+        "u": np.asarray(rob.u, dtype=float),
         "downweighted": [bool(x) for x in np.isin(np.arange(n), rob.downweighted)]},
         f"robust estimation ({rob.method}, c = {rob.c:g}): every right-image coordinate's final IRLS weight and "
-        "standardised residual u")}
+        "standardised residual u", detail=True)}
 
 
 def summary(art: ScreeningArtefact, flagged_obs, block, options) -> dict:
@@ -182,11 +181,11 @@ def tables(art: ScreeningArtefact) -> dict:
             cols["point"].append(s.point_ids[q])
             cols["coord"].append("xy"[c])
             cols["label"].append(str(lab))
-            cols["left"].append(round(float(s.xy_left[q, c]), 6))
-            cols["right_observed"].append(round(float(s.xy_right[q, c]), 6))
+            cols["left"].append(float(s.xy_left[q, c]))
+            cols["right_observed"].append(float(s.xy_right[q, c]))
             for name, value in (("v", s.adjustment.v), ("r", s.snooping.r), ("w", s.snooping.w),
                                 ("tau", s.pope.tau), ("nabla_hat", s.snooping.nabla_hat), ("mdb", s.snooping.mdb)):
-                cols[name].append(round(float(value[k]), TABLE_DECIMALS[name]))
+                cols[name].append(float(value[k]))
             for m, col in (("data-snooping", "data_snooping"), ("pope", "pope"), ("threshold", "threshold"),
                            ("format", "format")):
                 cols[col].append("reject" if flags[m][k] else "accept")
@@ -194,4 +193,4 @@ def tables(art: ScreeningArtefact) -> dict:
             cols["flagged"].append(bool(s.flagged[k]))
     return {"observations": TableData(cols, "Helmert screening: every right-image coordinate with residual "
                                             "(observed − computed, mm), redundancy number, w, τ, ∇̂, MDB and "
-                                            "the decision of each check")}
+                                            "the decision of each check", detail=True)}

@@ -100,7 +100,7 @@ def _tables(block, truth) -> dict:
         "X": pts.XYZ[:, 0], "Y": pts.XYZ[:, 1], "Z": pts.XYZ[:, 2],
         "X_true": truth.XYZ[:, 0], "Y_true": truth.XYZ[:, 1], "Z_true": truth.XYZ[:, 2],
         "rays": rays,
-    }, "targets: surveyed (X, Y, Z) and true coordinates (m), role, number of photos")
+    }, "targets: surveyed (X, Y, Z) and true coordinates (m), role, number of photos", detail=True)
     ph = block.photos
     photos = TableData({
         "photo": ph.ids.tolist(),
@@ -117,7 +117,7 @@ def _tables(block, truth) -> dict:
         "sys_x_um": truth.systematic[:, 0] * 1e3, "sys_y_um": truth.systematic[:, 1] * 1e3,
         "noise_x_um": truth.noise[:, 0] * 1e3, "noise_y_um": truth.noise[:, 1] * 1e3,
         "blunder_x_um": truth.blunder[:, 0] * 1e3, "blunder_y_um": truth.blunder[:, 1] * 1e3,
-    }, "image observations (mm) with their simulated systematic error, noise and blunder (µm)")
+    }, "image observations (mm) with their simulated systematic error, noise and blunder (µm)", detail=True)
     return {"points": points, "photos": photos, "observations": observations}
 
 

@@ -129,3 +129,31 @@ def test_bundled_project_runs(rel, tmp_path):
     # source's "read N photo(s) …")
     blank = [f"{s['id']} ({s['use']})" for s in res["stages"] if not _finding(s).strip()]
     assert not blank, f"stages without a finding in `baarda review`: {blank}"
+    # results.json holds summaries and pointers to the tables, never per-observation / per-point arrays
+    long = _long_lists(res)
+    assert not long, f"lists longer than {MOST_IN_RESULTS} in results.json (belong in a table): {long}"
+    for s in res["stages"]:
+        for name, t in s["tables"].items():
+            assert (tmp_path / "run" / t["csv"]).exists() and (tmp_path / "run" / t["parquet"]).exists(), t
+
+
+MOST_IN_RESULTS = 100
+"""The longest list results.json may hold (issue 22: summaries and pointers to tables, not arrays)."""
+
+
+def _long_lists(obj, where="results.json") -> list[str]:
+    """``where[…]: length`` of every list in ``obj`` longer than :data:`MOST_IN_RESULTS`; the run's
+    manifest (``files``, every file of the run: what the next run may replace, pipeline/rundir.py)
+    is no data and not counted."""
+    out = []
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            if k == "files" and isinstance(v, list) and all(isinstance(f, str) for f in v):
+                continue
+            out += _long_lists(v, f"{where}.{k}")
+    elif isinstance(obj, list):
+        if len(obj) > MOST_IN_RESULTS:
+            out.append(f"{where}: {len(obj)}")
+        for i, v in enumerate(obj):
+            out += _long_lists(v, f"{where}[{i}]")
+    return out

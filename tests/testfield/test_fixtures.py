@@ -41,5 +41,5 @@ def test_aicon_project_reads_shared_data(repo_root, shared_data, tmp_path):
     assert 3.6 < img["factor"] < 3.8 and img["sigma_factor"] < 0.03
     assert not vc["scale bars"]["estimable"]
     # iterated data snooping until no |w| > 3.29 (docs/bundle.md, fixtures/aicon/aicon.toml)
-    assert 40 <= len(bundle.summary["ids"]["removed"]) <= 80
+    assert 40 <= bundle.summary["ids"]["n_removed"] <= 80
     assert bundle.summary["data_snooping"]["n_flagged"] == 0

@@ -1,0 +1,193 @@
+"""Writing a stage's tables: Apache Arrow columns, saved as Parquet (full precision, units in the
+metadata) and as CSV, both written by :mod:`pyarrow` (docs/report.md, docs/architecture.md).
+
+A :class:`~baarda.pipeline.stage.TableData` becomes one Arrow table (:func:`to_arrow`); no cell is
+formatted by Python:
+
+* ``<stage>_<name>.parquet`` — the machine format: every value at full precision; each field's
+  metadata carries ``unit`` (``"px"``, ``"µm"``, ``"m"``, ``"deg"``, ``""`` for unitless) and
+  ``description``; the schema metadata the table's ``description``, ``stage`` and ``name``;
+* ``<stage>_<name>.csv`` — the same values as text (:func:`pyarrow.csv.write_csv`): floats in the
+  shortest form that reads back as the same double (``0.1``, ``1.2345678901234566e-7``), a missing
+  value (NaN, None) an empty cell, booleans ``true``/``false``, strings quoted.
+
+NaN is "no value" in both files (a null in Parquet, an empty cell in CSV): a w-test that was not
+computed, the check-point difference of a tie point.  :func:`write_tables` writes a stage's tables and
+returns the pointers ``results.json`` keeps (``{"csv", "parquet", "rows", "columns": {col: unit}}``);
+with ``outputs = "summary"`` it skips the tables marked ``detail`` and says which.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable, Mapping
+
+import csv
+import io
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pa_compute
+import pyarrow.csv as pa_csv
+import pyarrow.parquet as pq
+
+from .stage import TableData
+
+OUTPUTS = ("full", "summary")
+"""Values of the run option ``outputs``: every table, or only the tables not marked ``detail``."""
+
+_STRUCTURAL = r'[,"\r\n]'
+"""Characters that make a CSV cell need quotes."""
+
+
+def column_array(values: Any, name: str = "") -> pa.Array:
+    """One column as an Arrow array, without a Python loop over its cells where the values allow.
+
+    A numeric or boolean numpy array is taken as it is (floats as float64, NaN becomes null); a numpy string
+    array becomes a string column; a list or an object array is converted by Arrow itself (None
+    and NaN become null; ints and floats mixed become float64).  Only a column Arrow cannot type
+    (strings mixed with numbers, nested lists) falls back to the text of each value (``str``), as
+    the CSV always showed it."""
+    arr = values if isinstance(values, np.ndarray) else None
+    if arr is not None and arr.ndim != 1:
+        raise ValueError(f"column {name!r}: expected one dimension, got shape {arr.shape}")
+    if arr is not None and arr.dtype.kind == "f":             # float16/32 as the float64 they are exactly
+        return pa.array(arr.astype(np.float64, copy=False), from_pandas=True)
+    if arr is not None and arr.dtype.kind in "biu":
+        return pa.array(arr)
+    if arr is not None and arr.dtype.kind in "US":
+        return pa.array(arr.astype(str), type=pa.string())
+    try:
+        out = pa.array(values, from_pandas=True)
+    except (pa.ArrowInvalid, pa.ArrowTypeError, TypeError, ValueError):
+        out = None
+    if out is not None and not _nested(out.type):
+        if pa.types.is_null(out.type):             # only None: a text column without values
+            return pa.nulls(len(out), pa.string())
+        if pa.types.is_floating(out.type) and out.type != pa.float64():
+            return out.cast(pa.float64())
+        return out
+    cells = values.tolist() if arr is not None else list(values)
+    return pa.array([None if _missing(v) else str(v) for v in cells], type=pa.string())
+
+
+def _nested(tp: pa.DataType) -> bool:
+    return pa.types.is_nested(tp) or pa.types.is_dictionary(tp)
+
+
+def _missing(v: Any) -> bool:
+    return v is None or (isinstance(v, (float, np.floating)) and np.isnan(v))
+
+
+def to_arrow(table: TableData, *, stage: str = "", name: str = "") -> pa.Table:
+    """The Arrow table of ``table``: its columns in order, each field with metadata ``unit``
+    (from ``table.units``; ``""`` when not given) and ``description``; the schema metadata holds
+    the table's description, ``stage`` and ``name``."""
+    arrays, fields = [], []
+    units = dict(table.units or {})
+    for col, values in table.columns.items():
+        a = column_array(values, col)
+        arrays.append(a)
+        meta = {"unit": str(units.get(col, "")), "description": _column_description(col, units.get(col, ""))}
+        fields.append(pa.field(str(col), a.type, nullable=True, metadata=meta))
+    meta = {"description": table.description or "", "stage": stage, "name": name}
+    return pa.Table.from_arrays(arrays, schema=pa.schema(fields, metadata=meta))
+
+
+def _column_description(col: str, unit: str) -> str:
+    return f"{col} ({unit})" if unit else col
+
+
+def write_csv(path: str | Path, table: TableData | pa.Table) -> None:
+    """``table`` as CSV text (header, one line per row), written by Arrow.
+
+    Quotes only where a cell needs them (as Python's ``csv`` module writes): the header line by
+    :mod:`csv`, the rows by Arrow, unquoted unless a string holds a comma, quote or line break
+    (then Arrow quotes every string)."""
+    t = table if isinstance(table, pa.Table) else to_arrow(table)
+    head = io.StringIO()
+    csv.writer(head, lineterminator="\n").writerow(t.column_names)
+    with open(path, "wb") as fh:
+        fh.write(head.getvalue().encode("utf-8"))
+        if t.num_rows:
+            style = "needed" if _needs_quotes(t) else "none"
+            pa_csv.write_csv(t, fh, write_options=pa_csv.WriteOptions(include_header=False, quoting_style=style))
+
+
+def _needs_quotes(t: pa.Table) -> bool:
+    """Whether a string cell of ``t`` holds a comma, a quote or a line break (vectorised)."""
+    for col in t.columns:
+        if pa.types.is_string(col.type) or pa.types.is_large_string(col.type):
+            if pa_compute.any(pa_compute.match_substring_regex(col, _STRUCTURAL)).as_py():
+                return True
+    return False
+
+
+def write_parquet(path: str | Path, table: TableData | pa.Table) -> None:
+    """``table`` as Parquet (full precision; units and descriptions in the metadata)."""
+    t = table if isinstance(table, pa.Table) else to_arrow(table)
+    pq.write_table(t, str(path), compression="zstd")
+
+
+def write_table(directory: str | Path, stem: str, table: TableData, *, stage: str = "",
+                name: str = "") -> dict:
+    """Write ``<stem>.csv`` and ``<stem>.parquet`` into ``directory``; returns the pointer entry
+    of ``results.json``: ``{"csv", "parquet", "rows", "columns": {column: unit}}``."""
+    directory = Path(directory)
+    t = to_arrow(table, stage=stage, name=name or stem)
+    write_csv(directory / f"{stem}.csv", t)
+    write_parquet(directory / f"{stem}.parquet", t)
+    units = dict(table.units or {})
+    return {"csv": f"{stem}.csv", "parquet": f"{stem}.parquet", "rows": t.num_rows,
+            "columns": {c: str(units.get(c, "")) for c in table.columns}}
+
+
+@dataclass
+class Written:
+    """What :func:`write_tables` did: the pointers by table name, the files, the skipped tables."""
+
+    tables: dict[str, dict] = field(default_factory=dict)
+    files: list[str] = field(default_factory=list)
+    skipped: list[str] = field(default_factory=list)
+    """Names of tables marked ``detail`` not written (``outputs = "summary"``)."""
+
+
+def write_tables(directory: str | Path, stage_id: str, tables: Mapping[str, TableData], *,
+                 outputs: str = "full") -> Written:
+    """Write a stage's tables as ``<stage id>_<name>.csv`` / ``.parquet``; with ``outputs =
+    "summary"`` the tables marked ``detail`` are skipped (their names in ``skipped``)."""
+    if outputs not in OUTPUTS:
+        raise ValueError(f"outputs must be one of {', '.join(OUTPUTS)}, got {outputs!r}")
+    done = Written()
+    for name, table in tables.items():
+        if outputs == "summary" and table.detail:
+            done.skipped.append(name)
+            continue
+        entry = write_table(directory, f"{stage_id}_{name}", table, stage=stage_id, name=name)
+        done.tables[name] = entry
+        done.files += [entry["csv"], entry["parquet"]]
+    return done
+
+
+def skipped_note(stage_id: str, skipped: Iterable[str]) -> str:
+    """The report's line for tables left out by ``outputs = "summary"`` (empty when none)."""
+    names = [f"{stage_id}_{n}" for n in skipped]
+    if not names:
+        return ""
+    return ("Not written (run option outputs = \"summary\"; outputs = \"full\" writes them): "
+            + ", ".join(f"`{n}.csv`/`.parquet`" for n in names) + ".")
+
+
+def read_table(path: str | Path) -> pa.Table:
+    """A table written by :func:`write_table` (``.parquet`` or ``.csv``) as an Arrow table."""
+    path = Path(path)
+    if path.suffix == ".parquet":
+        return pq.read_table(path)
+    return pa_csv.read_csv(path)
+
+
+def units_of(path: str | Path) -> dict[str, str]:
+    """``{column: unit}`` from a Parquet file's field metadata."""
+    schema = pq.read_schema(path)
+    return {f.name: (f.metadata or {}).get(b"unit", b"").decode() for f in schema}
