@@ -9,7 +9,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from baarda.pipeline.api import AdjustmentArtefact, TableData
+from baarda.pipeline.protocol import global_test_protocol, global_test_text
 from baarda.pipeline.report import TABLE_DECIMALS
+from baarda.pipeline.units import fmt_q
 
 if TYPE_CHECKING:
     from .stage import PairResult, ScreeningArtefact
@@ -69,6 +71,8 @@ def summary(art: ScreeningArtefact, flagged_obs, block, options) -> dict:
             "pair": [p.left, p.right], "points": len(s.point_ids), "dof": s.adjustment.dof,
             "sigma0": s.settings.sigma0, "sigma0_hat": _f(s.adjustment.sigma0_hat, 4),
             "global_test": {"T": _f(s.global_.T, 4), "critical": _f(s.global_.critical, 4),
+                            "critical_lower": _f(s.global_.critical_lower, 4), "p_value": s.global_.p_value,
+                            "method": s.global_.method, "verdict": s.global_.verdict,
                             "alpha": s.global_.alpha, "rejected": s.global_.rejected},
             "K": _f(s.snooping.critical, 4), "tau_critical": _f(s.pope.critical, 4),
             "most_suspicious": None if i is None else {
@@ -107,9 +111,8 @@ def report(art: ScreeningArtefact, block, options, flagged_obs) -> str:
         out += [f"**Pair {p.left} → {p.right}**: {len(s.point_ids)} common points, dof {s.adjustment.dof}; "
                 f"scale {math.hypot(a, b):.6f}, rotation {math.degrees(math.atan2(b, a)):.4f}°, "
                 f"shift ({tx:.3f}, {ty:.3f}) mm.", "",
-                f"- σ̂0 = {s.adjustment.sigma0_hat:.4f} mm against σ0 = {s.settings.sigma0:g} mm: global test "
-                f"T = {g.T:.3f} vs F = {g.critical:.3f} (α′ = {g.alpha:.3g}) → "
-                f"{'rejected' if g.rejected else 'accepted'}.",
+                f"- σ̂0 = {fmt_q(s.adjustment.sigma0_hat, 'mm')} against σ0 = {fmt_q(s.settings.sigma0, 'mm')}: "
+                f"global test {global_test_text(global_test_protocol(g), 'mm')}.",
                 f"- Data snooping (σ0 = {s.settings.sigma0:g} mm, K = {s.snooping.critical:.2f}): "
                 f"{', '.join(s.snooping.flagged_labels) or 'nothing'}.",
                 f"- Pope τ (σ̂0, τc = {s.pope.critical:.3f} at α = {s.pope.alpha:g}, dof {s.pope.dof}): "

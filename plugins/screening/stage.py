@@ -63,7 +63,7 @@ class ScreeningOptions(stats.SnoopingLevels):
     def settings(self) -> ScreeningSettings:
         return ScreeningSettings(self.sigma0_mm, self.alpha0, self.beta0, self.alpha_pope,
                                  self.threshold_mm, self.format_margin_mm, self.detect_swaps,
-                                 tuple(self.flag_by))
+                                 tuple(self.flag_by), self.alpha_global)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
