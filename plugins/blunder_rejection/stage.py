@@ -235,9 +235,10 @@ def _table(report: BlunderReport, art: AdjustmentArtefact, block, stats) -> Tabl
             "active": [bool(a) for a in snap.active]}
     for k, nd in TABLE_DECIMALS.items():
         cols[k] = [None if not math.isfinite(x) else round(float(x), nd) for x in stats[k]]
-    # one verdict per row: rejected = taken out of the block (action = remove), flagged = a method's test
-    # exceeded its critical value and the row is kept
-    decided = set(int(i) for r in report.methods.values() if not r.skipped for i in r.rejected)
+    # one verdict per row, the decisive method's (the summary's): rejected = taken out of the block
+    # (action = remove), flagged = its test exceeded the critical value and the row is kept (action = flag);
+    # every method's own decision is in its column
+    decided = set(int(i) for i in report.acted_rows)
     acted = set(int(i) for i in report.acted_rows) if report.action == "remove" else set()
     if acted:   # a rejected x or y takes the whole image point out of the block
         obs = np.asarray(art.obs_rows, int)[:, 0]

@@ -171,10 +171,12 @@ def _swap_finding(p: PairResult) -> str:
             f"points.{cleared}")
 
 
-def tables(art: ScreeningArtefact) -> dict:
+def tables(art: ScreeningArtefact, action: str = "flag") -> dict:
+    """The observations table; its ``decision`` is ``rejected`` for flagged rows that ``action = "remove"``
+    took out of the block, ``flagged`` for those kept, else ``ok`` (``flagged`` keeps the boolean)."""
     cols = {k: [] for k in ("pair", "point", "coord", "label", "left", "right_observed", "v", "r", "w",
                             "tau", "nabla_hat", "mdb", "data_snooping", "pope", "threshold", "format",
-                            "swap_with", "flagged")}
+                            "swap_with", "flagged", "decision")}
     for p in art.pairs:
         s = p.screening
         flags = s.method_flags()
@@ -195,6 +197,7 @@ def tables(art: ScreeningArtefact) -> dict:
                 cols[col].append("reject" if flags[m][k] else "accept")
             cols["swap_with"].append(partner[q])
             cols["flagged"].append(bool(s.flagged[k]))
+            cols["decision"].append(("rejected" if action == "remove" else "flagged") if s.flagged[k] else "ok")
     return {"observations": TableData(cols, "Helmert screening: every right-image coordinate with residual "
                                             "(observed − computed, mm), redundancy number, w, τ, ∇̂, MDB and "
                                             "the decision of each check")}

@@ -165,7 +165,7 @@ class HelmertScreening:
             artefacts={"screening": artefact, "block": out_block, "adjustment": adjustment},
             summary=screening_report.summary(artefact, flagged_obs, block, options) | screening_report.robust_summary(robust),
             report=screening_report.report(artefact, block, options, flagged_obs) + screening_report.robust_report(robust, adjustment, block),
-            tables=screening_report.tables(artefact) | screening_report.robust_tables(robust, adjustment, block),
+            tables=screening_report.tables(artefact, options.action) | screening_report.robust_tables(robust, adjustment, block),
             data={"artefact": artefact, "block": block, "arrow_scale": options.arrow_scale},
         )
 
