@@ -22,6 +22,8 @@ from baarda.pipeline.runner import run_project
 
 from conftest import SHARED_BESIDE, needs_shared_beside
 
+from tests.pipeline.protocol_consistency import check_run
+
 ROOT = Path(__file__).resolve().parents[2]
 PROJECTS = sorted((ROOT / "fixtures").rglob("*.toml"))
 
@@ -124,3 +126,5 @@ def test_bundled_project_runs(rel, tmp_path):
     # source's "read N photo(s) …")
     blank = [f"{s['id']} ({s['use']})" for s in res["stages"] if not _finding(s).strip()]
     assert not blank, f"stages without a finding in `baarda review`: {blank}"
+    # one truth per number: the protocol summary is results.json's, its counts and RMS the tables'
+    check_run(tmp_path / "run")
