@@ -81,11 +81,18 @@ def test_set_overrides_an_option(tmp_path, capsys):
     ("bundel.max_iter=5", "did you mean 'bundle'"),
     ("bundle.solver.max_iter=-5", "must be at least 1"),
     ("max_iter=5", "expected STAGE.OPTION=VALUE"),
+    ("bundle.tests.alpha_global=1.5", "must be greater than 0 and less than 1, got 1.5"),
+    ("bundle.tests.alpha_global='Baarda'", "expected float | 'B-method'"),
 ])
 def test_set_mistakes_are_one_line_errors(capsys, arg, expect):
     assert main(["validate", str(BLOCK), "--set", arg]) == EXIT_STATUS["input"]
     err = capsys.readouterr().err.strip()
     assert expect in err and len(err.splitlines()) == 1, err
+
+
+@pytest.mark.parametrize("value", ["0.01", "'B-method'"])
+def test_alpha_global_values_validate(capsys, value):
+    assert main(["validate", str(BLOCK), "--set", f"bundle.tests.alpha_global={value}"]) == 0
 
 
 def test_quiet_and_verbose_before_or_after_the_command():
