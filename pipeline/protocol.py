@@ -54,7 +54,9 @@ def global_test_text(g: dict, unit: str = "") -> str:
     verdict = g.get("verdict") or ("rejected" if g["rejected"] else "accepted")
     if g["rejected"]:
         verdict = "REJECTED" + verdict[len("rejected"):]
-    return f"T = σ̂0²/σ0² = {fmt_num(g['T'])}, p = {fmt_num(g['p_value'], 3)} ({level}; {bounds}): {verdict}"
+    p = g["p_value"]
+    ptext = "p < 1e-300" if p == 0 else f"p = {fmt_num(p, 3)}"      # below the smallest double scipy returns
+    return f"T = σ̂0²/σ0² = {fmt_num(g['T'])}, {ptext} ({level}; {bounds}): {verdict}"
 
 
 def snapshot_protocol(snap, *, name: str, alpha0: float = 0.001, beta0: float = 0.80, unit: str = "",

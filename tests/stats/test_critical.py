@@ -123,3 +123,17 @@ def test_bad_levels_are_rejected():
         delta0(0.0, 0.8)
     with pytest.raises(ValueError):
         alpha_prime(0.001, 0.8, 0)
+
+
+def test_global_test_text_prints_the_verdict_as_metrology_packages_do():
+    from baarda.pipeline.protocol import global_test_protocol, global_test_text
+
+    g = global_test_protocol(global_test(_snap(12.0, 5)))
+    assert g["interval"] == pytest.approx([np.sqrt(stats.chi2.ppf(0.025, 5) / 5), np.sqrt(stats.chi2.isf(0.025, 5) / 5)])
+    assert global_test_text(g) == ("T = σ̂0²/σ0² = 2.400, p = 0.0696 (two-sided χ², α = 5 %; 95 % interval "
+                                   "of σ̂0: 0.4077 – 1.602): accepted")
+    huge = global_test_protocol(global_test(_snap(1e6, 5)))
+    assert huge["p_value"] == 0.0 and "p < 1e-300" in global_test_text(huge)
+    assert global_test_text(huge).endswith("REJECTED (σ̂0 too large)")
+    b = global_test_text(global_test_protocol(global_test(_snap(12.0, 5), alpha="B-method")))
+    assert "B-method, one-sided, α′ = 0.013" in b and "F-critical" in b
