@@ -45,6 +45,7 @@ from .montecarlo import Engine
 from .plugins import PluginManager
 from .project import Overrides, load_project, path_roles, toml_value, with_overrides
 from .report import markdown_table, write_toml
+from .review import protocol_counts
 from .runner import run_project
 
 __all__ = ["BatchJob", "plan_batch", "read_sweep", "run_batch", "run_job", "summary_rows", "write_summary",
@@ -52,7 +53,18 @@ __all__ = ["BatchJob", "plan_batch", "read_sweep", "run_batch", "run_job", "summ
 
 BATCH_MARKER = "batch.json"
 BASE_COLUMNS = ["name", "status", "failure", "message", "seconds", "stages_ok", "stages", "run_dir", "project"]
-"""The summary's first columns; then the sweep's ``stage.option`` values, then the figures."""
+"""The summary's first columns; then the quality columns, the sweep's ``stage.option`` values, then the
+figures."""
+QUALITY_COLUMNS = ["adjustment", "sigma0_hat", "dof", "global_test", "global_test_p", "n_flagged", "n_rejected",
+                   "check_n", "check_rmse_x", "check_rmse_y", "check_rmse_z", "check_unit", "camera", "n_cameras"]
+"""What compares runs (:func:`quality`): the protocol of the run's main adjustment (its bundle, else its
+last adjustment): σ̂0 (unitless variance factor), the global test's verdict and p-value, the flagged and
+rejected counts, the check-point RMSE (in ``check_unit``), then the first camera's parameters as
+``camera.<name>_<unit>`` columns (c, principal point and the main APs)."""
+CAMERA_PARAMETERS = ("c", "xp", "yp", "K1", "K2", "K3", "P1", "P2")
+_UNIT_SUFFIX = {"mm": "mm", "px": "px", "µm": "um", "m": "m", "mm⁻²": "per_mm2", "mm⁻⁴": "per_mm4",
+                "mm⁻⁶": "per_mm6", "mm⁻¹": "per_mm", "px⁻²": "per_px2", "px⁻⁴": "per_px4", "px⁻⁶": "per_px6",
+                "px⁻¹": "per_px", "1": "", "": ""}
 
 
 @dataclass(frozen=True)
@@ -266,7 +278,8 @@ def run_job(job: BatchJob) -> dict:
         row.update(status="ok" if outcome.ok else "failed", failure=outcome.failure,
                    message=outcome.message.splitlines()[0][:300] if outcome.message else "",
                    stages_ok=sum(r.status == "ok" for r in outcome.stages), stages=len(outcome.stages),
-                   run_dir=str(outcome.run_dir), figures=_figures(outcome.stages))
+                   run_dir=str(outcome.run_dir), figures=_figures(outcome.stages),
+                   quality=quality([{"id": r.id, "summary": r.summary} for r in outcome.stages]))
     row["seconds"] = round(time.perf_counter() - t0, 3)
     return row
 
@@ -289,6 +302,45 @@ def _figures(records) -> dict:
                 out[f"{r.id}.{k}"] = v
             elif isinstance(v, (int, float)):
                 out[f"{r.id}.{k}"] = v
+    return out
+
+
+def main_protocol(stages: list[dict]) -> tuple[str, dict] | None:
+    """``(stage id, protocol)`` of a run's main adjustment: its last bundle, else its last adjustment
+    with a protocol (``summary["protocol"]``); None when no stage adjusted anything."""
+    found = [(s["id"], (s.get("summary") or {}).get("protocol")) for s in stages]
+    found = [(sid, p) for sid, p in found if isinstance(p, dict) and "sigma0_hat" in p]
+    bundles = [f for f in found if f[1].get("kind") == "bundle"]
+    return (bundles or found or [None])[-1]
+
+
+def quality(stages: list[dict]) -> dict:
+    """The quality columns of one run (:data:`QUALITY_COLUMNS`) from its stages' summaries (dicts with
+    ``id`` and ``summary``, as results.json holds them): the same numbers as each run's report."""
+    found = main_protocol(stages)
+    if found is None:
+        return {}
+    sid, p = found
+    g = p.get("global_test") or {}
+    t = p.get("tests") or {}
+    out: dict[str, Any] = {"adjustment": sid, "sigma0_hat": p.get("sigma0_hat"), "dof": p.get("dof"),
+                           "global_test": g.get("verdict") or ("" if not g else ("rejected" if g.get("rejected")
+                                                                                  else "accepted")),
+                           "global_test_p": g.get("p_value"),
+                           "n_flagged": 0, "n_rejected": 0}
+    out.update({f"n_{k}": n for k, n in protocol_counts({"summary": {"protocol": p}}).items()})
+    ch = p.get("check")
+    if ch:
+        out.update(check_n=ch.get("n"), check_rmse_x=ch.get("Sx"), check_rmse_y=ch.get("Sy"),
+                   check_rmse_z=ch.get("Sz"), check_unit=ch.get("unit", ""))
+    cams = p.get("cameras") or []
+    if cams:
+        cam = cams[0]
+        out.update(camera=str(cam.get("camera", "")), n_cameras=len(cams))
+        for par in cam.get("parameters") or []:
+            if par.get("name") in CAMERA_PARAMETERS:
+                suffix = _UNIT_SUFFIX.get(par.get("unit", ""), "")
+                out[f"camera.{par['name']}" + (f"_{suffix}" if suffix else "")] = par.get("value")
     return out
 
 
@@ -329,12 +381,22 @@ def _columns(rows: list[dict]) -> tuple[list[str], list[str]]:
     return sweep, figs
 
 
+def _quality_columns(rows: list[dict]) -> list[str]:
+    have = {c for r in rows for c in (r.get("quality") or {})}
+    cams = [f"camera.{n}" for n in CAMERA_PARAMETERS]
+    extra = sorted((c for c in have if c not in QUALITY_COLUMNS),
+                   key=lambda c: next((k for k, pre in enumerate(cams) if c == pre or c.startswith(pre + "_")), 99))
+    return [c for c in QUALITY_COLUMNS if c in have] + extra
+
+
 def flat_rows(rows: list[dict]) -> list[dict]:
     """Rows with the sweep's values and the figures as columns of their own (CSV, tables)."""
     sweep, figs = _columns(rows)
+    qual = _quality_columns(rows)
     out = []
     for r in rows:
         d = {c: r.get(c, "") for c in BASE_COLUMNS}
+        d.update({c: _blank((r.get("quality") or {}).get(c)) for c in qual})
         d.update({c: r.get("overrides", {}).get(c, "") for c in sweep})
         d.update({c: r.get("figures", {}).get(c, "") for c in figs})
         out.append(d)
@@ -353,13 +415,74 @@ def write_summary(out: Path, rows: list[dict], *, started: str = "", scheduler: 
     for d in flat:
         w.writerow({k: json.dumps(v) if isinstance(v, (list, dict)) else v for k, v in d.items()})
     _atomic(out / "summary.csv", buf.getvalue())
-    _atomic(out / "summary.md", _markdown(rows, started, scheduler, seconds, total))
-    _atomic(out / "summary.html", _html(rows, started, scheduler, seconds, total))
+    svg = _figure_files(out, rows) if rows else ""
+    _atomic(out / "summary.md", _markdown(rows, started, scheduler, seconds, total, plot=bool(svg)))
+    _atomic(out / "summary.html", _html(rows, started, scheduler, seconds, total, svg=svg))
     _atomic(out / BATCH_MARKER, json.dumps({
         "baarda_version": __version__, "kind": "batch", "started": started, "scheduler": scheduler,
         "seconds": round(seconds, 3), "runs": total if total is not None else len(rows),
         "done": len(rows), "ok": sum(r["status"] == "ok" for r in rows), "rows": rows},
         indent=1, default=str))
+
+
+def _blank(v: Any) -> Any:
+    return "" if v is None or (isinstance(v, float) and v != v) else v
+
+
+def quality_figure(rows: list[dict]):
+    """σ̂0 with its global-test verdict and the flagged / rejected counts across the runs (matplotlib
+    figure; None when no run has an adjustment)."""
+    q = [(r["name"], r.get("quality") or {}) for r in rows if r.get("status") == "ok" and r.get("quality")]
+    q = [(n, d) for n, d in q if d.get("sigma0_hat") is not None]
+    if not q:
+        return None
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    x = list(range(len(q)))
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(max(5.0, 0.6 * len(q) + 2), 5.0), sharex=True)
+    s0 = [float(d["sigma0_hat"]) for _, d in q]
+    bad = [str(d.get("global_test", "")).startswith("rejected") for _, d in q]
+    from matplotlib.ticker import MaxNLocator
+
+    a1.axhline(1.0, color="#888", lw=0.8)
+    for flag, colour, marker, label in ((False, "#1f4e9c", "o", "global test accepted"),
+                                        (True, "#c0392b", "s", "global test rejected")):
+        pick = [i for i, b in zip(x, bad) if b == flag]
+        if pick:
+            a1.scatter(pick, [s0[i] for i in pick], color=colour, marker=marker, label=label, zorder=3)
+    a1.set_ylabel(r"$\hat\sigma_0$ (a priori 1)")
+    a1.legend(fontsize=8, loc="best")
+    a1.set_title(r"$\hat\sigma_0$ and the global test per run", fontsize=10)
+    w = 0.4
+    a2.bar([i - w / 2 for i in x], [int(d.get("n_flagged") or 0) for _, d in q], w, label="flagged", color="#e69f00")
+    a2.bar([i + w / 2 for i in x], [int(d.get("n_rejected") or 0) for _, d in q], w, label="rejected", color="#c0392b")
+    a2.set_ylabel("observations")
+    a2.yaxis.set_major_locator(MaxNLocator(integer=True))
+    a2.legend(fontsize=8, loc="best")
+    a2.set_xticks(x, [n for n, _ in q], rotation=30, ha="right", fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def _figure_files(out: Path, rows: list[dict]) -> str:
+    """Write ``summary.png`` (the plot across runs) and return it as inline SVG for summary.html."""
+    fig = quality_figure(rows)
+    if fig is None:
+        (out / "summary.png").unlink(missing_ok=True)
+        return ""
+    import matplotlib.pyplot as plt
+
+    try:
+        fig.savefig(out / "summary.png", dpi=110)
+        buf = io.StringIO()
+        fig.savefig(buf, format="svg")
+    finally:
+        plt.close(fig)
+    svg = buf.getvalue()
+    return svg[svg.index("<svg"):]
 
 
 def _atomic(path: Path, text: str) -> None:
@@ -368,10 +491,13 @@ def _atomic(path: Path, text: str) -> None:
     tmp.replace(path)
 
 
-def _html(rows: list[dict], started: str, scheduler: str, seconds: float, total: int | None) -> str:
-    """The summary as one self-contained page: the same table, each run's name a link to its own
-    ``report.html`` (relative, inside the batch directory)."""
+def _html(rows: list[dict], started: str, scheduler: str, seconds: float, total: int | None, svg: str = "") -> str:
+    """The summary as one self-contained page: the same tables, each run's name a link to its own
+    ``report.html`` (relative, inside the batch directory), and the plot across runs (inline SVG)."""
     body = markdown_html(_markdown(rows, started, scheduler, seconds, total, links=True))
+    if svg:
+        body += "\n<figure>" + svg + "<figcaption>σ̂0 with the global test's verdict, and the flagged and rejected " \
+                "observations, per run (summary.png)</figcaption></figure>"
     return ("<!doctype html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>baarda batch summary</title>"
             "<style>body{font-family:system-ui,sans-serif;margin:2em;max-width:110em}"
             "table{border-collapse:collapse;font-size:90%}th,td{border:1px solid #bbb;padding:.25em .5em;"
@@ -380,7 +506,7 @@ def _html(rows: list[dict], started: str, scheduler: str, seconds: float, total:
 
 
 def _markdown(rows: list[dict], started: str, scheduler: str, seconds: float, total: int | None,
-              links: bool = False) -> str:
+              links: bool = False, plot: bool = False) -> str:
     ok = sum(r["status"] == "ok" for r in rows)
     n = total if total is not None else len(rows)
     sweep, figs = _columns(rows)
@@ -397,10 +523,51 @@ def _markdown(rows: list[dict], started: str, scheduler: str, seconds: float, to
                      f"{r['stages_ok']}/{r['stages']}", *(_cell(r["overrides"].get(c, "")) for c in sweep),
                      *(_cell(r["figures"].get(c, "")) for c in varying), _cell(r["message"])])
     lines += [markdown_table(head, body), ""]
+    lines += _quality_lines(rows, links)
+    if plot and not links:
+        lines += ["![σ̂0, global test, flagged and rejected per run](summary.png)", ""]
     if figs:
         lines += [f"Every stage's numeric summary figures are columns of summary.csv ({len(figs)} of them)"
                   + ("; those that differ between the runs are shown above." if varying else "."), ""]
     return "\n".join(lines)
+
+
+def _quality_lines(rows: list[dict], links: bool) -> list[str]:
+    """The runs compared: each run's main adjustment, σ̂0, global test (p), flagged / rejected, check-point
+    RMSE and camera, printed through :func:`~baarda.pipeline.units.fmt_q` as in each run's report."""
+    from .units import fmt_num, fmt_q
+
+    q = [(r, r.get("quality") or {}) for r in rows if r.get("quality")]
+    if not q:
+        return []
+    head = ["run", "adjustment", "σ̂0", "global test", "p", "flagged", "rejected", "check-point RMSE X / Y / Z",
+            "camera"]
+    body = []
+    for r, d in q:
+        name = f"[{_cell(r['name'])}](runs/{r['name']}/report.html)" if links and r["status"] == "ok" else r["name"]
+        unit = d.get("check_unit") or ""
+        check = (" / ".join(fmt_q(d.get(k), unit) if unit else fmt_num(d.get(k))
+                            for k in ("check_rmse_x", "check_rmse_y", "check_rmse_z"))
+                 + f" ({d.get('check_n')})") if d.get("check_rmse_x") is not None else "–"
+        cam = []
+        units = {v: k for k, v in _UNIT_SUFFIX.items() if v}
+        for k, v in d.items():
+            if k.startswith("camera.") and v is not None:
+                name_, _, suf = k[len("camera."):].partition("_")
+                if name_ != "c" and not v:        # parameters held at 0 (every value is in summary.csv)
+                    continue
+                unit_ = units.get(suf, "")
+                cam.append(f"{name_} {fmt_q(v, unit_)}" if unit_ in ("mm", "px", "µm", "m")
+                           else f"{name_} {fmt_num(v)} {unit_}".rstrip())
+        camtxt = (f"{d.get('camera')}" + (f" (1 of {d.get('n_cameras')})" if (d.get("n_cameras") or 1) > 1 else "")
+                  + (": " + ", ".join(cam) if cam else "")) if d.get("camera") else "–"
+        body.append([name, _cell(d.get("adjustment", "")), fmt_num(d.get("sigma0_hat")), _cell(d.get("global_test", "")),
+                     fmt_num(d.get("global_test_p"), 3), str(d.get("n_flagged", "")), str(d.get("n_rejected", "")),
+                     check, _cell(camtxt)])
+    return ["## Runs compared", "", markdown_table(head, body), "",
+            "σ̂0 is the variance factor of each run's main adjustment (its bundle, else its last adjustment); flagged: a "
+            "test exceeded its critical value, the observation kept; rejected: removed from the adjustment "
+            "(docs/statistics.md). Every value is a column of summary.csv.", ""]
 
 
 def _cell(v: Any) -> str:

@@ -15,7 +15,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 DECISION_COLUMNS = ("decision", "flagged", "T2d_flagged", "beyond_tolerance", "rejected")
-"""Columns of a stage's tables that mark rows as flagged or rejected (a word or a true value)."""
+"""Columns of a stage's tables that mark rows as flagged or rejected (a word or a true value); a table
+with ``decision`` is read by that column alone (the one verdict per row, docs/statistics.md)."""
 FLAG_WORDS = ("flagged", "rejected", "reject", "downweighted", "true")
 ID_COLUMNS = ("observation", "label", "point", "photo", "fiducial")
 
@@ -35,7 +36,8 @@ def flagged_rows(path: Path, most: int = 5) -> list[Flagged]:
     try:
         with path.open(newline="", encoding="utf-8") as fh:
             reader = csv.DictReader(fh)
-            cols = [c for c in (reader.fieldnames or []) if c in DECISION_COLUMNS]
+            names = reader.fieldnames or []
+            cols = ["decision"] if "decision" in names else [c for c in names if c in DECISION_COLUMNS]
             if not cols:
                 return []
             idcols = [c for c in ID_COLUMNS if c in (reader.fieldnames or [])][:2]
@@ -65,6 +67,27 @@ def _views(summary, stage: str) -> str:
 def _photo_views(summary, stage: str) -> list[str]:
     return [v.origin.removeprefix(f"/{stage}/") for v in summary.views
             if v.kind == "2D" and v.origin.startswith(f"/{stage}/")]
+
+
+def protocol_counts(st: dict) -> dict[str, int]:
+    """Flagged / rejected counts of a stage from its results.json protocol (``tests``): the numbers the
+    report prints, also when the tables were not written (``outputs = "summary"``)."""
+    s = st.get("summary") or {}
+    t = ((s.get("protocol") or {}).get("tests") or {}) if isinstance(s, dict) else {}
+    out = {"flagged": int(t.get("n_flagged") or 0) if not t.get("decided_by") else int(t.get("n_decided") or 0),
+           "rejected": int(t.get("n_rejected") or 0)}
+    return {k: v for k, v in out.items() if v}
+
+
+def global_verdict(st: dict) -> str:
+    """The stage's global test as one phrase ("accepted, p = 0.41"), "" when it has none."""
+    s = st.get("summary") or {}
+    g = ((s.get("protocol") or {}).get("global_test")) if isinstance(s, dict) else None
+    if not g:
+        return ""
+    verdict = g.get("verdict") or ("rejected" if g.get("rejected") else "accepted")
+    p = g.get("p_value")
+    return verdict + (f", p = {float(p):.3g}" if p is not None else "")
 
 
 def _finding(st: dict) -> str:
@@ -117,10 +140,18 @@ def print_review(run_dir: Path, results: dict, recordings: dict, *, entities: bo
     for s in stages:
         sid = s["id"]
         found = [f for t in sorted(run_dir.glob(f"{sid}_*.csv")) for f in flagged_rows(t)]
+        counts = protocol_counts(s)
+        if not found and counts:     # flagged, but no table says so (outputs = "summary")
+            any_flag = True
+            say(f"  {sid}: " + ", ".join(f"{n} {k}" for k, n in counts.items())
+                + " (results.json; no table with a decision column was written)")
+            say(f"    report.md, section '{sid}'")
+            continue
         if not found:
             continue
         any_flag = True
-        say(f"  {sid}:")
+        gv = global_verdict(s)
+        say(f"  {sid}:" + (f" global test {gv}" if gv else ""))
         for f in found:
             vals = ", ".join(f"{n} {v}" for v, n in sorted(f.by_value.items()))
             ex = ", ".join(f.examples) + (" …" if f.rows > len(f.examples) else "")

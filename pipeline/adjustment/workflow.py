@@ -480,7 +480,7 @@ def adjust_block(block: Block, config: BundleConfig | None = None, *,
     rejected_rows = np.zeros(2 * len(configured.observations), bool)
     gt = ds = joint = ids = before = None
     if snap is not None:
-        gt = stats.global_test(snap, alpha0=t.alpha0, beta0=t.beta0)
+        gt = stats.global_test(snap, alpha=t.alpha_global, alpha0=t.alpha0, beta0=t.beta0)
         if t.blunders == "ids":
             try:
                 ids = stats.iterated_data_snooping(res, snap, alpha0=t.alpha0, beta0=t.beta0,
@@ -492,14 +492,14 @@ def adjust_block(block: Block, config: BundleConfig | None = None, *,
                 rejected_rows[ids.removed] = True
                 res = result_of(ids.snapshot, res)
                 snap = res.snapshot
-                gt = stats.global_test(snap, alpha0=t.alpha0, beta0=t.beta0)
+                gt = stats.global_test(snap, alpha=t.alpha_global, alpha0=t.alpha0, beta0=t.beta0)
         ds = stats.data_snooping(snap, alpha0=t.alpha0, beta0=t.beta0)
         try:
             joint = stats.joint_test_2d(snap, alpha=t.alpha0)
         except ValueError:
             joint = None
-        if t.blunders != "none":
-            decision[np.unique(np.flatnonzero(ds.flagged) // 2)] = "flagged"
+        # flagged: the w-test exceeded K, the point is kept (whatever `blunders` says; docs/statistics.md)
+        decision[np.unique(np.flatnonzero(ds.flagged) // 2)] = "flagged"
         decision[np.unique(np.flatnonzero(rejected_rows) // 2)] = "rejected"
     d0 = _delta0(t.alpha0, t.beta0)
     external = own_effects(res, d0) if snap is not None and o.output.external_reliability else None

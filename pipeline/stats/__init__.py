@@ -6,7 +6,8 @@ Every adjustment reports a :class:`Snapshot`; the tests below work on snapshots 
 
 from baarda.pipeline.stats import tau_distribution
 from baarda.pipeline.stats.arrays import snapshot_from_arrays
-from baarda.pipeline.stats.baarda import (DataSnoopingResult, ExternalReliability, GlobalTestResult,
+from baarda.pipeline.stats.baarda import (ALPHA_GLOBAL, B_METHOD, global_critical, global_level,
+                                          DataSnoopingResult, ExternalReliability, GlobalTestResult,
                                    controlled, data_snooping, estimated_errors,
                                    external_reliability, global_test, mdb, w_test)
 from baarda.pipeline.stats.critical import (alpha_prime, critical_normal, delta0, global_power,
@@ -29,6 +30,7 @@ __all__ = [
     "Snapshot", "Refittable", "GroupBlocks", "snapshot_from_arrays",
     "LinearModel", "LinearAdjustment", "factor_normal_equations", "solve_normal",
     "delta0", "critical_normal", "alpha_prime", "global_power", "w_power",
+    "ALPHA_GLOBAL", "B_METHOD", "global_critical", "global_level",
     "GlobalTestResult", "global_test", "w_test", "estimated_errors", "mdb", "controlled",
     "DataSnoopingResult", "data_snooping", "ExternalReliability", "external_reliability",
     "tau_distribution", "tau_critical", "tau_critical_max",

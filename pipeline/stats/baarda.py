@@ -3,7 +3,8 @@
 References: Baarda (1968) *A testing procedure for use in geodetic networks*; Förstner (1985)
 *The reliability of block triangulation*; paper 000 eqs. (1)–(6).
 
-    global test   T = vᵀPv / (dof σ0²)  ~ F(dof, ∞) = χ²(dof)/dof        reject if T > F(1−α; dof, ∞)
+    global test   T = vᵀPv / (dof σ0²)  ~ F(dof, ∞) = χ²(dof)/dof        two-sided at α (5 %): reject if
+                  T < F(α/2; dof, ∞) or T > F(1−α/2; dof, ∞); B-method: T > F(1−α′; dof, ∞)
     w-test        w_i  = (Pv)_i / (σ0 √(PQvvP)_ii)  ~ N(0, 1)             (diag P: v_i / (σ0 √(Qvv)_ii))
     gross error   ∇̂l_i = (Pv)_i / (PQvvP)_ii                            (diag P: v_i / r_i)
     MDB           ∇0l_i = δ0 σ0 / √(PQvvP)_ii                              (diag P: σ_li δ0 / √r_i)
@@ -28,7 +29,7 @@ from baarda.pipeline.stats.critical import delta0 as _delta0
 from baarda.pipeline.stats.snapshot import Snapshot
 
 __all__ = [
-    "RowTestResult", "GlobalTestResult", "DataSnoopingResult", "ExternalReliability",
+    "RowTestResult", "GlobalTestResult", "B_METHOD", "ALPHA_GLOBAL", "global_level", "global_critical", "DataSnoopingResult", "ExternalReliability",
     "global_test", "w_test", "estimated_errors", "mdb", "data_snooping", "external_reliability",
     "controlled",
 ]
@@ -58,42 +59,119 @@ class RowTestResult:
         return None if i is None else {"row": i, "label": str(self.labels[i]), name: float(values[i])}
 
 
+#: the option value that selects Baarda's B-method level α′ for the global test (one-sided)
+B_METHOD = "B-method"
+#: the global test's conventional default level (two-sided χ² test of σ̂0²/σ0²)
+ALPHA_GLOBAL = 0.05
+
+
 @dataclass(frozen=True)
 class GlobalTestResult:
-    """Global (overall model) test, paper 000 eq. (1)."""
+    """Global (overall model) test of H0: E(σ̂0²) = σ0², paper 000 eq. (1).
+
+    ``method`` is ``"two-sided"`` (default: χ² test at level α, H0 rejected when σ̂0 is too large
+    *or* too small) or ``"B-method"`` (one-sided, level α′ from the B-method).  ``interval`` is the
+    (1 − α) acceptance interval of σ̂0 under H0 (in the unit of σ0): H0 is rejected exactly when
+    σ̂0 lies outside it.
+    """
 
     T: float  # vᵀPv / (dof σ0²) = σ̂0² / σ0²
-    critical: float  # F(1 − α; dof, ∞) = χ²(1 − α; dof) / dof
-    p_value: float
+    critical: float  # upper critical value F(1 − α/2; dof, ∞) (two-sided) or F(1 − α′; dof, ∞)
+    p_value: float  # two-sided: 2 min(P(F < T), P(F > T)); B-method: P(F > T)
     rejected: bool
     alpha: float
     dof: int
     vtpv: float
     sigma0: float
     sigma0_hat: float
+    critical_lower: float = 0.0  # F(α/2; dof, ∞) (two-sided); 0 for the one-sided B-method
+    method: str = "two-sided"
+    interval: tuple[float, float] = (float("nan"), float("nan"))  # σ̂0 acceptance interval
+
+    @property
+    def too_large(self) -> bool:
+        """σ̂0 above the upper bound (the model does not explain the residuals)."""
+        return bool(self.T > self.critical)
+
+    @property
+    def too_small(self) -> bool:
+        """σ̂0 below the lower bound (the a-priori σ are pessimistic); never for the B-method."""
+        return bool(self.T < self.critical_lower)
+
+    @property
+    def verdict(self) -> str:
+        """``"accepted"``, ``"rejected (σ̂0 too large)"``, ``"rejected (σ̂0 too small)"`` or
+        ``"not testable (dof 0)"``."""
+        if not np.isfinite(self.T):
+            return f"not testable (dof {self.dof})"
+        if self.too_large:
+            return "rejected (σ̂0 too large)"
+        if self.too_small:
+            return "rejected (σ̂0 too small)"
+        return "accepted"
+
+    @property
+    def level_text(self) -> str:
+        """How the level was chosen: "two-sided χ², α = 5 %" or "B-method, α′ = 0.694"."""
+        if self.method == B_METHOD:
+            return f"B-method (one-sided), α′ = {self.alpha:.3g}"
+        return f"two-sided χ², α = {100 * self.alpha:.3g} %"
 
     def summary(self) -> dict:
-        return {k: getattr(self, k) for k in self.__dataclass_fields__}
+        out = {k: getattr(self, k) for k in self.__dataclass_fields__}
+        out["interval"] = [float(x) for x in self.interval]
+        out["verdict"] = self.verdict
+        return out
 
 
-def global_test(snap: Snapshot, alpha: float | None = None, alpha0: float = 0.001,
+def global_level(alpha: float | str | None) -> float | str:
+    """Check a global-test level: a probability in (0, 1) or ``"B-method"`` (None = B-method, as
+    before the option existed)."""
+    if alpha is None or alpha == B_METHOD:
+        return B_METHOD
+    if isinstance(alpha, str):
+        raise ValueError(f"alpha_global must be a probability or {B_METHOD!r}, got {alpha!r}")
+    a = float(alpha)
+    if not 0.0 < a < 1.0:
+        raise ValueError(f"alpha_global must lie strictly between 0 and 1, got {a}")
+    return a
+
+
+def global_critical(alpha: float, dof: int) -> tuple[float, float]:
+    """Two-sided critical values of ``T = σ̂0²/σ0² ~ χ²(dof)/dof`` at level α:
+    ``(χ²(α/2; dof)/dof, χ²(1 − α/2; dof)/dof)``."""
+    return (float(stats.chi2.ppf(alpha / 2.0, dof) / dof), float(stats.chi2.isf(alpha / 2.0, dof) / dof))
+
+
+def global_test(snap: Snapshot, alpha: float | str | None = ALPHA_GLOBAL, alpha0: float = 0.001,
                 beta0: float = 0.80) -> GlobalTestResult:
-    """Global test ``T = vᵀPv/(dof σ0²)`` against ``F(1−α; dof, ∞)``.
+    """Global test of ``T = vᵀPv/(dof σ0²) = σ̂0²/σ0²``.
 
-    ``alpha=None`` uses the B-method level ``α′ = alpha_prime(alpha0, beta0, dof)``.
+    Default: two-sided χ² test at ``alpha`` (5 %): reject if ``T < χ²(α/2; dof)/dof`` or
+    ``T > χ²(1 − α/2; dof)/dof``; the p-value is two-sided.  ``alpha="B-method"`` (or None) uses
+    Baarda's level ``α′ = alpha_prime(alpha0, beta0, dof)`` one-sided (reject if
+    ``T > F(1 − α′; dof, ∞)``), the level iterated data snooping stops on (Kok 1984).
     With ``dof = 0`` nothing can be tested: T and the p-value are nan and ``rejected`` is False.
     """
+    level = global_level(alpha)
+    method = B_METHOD if level == B_METHOD else "two-sided"
     dof = int(snap.dof)
     if dof <= 0:
-        return GlobalTestResult(float("nan"), float("nan"), float("nan"), False,
-                                float("nan") if alpha is None else float(alpha), dof,
-                                float(snap.vtpv), snap.sigma0, float("nan"))
-    a = alpha_prime(alpha0, beta0, dof) if alpha is None else float(alpha)
+        nan = float("nan")
+        return GlobalTestResult(nan, nan, nan, False, nan if level == B_METHOD else float(level), dof,
+                                float(snap.vtpv), snap.sigma0, nan, nan, method, (nan, nan))
     T = float(snap.vtpv) / (dof * snap.sigma0 ** 2)
-    crit = float(stats.chi2.isf(a, dof) / dof)
-    p = float(stats.chi2.sf(T * dof, dof))
-    return GlobalTestResult(T, crit, p, bool(T > crit), a, dof, float(snap.vtpv), snap.sigma0,
-                            snap.sigma0_hat)
+    if level == B_METHOD:
+        a = alpha_prime(alpha0, beta0, dof)
+        lo, hi = 0.0, float(stats.chi2.isf(a, dof) / dof)
+        p = float(stats.chi2.sf(T * dof, dof))
+    else:
+        a = float(level)
+        lo, hi = global_critical(a, dof)
+        p = float(min(1.0, 2.0 * min(stats.chi2.cdf(T * dof, dof), stats.chi2.sf(T * dof, dof))))
+    s0 = float(snap.sigma0)
+    return GlobalTestResult(T, hi, p, bool(T > hi or T < lo), a, dof, float(snap.vtpv), s0,
+                            snap.sigma0_hat, lo, method, (s0 * float(np.sqrt(lo)), s0 * float(np.sqrt(hi))))
 
 
 def _ratio(num: np.ndarray, den: np.ndarray, mask: np.ndarray, fill: float) -> np.ndarray:

@@ -21,7 +21,7 @@ from typing import Literal
 import numpy as np
 
 from baarda.pipeline.options import check_bounds, option
-from baarda.pipeline.stats.baarda import data_snooping, global_test
+from baarda.pipeline.stats.baarda import ALPHA_GLOBAL, B_METHOD, data_snooping, global_level, global_test
 from baarda.pipeline.stats.critical import critical_normal
 from baarda.pipeline.stats.snapshot import Refittable, Snapshot
 
@@ -35,9 +35,9 @@ class IDSStep:
     iteration: int  # = c, rows removed before this adjustment
     dof: int
     T: float  # global test statistic
-    critical: float  # F(1 − α′; dof, ∞)
-    alpha_prime: float
-    global_rejected: bool
+    critical: float  # F(1 − α′; dof, ∞) (or F(1 − α/2; dof, ∞) with a fixed alpha_global)
+    alpha_prime: float  # the global test's level at this step (α′ of the B-method by default)
+    global_rejected: bool  # T above the critical value
     w_max: float  # largest |w| (signed value of that row)
     row: int | None
     label: str | None
@@ -62,24 +62,28 @@ class IDSResult:
 def iterated_data_snooping(model: Refittable, snap: Snapshot, alpha0: float = 0.001,
                            beta0: float = 0.80, critical: float | None = None,
                            max_iter: int | None = None, gate_first: bool = False,
-                           stop: Literal["global-test", "w-test"] = "global-test") -> IDSResult:
+                           stop: Literal["global-test", "w-test"] = "global-test",
+                           alpha_global: float | str = B_METHOD) -> IDSResult:
     """Kok's iterated data snooping starting from ``snap`` (an adjustment of ``model``); ``stop``
-    is the stopping rule (module docstring)."""
+    is the stopping rule (module docstring).  ``alpha_global`` is the level of the global test that
+    stops it: the B-method α′ (Kok, the default), or a fixed level α whose upper critical value
+    F(1 − α/2; dof, ∞) it then stops below (a σ̂0 that is too *small* is no reason to remove rows)."""
     if stop not in ("global-test", "w-test"):
         raise ValueError(f"stop must be 'global-test' or 'w-test', got {stop!r}")
     K = critical_normal(alpha0) if critical is None else float(critical)
+    level = global_level(alpha_global)
     active = np.array(snap.active, bool)
     current = snap
     removed: list[int] = []
     history: list[IDSStep] = []
     while True:
         c = len(removed)
-        gt = global_test(current, alpha0=alpha0, beta0=beta0)
+        gt = global_test(current, alpha=level, alpha0=alpha0, beta0=beta0)
         ds = data_snooping(current, alpha0, beta0, K)
         i = ds.largest
         wmax = float(ds.w[i]) if i is not None else float("nan")
         go = False
-        if stop == "global-test" and (c > 0 or gate_first) and not gt.rejected:
+        if stop == "global-test" and (c > 0 or gate_first) and not gt.too_large:
             reason = f"global test accepts (T = {gt.T:.4g} <= {gt.critical:.4g}, dof {gt.dof})"
         elif i is None or abs(wmax) <= K:
             reason = f"no |w| above K = {K:.4g}"
@@ -89,7 +93,7 @@ def iterated_data_snooping(model: Refittable, snap: Snapshot, alpha0: float = 0.
             reason = "removal would leave no redundancy"
         else:
             go, reason = True, ""
-        history.append(IDSStep(c, gt.dof, gt.T, gt.critical, gt.alpha, bool(gt.rejected), wmax,
+        history.append(IDSStep(c, gt.dof, gt.T, gt.critical, gt.alpha, bool(gt.too_large), wmax,
                                i, None if i is None else str(current.labels[i]), go))
         if not go:
             break
@@ -111,6 +115,10 @@ class SnoopingLevels:
     alpha0: float = option(0.001, "significance level of the w-test, i.e. of data snooping (two-sided, per "
                                   "observation; K = Φ⁻¹(1 − α0/2))", gt=0.0, lt=1.0)
     beta0: float = option(0.80, "power β0 (δ0 for the MDBs; the B-method α′ of IDS's global test)", gt=0.0, lt=1.0)
+    alpha_global: float | Literal["B-method"] = option(
+        ALPHA_GLOBAL, "level of the global test of σ̂0²/σ0² reported as the verdict: two-sided χ² at this α "
+                      "(default 5 %), or \"B-method\" for Baarda's one-sided α′ (from alpha0, beta0, dof)",
+        gt=0.0, lt=1.0)
 
     def __post_init__(self):
         check_bounds(self)

@@ -20,10 +20,17 @@ def protocol(report, art, options) -> dict | None:
     unit = UNITS.get(art.name, "")
     rows = np.asarray(art.obs_rows, int)
     p = snapshot_protocol(art.snapshot, name=art.name, alpha0=options.alpha0, beta0=options.beta0, unit=unit,
+                          alpha_global=options.alpha_global,
                           coordinate_rows=rows[:, 1] if len(rows) == art.snapshot.n else None)
     decisive = report.methods[report.decide_by]
-    p["tests"]["n_rejected"] = len(decisive.rejected_labels)
-    p["tests"]["rejected"] = [str(x) for x in decisive.rejected_labels[:MOST_LABELS]]
+    labels = [str(x) for x in decisive.rejected_labels[:MOST_LABELS]]
+    if report.action == "remove":      # rejected = taken out of the block
+        p["tests"]["n_rejected"] = len(decisive.rejected_labels)
+        p["tests"]["rejected"] = labels
+    else:                              # action = flag: the method's rejections are flags, the block is unchanged
+        p["tests"]["n_decided"] = len(decisive.rejected_labels)
+        p["tests"]["decided"] = labels
+    p["tests"]["action"] = report.action
     p["tests"]["decided_by"] = report.decide_by
     return p
 

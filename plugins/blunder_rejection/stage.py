@@ -255,6 +255,15 @@ def _table(report: BlunderReport, art: AdjustmentArtefact, block, stats) -> Tabl
             "active": [bool(a) for a in snap.active]}
     for k in ("v", "r", "w", "tau", "nabla_hat", "mdb"):          # full precision; NaN: an empty cell
         cols[k] = np.asarray(stats[k], dtype=float)
+    # one verdict per row, the decisive method's (the summary's): rejected = taken out of the block
+    # (action = remove), flagged = its test exceeded the critical value and the row is kept (action = flag);
+    # every method's own decision is in its column
+    decided = set(int(i) for i in report.acted_rows)
+    acted = set(int(i) for i in report.acted_rows) if report.action == "remove" else set()
+    if acted:   # a rejected x or y takes the whole image point out of the block
+        obs = np.asarray(art.obs_rows, int)[:, 0]
+        acted |= set(np.flatnonzero(np.isin(obs, report.acted_observations) & (obs >= 0)).tolist())
+    cols["decision"] = ["rejected" if i in acted else ("flagged" if i in decided else "ok") for i in range(n)]
     for m, r in report.methods.items():
         key = m.replace("-", "_")
         by_row = {d.row: d for d in r.decisions}

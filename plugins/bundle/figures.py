@@ -13,6 +13,8 @@ from baarda.pipeline.camera import get_ap_model
 
 from baarda.pipeline.plots import map_ticks, redundancy_numbers, role_points, w_distribution
 
+from baarda.pipeline.units import fmt_q
+
 from .protocol import image_units
 
 MAX_DISTORTION_CAMERAS = 4
@@ -53,8 +55,11 @@ def residual_vectors(res, decision=None, images: dict | None = None):
     g = scale if unit == "px" else 1.0          # format coordinates: px for a pixel source, else mm
     act = np.asarray(res.obs_active, bool)
     v = np.asarray(res.residuals, float)
-    ss = np.bincount(obs.photo[act], weights=(v[act] ** 2).sum(axis=1), minlength=len(block.photos))
-    cnt = np.bincount(obs.photo[act], minlength=len(block.photos))
+    # the RMS per photo of the protocol and bundle_photos: coordinates in the adjustment (a rejected
+    # coordinate is drawn, red, but not counted)
+    used = np.asarray(res.row_active, bool) & act[:, None]
+    ss = np.bincount(obs.photo, weights=np.where(used, v, 0.0).__pow__(2).sum(axis=1), minlength=len(block.photos))
+    cnt = np.bincount(obs.photo, weights=used.sum(axis=1), minlength=len(block.photos)) / 2.0
     photos = np.flatnonzero(cnt)
     r = np.sqrt(ss[photos] / cnt[photos])
     photos = photos[np.argsort(-r, kind="stable")][:MAX_PHOTOS]
@@ -85,8 +90,9 @@ def residual_vectors(res, decision=None, images: dict | None = None):
                       zorder=0)
         if fw > 0:
             ax.add_patch(plt.Rectangle((-fw / 2, -fh / 2), fw, fh, fill=False, ec="#999", lw=0.8))
-        rm = np.sqrt(np.mean(v[m] ** 2)) * scale
-        ax.set_title(f"photo {block.photos.ids[p]}: RMS {rm:.3g} {unit}", fontsize=9)
+        um = used[obs.photo == p]
+        rm = np.sqrt(np.mean(v[obs.photo == p][um] ** 2)) * scale if um.any() else float("nan")
+        ax.set_title(f"photo {block.photos.ids[p]}: RMS {fmt_q(rm, unit)}", fontsize=9)
         ax.set_aspect("equal")
         ax.tick_params(labelsize=7)
     for ax in axes.ravel()[n:]:

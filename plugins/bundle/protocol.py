@@ -103,7 +103,8 @@ def _rms_rows(v, act, keys, ids) -> list[dict]:
             for k in np.flatnonzero(npt)]
 
 
-def bundle_protocol(res, rejections=None, *, alpha0: float, beta0: float) -> dict:
+def bundle_protocol(res, rejections=None, *, alpha0: float, beta0: float,
+                    alpha_global: float | str = 0.05) -> dict:
     """The protocol dict of a bundle result (see :mod:`baarda.pipeline.protocol` for the keys); ``rejections``: the
     iterated data snooping that rejected rows (its count and labels), if any."""
     block = res.block_in
@@ -112,6 +113,7 @@ def bundle_protocol(res, rejections=None, *, alpha0: float, beta0: float) -> dic
     orows = res.obs_rows()
     if snap is not None:
         out = snapshot_protocol(snap, name="bundle", alpha0=alpha0, beta0=beta0, unit=unit, scale=scale,
+                                alpha_global=alpha_global,
                                 coordinate_rows=orows[:, 1] if len(orows) == snap.n else None)
     else:
         out = {"adjustment": "bundle", "sigma0": float(res.sigma0), "sigma0_hat": float(res.sigma0_hat),
@@ -170,7 +172,8 @@ def bundle_protocol(res, rejections=None, *, alpha0: float, beta0: float) -> dic
         rows = np.flatnonzero(given.any(axis=1))
         k = rows[np.argmax(np.nanmax(np.abs(d[rows]), axis=1))]
         out["control"] = {"n": int(rows.size), "unit": ou, "rms": [rms(d[:, t]) for t in range(3)],
-                          "max_abs": float(np.nanmax(np.abs(d[k]))), "max_id": str(pts.ids[k])}
+                          "max_abs": float(np.nanmax(np.abs(d[k]))), "max_id": str(pts.ids[k]),
+                          "max_3d": float(np.sqrt(np.nansum(d[k] ** 2)))}
     n_fixed = int(((pts.sigma == 0).all(axis=1) & res.point_used).sum())
     if n_fixed:
         out.setdefault("control", {"unit": ou})["n_fixed"] = n_fixed
@@ -287,7 +290,8 @@ def protocol_lines(p: dict) -> list[str]:
     c = p.get("control")
     if c and c.get("n"):
         L.append(f"- control ({c['n']} weighted points, adjusted − given, {c['unit']}): RMS "
-                 + " / ".join(_f(x) for x in c["rms"]) + f"; largest {_f(c['max_abs'])} at {c['max_id']}")
+                 + " / ".join(_f(x) for x in c["rms"]) + f"; largest coordinate difference {_f(c['max_abs'])} at {c['max_id']}"
+                 + (f" (its 3-D length {_f(c['max_3d'])})" if "max_3d" in c else ""))
     if c and c.get("n_fixed"):
         L.append(f"- fixed control points: {c['n_fixed']}")
     ch = p.get("check")
@@ -304,7 +308,9 @@ def protocol_lines(p: dict) -> list[str]:
     if t:
         L.append(f"- w-test |w| > {_f(t['critical_w'])}: {t['n_flagged']} flagged"
                  + (f" ({', '.join(t['flagged'])}{' …' if t['n_flagged'] > len(t['flagged']) else ''})" if t["flagged"] else "")
-                 + (f"; rejected {t['n_rejected']}" if t.get("n_rejected") else ""))
+                 + (f"; rejected {t['n_rejected']}" if t.get("n_rejected") else "")
+                 + (f"; {t['decided_by']} flags {t['n_decided']} ({', '.join(t['decided'])}; action = flag: kept, "
+                    "not rejected)" if t.get("n_decided") else ""))
     cv = [c for c in p.get("cameras", []) if c.get("opencv")]
     if cv:
         names = [x["name"] for x in cv[0]["opencv"]]

@@ -13,6 +13,7 @@ from scipy import stats as sps
 from baarda.pipeline.api import Block, TableData, stats
 from baarda.pipeline.adjustment import EO_NAMES, BundleResult
 from baarda.pipeline.protocol import MOST_LABELS
+from baarda.pipeline.protocol import global_test_protocol, global_test_text
 from baarda.pipeline.report import markdown_table
 
 from . import external as bundle_external
@@ -73,7 +74,8 @@ def summary(rep) -> dict:
     if rep.selection is not None:
         out["ap_selection"] = rep.selection.summary()
     out["sigma0_um_equivalent"] = _sigma0_um(res)
-    out["protocol"] = bundle_protocol(res, rep.ids, alpha0=o.tests.alpha0, beta0=o.tests.beta0)
+    out["protocol"] = bundle_protocol(res, rep.ids, alpha0=o.tests.alpha0, beta0=o.tests.beta0,
+                                      alpha_global=o.tests.alpha_global)
     if isinstance(out.get("check_points"), dict) and out["check_points"].get("n"):
         out["check_points"]["unit"] = res.block_in.object_unit
     flagged = out.get("data_snooping", {}).get("n_flagged")
@@ -115,8 +117,7 @@ def report_text(rep, work=None, protocol=None) -> str:
              f"σ̂0 = {_f(res.sigma0_hat)} (≈ {_sigma0_equivalent(res, protocol)})")
     gt = rep.global_test
     if gt is not None:
-        L.append(f"- global test: T = σ̂0²/σ0² = {_f(gt.T)} vs F-critical {_f(gt.critical)} "
-                 f"(α′ = {gt.alpha:.3g}): {'REJECTED' if gt.rejected else 'accepted'}")
+        L.append(f"- global test: {global_test_text(global_test_protocol(gt))}")
     ds = rep.snooping
     if ds is not None:
         L.append(f"- data snooping: |w| > {ds.critical:.3f}: {int(ds.flagged.sum())} coordinate(s) flagged"
@@ -191,7 +192,7 @@ def report_text(rep, work=None, protocol=None) -> str:
     if sel is not None:
         L += ["", "### Additional-parameter selection", "", sel.markdown()]
     if rep.vc is not None:
-        L += ["", "### Variance components", ""] + _vc_lines(rep.vc, o.variance_components)
+        L += ["", "### Variance components", ""] + _vc_lines(rep.vc, o.variance_components, rep.global_test)
     L += bundle_external.report_entries(rep, block)
     text = "\n".join(L)
     if rep.gnss is not None:          # the GNSS antennas' section
@@ -248,9 +249,10 @@ def _robust_columns(rob, k: int) -> dict:
     return {"robust_wx": w[:, 0], "robust_wy": w[:, 1]}
 
 
-def _vc_lines(vc, o) -> list[str]:
-    """``o``: the config's variance_components group."""
-    """Each group's factor on its a-priori σ, σ(f), r_g and the test of f = 1."""
+def _vc_lines(vc, o, gt=None) -> list[str]:
+    """Each group's factor on its a-priori σ, σ(f), r_g and the test of f = 1; ``o``: the config's
+    variance_components group; ``gt``: the global test, whose verdict the groups' must not contradict
+    without the reason beside them."""
     first = vc.first
     L = [f"Förstner's estimate, iterated ({vc.iterations} re-adjustment(s), "
          f"{'converged' if vc.converged else 'NOT converged'}); image groups per {o.groups}. "
@@ -267,7 +269,34 @@ def _vc_lines(vc, o) -> list[str]:
                      f"{g.T:.4g} | {g.p_value:.3g} | {'rejected' if g.rejected else 'accepted'} |")
         else:
             L.append(f"| {g.name} | {g.n} | {g.redundancy:.3g} | 1 (not estimable: r < 1) | – | – | – | – |")
+    L.extend(_vc_vs_global(vc, o, gt))
     return L
+
+
+def _vc_vs_global(vc, o, gt) -> list[str]:
+    """One verdict per hypothesis: the global test (H0: σ̂0 = σ0, all groups pooled) beside the groups'
+    tests of f = 1, with the reason when they differ."""
+    if gt is None or not np.isfinite(gt.T):
+        return []
+    bad = [g.name for g in vc.groups if g.estimable and g.rejected]
+    est = [g for g in vc.groups if g.estimable]
+    line = f"Global test of the adjustment above: {gt.verdict}"
+    if o.mode == "apply":
+        why = ("it tests the re-weighted adjustment, whose σ̂0 the estimated factors bring to 1 by construction; "
+               "the table tests each group's a-priori σ" if bad and not gt.rejected else "")
+    elif bad and not gt.rejected:
+        why = ("it pools every group (σ̂0² ≈ Σ r_g f_g² / Σ r_g), so groups whose σ are too large and too small "
+               "compensate; the table tests each group's own a-priori σ")
+    elif gt.rejected and not bad and est:
+        why = ("the pooled test has the redundancy of all groups and detects a deviation that no single group's "
+               "smaller redundancy does")
+    else:
+        why = ""
+    if bad:
+        line += f"; f = 1 rejected for {', '.join(bad)}"
+    elif est:
+        line += "; f = 1 accepted for every group"
+    return ["", line + (f" — they differ because {why}." if why else ".")]
 
 
 MAX_CORRELATION_TABLES = 4

@@ -7,6 +7,7 @@ import numpy as np
 
 from baarda.pipeline.api import TableData
 from baarda.pipeline.imodels import IndependentModelResult
+from baarda.pipeline.protocol import global_test_text
 from baarda.pipeline.report import markdown_table
 
 from . import reliability as im_reliability
@@ -183,8 +184,7 @@ def report(result: IndependentModelResult, stats: dict, s: dict, block) -> str:
     b = s["block"]
     gt = b["global_test"]
     lines += [f"Block: σ̂0 = **{b['sigma0_hat']:.3f}**, dof {b['dof']}, {b['iterations']} iteration(s); "
-              f"global test T = {gt['T']:.3f} vs {gt['critical']:.3f} → "
-              f"{'rejected' if gt['rejected'] else 'accepted'}; "
+              f"global test {global_test_text(gt)}; "
               f"{b['n_flagged']} coordinate(s) flagged by data snooping"
               + (f": {', '.join(b['flagged'][:10])}{' …' if len(b['flagged']) > 10 else ''}" if b["flagged"] else "")
               + ".", ""]

@@ -162,11 +162,11 @@ def _statistics(result: IndependentModelResult, o) -> dict:
     per_model = []
     for ro in result.relative:
         ds = data_snooping(ro.snapshot, o.alpha0, o.beta0, o.critical_w)
-        gt = global_test(ro.snapshot, alpha0=o.alpha0, beta0=o.beta0)
+        gt = global_test(ro.snapshot, alpha=o.alpha_global, alpha0=o.alpha0, beta0=o.beta0)
         per_model.append({"snooping": ds, "global": gt})
     blk = result.block
     ds = data_snooping(blk.snapshot, o.alpha0, o.beta0, o.critical_w)
-    gt = global_test(blk.snapshot, alpha0=o.alpha0, beta0=o.beta0)
+    gt = global_test(blk.snapshot, alpha=o.alpha_global, alpha0=o.alpha0, beta0=o.beta0)
     return {"models": per_model, "block": {"snooping": ds, "global": gt}}
 
 def _auto_scale(vectors: np.ndarray, extent: float, arrow_scale) -> float:

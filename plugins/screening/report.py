@@ -9,6 +9,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from baarda.pipeline.api import AdjustmentArtefact, TableData
+from baarda.pipeline.protocol import global_test_protocol, global_test_text
+from baarda.pipeline.units import fmt_q
 
 if TYPE_CHECKING:
     from .stage import PairResult, ScreeningArtefact
@@ -68,6 +70,8 @@ def summary(art: ScreeningArtefact, flagged_obs, block, options) -> dict:
             "pair": [p.left, p.right], "points": len(s.point_ids), "dof": s.adjustment.dof,
             "sigma0": s.settings.sigma0, "sigma0_hat": _f(s.adjustment.sigma0_hat, 4),
             "global_test": {"T": _f(s.global_.T, 4), "critical": _f(s.global_.critical, 4),
+                            "critical_lower": _f(s.global_.critical_lower, 4), "p_value": s.global_.p_value,
+                            "method": s.global_.method, "verdict": s.global_.verdict,
                             "alpha": s.global_.alpha, "rejected": s.global_.rejected},
             "K": _f(s.snooping.critical, 4), "tau_critical": _f(s.pope.critical, 4),
             "most_suspicious": None if i is None else {
@@ -106,9 +110,8 @@ def report(art: ScreeningArtefact, block, options, flagged_obs) -> str:
         out += [f"**Pair {p.left} → {p.right}**: {len(s.point_ids)} common points, dof {s.adjustment.dof}; "
                 f"scale {math.hypot(a, b):.6f}, rotation {math.degrees(math.atan2(b, a)):.4f}°, "
                 f"shift ({tx:.3f}, {ty:.3f}) mm.", "",
-                f"- σ̂0 = {s.adjustment.sigma0_hat:.4f} mm against σ0 = {s.settings.sigma0:g} mm: global test "
-                f"T = {g.T:.3f} vs F = {g.critical:.3f} (α′ = {g.alpha:.3g}) → "
-                f"{'rejected' if g.rejected else 'accepted'}.",
+                f"- σ̂0 = {fmt_q(s.adjustment.sigma0_hat, 'mm')} against σ0 = {fmt_q(s.settings.sigma0, 'mm')}: "
+                f"global test {global_test_text(global_test_protocol(g), 'mm')}.",
                 f"- Data snooping (σ0 = {s.settings.sigma0:g} mm, K = {s.snooping.critical:.2f}): "
                 f"{', '.join(s.snooping.flagged_labels) or 'nothing'}.",
                 f"- Pope τ (σ̂0, τc = {s.pope.critical:.3f} at α = {s.pope.alpha:g}, dof {s.pope.dof}): "
@@ -167,10 +170,12 @@ def _swap_finding(p: PairResult) -> str:
             f"points.{cleared}")
 
 
-def tables(art: ScreeningArtefact) -> dict:
+def tables(art: ScreeningArtefact, action: str = "flag") -> dict:
+    """The observations table; its ``decision`` is ``rejected`` for flagged rows that ``action = "remove"``
+    took out of the block, ``flagged`` for those kept, else ``ok`` (``flagged`` keeps the boolean)."""
     cols = {k: [] for k in ("pair", "point", "coord", "label", "left", "right_observed", "v", "r", "w",
                             "tau", "nabla_hat", "mdb", "data_snooping", "pope", "threshold", "format",
-                            "swap_with", "flagged")}
+                            "swap_with", "flagged", "decision")}
     for p in art.pairs:
         s = p.screening
         flags = s.method_flags()
@@ -191,6 +196,7 @@ def tables(art: ScreeningArtefact) -> dict:
                 cols[col].append("reject" if flags[m][k] else "accept")
             cols["swap_with"].append(partner[q])
             cols["flagged"].append(bool(s.flagged[k]))
+            cols["decision"].append(("rejected" if action == "remove" else "flagged") if s.flagged[k] else "ok")
     return {"observations": TableData(cols, "Helmert screening: every right-image coordinate with residual "
                                             "(observed − computed, mm), redundancy number, w, τ, ∇̂, MDB and "
                                             "the decision of each check", detail=True)}

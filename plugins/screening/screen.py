@@ -32,6 +32,7 @@ class ScreeningSettings:
     format_margin_mm: float = 0.0
     detect_swaps: bool = True
     flag_by: tuple[str, ...] = ("pope", "threshold", "format", "swap")
+    alpha_global: float | str = 0.05   # global test: two-sided χ² at this α, or "B-method"
 
 
 @dataclass(frozen=True, eq=False)
@@ -96,7 +97,7 @@ def screen_pair(xy_left, xy_right, point_ids, settings: ScreeningSettings, *,
     model = helmert_model(xy_left, xy_right, sigma0=settings.sigma0, labels=labels)
     adj = model.adjust()
     snap = adj.snapshot
-    gt = global_test(snap, alpha0=settings.alpha0, beta0=settings.beta0)
+    gt = global_test(snap, alpha=settings.alpha_global, alpha0=settings.alpha0, beta0=settings.beta0)
     ds = data_snooping(snap, settings.alpha0, settings.beta0)
     pt = pope_test(snap, settings.alpha_pope)
     notes = []

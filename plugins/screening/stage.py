@@ -63,7 +63,7 @@ class ScreeningOptions(stats.SnoopingLevels):
     def settings(self) -> ScreeningSettings:
         return ScreeningSettings(self.sigma0_mm, self.alpha0, self.beta0, self.alpha_pope,
                                  self.threshold_mm, self.format_margin_mm, self.detect_swaps,
-                                 tuple(self.flag_by))
+                                 tuple(self.flag_by), self.alpha_global)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -165,7 +165,7 @@ class HelmertScreening:
             artefacts={"screening": artefact, "block": out_block, "adjustment": adjustment},
             summary=screening_report.summary(artefact, flagged_obs, block, options) | screening_report.robust_summary(robust),
             report=screening_report.report(artefact, block, options, flagged_obs) + screening_report.robust_report(robust, adjustment, block),
-            tables=screening_report.tables(artefact) | screening_report.robust_tables(robust, adjustment, block),
+            tables=screening_report.tables(artefact, options.action) | screening_report.robust_tables(robust, adjustment, block),
             data={"artefact": artefact, "block": block, "arrow_scale": options.arrow_scale},
         )
 

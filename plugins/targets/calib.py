@@ -56,7 +56,34 @@ def resect(object_xyz: np.ndarray, uv: np.ndarray, f_px: float, size: tuple[int,
     return pose_from_cv(R, tvec.ravel())
 
 
-def opencv_calibration(block, camera: int = 0, flags: int = 0, fix_aspect: bool = False) -> dict:
+def opencv_flags(free) -> tuple[int, bool, list[str]]:
+    """``cv2.calibrateCamera`` flags that free the same parameters as baarda's ``free`` interior
+    parameters (names of ``c, xp, yp`` and the brown APs ``K1 K2 K3 P1 P2 B1 B2``): a like-for-like
+    reference.  Returns ``(flags, fix_aspect, notes)``; fx = fy (``fix_aspect``) unless ``B1`` (affinity)
+    is free; ``notes`` say what OpenCV cannot match (one of P1/P2 alone, B2 shear)."""
+    import cv2
+
+    free = set(free)
+    flags, notes = 0, []
+    if "c" not in free:
+        flags |= cv2.CALIB_FIX_FOCAL_LENGTH
+    if "xp" not in free or "yp" not in free:
+        flags |= cv2.CALIB_FIX_PRINCIPAL_POINT
+        if ("xp" in free) != ("yp" in free):
+            notes.append("OpenCV fixes both coordinates of the principal point or neither: both fixed")
+    for k, f in (("K1", cv2.CALIB_FIX_K1), ("K2", cv2.CALIB_FIX_K2), ("K3", cv2.CALIB_FIX_K3)):
+        if k not in free:
+            flags |= f
+    if "P1" not in free and "P2" not in free:
+        flags |= cv2.CALIB_ZERO_TANGENT_DIST
+    elif ("P1" in free) != ("P2" in free):
+        notes.append("OpenCV frees both tangential terms or neither: both free")
+    if "B2" in free:
+        notes.append("OpenCV has no shear (B2): held at 0")
+    return flags, "B1" not in free, notes
+
+
+def opencv_calibration(block, camera: int = 0, flags: int = 0, fix_aspect: bool = False, free=None) -> dict:
     """``cv2.calibrateCamera`` on the control-point observations of one camera of a block.
 
     Uses every photo of the camera with ≥ 6 observations of points with known coordinates (board
@@ -65,7 +92,11 @@ def opencv_calibration(block, camera: int = 0, flags: int = 0, fix_aspect: bool 
     RMS over all x and y residual *pairs*, i.e. √(Σ(vx² + vy²)/n_points)), the views used, and
     the same camera in baarda's terms (``c, xp, yp`` mm and brown ``ap``, exact when fx = fy).
     ``fix_aspect`` adds ``CALIB_FIX_ASPECT_RATIO`` with fx/fy = 1: then OpenCV's camera model is
-    exactly baarda's brown model with B1 = B2 = 0.
+    exactly baarda's brown model with B1 = B2 = 0.  ``free`` (baarda's free interior parameters) sets
+    ``flags`` and ``fix_aspect`` by :func:`opencv_flags` instead, so that both estimate the same
+    parameters; parameters held fixed keep the block camera's value (``CALIB_USE_INTRINSIC_GUESS``).
+    OpenCV runs single-threaded here (``cv2.setNumThreads(1)``), which makes the reference
+    reproducible.
     """
     import cv2
 
@@ -84,11 +115,26 @@ def opencv_calibration(block, camera: int = 0, flags: int = 0, fix_aspect: bool 
     if len(obj) < 2:
         raise ValueError(f"camera {cams.ids[camera]}: cv2.calibrateCamera needs ≥ 2 views with ≥ 6 control "
                          f"observations, have {len(obj)}")
-    K0 = None
+    notes: list[str] = []
+    if free is not None:
+        flags, fix_aspect, notes = opencv_flags(free)
+    K0, D0 = None, None
     if fix_aspect:
         flags |= cv2.CALIB_FIX_ASPECT_RATIO
         K0 = np.eye(3)                      # only the ratio fx/fy = 1 is taken from it
-    rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(obj, img, size, K0, None, flags=flags)
+    if flags & (cv2.CALIB_FIX_FOCAL_LENGTH | cv2.CALIB_FIX_PRINCIPAL_POINT):
+        # held parameters keep the block camera's values: focal length and principal point as guesses
+        f = float(cams.c[camera]) / pitch
+        cx, cy = pixels_from_mm([float(cams.xp[camera]), float(cams.yp[camera])], size, pitch, "opencv")
+        K0 = np.array([[f, 0, cx], [0, f, cy], [0, 0, 1]], float)
+        D0 = np.zeros(5)
+        flags |= cv2.CALIB_USE_INTRINSIC_GUESS
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(obj, img, size, K0, D0, flags=flags)
+    finally:
+        cv2.setNumThreads(threads)
     dist = np.asarray(dist, float).ravel()
     dist = np.concatenate([dist, np.zeros(max(0, 5 - dist.size))])
     k1, k2, p1, p2, k3 = dist[:5]
@@ -98,4 +144,14 @@ def opencv_calibration(block, camera: int = 0, flags: int = 0, fix_aspect: bool 
     return {"fx": float(K[0, 0]), "fy": float(K[1, 1]), "cx": float(K[0, 2]), "cy": float(K[1, 2]),
             "dist": dist[:5].tolist(), "rms_px": float(rms), "views": used, "n_points": int(n_points),
             "c_mm": float(c), "xp_mm": float(xp), "yp_mm": float(yp), "brown": ap.tolist(),
+            "flags": _flag_names(flags), "notes": notes,
             "rvecs": [np.asarray(r).ravel() for r in rvecs], "tvecs": [np.asarray(t).ravel() for t in tvecs]}
+
+
+def _flag_names(flags: int) -> list[str]:
+    """The ``CALIB_*`` names set in ``flags`` (for the report)."""
+    import cv2
+
+    names = ("CALIB_USE_INTRINSIC_GUESS", "CALIB_FIX_ASPECT_RATIO", "CALIB_FIX_FOCAL_LENGTH",
+             "CALIB_FIX_PRINCIPAL_POINT", "CALIB_ZERO_TANGENT_DIST", "CALIB_FIX_K1", "CALIB_FIX_K2", "CALIB_FIX_K3")
+    return [n for n in names if flags & int(getattr(cv2, n))]

@@ -34,9 +34,13 @@ def detection_report(options, files, rows, block, ref, sigma_px) -> str:
         lines.append(f"| {Path(r['file']).name} | {r['camera']} | {r['points']} | {r['status']} | {r['message']} |")
     for cid, cal in ref.items():
         d = ", ".join(f"{v:.5g}" for v in cal["dist"])
+        flags = cal.get("flags")
         lines += ["", f"cv2.calibrateCamera reference, camera {cid} ({len(cal['views'])} views): fx {cal['fx']:.3f}, "
                       f"fy {cal['fy']:.3f}, cx {cal['cx']:.3f}, cy {cal['cy']:.3f} px; (k1, k2, p1, p2, k3) = ({d}); "
-                      f"RMS {cal['rms_px']:.4f} px."]
+                      f"RMS {cal['rms_px']:.4f} px"
+                      + (f"; flags {' | '.join(flags)} — the parameters baarda holds fixed (unknowns = "
+                         f"{', '.join(options.unknowns)})" if flags is not None else "")
+                      + "".join(f"; {n}" for n in cal.get("notes") or []) + "."]
     return "\n".join(lines)
 
 

@@ -273,7 +273,8 @@ class TargetDetection(Stage):
         if options.opencv_reference and geom.has_geometry:
             for k, cid in enumerate(block.cameras.ids):
                 try:
-                    cal = opencv_calibration(block, k)
+                    # like for like: OpenCV frees the parameters this stage frees (opencv_flags)
+                    cal = opencv_calibration(block, k, free=options.unknowns)
                 except ValueError as e:
                     ctx.warn(str(e))
                     continue

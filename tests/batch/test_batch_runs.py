@@ -64,8 +64,21 @@ def test_cli_batch_of_three_projects_one_broken(tmp_path, capsys):
         table = list(csv.DictReader(f))
     assert [t["status"] for t in table] == ["ok", "ok", "failed"]
     assert table[0]["source.observations"] == "18"          # a stage's summary figure as a column
+    # the runs compared: each run's σ̂0, global test and counts are its own results.json's and its tables'
+    for t in table[:2]:
+        res = json.loads((out / "runs" / t["name"] / "results.json").read_text())
+        p = next(s for s in res["stages"] if s["id"] == "blunders")["summary"]["protocol"]
+        assert t["adjustment"] == "blunders" and float(t["sigma0_hat"]) == p["sigma0_hat"]
+        assert t["global_test"] == p["global_test"]["verdict"] and float(t["global_test_p"]) == p["global_test"]["p_value"]
+        with open(out / "runs" / t["name"] / "blunders_observations.csv", newline="", encoding="utf-8") as f:
+            decision = [r["decision"] for r in csv.DictReader(f)]
+        assert int(t["n_flagged"]) == decision.count("flagged") == p["tests"]["n_decided"]
+        assert int(t["n_rejected"]) == decision.count("rejected") == 0
+    assert table[2]["sigma0_hat"] == ""                     # the failed run has none
     md = (out / "summary.md").read_text(encoding="utf-8")
     assert "3 of 3 run(s) done, 2 ok, 1 failed" in md and "| bad | failed (input) |" in md
+    assert "## Runs compared" in md and "![σ̂0, global test, flagged and rejected per run](summary.png)" in md
+    assert (out / "summary.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     # the same summary as a self-contained page, each complete run linked to its own report.html
     from html.parser import HTMLParser
 
@@ -79,12 +92,34 @@ def test_cli_batch_of_three_projects_one_broken(tmp_path, capsys):
             links.extend(v for k, v in attrs if tag == "a" and k == "href")
 
     _Links().feed(page)
-    assert links == ["runs/data1/report.html", "runs/data2/report.html"] and not external_references(page)
+    # each complete run linked from the runs table and from "Runs compared"
+    assert links == ["runs/data1/report.html", "runs/data2/report.html"] * 2 and not external_references(page)
     assert all((out / link).is_file() for link in links)
     assert "3 of 3 run(s) done, 2 ok, 1 failed" in page and "failed (input)" in page
+    assert "<figure><svg" in page and "Runs compared" in page
     # a second batch into the same directory replaces the complete runs
     assert main(["batch", str(FIX / "data1.toml"), "--out", str(out), "--scheduler", "sync", "--quiet"]) == 0
     assert [r["name"] for r in summary_rows(out)] == ["data1"]
+
+
+def test_quality_columns_of_a_bundle_run():
+    """The quality columns come from the run's bundle protocol (not the last adjustment), camera
+    parameters with their unit in the column name."""
+    from baarda.pipeline.batch import quality
+
+    prot = {"kind": "bundle", "sigma0_hat": 1.2, "dof": 40,
+            "global_test": {"verdict": "rejected (σ̂0 too large)", "rejected": True, "p_value": 1e-3},
+            "tests": {"n_flagged": 4, "n_rejected": 2},
+            "check": {"n": 3, "Sx": 0.01, "Sy": 0.02, "Sz": 0.03, "unit": "m"},
+            "cameras": [{"camera": "A", "parameters": [{"name": "c", "value": 24.1, "unit": "mm"},
+                                                       {"name": "K1", "value": 1e-4, "unit": "mm⁻²"},
+                                                       {"name": "skew", "value": 0.0, "unit": "1"}]}]}
+    other = {"kind": "adjustment", "sigma0_hat": 9.0, "dof": 3, "global_test": {}, "tests": {}}
+    q = quality([{"id": "bundle", "summary": {"protocol": prot}}, {"id": "b2", "summary": {"protocol": other}}])
+    assert q["adjustment"] == "bundle" and q["sigma0_hat"] == 1.2 and q["global_test_p"] == 1e-3
+    assert (q["n_flagged"], q["n_rejected"], q["check_rmse_z"], q["check_unit"]) == (4, 2, 0.03, "m")
+    assert q["camera.c_mm"] == 24.1 and q["camera.K1_per_mm2"] == 1e-4 and "camera.skew" not in q
+    assert quality([{"id": "source", "summary": {"photos": 2}}]) == {}
 
 
 def test_sweep_on_a_given_cluster(tmp_path, client):

@@ -81,11 +81,18 @@ def test_set_overrides_an_option(tmp_path, capsys):
     ("bundel.max_iter=5", "did you mean 'bundle'"),
     ("bundle.solver.max_iter=-5", "must be at least 1"),
     ("max_iter=5", "expected STAGE.OPTION=VALUE"),
+    ("bundle.tests.alpha_global=1.5", "must be greater than 0 and less than 1, got 1.5"),
+    ("bundle.tests.alpha_global='Baarda'", "expected float | 'B-method'"),
 ])
 def test_set_mistakes_are_one_line_errors(capsys, arg, expect):
     assert main(["validate", str(BLOCK), "--set", arg]) == EXIT_STATUS["input"]
     err = capsys.readouterr().err.strip()
     assert expect in err and len(err.splitlines()) == 1, err
+
+
+@pytest.mark.parametrize("value", ["0.01", "'B-method'"])
+def test_alpha_global_values_validate(capsys, value):
+    assert main(["validate", str(BLOCK), "--set", f"bundle.tests.alpha_global={value}"]) == 0
 
 
 def test_quiet_and_verbose_before_or_after_the_command():
@@ -111,7 +118,11 @@ def test_review_summarises_flags_and_where_to_look(tmp_path, capsys):
     assert main(["review", str(run)]) == 0
     out = capsys.readouterr().out
     # the screening table marks X9 (the +4 mm gross error of Park & Yeu's Data 1)
-    assert re.search(r"screening_observations\.csv, column flagged: 1 of 18 rows .*X9", out), out
+    assert re.search(r"screening_observations\.csv, column decision: 1 of 18 rows .*X9", out), out
+    # blunder-rejection flags X9, Y5, X5 (RRR decides, action = flag): the review names them and the
+    # stage's global test
+    assert re.search(r"blunders: global test rejected \(σ̂0 too large\), p = ", out), out
+    assert re.search(r"blunders_observations\.csv, column decision: 3 of 18 rows \(3 flagged\): .*X5.*Y5.*X9", out), out
     assert "the 2-D views photos/" in out and "report.md, section 'screening'" in out
     assert "every stage ok" in out
     assert "/screening/photos/L/points" not in out        # entities only on request
@@ -135,6 +146,20 @@ def test_review_counts_against_the_tables(tmp_path):
     (f,) = flagged_rows(t)
     assert (f.rows, f.total, f.by_value) == (3, 6, {"flagged": 2, "rejected": 1})
     assert f.examples == ["1/P1", "2/P2", "4/P4"]
+
+
+def test_review_reads_flags_from_results_when_no_table_says_so(tmp_path):
+    """A stage whose protocol counts flags but whose tables were not written still appears."""
+    import io as _io
+    from baarda.pipeline.review import print_review
+
+    results = {"project": {"name": "p"}, "stages": [
+        {"id": "bundle", "status": "ok", "summary": {"protocol": {
+            "tests": {"n_flagged": 15, "n_rejected": 2},
+            "global_test": {"verdict": "rejected (σ̂0 too large)", "rejected": True, "p_value": 1e-5}}}}]}
+    out = _io.StringIO()
+    print_review(tmp_path, results, {}, out=out)
+    assert "bundle: 15 flagged, 2 rejected (results.json; no table with a decision column was written)" in out.getvalue()
 
 
 # ------------------------------------------------------------------------------------ progress

@@ -22,6 +22,8 @@ from baarda.pipeline.runner import run_project
 
 from conftest import SHARED_BESIDE, needs_shared_beside
 
+from tests.pipeline.protocol_consistency import check_run
+
 ROOT = Path(__file__).resolve().parents[2]
 PROJECTS = sorted((ROOT / "fixtures").rglob("*.toml"))
 
@@ -135,6 +137,8 @@ def test_bundled_project_runs(rel, tmp_path):
     for s in res["stages"]:
         for name, t in s["tables"].items():
             assert (tmp_path / "run" / t["csv"]).exists() and (tmp_path / "run" / t["parquet"]).exists(), t
+    # one truth per number: the protocol summary is results.json's, its counts and RMS the tables'
+    check_run(tmp_path / "run")
 
 
 MOST_IN_RESULTS = 100

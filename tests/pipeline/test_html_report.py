@@ -98,7 +98,10 @@ def test_paper000_report_html(tmp_path):
     # and results.json's are right: σ̂0 of paper 000's Data 1 Helmert fit from the screening stage
     screening = next(s for s in results["stages"] if s["id"] == "screening")
     assert p["sigma0_hat"] == pytest.approx(screening["summary"]["pairs"][0]["sigma0_hat"], abs=6e-4)
-    assert p["tests"]["n_rejected"] == blunders["summary"]["methods"]["rrr"]["n_rejected"]
+    # action = flag: RRR's rejections are flags (the block is unchanged), never counted as rejected
+    assert blunders["summary"]["action"] == "flag" and p["tests"]["n_rejected"] == 0
+    assert p["tests"]["n_decided"] == len(blunders["summary"]["methods"]["rrr"]["rejected"]) == 3
+    assert "rejected 3" not in text
     # the RMS is the RMS of the residual column of the observations table
     v = np.loadtxt(out.run_dir / "blunders_observations.csv", delimiter=",", skiprows=1, usecols=_col(
         out.run_dir / "blunders_observations.csv", "v"))

@@ -52,15 +52,68 @@ def test_alpha_prime_noncentrality_equals_delta0_squared(dof):
     assert abs(power - 0.80) < 4 * np.sqrt(0.16 / 200_000)
 
 
-def test_global_test_uses_alpha_prime_by_default():
-    s = Snapshot(v=np.zeros(7), Pv=np.zeros(7), PQvvP=np.ones(7), r=np.ones(7), sigma_l=np.ones(7),
-                 vtpv=12.0, dof=5, sigma0=1.0)
-    g = global_test(s)
-    assert g.alpha == pytest.approx(alpha_prime(0.001, 0.8, 5))
+def _snap(vtpv, dof, sigma0=1.0):
+    n = dof + 2
+    return Snapshot(v=np.zeros(n), Pv=np.zeros(n), PQvvP=np.ones(n), r=np.ones(n), sigma_l=np.ones(n),
+                    vtpv=vtpv, dof=dof, sigma0=sigma0)
+
+
+def test_global_test_is_two_sided_at_five_percent_by_default():
+    g = global_test(_snap(12.0, 5))
+    assert (g.method, g.alpha) == ("two-sided", 0.05)
+    # closed forms: χ²(α/2; dof)/dof and χ²(1 − α/2; dof)/dof, p = 2 min(F, 1 − F)
+    assert g.critical_lower == pytest.approx(stats.chi2.ppf(0.025, 5) / 5, rel=1e-12)
+    assert g.critical == pytest.approx(stats.chi2.isf(0.025, 5) / 5, rel=1e-12)
+    assert g.critical == pytest.approx(stats.f.isf(0.025, 5, 1e12), rel=1e-6)
+    F = stats.chi2.cdf(12.0, 5)
+    assert g.p_value == pytest.approx(2 * min(F, 1 - F), rel=1e-12)
+    assert g.T == pytest.approx(12.0 / 5) and not g.rejected and g.verdict == "accepted"
+    # the interval of σ̂0 (unit of σ0): rejected exactly when σ̂0 lies outside it
+    lo, hi = g.interval
+    assert (lo, hi) == pytest.approx((np.sqrt(g.critical_lower), np.sqrt(g.critical)), rel=1e-12)
+    g3 = global_test(_snap(12.0, 5, sigma0=3.0))
+    assert g3.interval == pytest.approx((3 * lo, 3 * hi), rel=1e-12)
+
+
+@pytest.mark.parametrize("dof", [1, 4, 66, 3000])
+def test_global_test_rejects_too_large_and_too_small(dof):
+    lo, hi = global_test(_snap(float(dof), dof)).interval
+    big = global_test(_snap(1.01 * hi ** 2 * dof, dof))
+    small = global_test(_snap(0.99 * lo ** 2 * dof, dof))
+    assert big.rejected and big.too_large and big.verdict == "rejected (σ̂0 too large)"
+    assert small.rejected and small.too_small and small.verdict == "rejected (σ̂0 too small)"
+    assert big.p_value < 0.05 and small.p_value < 0.05
+    # the B-method is one-sided: a small σ̂0 is never rejected
+    assert not global_test(_snap(0.99 * lo ** 2 * dof, dof), alpha="B-method").rejected
+
+
+def test_global_test_b_method_on_request():
+    g = global_test(_snap(12.0, 5), alpha="B-method")
+    assert g.method == "B-method" and g.alpha == pytest.approx(alpha_prime(0.001, 0.8, 5))
     assert g.critical == pytest.approx(stats.chi2.isf(g.alpha, 5) / 5)
     assert g.p_value == pytest.approx(stats.chi2.sf(12.0, 5))
-    g2 = global_test(s, alpha=0.05)
-    assert g2.critical == pytest.approx(stats.f.isf(0.05, 5, 1e12), rel=1e-6)
+    assert g.critical_lower == 0.0
+    assert global_test(_snap(12.0, 5), alpha=None).alpha == g.alpha      # None: as before the option
+    with pytest.raises(ValueError):
+        global_test(_snap(12.0, 5), alpha="Baarda")
+    with pytest.raises(ValueError):
+        global_test(_snap(12.0, 5), alpha=1.0)
+
+
+@pytest.mark.parametrize("alpha,dof", [(0.05, 3), (0.05, 500), (0.10, 40)])
+def test_global_test_false_alarm_rate_is_alpha(alpha, dof):
+    """Monte Carlo under H0 (seeded): σ̂0² from dof standard normal residuals is rejected α of the time."""
+    rng = np.random.default_rng(1000 + dof)
+    n = 40_000
+    vtpv = rng.chisquare(dof, n)
+    g = global_test(_snap(float(dof), dof), alpha=alpha)
+    T = vtpv / dof
+    rejected = (T < g.critical_lower) | (T > g.critical)
+    assert abs(rejected.mean() - alpha) < 4 * np.sqrt(alpha * (1 - alpha) / n)
+    # global_test's own verdict and p-value on the first draws: the same decisions, P(p < α) = α
+    first = [global_test(_snap(float(q), dof), alpha=alpha) for q in vtpv[:600]]
+    assert [r.rejected for r in first] == rejected[:600].tolist()
+    assert [r.p_value < alpha for r in first] == rejected[:600].tolist()
 
 
 def test_bad_levels_are_rejected():
@@ -68,3 +121,17 @@ def test_bad_levels_are_rejected():
         delta0(0.0, 0.8)
     with pytest.raises(ValueError):
         alpha_prime(0.001, 0.8, 0)
+
+
+def test_global_test_text_prints_the_verdict_as_metrology_packages_do():
+    from baarda.pipeline.protocol import global_test_protocol, global_test_text
+
+    g = global_test_protocol(global_test(_snap(12.0, 5)))
+    assert g["interval"] == pytest.approx([np.sqrt(stats.chi2.ppf(0.025, 5) / 5), np.sqrt(stats.chi2.isf(0.025, 5) / 5)])
+    assert global_test_text(g) == ("T = σ̂0²/σ0² = 2.400, p = 0.0696 (two-sided χ², α = 5 %; 95 % interval "
+                                   "of σ̂0: 0.4077 – 1.602): accepted")
+    huge = global_test_protocol(global_test(_snap(1e6, 5)))
+    assert huge["p_value"] == 0.0 and "p < 1e-300" in global_test_text(huge)
+    assert global_test_text(huge).endswith("REJECTED (σ̂0 too large)")
+    b = global_test_text(global_test_protocol(global_test(_snap(12.0, 5), alpha="B-method")))
+    assert "B-method, one-sided, α′ = 0.013" in b and "F-critical" in b

@@ -102,7 +102,8 @@ def test_data_snooping_misses_data1_finds_data2():
 def test_global_test_numbers():
     s1 = regression(X1, Y1).adjust().snapshot
     s2 = regression(X2, Y2).adjust().snapshot
-    g1, g2 = global_test(s1), global_test(s2)
+    # the paper's level: the B-method α′ (one-sided)
+    g1, g2 = global_test(s1, alpha="B-method"), global_test(s2, alpha="B-method")
     # independent: vᵀv / (dof σ²) from lstsq, F critical from χ²
     for g, x, y in ((g1, X1, Y1), (g2, X2, Y2)):
         A = np.c_[np.ones_like(x), x]
@@ -111,6 +112,9 @@ def test_global_test_numbers():
         assert g.critical == pytest.approx(stats.chi2.ppf(1 - g.alpha, g.dof) / g.dof, rel=1e-10)
     assert not g1.rejected and g2.rejected
     assert g1.T == pytest.approx(2.669, abs=1e-3) and g2.T == pytest.approx(8.686, abs=1e-3)
+    # the default two-sided test at 5 % agrees here: F(0.975; 4, ∞) = 2.786
+    d1, d2 = global_test(s1), global_test(s2)
+    assert not d1.rejected and d2.rejected and d1.critical == pytest.approx(2.786, abs=1e-3)
 
 
 def test_ids_data2_removes_observation_6_first():

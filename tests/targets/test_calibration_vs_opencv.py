@@ -63,3 +63,43 @@ def test_charuco_agrees_with_opencv(charuco):
     result = adjust_mod.adjust(block)                           # weak: ~25 iterations
     print(f"\nChArUco bundle: {result.iterations} iterations")
     _compare("ChArUco", block, result, 0, fixed_k3=True, strict=False)
+
+
+def test_opencv_flags_free_what_baarda_frees():
+    import cv2
+
+    from baarda.plugins.targets.calib import opencv_flags
+
+    flags, aspect, notes = opencv_flags(["c", "xp", "yp", "K1", "K2", "P1", "P2"])
+    assert flags == cv2.CALIB_FIX_K3 and aspect and notes == []
+    flags, aspect, _ = opencv_flags(["c", "K1"])
+    assert flags == (cv2.CALIB_FIX_PRINCIPAL_POINT | cv2.CALIB_FIX_K2 | cv2.CALIB_FIX_K3 | cv2.CALIB_ZERO_TANGENT_DIST)
+    flags, aspect, notes = opencv_flags(["c", "xp", "yp", "K1", "K2", "K3", "P1", "B1", "B2"])
+    assert flags == 0 and not aspect and len(notes) == 2          # one tangential term, shear: said
+
+
+def test_stage_reference_is_like_for_like(shared_data):
+    """The targets stage's cv2 reference frees what the stage frees: with K3 fixed (as the bundled
+    ChArUco project) OpenCV gets CALIB_FIX_K3 and the same c, principal point and RMS as baarda's
+    bundle of that block; two runs give the same reference (cv2.setNumThreads(1))."""
+    from tests.targets.conftest import run_targets
+
+    kw = dict(images=["img_0*.jpg", "chocclusion_original.jpg"], target="charuco", squares=[5, 7],
+              square_size=40.0, marker_size=20.0, dictionary="DICT_6X6_250", unit="mm",
+              unknowns=["c", "xp", "yp", "K1", "K2", "P1", "P2"], sigma_px=0.15)
+    res, _ = run_targets(shared_data / "opencv-charuco", **kw)
+    ref = res.summary["opencv_calibration"]["cam"]
+    assert ref["flags"] == ["CALIB_FIX_ASPECT_RATIO", "CALIB_FIX_K3"] and ref["dist"][4] == 0.0
+    block = res.artefacts["block"]
+    result = adjust_mod.adjust(block)
+    p = float(block.cameras.pixel_mm[0])
+    tab = {row["parameter"]: row for row in result.camera_table(0)}
+    assert abs(tab["c"]["value"] - ref["c_mm"]) < 0.01 * tab["c"]["sigma"]
+    v = result.residuals[result.obs_active] / p
+    assert float(np.sqrt((v ** 2).sum(axis=1).mean())) == pytest.approx(ref["rms_px"], rel=1e-6)
+    # the image σ 0.15 px is the corners' precision: the global test accepts at 5 %
+    from baarda.pipeline.stats import global_test
+
+    assert global_test(result.snapshot).verdict == "accepted"
+    again, _ = run_targets(shared_data / "opencv-charuco", **kw)
+    assert again.summary["opencv_calibration"]["cam"]["rms_px"] == ref["rms_px"]
