@@ -28,6 +28,9 @@ class DbatOptions:
     path: Path | None = option(None, "the DBAT script project (XML), relative to the project file (required)")
     dbat_dir: Path | None = option(None, "DBAT's installation folder, for paths that use $DBAT (the photos of "
                                          "an image list are otherwise looked up beside the list)")
+    datum: str = option("script", "'script': the datum as the script sets it (control points, or set_datum depend: "
+                                  "DBAT's dependent relative orientation); 'free': set_datum not carried out, for "
+                                  "the bundle's free network (bundle datum = \"free\")")
     crs: str | None = option(None, "the CRS of the control, check and prior-EO coordinates (a DBAT script has no "
                                    "place for one; e.g. 'EPSG:32632'): the block is adjusted in a local "
                                    "east-north-up frame and reported and exported in this CRS (docs/crs.md)")
@@ -45,7 +48,9 @@ class DbatSource(SourceStage):
                              path=ctx.project_file, field="path")
         dbat_dir = ctx.resolve(options.dbat_dir) if options.dbat_dir is not None else None
         script = read_dbat(ctx.resolve(options.path), dbat_dir=dbat_dir)
-        block = dbat_block(script)
+        if options.datum not in ("script", "free"):
+            raise ctx.option_error(f"datum is 'script' or 'free', got {options.datum!r}", "datum")
+        block = dbat_block(script, datum=options.datum)
         if options.crs is not None:
             block = _in_crs(block, options.crs, ctx)
         d: DbatInfo = block.meta["dbat"]
