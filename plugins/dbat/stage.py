@@ -182,10 +182,13 @@ def _quality(res) -> dict:
     pix = float(block.cameras.pixel_mm[0]) if np.isfinite(block.cameras.pixel_mm[0]) else float("nan")
     rc = corrected_space_residuals(block, st, act)
     ok = act & np.isfinite(rc).all(axis=1)
-    # vᵀPv with the image residuals replaced by the corrected-space ones (weighted constraints kept)
+    # vᵀPv with the image residuals replaced by the corrected-space ones (weighted constraints kept),
+    # these weighted with the marks' own σ (dbat-bundle adjusts with reweighted covariances)
     P = np.linalg.inv(obs.cov[ok])
-    qf = lambda r: float(np.einsum("ki,kij,kj->", r, P, r))
-    s0c = (float(np.sqrt(max(res.vtpv - qf(res.residuals[ok]) + qf(rc[ok]), 0.0) / res.dof))
+    marks_cov = (block.meta.get("dbat_residuals") or {}).get("marks_cov")
+    P0 = np.linalg.inv(np.asarray(marks_cov)[ok]) if marks_cov is not None else P
+    qf = lambda r, W=P: float(np.einsum("ki,kij,kj->", r, W, r))
+    s0c = (float(np.sqrt(max(res.vtpv - qf(res.residuals[ok]) + qf(rc[ok], P0), 0.0) / res.dof))
            if ok.any() and res.dof > 0 else float("nan"))
     v = res.residuals[act]
     rays = np.bincount(obs.point[act], minlength=len(pts))

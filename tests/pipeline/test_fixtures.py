@@ -37,6 +37,7 @@ SECONDS = {
     "calibration/chessboard.toml": 6.8,
     "colmap/colmap.toml": 0.6,
     "dbat/camcal-detect.toml": 5.2,
+    "dbat/camcal-corrected.toml": 4.0,
     "dbat/camcal.toml": 0.4,
     "dbat/sxb.toml": 0.3,
     "design/design.toml": 4.2,

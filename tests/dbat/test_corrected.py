@@ -1,0 +1,60 @@
+"""DBAT's residual definition (corrected marks): :mod:`baarda.plugins.dbat.corrected` and the
+``dbat-bundle`` stage against DBAT's published camcal report (numbers: ``test_projects.py``)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from baarda.pipeline.adjustment import BundleSettings, adjust
+from baarda.pipeline.camera import get_ap_model
+from baarda.plugins.dbat import dbat_block, read_dbat
+from baarda.plugins.dbat.corrected import adjust_corrected, corrected_cov, correction_jacobian
+from baarda.plugins.dbat.stage import _quality
+
+from .test_projects import CAMCAL, CAMCAL_REDUNDANCY, CAMCAL_SIGMA0
+
+
+def test_jacobian_against_the_closed_form():
+    """∂g/∂m of the backward model by central differences against the model's own G."""
+    model = get_ap_model("brown-backward")
+    rng = np.random.default_rng(3)
+    lb = rng.uniform(-4, 4, (50, 2))
+    prm = np.array([4.6e-3, -4.6e-5, -2e-6, -6e-5, -4.4e-5, 3.9e-4, 1e-4])
+    J = correction_jacobian(model, lb, prm, 7.45)
+    _, _, G, _ = model._correction(lb[:, 0], lb[:, 1], model._params(np.tile(prm, (50, 1)), 50), True)
+    np.testing.assert_allclose(J, G, rtol=1e-7, atol=1e-10)
+
+
+def test_reweighting_makes_the_residuals_dbats(shared_data):
+    """At a fixed solution, baarda's residuals weighted with J⁻¹ΣJ⁻ᵀ give DBAT's vᵀPv to first order."""
+    block = dbat_block(read_dbat(shared_data / "dbat-camcal" / "camcaldemo.xml"))
+    res = adjust(block, BundleSettings(datum="control"))
+    cov = corrected_cov(block, res.state.cam_params, block.observations.cov)
+    r = res.residuals
+    ours = float(np.einsum("ki,kij,kj->", r, np.linalg.inv(cov), r))
+    q = _quality(res)
+    dbat = q["sigma0_corrected"] ** 2 * res.dof - (res.vtpv - float(np.einsum(
+        "ki,kij,kj->", r, np.linalg.inv(block.observations.cov), r)))
+    assert ours == pytest.approx(dbat, rel=1e-4)
+    assert not np.shares_memory(cov, block.observations.cov)
+
+
+def test_camcal_in_dbats_definition(shared_data):
+    block = dbat_block(read_dbat(shared_data / "dbat-camcal" / "camcaldemo.xml"))
+
+    def run(b):
+        r = adjust(b, BundleSettings(datum="control"))
+        return r, r.block
+
+    res, used, rounds, move = adjust_corrected(block, run)
+    assert rounds <= 4 and move < 0.01
+    assert res.dof == CAMCAL_REDUNDANCY
+    assert f"{res.sigma0_hat:.5g}" == f"{CAMCAL_SIGMA0:.5g}"             # 1.6148, DBAT's own σ0
+    used = used.replace(meta={**dict(used.meta), "dbat_residuals": {"marks_cov": block.observations.cov}})
+    res = adjust(used, BundleSettings(datum="control"))
+    q = _quality(res)
+    assert f"{q['sigma0_corrected']:.5g}" == f"{CAMCAL_SIGMA0:.5g}"
+    for k, (v, s) in CAMCAL.items():
+        assert abs(q["camera"][k][0] - v) / s < 0.3, k
+        assert q["camera"][k][1] == pytest.approx(s, rel=0.02), k            # σ as DBAT's to 2 %
