@@ -16,7 +16,7 @@ import numpy as np
 from baarda.pipeline.api import BundleConfig, Context, StageResult, adjust, option
 from baarda.plugins.bundle.stage import BundleAdjustment
 
-from .corrected import adjust_corrected
+from .corrected import adjust_corrected, camera_at_dbat_minimum
 
 
 @dataclasses.dataclass(frozen=True)
@@ -34,6 +34,7 @@ def _base(options: DbatBundleConfig) -> BundleConfig:
 
 
 class DbatBundle(BundleAdjustment):
+    writes = BundleAdjustment.writes + ("dbat_minimum",)
     summary = ("Bundle adjustment in DBAT's residual definition (corrected marks) or baarda's (measured marks): "
                "DBAT's camera and σ̂0 with baarda's statistics")
     Options = DbatBundleConfig
@@ -58,10 +59,34 @@ class DbatBundle(BundleAdjustment):
         used = used.replace(meta={**dict(used.meta), "dbat_residuals": {"definition": "corrected",
                                                                          "marks_cov": cov0, "rounds": rounds + 1}})
         result = super().run({**inputs, "block": used}, base, ctx)
+        res = result.artefacts["bundle"]
+        mini = camera_at_dbat_minimum(used, res, cov0)
+        dof = int(res.dof)
+        s0_min = float(np.sqrt(max(res.vtpv - mini["F_before"] + mini["F_after"], 0.0) / dof)) if dof > 0 else np.nan
+        mini = {**mini, "sigma0": s0_min, "dof": dof}
+        result.artefacts["dbat_minimum"] = mini
+        result.summary["dbat_minimum"] = {"sigma0_hat": s0_min,
+                                          "camera_step_sigma": _step_in_sigma(res, mini["step"])}
         result.summary["residuals"] = "corrected"
         result.summary["reweighting_rounds"] = rounds + 1
+        result.report = (f"DBAT's own minimum: one Newton step of DBAT's objective in the camera (its gradient "
+                         f"left by the reweighting) moves the camera by up to "
+                         f"{max(result.summary['dbat_minimum']['camera_step_sigma'].values(), default=0):.2f} σ; "
+                         f"σ̂0 there {s0_min:.6g}. dbat-report shows that camera; orientations and points stay at "
+                         "the reweighted solution.\n\n" + result.report)
         result.report = (f"Residual definition: DBAT's (corrected marks `g(l − pp) − x̄` weighted with the marks' σ), "
                          f"by reweighting each mark with `J⁻¹ Σ J⁻ᵀ`, `J = ∂g/∂m` at the adjusted camera "
                          f"({rounds + 1} rounds; the camera moved by {move:.2g} σ in the last but one). "
                          "σ̂0 and the residuals below are in that definition (docs/dbat.md).\n\n" + result.report)
         return result
+
+
+def _step_in_sigma(res, step) -> dict:
+    """|Newton step| / σ per free camera parameter (names of the first camera's model)."""
+    out = {}
+    for j in range(step.shape[0]):
+        C = np.asarray(res.cov_cameras[j], float)
+        for k, name in enumerate(res.cam_param_names[j]):
+            if C[k, k] > 0:
+                out[f"{j}:{name}" if step.shape[0] > 1 else name] = float(abs(step[j, k]) / np.sqrt(C[k, k]))
+    return out

@@ -99,3 +99,58 @@ def _camera_sigmas(res, shape) -> np.ndarray:
             if row is not None and row.get("sigma") is not None:
                 out[j, k] = float(row["sigma"])
     return out
+
+
+def dbat_objective(block, state, marks_cov, active=None) -> float:
+    """DBAT's ``Σ r_Dᵀ P r_D`` over the (active) marks of backward-model cameras: ``r_D`` the corrected
+    marks' residuals (:func:`~.quality.corrected_space_residuals`), ``P`` the marks' own weights."""
+    from .quality import corrected_space_residuals
+
+    rc = corrected_space_residuals(block, state, active)
+    ok = np.isfinite(rc).all(axis=1)
+    if active is not None:
+        ok &= np.asarray(active, bool)
+    P = np.linalg.inv(np.asarray(marks_cov, float)[ok])
+    return float(np.einsum("ki,kij,kj->", rc[ok], P, rc[ok]))
+
+
+def camera_at_dbat_minimum(block, result, marks_cov) -> dict:
+    """The camera one Newton step from the reweighted solution towards the minimum of DBAT's own
+    objective: ``Δθ = −½ Q_cc ∇_θ F_D``, the gradient of :func:`dbat_objective` with respect to the
+    free camera parameters (central differences, the orientations and points held), ``Q_cc`` their
+    a-posteriori cofactor matrix (``cov / σ̂0²``: the marginal of the full inverse, so the step is the
+    camera block of the full Newton step when the gradient's other components vanish).
+
+    The reweighting leaves a gradient ``∇F_D`` in the camera because DBAT differentiates its
+    residual at the measured mark (``docs/dbat.md``).  Returns ``cam_params`` (n_cam, 3 + p) after
+    the step, the ``step`` itself, ``F_before`` and the quadratic prediction ``F_after`` of DBAT's
+    objective."""
+    import dataclasses
+
+    st = result.state
+    active = np.asarray(result.obs_active, bool)
+    cp0 = np.array(st.cam_params, float)
+    step = np.zeros_like(cp0)
+    F0 = dbat_objective(block, st, marks_cov, active)
+    s0 = float(result.sigma0_hat) if np.isfinite(result.sigma0_hat) and result.sigma0_hat > 0 else 1.0
+    pred = 0.0
+    for j in range(cp0.shape[0]):
+        C = np.asarray(result.cov_cameras[j], float)
+        free = np.flatnonzero(np.diag(C) > 0)
+        if not len(free):
+            continue
+        sig = np.sqrt(np.diag(C)[free])
+        G = np.zeros(len(free))
+        for i, (k, s) in enumerate(zip(free, sig)):
+            h = 1e-2 * s
+            cp = cp0.copy()
+            cp[j, k] += h
+            Fp = dbat_objective(block, dataclasses.replace(st, cam_params=cp), marks_cov, active)
+            cp[j, k] -= 2 * h
+            Fm = dbat_objective(block, dataclasses.replace(st, cam_params=cp), marks_cov, active)
+            G[i] = (Fp - Fm) / (2 * h)
+        Q = C[np.ix_(free, free)] / s0 ** 2
+        d = -0.5 * Q @ G
+        step[j, free] = d
+        pred += 0.5 * float(G @ d)
+    return {"cam_params": cp0 + step, "step": step, "F_before": F0, "F_after": F0 + pred}

@@ -130,7 +130,7 @@ class DbatReportOptions:
 class DbatReport(Stage):
     summary = ("DBAT-style quality report of a bundle: camera in DBAT's conventions with σ and high correlations, "
                "control prior/adjusted/difference/σ, check-point errors, ray counts, intersection angles")
-    reads = ("bundle", "dbat_report?")
+    reads = ("bundle", "dbat_report?", "dbat_minimum?")
     writes = ("dbat_report",)
     Options = DbatReportOptions
 
@@ -139,7 +139,7 @@ class DbatReport(Stage):
         if res is None:
             raise InputError("dbat-report needs the result of a bundle stage before it", path=ctx.project_file,
                              field="use")
-        q = _quality(res)
+        q = _quality(res, inputs.get("dbat_minimum"))
         summary = {"sigma0_hat": q["sigma0"], "sigma0_hat_corrected": q["sigma0_corrected"], "dof": q["dof"],
                    "rms_px": q["rms_px"], "rms_px_corrected": q["rms_px_corrected"],
                    "camera": {k: {"value": v[0], "sigma": v[1]} for k, v in q["camera"].items()},
@@ -171,7 +171,9 @@ class DbatReport(Stage):
         return report_figures(d["quality"], d["script"], d["marks"], d["earlier"], d["rho_high"])
 
 
-def _quality(res) -> dict:
+def _quality(res, minimum: dict | None = None) -> dict:
+    """DBAT's quality figures of a bundle result; ``minimum`` (``dbat-bundle``'s ``dbat_minimum``):
+    the camera values and σ̂0 at DBAT's own minimum replace the bundle's (σ stay the bundle's)."""
     from .quality import corrected_space_residuals, intersection_angles, point_comparison
     from .reader import dbat_from_baarda
 
@@ -199,7 +201,8 @@ def _quality(res) -> dict:
     table = res.camera_table(0)
     if dbat is not None:
         cam = dbat.camera
-        vals = dbat_from_baarda(st.cam_params[0, 0], st.cam_params[0, 1], st.cam_params[0, 2], st.cam_params[0, 3:], cam)
+        cp = np.asarray(minimum["cam_params"] if minimum is not None else st.cam_params, float)
+        vals = dbat_from_baarda(cp[0, 0], cp[0, 1], cp[0, 2], cp[0, 3:], cam)
         for key, bn in zip(("cc", "px", "py", "K1", "K2", "K3", "P1", "P2", "as", "sk"), names):
             row = next(r for r in table if r["parameter"] == bn)
             camera[key] = (vals[key], row["sigma"], row["status"], bn)
@@ -220,6 +223,8 @@ def _quality(res) -> dict:
                 "rays_min": int(r.min()), "rays_max": int(r.max()), "rays_mean": float(r.mean()),
                 "rays_hist": {int(k): int((r == k).sum()) for k in np.unique(r)}}
 
+    if minimum is not None and np.isfinite(minimum.get("sigma0", np.nan)):
+        s0c = float(minimum["sigma0"])
     return {
         "sigma0": res.sigma0_hat, "sigma0_corrected": s0c, "dof": int(res.dof), "pixel_mm": pix,
         "rms_px": float(np.sqrt(np.mean(np.sum(v ** 2, axis=1)))) / pix,

@@ -9,7 +9,8 @@ import pytest
 from baarda.pipeline.adjustment import BundleSettings, adjust
 from baarda.pipeline.camera import get_ap_model
 from baarda.plugins.dbat import dbat_block, read_dbat
-from baarda.plugins.dbat.corrected import adjust_corrected, corrected_cov, correction_jacobian
+from baarda.plugins.dbat.corrected import (adjust_corrected, camera_at_dbat_minimum, corrected_cov,
+                                          correction_jacobian)
 from baarda.plugins.dbat.stage import _quality
 
 from .test_projects import CAMCAL, CAMCAL_REDUNDANCY, CAMCAL_SIGMA0
@@ -58,3 +59,25 @@ def test_camcal_in_dbats_definition(shared_data):
     for k, (v, s) in CAMCAL.items():
         assert abs(q["camera"][k][0] - v) / s < 0.3, k
         assert q["camera"][k][1] == pytest.approx(s, rel=0.02), k            # σ as DBAT's to 2 %
+
+
+def test_camera_at_dbats_minimum(shared_data):
+    """The Newton step of DBAT's own objective from the reweighted solution lands on DBAT's camera:
+    every parameter within 0.05 σ of DBAT's report (the reweighted camera alone: within 0.3 σ), σ̂0
+    DBAT's to 5 digits."""
+    block = dbat_block(read_dbat(shared_data / "dbat-camcal" / "camcaldemo.xml"))
+
+    def run(b):
+        r = adjust(b, BundleSettings(datum="control"))
+        return r, r.block
+
+    res, used, _, _ = adjust_corrected(block, run)
+    mini = camera_at_dbat_minimum(used, res, block.observations.cov)
+    assert mini["F_after"] < mini["F_before"]
+    s0 = np.sqrt((res.vtpv - mini["F_before"] + mini["F_after"]) / res.dof)
+    assert f"{s0:.5g}" == f"{CAMCAL_SIGMA0:.5g}"
+    q = _quality(res, {**mini, "sigma0": s0})
+    for k, (v, s) in CAMCAL.items():
+        tol = 0.06 if k == "cc" else 0.05           # DBAT prints c to 4 decimals (0.05 σ)
+        assert abs(q["camera"][k][0] - v) / s < tol, (k, (q["camera"][k][0] - v) / s)
+    assert np.abs(mini["step"]).max() > 0 and not np.shares_memory(mini["cam_params"], res.state.cam_params)
