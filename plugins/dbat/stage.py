@@ -130,7 +130,7 @@ class DbatReportOptions:
 class DbatReport(Stage):
     summary = ("DBAT-style quality report of a bundle: camera in DBAT's conventions with σ and high correlations, "
                "control prior/adjusted/difference/σ, check-point errors, ray counts, intersection angles")
-    reads = ("bundle", "dbat_report?", "dbat_minimum?")
+    reads = ("bundle", "dbat_report?")
     writes = ("dbat_report",)
     Options = DbatReportOptions
 
@@ -139,7 +139,15 @@ class DbatReport(Stage):
         if res is None:
             raise InputError("dbat-report needs the result of a bundle stage before it", path=ctx.project_file,
                              field="use")
-        q = _quality(res, inputs.get("dbat_minimum"))
+        minimum = None
+        marks_cov = (res.block_in.meta.get("dbat_residuals") or {}).get("marks_cov")
+        if marks_cov is not None:                    # after dbat-residuals: the camera at DBAT's own minimum
+            from .corrected import camera_at_dbat_minimum
+
+            minimum = camera_at_dbat_minimum(res.block_in, res, marks_cov)
+            minimum["sigma0"] = (float(np.sqrt(max(res.vtpv - minimum["F_before"] + minimum["F_after"], 0.0) / res.dof))
+                                 if res.dof > 0 else float("nan"))
+        q = _quality(res, minimum)
         summary = {"sigma0_hat": q["sigma0"], "sigma0_hat_corrected": q["sigma0_corrected"], "dof": q["dof"],
                    "rms_px": q["rms_px"], "rms_px_corrected": q["rms_px_corrected"],
                    "camera": {k: {"value": v[0], "sigma": v[1]} for k, v in q["camera"].items()},
@@ -149,6 +157,14 @@ class DbatReport(Stage):
                              zip(q["check"]["ids"], q["check"]["diff"], q["check"]["sigma"])},
                    "angles_deg": q["angle_stats"], "rays": q["ray_stats"]}
         report = quality_report(q, options)
+        if minimum is not None:
+            C = [np.sqrt(np.clip(np.diag(np.asarray(c, float)), 0, None)) for c in res.cov_cameras]
+            steps = [abs(minimum["step"][j, k]) / C[j][k] for j in range(len(C)) for k in range(len(C[j])) if C[j][k] > 0]
+            summary["dbat_minimum"] = {"sigma0_hat": minimum["sigma0"], "largest_camera_step_sigma": max(steps, default=0.0)}
+            report = (f"Adjusted in DBAT's residual definition (dbat-residuals before the bundle). The camera below is "
+                      f"at DBAT's own minimum: one Newton step of DBAT's objective in the camera from the bundle's "
+                      f"solution (largest move {max(steps, default=0.0):.2f} σ; σ̂0 there {minimum['sigma0']:.6g}); "
+                      "its σ, the orientations and the points are the bundle's (docs/dbat.md).\n\n" + report)
         earlier = inputs.get("dbat_report")
         if earlier is not None:
             report += "\n\n" + camera_comparison(earlier, q)
@@ -172,7 +188,7 @@ class DbatReport(Stage):
 
 
 def _quality(res, minimum: dict | None = None) -> dict:
-    """DBAT's quality figures of a bundle result; ``minimum`` (``dbat-bundle``'s ``dbat_minimum``):
+    """DBAT's quality figures of a bundle result; ``minimum`` (:func:`.corrected.camera_at_dbat_minimum`):
     the camera values and σ̂0 at DBAT's own minimum replace the bundle's (σ stay the bundle's)."""
     from .quality import corrected_space_residuals, intersection_angles, point_comparison
     from .reader import dbat_from_baarda
@@ -185,7 +201,7 @@ def _quality(res, minimum: dict | None = None) -> dict:
     rc = corrected_space_residuals(block, st, act)
     ok = act & np.isfinite(rc).all(axis=1)
     # vᵀPv with the image residuals replaced by the corrected-space ones (weighted constraints kept),
-    # these weighted with the marks' own σ (dbat-bundle adjusts with reweighted covariances)
+    # these weighted with the marks' own σ (after dbat-residuals the bundle adjusted with reweighted covariances)
     P = np.linalg.inv(obs.cov[ok])
     marks_cov = (block.meta.get("dbat_residuals") or {}).get("marks_cov")
     P0 = np.linalg.inv(np.asarray(marks_cov)[ok]) if marks_cov is not None else P

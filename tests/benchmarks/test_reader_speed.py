@@ -13,7 +13,7 @@ import time
 import pytest
 
 from baarda.plugins.dbat import dbat_block, read_dbat
-from baarda.plugins.pmexport import pm_script, read_control, read_pmexport
+from baarda.plugins.dbat import pm_script, read_control, read_pmexport
 
 pytestmark = pytest.mark.benchmark
 COPIES = 44

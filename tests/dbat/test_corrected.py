@@ -1,5 +1,5 @@
 """DBAT's residual definition (corrected marks): :mod:`baarda.plugins.dbat.corrected` and the
-``dbat-bundle`` stage against DBAT's published camcal report (numbers: ``test_projects.py``)."""
+``dbat-residuals`` stage against DBAT's published camcal report (numbers: ``test_projects.py``)."""
 
 from __future__ import annotations
 
@@ -81,3 +81,21 @@ def test_camera_at_dbats_minimum(shared_data):
         tol = 0.06 if k == "cc" else 0.05           # DBAT prints c to 4 decimals (0.05 σ)
         assert abs(q["camera"][k][0] - v) / s < tol, (k, (q["camera"][k][0] - v) / s)
     assert np.abs(mini["step"]).max() > 0 and not np.shares_memory(mini["cam_params"], res.state.cam_params)
+
+
+def test_fixture_bundle_residuals_bundle(repo_root, tmp_path):
+    """fixtures/dbat/camcal-corrected.toml through the runner: bundle, dbat-residuals, bundle,
+    dbat-report — σ̂0 DBAT's, the reported camera within 0.06 σ of DBAT's report."""
+    import json
+
+    from baarda.pipeline.runner import run_project
+
+    out = tmp_path / "run"
+    run_project(repo_root / "fixtures" / "dbat" / "camcal-corrected.toml", out)
+    stages = {s["id"]: s for s in json.loads((out / "results.json").read_text())["stages"]}
+    assert f"{stages['bundle']['summary']['sigma0_hat']:.5g}" == f"{CAMCAL_SIGMA0:.5g}"
+    assert stages["dbat-residuals"]["summary"]["sigma_ratio_min"] < 0.95
+    cam = stages["dbat"]["summary"]["camera"]
+    for k, (v, s) in CAMCAL.items():
+        assert abs(cam[k]["value"] - v) / s < 0.06, k
+    assert f"{stages['dbat']['summary']['dbat_minimum']['sigma0_hat']:.5g}" == f"{CAMCAL_SIGMA0:.5g}"

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from baarda.pipeline.api import InputError
-from baarda.plugins.pmexport import pm_script, read_control, read_pmexport
+from baarda.plugins.dbat import pm_script, read_control, read_pmexport
 
 CORPUS = Path(__file__).resolve().parents[1] / "corpus" / "pmexport"
 sys.path.insert(0, str(CORPUS))

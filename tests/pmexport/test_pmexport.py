@@ -16,7 +16,7 @@ import pytest
 from baarda.pipeline.adjustment import BundleSettings, adjust
 from baarda.pipeline.api import InputError
 from baarda.plugins.dbat import dbat_block
-from baarda.plugins.pmexport import parse_estimate, pm_script, read_control, read_pmexport
+from baarda.plugins.dbat import parse_estimate, pm_script, read_control, read_pmexport
 
 NAMES = {"Camera Constant": "cc", "px - principal point x": "px", "py - principal point y": "py",
          "K1 - radial distortion 1": "K1", "K2 - radial distortion 2": "K2", "K3 - radial distortion 3": "K3",

@@ -9,11 +9,10 @@ from pathlib import Path
 
 from baarda.pipeline.api import Context, InputError, SourceStage, StageResult, option
 
-from baarda.plugins.dbat.reader import dbat_block
-from baarda.plugins.dbat.report import source_report, source_tables
-
-from .block import parse_estimate, pm_script, read_control
-from .reader import read_pmexport
+from .pm_block import parse_estimate, pm_script, read_control
+from .pm_reader import read_pmexport
+from .reader import dbat_block
+from .report import source_report, source_tables
 
 
 @dataclass(frozen=True)

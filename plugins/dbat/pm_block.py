@@ -18,9 +18,8 @@ import numpy as np
 from baarda.pipeline.api import InputError
 from baarda.pipeline.errors import finite_number as _num
 from baarda.pipeline.model import FIXED
-from baarda.plugins.dbat.reader import IO_FLAGS, DbatCamera, DbatScript, MarkFile, PointSet
-
-from .reader import PmExport
+from .pm_reader import PmExport
+from .reader import IO_FLAGS, DbatCamera, DbatScript, MarkFile, PointSet
 
 DBAT_ESTIMATE_NAMES = {"cc": ("cc",), "px": ("px",), "py": ("py",), "pp": ("px", "py"), "as": ("aspect",),
                        "aspect": ("aspect",), "sk": ("skew",), "skew": ("skew",), "K": ("K1", "K2", "K3"),
