@@ -56,7 +56,8 @@ DBAT_SIGN = np.ones(7)
 
 SUPPORTED_LENS_MODELS = {3: "brown-backward"}
 KNOWN_OPERATIONS = {"check_ray_count", "set_initial_values", "set_bundle_estimate_params",
-                    "spatial_resection", "forward_intersection", "bundle_adjustment"}
+                    "spatial_resection", "forward_intersection", "bundle_adjustment", "set_datum"}
+"""Every operation DBAT's script runner knows (``parseops.m``); any other is refused by name."""
 COLUMNS = {"id", "label", "x", "y", "z", "sx", "sy", "sz", "sxyz", "im", "path", "sxy"}
 
 
@@ -268,6 +269,11 @@ class DbatScript:
     unknown_operations: list[str]
     prior_eo: dict | None = None       # image id -> (X0 (3,), ω φ κ radians (3,), file, line)
     eo_initial: str = "default"        # "default" | "loaded"
+    io_overrides: dict = field(default_factory=dict)
+    """set_initial_values' per-parameter io values after <all>: name (cc, pp, K, P, aspect, skew) ->
+    "default" | "loaded" | tuple of numbers."""
+    datum: tuple | None = None
+    """set_datum: ("depend", ref image id, ref_base "longest" | "x" | "y" | "z", line) or None."""
 
 
 # --------------------------------------------------------------------------------------------
@@ -543,7 +549,23 @@ def _prior_eo(section: Node, path, base, here, dbat_dir) -> dict:
     return out
 
 
-def _camera(section: Node, path) -> DbatCamera:
+def _camera(section: Node, path, base=None, here=None, dbat_dir=None) -> DbatCamera:
+    files = section.findall("file")
+    if files and not section.findall("camera"):
+        # DBAT's demos keep the camera in its own file: <cameras><file>cameras/X.xml</file></cameras>, a
+        # <document dbat_camera_version="1.0"><cameras><camera>… (loadcameras)
+        if len(files) != 1:
+            raise InputError(f"expected exactly one camera <file> (baarda reads single-camera DBAT projects), got "
+                             f"{len(files)}", path=path, line=section.line, field="file")
+        file = _resolve(base, files[0].value, here, dbat_dir, path, files[0].line, "file")
+        if not file.is_file():
+            raise InputError(f"camera file not found: {file}", path=path, line=files[0].line, field="file")
+        root = parse_xml(file)
+        inner = root.find("cameras") if root.tag == "document" else None
+        if inner is None:
+            raise InputError("expected a DBAT camera file (<document dbat_camera_version=…><cameras><camera>…)",
+                             path=file, line=root.line, field=root.tag if root.tag != "document" else "cameras")
+        return _camera(inner, file)
     cams = section.findall("camera")
     if len(cams) != 1:
         raise InputError(f"expected exactly one <camera> (baarda reads single-camera DBAT projects), got "
@@ -657,6 +679,8 @@ def read_dbat(path: Path, *, dbat_dir: Path | None = None) -> DbatScript:
         raise InputError(f"expected a DBAT script (<document dbat_script_version=…>), the root is <{root.tag}>",
                          path=path, line=root.line, field=root.tag)
     here = path.parent.resolve()
+    if dbat_dir is None:                             # $DBAT: DBAT's folder (dbatroot's parent), when the script is inside it
+        dbat_dir = next((a for a in here.parents if (a / "code").is_dir() and (a / "data" / "script").is_dir()), None)
     meta = root.find("meta")
     name = ""
     unit = "m"
@@ -678,12 +702,9 @@ def read_dbat(path: Path, *, dbat_dir: Path | None = None) -> DbatScript:
     cams = inp.find("cameras")
     if cams is None:
         raise InputError("the script has no <cameras> section", path=path, line=inp.line, field="cameras")
-    camera = _camera(cams, path)
+    camera = _camera(cams, path, base, here, dbat_dir)
     ctrl = inp.find("ctrl_pts")
-    if ctrl is None:
-        raise InputError("the script has no <ctrl_pts> section (a datum is needed)", path=path, line=inp.line,
-                         field="ctrl_pts")
-    control = _points(ctrl, path, base, here, dbat_dir)
+    control = _points(ctrl, path, base, here, dbat_dir) if ctrl is not None else []
     chk = inp.find("check_pts")
     check = _points(chk, path, base, here, dbat_dir) if chk is not None else []
     imgs = inp.find("images")
@@ -704,12 +725,27 @@ def read_dbat(path: Path, *, dbat_dir: Path | None = None) -> DbatScript:
     io_initial = "default"
     est_io = {k: False for k in IO_FLAGS}
     est_eo = True
+    io_overrides: dict = {}
+    datum = None
     for op in ops_node.findall("operation") if ops_node is not None else []:
         kids = [k for k in op.children if k.tag != "c"]
         opname = kids[0].tag if kids else op.value
         operations.append(opname)
         if opname not in KNOWN_OPERATIONS:
-            unknown.append(opname)
+            raise InputError(f"DBAT operation {quote(opname)} is not one baarda carries out (known: "
+                             f"{', '.join(sorted(KNOWN_OPERATIONS))})", path=path, line=op.line, field=opname)
+        if opname == "set_datum":
+            node = kids[0] if kids else op
+            kind = node.value
+            if kind != "depend":
+                raise InputError(f"set_datum {quote(kind)} is not carried out (DBAT knows 'depend')", path=path,
+                                 line=node.line, field="set_datum")
+            ref_cam = node.attrib.get("ref_cam", "1")
+            base_attr = node.attrib.get("ref_base", "longest")
+            if base_attr not in ("longest", "x", "y", "z"):
+                raise InputError(f"ref_base is 'longest', 'x', 'y' or 'z', got {quote(base_attr)}", path=path,
+                                 line=node.line, field="ref_base")
+            datum = ("depend", _id(ref_cam), base_attr, node.line)
         if opname == "check_ray_count":
             mr = op.attrib.get("min_rays", "2")
             v = _num(mr, path, op.line, "min_rays")
@@ -725,6 +761,18 @@ def read_dbat(path: Path, *, dbat_dir: Path | None = None) -> DbatScript:
                     raise InputError(f"initial io values are 'default' or 'loaded', got {quote(v)}", path=path,
                                      line=io.line, field="io")
                 io_initial = v
+                for ch in io.children if io is not None else []:
+                    if ch.tag in ("all", "c"):
+                        continue
+                    if ch.tag not in ("cc", "pp", "K", "P", "aspect", "skew"):
+                        raise InputError(f"unknown initial io value <{ch.tag}> (known: all, cc, pp, K, P, aspect, "
+                                         "skew)", path=path, line=ch.line, field=ch.tag)
+                    t = ch.value.lower()
+                    if t in ("default", "loaded") or (ch.tag == "cc" and t == "focal"):
+                        io_overrides[ch.tag] = "default" if t == "focal" else t
+                    else:
+                        n = {"cc": 1, "pp": 2, "K": (1, 2, 3), "P": (1, 2), "aspect": 1, "skew": 1}[ch.tag]
+                        io_overrides[ch.tag] = tuple(_nums(ch, path, n))
             eo = kids[0].find("eo")
             if eo is not None:
                 v = (eo.find("all").value if eo.find("all") is not None else eo.value).lower()
@@ -744,17 +792,25 @@ def read_dbat(path: Path, *, dbat_dir: Path | None = None) -> DbatScript:
                 if not est_eo:
                     raise InputError("fixed exterior orientations need given orientations, which DBAT scripts "
                                      "without <eo> files do not have", path=path, line=eo.line, field="eo")
+            opn = kids[0].find("op")
+            if opn is not None:
+                allv = opn.find("all")
+                node = allv if allv is not None else opn
+                if node.value.lower() != "default" and not _bool(node, path, "op"):
+                    raise InputError("fixed object points (<op> false) are not carried out: baarda estimates every "
+                                     "tie point", path=path, line=opn.line, field="op")
     return DbatScript(path=path, name=name, object_unit=unit, control=control, check=check, images=images,
                       image_files=image_files, images_list=images_list, marks=marks, camera=camera,
                       min_rays=min_rays, io_initial=io_initial, estimate_io=est_io, estimate_eo=est_eo,
-                      operations=operations, unknown_operations=unknown, prior_eo=prior_eo, eo_initial=eo_initial)
+                      operations=operations, unknown_operations=unknown, prior_eo=prior_eo, eo_initial=eo_initial,
+                      io_overrides=io_overrides, datum=datum)
 
 
 # --------------------------------------------------------------------------------------------
 # the block
 
 
-def camera_values(cam: DbatCamera, io_initial: str) -> dict:
+def camera_values(cam: DbatCamera, io_initial: str, overrides: Mapping | None = None) -> dict:
     """Initial interior orientation in baarda's frame: c, xp, yp (mm, y up, origin at the format
     centre) and the ``brown-backward`` parameters (:data:`AP_NAMES`)."""
     p = cam.pixel_mm
@@ -771,7 +827,36 @@ def camera_values(cam: DbatCamera, io_initial: str) -> dict:
         dbat[3:3 + len(cam.P)] = cam.P
         dbat[5] = cam.aspect - 1.0
         dbat[6] = cam.skew
+    for name, v in (overrides or {}).items():      # set_initial_values' per-parameter values after <all>
+        if name == "cc":
+            c = cam.focal if v == "default" else (cam.cc if cam.cc is not None else cam.focal) if v == "loaded" else v[0]
+        elif name == "pp":
+            if v == "default" or (v == "loaded" and cam.pp is None):
+                xp, yp = 0.0, 0.0
+            else:
+                px, py = cam.pp if v == "loaded" else v
+                xp, yp = px - W * p / 2, H * p / 2 - py
+        elif name in ("K", "P"):
+            sl = slice(0, 3) if name == "K" else slice(3, 5)
+            dbat[sl] = 0.0
+            vals = () if v == "default" else (cam.K if name == "K" else cam.P) if v == "loaded" else v
+            dbat[sl.start:sl.start + len(vals)] = vals
+        elif name == "aspect":
+            dbat[5] = 0.0 if v == "default" else cam.aspect - 1.0 if v == "loaded" else v[0] - 1.0
+        elif name == "skew":
+            dbat[6] = 0.0 if v == "default" else cam.skew if v == "loaded" else v[0]
     return {"c": float(c), "xp": float(xp), "yp": float(yp), "ap": dbat * DBAT_SIGN}
+
+
+def depend_datum(X0: np.ndarray, ref: int, ref_base: str) -> tuple[int, int]:
+    """DBAT's dependent relative orientation (``seteoest(s,'depend',…)``): the reference photo's six
+    elements are fixed and so is one coordinate of one other projection centre — the largest
+    (signed) offset from the reference centre among the coordinates ``ref_base`` names (``longest``:
+    x, y and z), the first in MATLAB's column order on a tie.  Returns (photo index, axis)."""
+    axes = {"longest": (0, 1, 2), "x": (0,), "y": (1,), "z": (2,)}[ref_base]
+    off = X0[:, axes] - X0[ref, axes]
+    k = int(np.argmax(off.ravel()))
+    return k // len(axes), axes[k % len(axes)]
 
 
 def dbat_from_baarda(c, xp, yp, ap, cam: DbatCamera) -> dict:
@@ -791,7 +876,7 @@ def photo_ids(images: dict[str, str]) -> list[str]:
     return stems if len(set(stems)) == len(stems) and all(stems) else list(images)
 
 
-def dbat_block(script: DbatScript) -> Block:
+def dbat_block(script: DbatScript, datum: str = "script") -> Block:
     """The script as a baarda block: one ``brown-backward`` camera, one photo per listed image (id: the
     file name without extension; no orientation: the bundle resects and intersects), control (fixed or weighted), check and tie
     points, marks in mm with their σ.  Tie and check points with fewer than ``min_rays`` rays are left
@@ -799,7 +884,7 @@ def dbat_block(script: DbatScript) -> Block:
     cam = script.camera
     p = cam.pixel_mm
     W, H = cam.image
-    iv = camera_values(cam, script.io_initial)
+    iv = camera_values(cam, script.io_initial, script.io_overrides)
     e = script.estimate_io
     s_iop = [FREE if e["cc"] else FIXED, FREE if e["px"] else FIXED, FREE if e["py"] else FIXED]
     s_ap = [FREE if e[k] else FIXED for k in ("K1", "K2", "K3", "P1", "P2", "aspect", "skew")]
@@ -822,57 +907,68 @@ def dbat_block(script: DbatScript) -> Block:
                 role.append("full" if kind == "control" else "check")
                 sig.append(s.sigma[k] if kind == "control" else np.full(3, FREE))
                 labels[pid] = s.labels[k]
-    # marks
+    # marks (vectorised: a 180 000-coordinate project in well under a second)
     img_index = {iid: k for k, iid in enumerate(script.images)}
-    ob_img, ob_pt, ob_uv, ob_s = [], [], [], []
-    seen = {}
-    for mf in script.marks:
-        for k in range(len(mf.point)):
-            iid, pid = mf.image[k], mf.point[k]
-            if iid not in img_index:
-                raise InputError(f"image {quote(iid)} is not in the image list", path=mf.file, line=mf.lines[k],
-                                 field="im")
-            key = (iid, pid)
-            if key in seen:
-                raise InputError(f"point {quote(pid)} measured twice in image {quote(iid)} (first: {seen[key]})",
-                                 path=mf.file, line=mf.lines[k], field="id")
-            seen[key] = f"{mf.file.name}:{mf.lines[k]}"
-            u, v = mf.uv[k]
-            if not (-0.5 * W <= u <= 1.5 * W and -0.5 * H <= v <= 1.5 * H):
-                raise InputError(f"mark ({u:g}, {v:g}) px lies far outside the {W} × {H} image", path=mf.file,
-                                 line=mf.lines[k], field="x")
-            ob_img.append(img_index[iid])
-            ob_pt.append(pid)
-            ob_uv.append((u, v))
-            ob_s.append(mf.sigma_px[k])
-    if not ob_pt:
+    if not sum(len(mf.point) for mf in script.marks):
         raise InputError("no image measurements", path=script.marks[0].file)
-    for pid in ob_pt:
-        if pid not in where:
-            where[pid] = "tie"
-            ids.append(pid)
-            XYZ.append(np.full(3, np.nan))
-            role.append("tie")
-            sig.append(np.full(3, FREE))
-    ob_pt_arr = np.asarray(ob_pt, dtype=object)
-    rays = {pid: 0 for pid in ids}
-    for pid in ob_pt:
-        rays[pid] += 1
-    dropped = [pid for pid, r in zip(ids, role) if r in ("tie", "check") and rays[pid] < script.min_rays]
-    keep_obs = ~np.isin(ob_pt_arr, dropped)
-    keep_pt = [pid not in set(dropped) for pid in ids]
-    index = {}
-    for pid, kp in zip(ids, keep_pt):
-        if kp:
-            index[pid] = len(index)
-    points = Points.make([i for i, kp in zip(ids, keep_pt) if kp],
-                         np.asarray([x for x, kp in zip(XYZ, keep_pt) if kp], float).reshape(-1, 3),
-                         role=[r for r, kp in zip(role, keep_pt) if kp],
-                         sigma=np.asarray([s for s, kp in zip(sig, keep_pt) if kp], float).reshape(-1, 3))
-    uv = np.asarray(ob_uv, float)[keep_obs]
+    m_img = np.concatenate([np.asarray(mf.image, dtype=str).reshape(-1) for mf in script.marks])
+    m_pt = np.concatenate([np.asarray(mf.point, dtype=str).reshape(-1) for mf in script.marks])
+    m_uv = np.concatenate([np.asarray(mf.uv, float).reshape(-1, 2) for mf in script.marks])
+    m_s = np.concatenate([np.asarray(mf.sigma_px, float).reshape(-1) for mf in script.marks])
+    m_file = np.concatenate([np.full(len(mf.point), f) for f, mf in enumerate(script.marks)])
+    m_line = np.concatenate([np.asarray(mf.lines, int).reshape(-1) for mf in script.marks])
+
+    def where_(k):
+        return {"path": script.marks[m_file[k]].file, "line": int(m_line[k])}
+
+    u_img, img_inv = np.unique(m_img, return_inverse=True)
+    u_img_index = np.array([img_index.get(i, -1) for i in u_img], int)
+    ob_img_all = u_img_index[img_inv]
+    bad = np.flatnonzero(ob_img_all < 0)
+    if len(bad):
+        k = int(bad[0])
+        raise InputError(f"image {quote(m_img[k])} is not in the image list", field="im", **where_(k))
+    u_pt, first_pt, pt_inv = np.unique(m_pt, return_index=True, return_inverse=True)
+    key = ob_img_all.astype(np.int64) * len(u_pt) + pt_inv
+    order = np.argsort(key, kind="stable")
+    sk = key[order]
+    rep = np.flatnonzero(sk[1:] == sk[:-1])
+    if len(rep):
+        k = int(order[1:][rep].min())                            # the first repeated measurement in file order
+        f0 = int(order[np.searchsorted(sk, key[k])])
+        raise InputError(f"point {quote(m_pt[k])} measured twice in image {quote(m_img[k])} (first: "
+                         f"{script.marks[m_file[f0]].file.name}:{int(m_line[f0])})", field="id", **where_(k))
+    out = ~((-0.5 * W <= m_uv[:, 0]) & (m_uv[:, 0] <= 1.5 * W) & (-0.5 * H <= m_uv[:, 1]) & (m_uv[:, 1] <= 1.5 * H))
+    if out.any():
+        k = int(np.flatnonzero(out)[0])
+        u, v = m_uv[k]
+        raise InputError(f"mark ({u:g}, {v:g}) px lies far outside the {W} × {H} image", field="x", **where_(k))
+    u_list = u_pt.tolist()
+    new = [u_list[q] for q in np.argsort(first_pt, kind="stable").tolist() if u_list[q] not in where]
+    for pid in new:                                  # new tie points in order of first appearance
+        where[pid] = "tie"
+    n_known = len(ids)
+    ids = ids + new
+    role = role + ["tie"] * len(new)
+    XYZ_a = np.vstack([np.asarray(XYZ, float).reshape(-1, 3), np.full((len(new), 3), np.nan)])
+    sig_a = np.vstack([np.asarray(sig, float).reshape(-1, 3), np.full((len(new), 3), FREE)])
+    counts = np.bincount(pt_inv, minlength=len(u_pt))
+    rays = dict.fromkeys(ids, 0)
+    rays.update(zip(u_list, counts.tolist()))
+    ray_arr = np.array([rays[i] for i in ids], int)
+    role_a = np.asarray(role, dtype=object)
+    drop_mask = np.isin(role_a, ["tie", "check"]) & (ray_arr < script.min_rays)
+    dropped = [ids[k] for k in np.flatnonzero(drop_mask)]
+    keep_obs = ~np.isin(m_pt, np.asarray(dropped, dtype=str)) if dropped else np.ones(len(m_pt), bool)
+    kp = ~drop_mask
+    kept_ids = [i for i, k in zip(ids, kp) if k]
+    index = dict(zip(kept_ids, range(len(kept_ids))))
+    points = Points.make(kept_ids, XYZ_a[kp], role=role_a[kp].tolist(), sigma=sig_a[kp])
+    del n_known
+    u_index = np.array([index.get(q, -1) for q in u_list], int)
+    uv = m_uv[keep_obs]
     xy = mm_from_pixels(uv, (W, H), p, convention="colmap")
-    obs = Observations.make(np.asarray(ob_img, int)[keep_obs], [index[q] for q in ob_pt_arr[keep_obs]], xy,
-                            sigma=np.asarray(ob_s, float)[keep_obs] * p)
+    obs = Observations.make(ob_img_all[keep_obs], u_index[pt_inv[keep_obs]], xy, sigma=m_s[keep_obs] * p)
     photos = Photos.make(photo_ids(script.images), camera=0,
                          image_path=[str(script.image_files.get(k) or "") for k in script.images])
     if script.eo_initial == "loaded" and script.prior_eo:
@@ -884,6 +980,26 @@ def dbat_block(script: DbatScript) -> Block:
             X0[img_index[iid]] = x0
             opk[img_index[iid]] = a
         photos = photos.replace(X0=X0, opk=opk)
+    has_control = any(len(s.ids) for s in script.control)
+    if datum == "script" and script.datum is not None:
+        _, ref_id, ref_base, dline = script.datum
+        ref = int(ref_id) - 1 if ref_id.isdigit() else -1       # DBAT's ref_cam: the photo's position (1-based)
+        if not 0 <= ref < len(photos):
+            raise InputError(f"ref_cam {quote(ref_id)} is not a photo of the list (1 to {len(photos)})",
+                             path=script.path, line=dline, field="ref_cam")
+        X0 = np.asarray(photos.X0, float)
+        if not np.isfinite(X0).all():
+            raise InputError("set_datum depend fixes initial orientations: it needs every photo's (a <prior_eo> file "
+                             "with <eo>loaded</eo>)", path=script.path, line=dline, field="set_datum")
+        j, axis = depend_datum(X0, ref, ref_base)
+        sig = np.array(photos.sigma_eo, float)
+        sig[ref] = FIXED
+        sig[j, axis] = FIXED
+        photos = photos.replace(sigma_eo=sig)
+    elif not has_control and datum == "script":
+        raise InputError("the script has neither control points nor a set_datum operation: no datum (give the dbat "
+                         "stage datum = \"free\" and the bundle datum = \"free\" for a free network)",
+                         path=script.path, field="ctrl_pts")
     unused_ctrl = [pid for pid, r in zip(ids, role) if r == "full" and rays[pid] == 0]
     info = DbatInfo(
         script=str(script.path), name=script.name, camera=cam, io_initial=script.io_initial,
@@ -896,5 +1012,8 @@ def dbat_block(script: DbatScript) -> Block:
         dropped_points=dropped, dropped_marks=int((~keep_obs).sum()), unmeasured_control=unused_ctrl,
         control_files=[str(s.file) for s in script.control], check_files=[str(s.file) for s in script.check])
     meta = {"dbat": info}
+    if datum == "script" and script.datum is not None:
+        meta["dbat_datum"] = {"ref_photo": str(photos.ids[ref]), "fixed_photo": str(photos.ids[j]),
+                              "fixed_axis": "XYZ"[axis], "value": float(X0[j, axis])}
     return Block(cameras, photos, points, obs, object_unit=script.object_unit, meta=meta,
                  source=SourceInfo(path=str(script.path), format="DBAT"))
