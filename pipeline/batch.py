@@ -341,7 +341,26 @@ def quality(stages: list[dict]) -> dict:
             if par.get("name") in CAMERA_PARAMETERS:
                 suffix = _UNIT_SUFFIX.get(par.get("unit", ""), "")
                 out[f"camera.{par['name']}" + (f"_{suffix}" if suffix else "")] = par.get("value")
+    out.update(congruence_columns(stages))
     return out
+
+
+def congruence_columns(stages: list[dict]) -> dict:
+    """A monitoring run's congruence result for the batch summary (one row per run, so that a batch of
+    epochs reads as one congruence summary): the last comparison of its ``congruence`` stage —
+    reference and epoch, the global test's T, p and verdict, the points found moved (count and ids)."""
+    for st in reversed(stages):
+        comps = (st.get("summary") or {}).get("comparisons")
+        if not comps:
+            continue
+        c = comps[-1]
+        g = c.get("global_test") or {}
+        moved = [str(m) for m in c.get("moved") or []]
+        return {"congruence.reference": c.get("reference"), "congruence.epoch": c.get("epoch"),
+                "congruence.T": g.get("T"), "congruence.p": g.get("p"),
+                "congruence": "congruent" if g.get("accepted") else "moved",
+                "congruence.n_moved": len(moved), "congruence.moved": " ".join(moved[:20])}
+    return {}
 
 
 def run_batch(jobs: list[BatchJob], out: str | Path, engine=None,

@@ -77,3 +77,14 @@ def test_unknown_datum_point_is_an_input_error(run, tmp_path):
     out = run_project(project, tmp_path / "run3", verbose=False)
     assert not out.ok and out.failure == "input"
     assert "T99" in out.message and "datum_points" in out.message and "bad.toml" in out.message
+
+
+def test_batch_summary_row_carries_the_congruence(run):
+    from baarda.pipeline.batch import quality
+
+    res = json.loads((run / "results.json").read_text())
+    q = quality(res["stages"])
+    summ = next(s for s in res["stages"] if s["id"] == "congruence")["summary"]["comparisons"][0]
+    assert q["congruence"] == "moved" and q["congruence.n_moved"] == len(summ["moved"])
+    assert q["congruence.T"] == summ["global_test"]["T"] and q["congruence.moved"].split() == summ["moved"]
+    assert q["congruence.reference"] == "E1" and q["congruence.epoch"] == "E2"
