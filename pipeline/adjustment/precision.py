@@ -235,7 +235,8 @@ def sparse_precision(prob, lin, red, st) -> Precision:
     blk_cols["gpt"] = np.where(prob.g_pt[gpt] >= 0, prob.g_pt[gpt], n_g)
     items["eo"] = by_owner(owners(blk_cols["eo"]))
     items["gpt"] = by_owner(owners(blk_cols["gpt"]))
-    cam_own = owners(np.array([np.resize(c, max(len(c) for c in blk_cols["cam"])) for c in blk_cols["cam"]])) \
+    w_cam = max((len(c) for c in blk_cols["cam"]), default=0)
+    cam_own = owners(np.array([np.resize(c, w_cam) for c in blk_cols["cam"]])) \
         if blk_cols["cam"] else np.zeros(0, int)
     Q_cam = [np.zeros((len(c), len(c))) for c in blk_cols["cam"]]
     Q_diag = np.zeros(n_g)
