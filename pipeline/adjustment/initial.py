@@ -302,40 +302,25 @@ def intersection(xy, photo, X0, opk, c, xp=None, yp=None, *, point=None, ap_mode
 
 
 def _refine_points(xy, photo, point, XYZ, ok, X0, opk, params, models, metas, max_iter):
-    """Gauss–Newton on the points' coordinates, photos held, all points at once.
-
-    A point whose step fell below the stopping threshold (``1e-12 ×`` the largest coordinate) is
-    left as it is; only the rays of the points still moving are projected in the next iteration
-    (the next step of a converged point is below the rounding of its coordinates: Gauss–Newton
-    converges quadratically there).  The iteration stops when no point moves or after
-    ``max_iter`` steps.  Each point's normal equations are its own rays' sums, so a point that is
-    still iterating gets the same steps as when every point was iterated."""
-    XYZ = XYZ.copy()
+    sel = ok[point]
+    ph, pt, l = photo[sel], point[sel], xy[sel]
     npt = len(XYZ)
     R_dR = rotation_and_derivatives(opk)
-    moving = ok.copy()
-    cam_of = np.arange(len(X0))
     for _ in range(max_iter):
-        sel = moving[point]
-        ph, pt, l = photo[sel], point[sel], xy[sel]
-        pr = project_observations(ph, pt, np.nan_to_num(XYZ), X0, opk, cam_of, params, models, metas, R_dR=R_dR)
+        pr = project_observations(ph, pt, np.nan_to_num(XYZ), X0, opk, np.arange(len(X0)), params, models,
+                                  metas, R_dR=R_dR)
         r = l - pr.xy
         J = pr.J_point
         N = np.stack([np.bincount(pt, np.einsum("kia,kib->kab", J, J).reshape(-1, 9)[:, t], minlength=npt)
                       for t in range(9)], axis=1).reshape(npt, 3, 3)
         g = np.stack([np.bincount(pt, np.einsum("kia,ki->ka", J, r)[:, t], minlength=npt) for t in range(3)], axis=1)
-        idx = np.flatnonzero(moving)
+        dX = np.zeros_like(XYZ)
         try:
-            d = np.linalg.solve(N[idx], g[idx][:, :, None])[:, :, 0]
+            dX[ok] = np.linalg.solve(N[ok], g[ok][:, :, None])[:, :, 0]
         except np.linalg.LinAlgError:
             break
-        XYZ[idx] += d
-        tol = 1e-12 * max(1.0, float(np.nanmax(np.abs(XYZ[ok]))))
-        step = np.abs(d).max(axis=1)
-        if not np.nanmax(step) >= tol:          # also when every step is nan, as before
-            break
-        moving[idx[~(step >= tol)]] = False
-        if not moving.any():
+        XYZ = XYZ + dX
+        if np.nanmax(np.abs(dX[ok])) < 1e-12 * max(1.0, float(np.nanmax(np.abs(XYZ[ok])))):
             break
     return XYZ
 
