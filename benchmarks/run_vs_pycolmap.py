@@ -16,8 +16,8 @@ projection centres, covariance on — the configuration of issue 22's table), an
   (tables, results.json, report.md/html, figures, recording): wall time of the whole process and
   its peak resident set (``ru_maxrss`` of the waited-for child: the process ``exec``s, so its
   high-water mark is its own);
-* ``pycolmap``: the same start block (the BAL file read back with baarda's reader, so both solve
-  the same numbers) through the cross-check machinery in its own process, twice — with
+* ``pycolmap``: the same start block (the simulated block the BAL file was written from: one
+  shared camera with its resolution, intrinsics fixed, as the BAL project holds them) through the cross-check machinery in its own process, twice — with
   ``SPARSE_SCHUR`` forced (``max_num_images_direct_sparse_cpu_solver`` raised above the block) and
   with pycolmap's default choice (``ITERATIVE_SCHUR`` beyond 1 000 images); *solve* =
   ``adjuster.solve()`` only, with the peak resident set of that child.
@@ -58,7 +58,6 @@ def write_aerial_project(folder: Path, n_photos: int, seed: int = 1) -> dict:
     import numpy as np
 
     from baarda.pipeline.synthetic.aerial import perturb_start, simulate_aerial
-    from baarda.plugins.bal.bal import block_from_bal, read_bal
     from baarda.plugins.bal.writer import bal_from_block, write_bal
     from scale import PERTURB, layout, save_block
 
@@ -91,8 +90,7 @@ datum = "free"
 datum_on = "centres"
 solver.covariance = true
 """)
-    back = block_from_bal(read_bal(folder / "block.txt"), pixel_mm=pitch, sigma_px=0.5, intrinsics="fixed")
-    save_block(folder / "start.npz", back)
+    save_block(folder / "start.npz", start)      # pycolmap's start: the block the BAL file holds
     return {"project": str(folder / "project.toml"), "photos": info["cameras"], "points": info["points"],
             "observations": info["observations"], "layout": f"{strips} × {per}", "kind": "aerial (BAL)"}
 
@@ -315,7 +313,7 @@ def run_baarda(project: str, workdir: Path, tag: str, *, threads: int, timeout: 
     w["status"] = "ok" if w["rc"] == 0 else (f"timeout ({timeout:.0f} s)" if w["timed_out"] else f"exit {w['rc']}")
     size = sum(f.stat().st_size for f in out.rglob("*") if f.is_file()) if out.exists() else 0
     w["output_mb"] = size / 1e6
-    w["stages"] = _stage_seconds(workdir / f"{tag}-baarda.stdout")
+    w["stages"] = {**_stage_seconds(workdir / f"{tag}-baarda.stderr"), **_stage_seconds(workdir / f"{tag}-baarda.stdout")}
     return w
 
 

@@ -27,6 +27,7 @@ from baarda.pipeline.model import Block
 
 from ..camera import get_ap_model
 from .collinearity import Projector, project_observations
+from .phases import phase_step
 from .settings import BundleSettings, camera_meta
 
 __all__ = ["resection", "intersection", "initial_values", "ResectionResult"]
@@ -308,7 +309,8 @@ def _refine_points(xy, photo, point, XYZ, ok, X0, opk, params, models, metas, ma
     R, dR = rotation_and_derivatives(opk)
     # the rays' grouping worked out once; only the points' Jacobians (no camera columns)
     proj = Projector(ph, pt, np.arange(len(X0)), models, metas, cam_cols=np.zeros(0, int))
-    for _ in range(max_iter):
+    for it in range(max_iter):
+        phase_step("initial values: intersection", it, max_iter, "iterations")
         pr = proj.jacobians(proj.project(np.nan_to_num(XYZ), X0, opk, params, R=R), dR=dR)
         r = l - pr.xy
         J = pr.J_point
@@ -352,7 +354,9 @@ def initial_values(block: Block, *, ap_meta=None, max_rounds: int = 50, warn=Non
     for _ in range(max_rounds):
         changed = False
         # resection of every photo that sees ≥ 4 known points
-        for i in np.flatnonzero(used_ph & ~oriented):
+        todo = np.flatnonzero(used_ph & ~oriented)
+        for n_done, i in enumerate(todo):
+            phase_step("initial values: resection", n_done, len(todo), "photos")
             sel = (o_ph == i) & known[o_pt]
             if sel.sum() < 4:
                 continue
