@@ -343,7 +343,7 @@ def _machine() -> str:
             f"{os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}")
 
 
-HEADER = ("| case | photos | points | observations | whole run s | run peak GB | output MB | "
+HEADER = ("| case | photos | points | observations | whole run s (CPU s) | run peak GB | output MB | "
           "pycolmap SPARSE_SCHUR solve s (iter.) | peak GB | pycolmap default solve s (solver, iter.) | peak GB | "
           "run / SPARSE_SCHUR | memory / SPARSE_SCHUR | run / default | memory / default |")
 
@@ -352,7 +352,7 @@ def row(name: str, r: dict) -> str:
     p, b = r.get("prepare", {}), r.get("baarda", {})
     cells = [name, str(p.get("photos", "–")), f"{p.get('points', 0):,}".replace(",", " "),
              f"{p.get('observations', 0):,}".replace(",", " "),
-             f"{b['wall_seconds']:.1f}" if b.get("status") == "ok" else b.get("status", "–"),
+             f"{b['wall_seconds']:.1f} ({b['cpu_seconds']:.1f})" if b.get("status") == "ok" else b.get("status", "–"),
              _gb(b.get("peak_kb")), f"{b.get('output_mb', 0):.0f}"]
     for s in PYCOLMAP_SOLVERS:
         q = r.get(s)
