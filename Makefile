@@ -42,3 +42,12 @@ bench-scale: $(STAMP)
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache
+
+# Whole runs against pycolmap (docs/benchmarks.md, "Whole runs"): `baarda run` of simulated aerial
+# blocks written as BAL projects (every output written) against pycolmap's SPARSE_SCHUR and default
+# solves, and a 60-photo close-range DBAT project; not part of `make test`.  The 10 000-photo block
+# takes ≈ 15–25 minutes with pycolmap's two solves: RUN_ARGS="--sizes 2000" for the short set.
+RUN_ARGS ?= --sizes 2000 10000
+.PHONY: bench-run
+bench-run: $(STAMP)
+	$(TESTENV) $(PY) benchmarks/run_vs_pycolmap.py $(RUN_ARGS)

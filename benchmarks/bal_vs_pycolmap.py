@@ -4,7 +4,7 @@ Run as a script (from the repository root)::
 
     .venv/bin/python benchmarks/bal_vs_pycolmap.py [--path FILE] [--repeat N] [--datum points|centres]
                                                    [--tol-rel 1e-6] [--max-iter 200] [--threads N]
-                                                   [--no-redundancy]
+                                                   [--no-redundancy] [--compete]
 
 or through ``make bench`` (``tests/benchmarks/test_bal_speed.py``).  Prints, for both solvers, the
 final cost ½ Σ (v/px)² evaluated with *one* definition (baarda's collinearity on the same active
@@ -13,7 +13,9 @@ baarda / pycolmap, and the extra time baarda needs for the redundancy numbers of
 observation.  Both solvers get the same threads (``--threads``; -1: every core): pycolmap's Ceres
 threads and baarda's ``BundleSettings.threads``.  Beside the wall-clock times the CPU times are
 printed (every thread of the process counted): on a machine shared with other work they are the
-steadier measure.  Details and the measured numbers: ``docs/benchmarks.md``.
+steadier measure.  ``--compete`` runs the comparison twice, quiet and beside a busy-loop process,
+and prints both ratios (the adjustment sets its own BLAS threads, so no ``OPENBLAS_NUM_THREADS``
+is needed).  Details and the measured numbers: ``docs/benchmarks.md``.
 
 The problem: one RADIAL camera (f, k1, k2) per photo, free network (no control).  The file has 31
 observations of points behind their camera; COLMAP's cost gives them a zero residual while
@@ -158,6 +160,35 @@ def run(path: Path | None = None, *, repeat: int = 1, datum_on: str = "points", 
             "start_cost": start, "behind": behind, "result": b["result"]}
 
 
+def busy_loop():
+    """A competing process: one core busy in a Python loop until it is stopped (``--compete``)."""
+    import subprocess
+
+    return subprocess.Popen([sys.executable, "-c", "while True: pass"])
+
+
+def run_quiet_and_competing(path=None, *, stream=sys.stdout, **kw) -> dict:
+    """:func:`run` on a quiet machine, then again beside :func:`busy_loop`; both ratios printed.
+
+    The library path is what is measured: no ``OPENBLAS_NUM_THREADS`` is needed (the adjustment
+    limits its own BLAS threads); a caller's threaded BLAS used to make baarda 4.3–4.7 × pycolmap's
+    time with other work on the machine (``docs/benchmarks.md``, "Threads")."""
+    blas = os.environ.get("OPENBLAS_NUM_THREADS", "unset")
+    print(f"-- quiet (OPENBLAS_NUM_THREADS {blas})", file=stream, flush=True)
+    quiet = run(path, stream=stream, **kw)
+    print("\n-- with a competing process (a busy loop on one core)", file=stream, flush=True)
+    proc = busy_loop()
+    try:
+        time.sleep(0.5)
+        busy = run(path, stream=stream, **kw)
+    finally:
+        proc.kill()
+        proc.wait()
+    print(f"\ntime ratio baarda / pycolmap: quiet {quiet['ratio']:.2f}, competing {busy['ratio']:.2f} "
+          f"(CPU ratio {quiet['cpu_ratio']:.2f}, {busy['cpu_ratio']:.2f})", file=stream, flush=True)
+    return {"quiet": quiet, "competing": busy}
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--path", type=Path, default=None, help=f"BAL file (default: <shared data>/{DEFAULT_PATH})")
@@ -168,10 +199,16 @@ def main(argv=None) -> int:
     ap.add_argument("--max-iter", type=int, default=200)
     ap.add_argument("--threads", type=int, default=-1, help="threads of both solvers (-1: all cores)")
     ap.add_argument("--no-redundancy", action="store_true", help="skip baarda's redundancy numbers")
+    ap.add_argument("--compete", action="store_true",
+                    help="run quiet, then again beside a busy-loop process, and print both ratios")
     a = ap.parse_args(argv)
     sys.path.insert(0, str(ROOT))
-    run(a.path, repeat=a.repeat, datum_on=a.datum, tol_rel=a.tol_rel, max_iter=a.max_iter,
-        redundancy=not a.no_redundancy, num_threads=a.threads)
+    kw = dict(repeat=a.repeat, datum_on=a.datum, tol_rel=a.tol_rel, max_iter=a.max_iter,
+              redundancy=not a.no_redundancy, num_threads=a.threads)
+    if a.compete:
+        run_quiet_and_competing(a.path, **kw)
+    else:
+        run(a.path, **kw)
     return 0
 
 

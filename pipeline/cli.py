@@ -57,13 +57,14 @@ def _set_threads(n: int | None) -> int:
     that pays (``--threads``, default every core), which stages get as ``ctx.threads``.
 
     Single-threaded BLAS: the bundle's many small dense solves run slower with threaded OpenBLAS
-    (measured: the AICON fixture 25.5 s threaded, 15.8 s with one thread).  Where threads pay —
+    (measured: the AICON fixture 25.5 s threaded, 15.8 s with one thread).  The adjustment limits
+    its own BLAS threads the same way (``baarda.pipeline.adjustment.threads``) for any caller.  Where threads pay —
     the dense route's photo-pair products, Monte Carlo and batch workers — the code asks for them
     (``docs/benchmarks.md``, "Threads").
     """
-    from threadpoolctl import threadpool_limits          # lazy: see the imports above
+    from .adjustment.threads import limit_process       # lazy: see the imports above
 
-    threadpool_limits(limits=1)
+    limit_process(1)            # numpy's and scipy's BLAS, as the adjustment limits them itself
     return int(n) if n else max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
                                 else (os.cpu_count() or 1))
 

@@ -29,6 +29,7 @@ from .collinearity import EO_NAMES, IOP_NAMES, project_observations
 from .diagnose import parameter_names
 from .initial import ResectionResult, initial_values, intersection, resection
 from .lm import ITERATION_CALLBACK, solve_bundle
+from .phases import PHASE_CALLBACK, PhaseEvent
 from .problem import BundleProblem
 from .records import Convergence, Iteration, IterationEvent, Timings
 from .reliability import (GlobalRowStats, OwnEffects, ParameterVectors, effect_vectors, global_rows, linearised_model,
@@ -44,7 +45,7 @@ from .workflow import (EO_LABELS, APSelectionConfig, BundleConfig, BundleReport,
 __all__ = [
     "adjust", "BundleResult", "result_of", "BundleSettings", "BundleState", "Distance", "padded_ap", "camera_meta",
     "select_aps", "APSelection", "project_observations", "EO_NAMES", "IOP_NAMES", "parameter_names",
-    "resection", "ResectionResult", "intersection", "initial_values", "solve_bundle", "ITERATION_CALLBACK",
+    "resection", "ResectionResult", "intersection", "initial_values", "solve_bundle", "ITERATION_CALLBACK", "PHASE_CALLBACK", "PhaseEvent",
     "BundleProblem", "Convergence", "Iteration", "IterationEvent", "Timings",
     "project_block", "reprojection_px", "reprojection_summary",
     "estimate_components", "VarianceComponents", "VarianceGroup", "linear_components", "LinearComponents",

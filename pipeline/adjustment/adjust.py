@@ -24,6 +24,7 @@ from .problem import BundleProblem
 from .records import Convergence, Timings
 from .route import Route
 from .settings import BundleSettings, BundleState
+from .threads import single_blas
 
 __all__ = ["adjust", "BundleResult", "padded_ap", "result_of"]
 
@@ -270,6 +271,7 @@ def result_of(snapshot: Snapshot | None, default: "BundleResult") -> "BundleResu
     return snapshot.meta.get("result", default)
 
 
+@single_blas
 def adjust(block: Block, settings: BundleSettings | None = None, *, row_active=None, obs_active=None,
            start: BundleState | None = None, compute_initial: bool = True, covariance: bool | None = None
            ) -> BundleResult:

@@ -26,7 +26,8 @@ from baarda.pipeline.geometry.rotations import nearest_rotation, rotation_and_de
 from baarda.pipeline.model import Block
 
 from ..camera import get_ap_model
-from .collinearity import project_observations
+from .collinearity import Projector, project_observations
+from .phases import phase_step
 from .settings import BundleSettings, camera_meta
 
 __all__ = ["resection", "intersection", "initial_values", "ResectionResult"]
@@ -305,15 +306,18 @@ def _refine_points(xy, photo, point, XYZ, ok, X0, opk, params, models, metas, ma
     sel = ok[point]
     ph, pt, l = photo[sel], point[sel], xy[sel]
     npt = len(XYZ)
-    R_dR = rotation_and_derivatives(opk)
-    for _ in range(max_iter):
-        pr = project_observations(ph, pt, np.nan_to_num(XYZ), X0, opk, np.arange(len(X0)), params, models,
-                                  metas, R_dR=R_dR)
+    R, dR = rotation_and_derivatives(opk)
+    # the rays' grouping worked out once; only the points' Jacobians (no camera columns)
+    proj = Projector(ph, pt, np.arange(len(X0)), models, metas, cam_cols=np.zeros(0, int))
+    for it in range(max_iter):
+        phase_step("initial values: intersection", it, max_iter, "iterations")
+        pr = proj.jacobians(proj.project(np.nan_to_num(XYZ), X0, opk, params, R=R), dR=dR)
         r = l - pr.xy
         J = pr.J_point
-        N = np.stack([np.bincount(pt, np.einsum("kia,kib->kab", J, J).reshape(-1, 9)[:, t], minlength=npt)
-                      for t in range(9)], axis=1).reshape(npt, 3, 3)
-        g = np.stack([np.bincount(pt, np.einsum("kia,ki->ka", J, r)[:, t], minlength=npt) for t in range(3)], axis=1)
+        JJ = np.einsum("kia,kib->kab", J, J).reshape(-1, 9)
+        Jr = np.einsum("kia,ki->ka", J, r)
+        N = np.stack([np.bincount(pt, JJ[:, t], minlength=npt) for t in range(9)], axis=1).reshape(npt, 3, 3)
+        g = np.stack([np.bincount(pt, Jr[:, t], minlength=npt) for t in range(3)], axis=1)
         dX = np.zeros_like(XYZ)
         try:
             dX[ok] = np.linalg.solve(N[ok], g[ok][:, :, None])[:, :, 0]
@@ -350,7 +354,9 @@ def initial_values(block: Block, *, ap_meta=None, max_rounds: int = 50, warn=Non
     for _ in range(max_rounds):
         changed = False
         # resection of every photo that sees ≥ 4 known points
-        for i in np.flatnonzero(used_ph & ~oriented):
+        todo = np.flatnonzero(used_ph & ~oriented)
+        for n_done, i in enumerate(todo):
+            phase_step("initial values: resection", n_done, len(todo), "photos")
             sel = (o_ph == i) & known[o_pt]
             if sel.sum() < 4:
                 continue

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .collinearity import bmm, project_observations
+from .phases import phase_step
 from .problem import BundleProblem
 
 __all__ = ["Precision", "DenseCofactors", "SparseCofactors", "dense_precision", "sparse_precision",
@@ -120,6 +121,7 @@ def _points_by_chunks(prob, Qx, B, Li, Jc, Jp, H, Qpp, chunk_bytes):
     pts_sorted = prob.layout.pidx[order]
     c = max(1, int(chunk_bytes / (24.0 * max(n_x, 1))))
     for p0 in range(0, n_e, c):
+        phase_step("precision", p0, n_e, "points")
         p1 = min(n_e, p0 + c)
         Bc = B.dense_cols(p0, p1)                             # (n_x, 3c)
         M = Qx @ Bc if n_x else np.zeros((0, 3 * (p1 - p0)))  # K⁻¹ B_p
@@ -235,7 +237,8 @@ def sparse_precision(prob, lin, red, st) -> Precision:
     blk_cols["gpt"] = np.where(prob.g_pt[gpt] >= 0, prob.g_pt[gpt], n_g)
     items["eo"] = by_owner(owners(blk_cols["eo"]))
     items["gpt"] = by_owner(owners(blk_cols["gpt"]))
-    cam_own = owners(np.array([np.resize(c, max(len(c) for c in blk_cols["cam"])) for c in blk_cols["cam"]])) \
+    w_cam = max((len(c) for c in blk_cols["cam"]), default=0)
+    cam_own = owners(np.array([np.resize(c, w_cam) for c in blk_cols["cam"]])) \
         if blk_cols["cam"] else np.zeros(0, int)
     Q_cam = [np.zeros((len(c), len(c))) for c in blk_cols["cam"]]
     Q_diag = np.zeros(n_g)
@@ -246,7 +249,11 @@ def sparse_precision(prob, lin, red, st) -> Precision:
         order, bounds = items[kind] if sub is None else items[kind][sub]
         return order[bounds[s + 1]:bounds[s + 2]]
 
+    visited = [0]
+
     def visit(s, front, Z):
+        phase_step("precision", visited[0], sym.n_super, "fronts")
+        visited[0] += 1
         Zx, loc = front_cofactors(front, Z, d, sym.ipos, posg)
         nf = len(front)
 

@@ -42,6 +42,7 @@ from baarda.pipeline.stats.linear import LinearModel
 from baarda.pipeline.stats.snapshot import Snapshot
 
 from .collinearity import EO_NAMES
+from .phases import phase_step
 from .lm import final_system
 
 __all__ = ["OwnEffects", "own_effects", "effect_vectors", "ParameterVectors", "parameter_covariance", "parameter_names_of",
@@ -244,8 +245,12 @@ def own_effects(res, delta0: float = 4.13, bias=None, chunk_bytes: float = 3.2e7
     cons = red.route.constraint_cofactors(red, Qx)
     datum = red.route.datum_transform(red)
 
+    done = [0]
+
     def tracks(obs_mat, Qsub):
         """Rows of the points whose observations are ``obs_mat`` (N, t); ``Qsub`` (N, tq, tq)."""
+        phase_step("external reliability", done[0], k, "observations")
+        done[0] += obs_mat.size
         N, t = obs_mat.shape
         C = prob.layout.cidx[obs_mat].reshape(N, t * q)
         pts = prob.layout.pidx[obs_mat[:, 0]]

@@ -54,7 +54,9 @@ class BundleSettings:
     """Python threads for the work that can share them: the dense route's photo-pair products of the
     Schur complement and the per-photo sums (compiled kernels that release the GIL), on either
     route; the sparse route's factorisation and selected inversion run on one thread (subtrees on
-    threads were measured not to pay).  BLAS stays single-threaded; results do not depend on it."""
+    threads were measured not to pay).  BLAS runs one thread inside the adjustment whoever calls it
+    (:mod:`.threads`: the adjustment limits it itself with threadpoolctl and restores the caller's
+    setting afterwards); results do not depend on ``threads``."""
     solver: Literal["auto", "dense", "sparse"] = "auto"
     """reduced camera system: dense Cholesky, or the sparse supernodal factorisation with selected
     inversion (``docs/bundle.md``, "Sparse route"); ``auto`` chooses by size and fill."""

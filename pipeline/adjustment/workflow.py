@@ -39,6 +39,7 @@ from .adjust import BundleResult, adjust, padded_ap, result_of
 from .apselect import APSelection, select_aps
 from .reliability import GlobalRowStats, OwnEffects, global_rows, own_effects, parameter_covariance
 from .settings import BundleSettings, Distance
+from .threads import single_blas
 from .variance import VarianceComponents, estimate_components
 
 EO_LABELS = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
@@ -433,12 +434,14 @@ class BundleReport:
         return np.flatnonzero(np.isin(self.decision, ("flagged", "rejected")))
 
 
+@single_blas
 def adjust_block(block: Block, config: BundleConfig | None = None, *,
                  progress: Callable[[str], None] | None = None, threads: int = 1) -> BundleReport:
     """Run the bundle workflow on ``block`` as ``config`` asks; a frozen :class:`BundleReport`.
 
     ``progress(message)`` is told what starts (the adjustment, variance components, robust estimation);
-    ``threads`` is the sparse route's thread count.  Raises :class:`InputError` for options that do not
+    ``threads`` is the adjustment's own Python threads (``BundleSettings.threads``); BLAS runs one
+    thread for the duration, whoever calls (:mod:`.threads`).  Raises :class:`InputError` for options that do not
     fit the block (its ``field`` the option's dotted name) and :class:`AdjustmentError` when an
     adjustment fails (its ``state`` the last iterate, its ``block`` the configured block).
     """

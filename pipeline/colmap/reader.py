@@ -116,39 +116,47 @@ def block_from_reconstruction(rec, *, pixel_mm: float = 0.001, sensor_width_mm: 
     skipped_images = sorted(set(rec.images) - set(img_ids))
     X0 = np.zeros((len(img_ids), 3))
     opk = np.zeros((len(img_ids), 3))
-    names, keypoints = [], []
+    names, keypoints, kp_point3D = [], [], []
     for k, iid in enumerate(img_ids):
         im = rec.images[iid]
         cfw = im.cam_from_world()
         X0[k], opk[k] = pose_from_cv(cfw.rotation.matrix(), cfw.translation)
         names.append(im.name or str(iid))
-        keypoints.append(np.array([p.xy for p in im.points2D], float).reshape(-1, 2))
+        pts2 = im.points2D
+        keypoints.append(np.array([p.xy for p in pts2], float).reshape(-1, 2))
+        kp_point3D.append(np.array([p.point3D_id for p in pts2], np.uint64))
     if len(set(names)) != len(names):                       # ids must be unique: fall back to image ids
         names = [str(i) for i in img_ids]
     photos = Photos.make(names, camera=[cam_index[rec.images[i].camera_id] for i in img_ids],
                          X0=X0.reshape(-1, 3), opk=opk.reshape(-1, 3))
 
     pt_ids = sorted(rec.points3D)
-    pt_index = {pid: k for k, pid in enumerate(pt_ids)}
     points = Points.make([str(p) for p in pt_ids],
                          XYZ=np.array([rec.points3D[p].xyz for p in pt_ids], float).reshape(-1, 3), role="tie")
 
+    # every keypoint of a point of the model is an observation (a keypoint without one holds
+    # COLMAP's invalid id, which no point has), per image in keypoint order
+    pt_sorted = np.array(pt_ids, np.uint64)
     obs_photo, obs_point, obs_uv, obs_idx = [], [], [], []
-    for k, iid in enumerate(img_ids):
-        for j, p2 in enumerate(rec.images[iid].points2D):
-            if p2.has_point3D() and p2.point3D_id in pt_index:
-                obs_photo.append(k)
-                obs_point.append(pt_index[p2.point3D_id])
-                obs_uv.append(p2.xy)
-                obs_idx.append(j)
-    obs_photo = np.array(obs_photo, int)
+    for k, pid in enumerate(kp_point3D):
+        pos = np.searchsorted(pt_sorted, pid)
+        hit = pos < len(pt_sorted)
+        hit[hit] = pt_sorted[pos[hit]] == pid[hit]
+        j = np.flatnonzero(hit)
+        obs_photo.append(np.full(j.size, k, int))
+        obs_point.append(pos[j].astype(int))
+        obs_uv.append(keypoints[k][j])
+        obs_idx.append(j)
+    cat = lambda parts, shape: np.concatenate(parts) if parts else np.zeros(shape)
+    obs_photo = cat(obs_photo, 0).astype(int)
     cam_of_obs = photos.camera[obs_photo]
-    uv = np.array(obs_uv, float).reshape(-1, 2)
+    uv = cat(obs_uv, (0, 2)).astype(float).reshape(-1, 2)
+    obs_idx = cat(obs_idx, 0).astype(int)
     xy = mm_from_pixels(uv, cameras.resolution[cam_of_obs], cameras.pixel_mm[cam_of_obs], "colmap")
     # COLMAP can hold a 3-D point twice in one image (two keypoints in one track); baarda takes one
     # measurement per point and photo: the first is kept, the others are switched off (and still
     # written back by the writer, so a round trip keeps the model unchanged)
-    obs_point = np.array(obs_point, int)
+    obs_point = cat(obs_point, 0).astype(int)
     first = np.zeros(len(obs_photo), bool)
     if len(obs_photo):
         _, idx = np.unique(obs_photo * (len(pt_ids) + 1) + obs_point, return_index=True)

@@ -63,6 +63,45 @@ def _int(tok: str, path, line: int, what: str) -> int:
         raise InputError(f"expected an integer for {what}, got {quote(tok)}", path=path, line=line, field=what) from None
 
 
+_OBS_DTYPE = np.dtype([("cam", np.int64), ("pt", np.int64), ("x", np.float64), ("y", np.float64)])
+
+
+def _parse_body(lines: list[str], ln: int, n_cams: int, n_pts: int, n_obs: int):
+    """The observations and parameters after the header (line index ``ln``) parsed in bulk
+    (numpy's C parser: ``loadtxt`` for the ``cam pt x y`` lines, one conversion of every
+    parameter token), or ``None`` when anything is not exactly as it must be — a line with
+    another number of values, a token that is not a number, a value that is not finite, an index
+    out of range, a repeated observation, a count that does not match the header, f ≤ 0 — so
+    that :func:`read_bal` reads line by line and names the line and field."""
+    import io
+
+    if n_obs > len(lines) - ln:
+        return None
+    try:
+        if n_obs:
+            obs = np.loadtxt(io.StringIO("\n".join(lines[ln:ln + n_obs])), dtype=_OBS_DTYPE, comments=None,
+                             ndmin=1)
+        else:
+            obs = np.zeros(0, _OBS_DTYPE)
+        tokens = "\n".join(lines[ln + n_obs:]).split()
+        need = 9 * n_cams + 3 * n_pts
+        if len(obs) != n_obs or len(tokens) != need:
+            return None
+        values = np.array(tokens, dtype=np.float64) if need else np.zeros(0)
+    except (ValueError, OverflowError):
+        return None
+    cam, pt = obs["cam"].copy(), obs["pt"].copy()
+    xy = np.column_stack([obs["x"], obs["y"]])
+    if not (np.isfinite(xy).all() and np.isfinite(values).all()):
+        return None
+    if n_obs and ((cam < 0).any() or (cam >= n_cams).any() or (pt < 0).any() or (pt >= n_pts).any()):
+        return None
+    key = np.sort(cam * max(n_pts, 1) + pt)
+    if (np.diff(key) == 0).any() or (values[6:9 * n_cams:9] <= 0).any():
+        return None
+    return cam, pt, xy, values[:9 * n_cams].reshape(n_cams, 9), values[9 * n_cams:].reshape(n_pts, 3)
+
+
 def read_bal(path: str | Path) -> BalProblem:
     """Parse a BAL text file; every format error is an InputError naming the line and field."""
     path = Path(path)
@@ -92,6 +131,10 @@ def read_bal(path: str | Path) -> BalProblem:
     n_obs_fit = min(n_obs, max(len(lines) - ln - 1, 0))
     ln += 1
 
+    fast = _parse_body(lines, ln, n_cams, n_pts, n_obs)
+    if fast is not None:
+        return BalProblem(*fast, path=str(path))
+    # the line-by-line reading below names the line and field of the first mistake
     obs_line0 = ln + 1                       # 1-based line of observation 0
     cam = np.empty(n_obs_fit, int)
     pt = np.empty(n_obs_fit, int)

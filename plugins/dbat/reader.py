@@ -478,6 +478,49 @@ def _images(section: Node, path, base, here, dbat_dir):
     return images, files, file
 
 
+_BULK_MAX_BYTES = 512 * 2 ** 20          # larger files: the line-by-line reading (and its size check)
+
+
+def _marks_bulk(file: Path, cols: list[str], s_attr: float | None) -> dict | None:
+    """A marks file parsed in bulk (numpy's ``loadtxt`` on the data lines: whole-number image and
+    point ids, finite x, y, positive sxy), or ``None`` when anything is not exactly so — a file
+    that is not a regular UTF-8 file below the size limit, a line with another number of fields,
+    an empty or non-numeric field, an id that is not a whole number (DBAT ids may be names: the
+    line-by-line reading keeps them), a value that is not finite, sxy ≤ 0 — so that
+    :func:`_marks` reads line by line and names the line and field.  Ids as :func:`_id` makes
+    them (``001`` → ``1``)."""
+    import io
+    import stat
+
+    try:
+        st = file.stat()
+        if not stat.S_ISREG(st.st_mode) or st.st_size > _BULK_MAX_BYTES:
+            return None
+        text = file.read_bytes().decode("utf-8")
+    except (OSError, UnicodeDecodeError):
+        return None
+    lines = text.splitlines()
+    stripped = (map(str.strip, lines) if "#" not in text
+                else (raw.split("#", 1)[0].strip() for raw in lines))
+    numbered = [(i, s) for i, s in enumerate(stripped, start=1) if s]
+    if not numbered:
+        return None
+    dtype = np.dtype([(c, np.int64 if c in ("im", "id") else np.float64) for c in cols])
+    try:
+        rows = np.loadtxt(io.StringIO("\n".join(s for _, s in numbered)), dtype=dtype, delimiter=",",
+                          comments=None, ndmin=1)
+    except (ValueError, OverflowError):
+        return None
+    if len(rows) != len(numbered):
+        return None
+    uv = np.column_stack([rows["x"], rows["y"]])
+    sg = np.full(len(rows), s_attr, float) if s_attr is not None else np.asarray(rows["sxy"], float)
+    if not (np.isfinite(uv).all() and np.isfinite(sg).all() and (sg > 0).all()):
+        return None
+    return {"image": rows["im"].astype(str).tolist(), "point": rows["id"].astype(str).tolist(), "uv": uv,
+            "sigma_px": sg, "lines": [i for i, _ in numbered]}
+
+
 def _marks(section: Node, path, base, here, dbat_dir) -> list[MarkFile]:
     fns = section.findall("file")
     if not fns:
@@ -494,6 +537,11 @@ def _marks(section: Node, path, base, here, dbat_dir) -> list[MarkFile]:
             raise InputError("no standard deviation for these marks: give a column sxy or the attribute sxy "
                              "(pixels)", path=path, line=fn.line, field="sxy")
         file = _resolve(base, fn.value, here, dbat_dir, path, fn.line, "file")
+        bulk = _marks_bulk(file, cols, s_attr if attr is not None else None)
+        if bulk is not None:
+            out.append(MarkFile(file=file, **bulk, sigma_source="attribute" if attr is not None else "column"))
+            continue
+        # line by line: names the line and field of the first mistake
         im, pt, uv, sg, lines = [], [], [], [], []
         for line, r in _rows(file, cols, path, fn.line):
             u = _num(r["x"], file, line, "x")

@@ -1,0 +1,465 @@
+"""Whole ``baarda run`` against pycolmap's bundle adjustment: the run at the speed of its solver.
+
+Run as a script (from the repository root; ``make bench-run`` runs the default set)::
+
+    .venv/bin/python benchmarks/run_vs_pycolmap.py [--sizes 2000 10000] [--no-closerange]
+                                                   [--dbat PROJECT.xml] [--skip-pycolmap]
+                                                   [--timeout 3600] [--mem-gb 22] [--threads N]
+                                                   [--workdir DIR] [--json FILE]
+
+For every size a simulated aerial block (``scale.py``'s generator: 60/30 % overlap, ≈ 150 points per
+footprint, 0.5 px noise, start perturbed as ``scale.PERTURB``) is written as a **BAL file with a
+project** (``bal`` source, σ 0.5 px, intrinsics fixed; ``bundle`` with a free network on the
+projection centres, covariance on — the configuration of issue 22's table), and
+
+* ``baarda``: ``baarda run project.toml --out DIR`` in its own process, *every output written*
+  (tables, results.json, report.md/html, figures, recording): wall time of the whole process and
+  its peak resident set (``ru_maxrss`` of the waited-for child: the process ``exec``s, so its
+  high-water mark is its own);
+* ``pycolmap``: the same start block (the simulated block the BAL file was written from: one
+  shared camera with its resolution, intrinsics fixed, as the BAL project holds them) through the cross-check machinery in its own process, twice — with
+  ``SPARSE_SCHUR`` forced (``max_num_images_direct_sparse_cpu_solver`` raised above the block) and
+  with pycolmap's default choice (``ITERATIVE_SCHUR`` beyond 1 000 images); *solve* =
+  ``adjuster.solve()`` only, with the peak resident set of that child.
+
+The ratios: whole run / pycolmap's SPARSE_SCHUR solve (goal ≤ 1.0 at 2 000 photos), peak memory
+baarda / pycolmap (goal ≤ 2), and the same against the default solver.  The 10 000-photo goal is
+absolute (whole run ≤ 3 minutes, ≤ 6 GB).
+
+``--closerange`` (default on) adds a close-range project of 60 photos and ≈ 180 000 image
+coordinates written as a **DBAT script project** (``dbat`` source: one self-calibrating
+``brown-backward`` camera, 30 fixed control points, orientations given, every tie point intersected
+before the bundle), or the real DBAT project ``--dbat`` names; goal: whole run ≤ 15 s.  Method and
+numbers: ``docs/benchmarks.md`` ("Whole runs").
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+GB = 1024 ** 3
+PYCOLMAP_SOLVERS = ("sparse", "default")
+
+
+# -- the projects -----------------------------------------------------------------------------------
+def write_aerial_project(folder: Path, n_photos: int, seed: int = 1) -> dict:
+    """The simulated aerial block of ``n_photos`` (scale.py's layout and start) as ``block.txt``
+    (BAL) with ``project.toml``; ``start.npz`` the start block as baarda reads it back."""
+    import numpy as np
+
+    from baarda.pipeline.synthetic.aerial import perturb_start, simulate_aerial
+    from baarda.plugins.bal.writer import bal_from_block, write_bal
+    from scale import PERTURB, layout, save_block
+
+    folder.mkdir(parents=True, exist_ok=True)
+    strips, per = layout(n_photos)
+    rng = np.random.default_rng(seed)
+    noisy, _ = simulate_aerial(rng, n_strips=strips, photos_per_strip=per)
+    start = perturb_start(noisy, rng, **PERTURB)
+    pitch = float(start.cameras.pixel_mm[0])
+    problem, info = bal_from_block(start, pixel_mm=pitch)
+    write_bal(problem, folder / "block.txt")
+    (folder / "project.toml").write_text(f"""# written by benchmarks/run_vs_pycolmap.py
+[project]
+name = "simulated aerial block, {n_photos} photos ({strips} strips × {per}), BAL"
+object_unit = "m"
+
+[[stage]]
+use = "bal"
+id = "source"
+[stage.options]
+path = "block.txt"
+pixel_mm = {pitch!r}
+sigma_px = 0.5
+intrinsics = "fixed"
+
+[[stage]]
+use = "bundle"
+[stage.options]
+datum = "free"
+datum_on = "centres"
+solver.covariance = true
+""")
+    save_block(folder / "start.npz", start)      # pycolmap's start: the block the BAL file holds
+    return {"project": str(folder / "project.toml"), "photos": info["cameras"], "points": info["points"],
+            "observations": info["observations"], "layout": f"{strips} × {per}", "kind": "aerial (BAL)"}
+
+
+def closerange_block(rng, *, n_photos: int = 60, n_points: int = 26321, n_control: int = 30,
+                     mean_rays: float = 3.44, noise_px: float = 0.3, zero_ap: bool = False, truth: bool = False):
+    """A convergent close-range block: ``n_photos`` on a cap around a 2 × 1.6 × 0.8 m point cloud
+    (half rolled by 90°), one 6000 × 4000 px camera (6 µm, c = 25 mm, ``brown-backward`` with
+    small distortion, self-calibrating), every point seen by 2–5 of the photos that see it
+    (mean ``mean_rays``), the first ``n_control`` points fixed control seen by every photo; tie
+    points without coordinates (to be intersected), orientations perturbed by 5 mm / 0.002 rad."""
+    import numpy as np
+
+    from baarda.pipeline.adjustment import project_observations
+    from baarda.pipeline.geometry import opk_from_rotation
+    from baarda.pipeline.model import FREE, Block, Cameras, Observations, Photos, Points
+    from baarda.pipeline.synthetic.closerange import look_at
+
+    pitch, W, H, c = 0.006, 6000, 4000, 25.0
+    ap = np.zeros(7) if zero_ap else np.array([-2.0e-5, 1.0e-8, 0.0, 2.0e-6, -1.5e-6, 0.0, 0.0])
+    XYZ = np.column_stack([rng.uniform(-1, 1, n_points), rng.uniform(-0.8, 0.8, n_points),
+                           rng.uniform(-0.4, 0.4, n_points)])
+    X0, opk = [], []
+    for i in range(n_photos):
+        az = 2 * np.pi * i / n_photos
+        ring = 1.0 + 0.6 * (i % 3)
+        C = np.array([ring * np.sin(az), 0.7 * ring * np.cos(az), 3.2 + 0.2 * (i % 4)])
+        R = look_at(C, np.array([0.1 * np.cos(3 * az), 0.1 * np.sin(2 * az), 0.0]),
+                    roll=(np.pi / 2) * (i % 2) + 0.05 * i)
+        X0.append(C)
+        opk.append(opk_from_rotation(R))
+    X0, opk = np.array(X0), np.array(opk)
+    cam = np.r_[c, 0.05, -0.03, ap]
+    ph = np.repeat(np.arange(n_photos), n_points)
+    pt = np.tile(np.arange(n_points), n_photos)
+    pr = project_observations(ph, pt, XYZ, X0, opk, np.zeros(n_photos, int), cam[None], ["brown-backward"], [{}],
+                              jacobians=False)
+    half = np.array([W, H]) * pitch / 2 - 0.1
+    seen = (pr.W < 0) & (np.abs(pr.xy) < half).all(axis=1)
+    # rays per point: 2 + binomial(3, p) with mean mean_rays, at most the photos that see it
+    want = 2 + rng.binomial(3, (mean_rays - 2) / 3, n_points)
+    key = rng.random(len(ph)) + np.where(seen, 0.0, 2.0)          # unseen pairs sort last
+    order = np.lexsort((key, pt))                                  # per point, seen pairs in random order
+    rank = np.empty(len(ph), int)
+    starts = np.searchsorted(pt[order], np.arange(n_points))
+    rank[order] = np.arange(len(ph)) - np.repeat(starts, np.diff(np.r_[starts, len(ph)]))
+    keep = seen & ((rank < want[pt]) | (pt < n_control))
+    xy = pr.xy[keep] + noise_px * pitch * rng.standard_normal((int(keep.sum()), 2))
+    if truth:
+        cams = Cameras.make(["cam"], c, 0.05, -0.03, ap_model="brown-backward", ap=ap[None],
+                            format_mm=(W * pitch, H * pitch), pixel_mm=pitch, resolution=(W, H))
+        role = np.array(["full"] * n_points, dtype=object)
+        return Block(cams, Photos.make([f"{i + 1}" for i in range(n_photos)], 0, X0, opk),
+                     Points.make([str(1000 + j) for j in range(n_points)], XYZ, role),
+                     Observations.make(ph[keep], pt[keep], xy, sigma=noise_px * pitch))
+    cams = Cameras.make(["cam"], c + 0.1, 0.0, 0.0, ap_model="brown-backward", ap=np.zeros((1, 7)),
+                        sigma_iop=np.full(3, FREE), sigma_ap=np.r_[FREE, FREE, 0, FREE, FREE, 0, 0][None],
+                        format_mm=(W * pitch, H * pitch), pixel_mm=pitch, resolution=(W, H))
+    photos = Photos.make([f"{i + 1}" for i in range(n_photos)], 0, X0 + 0.005 * rng.standard_normal(X0.shape),
+                         opk + 0.002 * rng.standard_normal(opk.shape))
+    role = np.array(["tie"] * n_points, dtype=object)
+    role[:n_control] = "full"
+    start = XYZ.copy()
+    start[n_control:] = np.nan
+    points = Points.make([str(1000 + j) for j in range(n_points)], start, role)
+    obs = Observations.make(ph[keep], pt[keep], xy, sigma=noise_px * pitch)
+    return Block(cams, photos, points, obs)
+
+
+def write_closerange_project(folder: Path, seed: int = 2) -> dict:
+    """The close-range block as a DBAT script project (``dbat-export``'s writer) and its toml."""
+    import numpy as np
+
+    from baarda.plugins.dbat.writer import write_dbat
+
+    folder.mkdir(parents=True, exist_ok=True)
+    block = closerange_block(np.random.default_rng(seed))
+    info = write_dbat(block, folder / "dbat", name="closerange")
+    return {**_dbat_toml(folder, folder / "dbat" / "closerange.xml", "simulated close-range block, DBAT"),
+            "photos": len(block.photos), "points": len(block.points), "observations": info["marks"]}
+
+
+def _dbat_toml(folder: Path, xml: Path, name: str) -> dict:
+    (folder / "project.toml").write_text(f"""# written by benchmarks/run_vs_pycolmap.py
+[project]
+name = "{name}"
+object_unit = "m"
+
+[[stage]]
+use = "dbat"
+id = "source"
+[stage.options]
+path = {json.dumps(str(xml))}
+
+[[stage]]
+use = "bundle"
+[stage.options]
+datum = "control"
+solver.covariance = true
+""")
+    return {"project": str(folder / "project.toml"), "kind": name, "layout": "–"}
+
+
+# -- children ----------------------------------------------------------------------------------------
+def child_prepare(a) -> dict:
+    folder = Path(a.folder)
+    if a.kind == "aerial":
+        return write_aerial_project(folder, a.size, seed=a.seed)
+    if a.kind == "dbat":
+        return _dbat_toml(folder, Path(a.dbat).resolve(), f"DBAT project {Path(a.dbat).name}")
+    return write_closerange_project(folder, seed=a.seed)
+
+
+def child_pycolmap(a) -> dict:
+    """pycolmap's solve of the start block with SPARSE_SCHUR forced or its default choice."""
+    import pycolmap
+
+    from baarda.plugins.crosscheck.pycolmap_ba import (SolverSettings, ba_options, block_to_reconstruction)
+    from scale import load_block
+
+    block = load_block(Path(a.block))
+    t0 = time.perf_counter()
+    rec, recmap = block_to_reconstruction(block, [None] * len(block.cameras))
+    config = pycolmap.BundleAdjustmentConfig()
+    for i in recmap.image_id[recmap.image_id > 0]:
+        config.add_image(int(i))
+    build = time.perf_counter() - t0
+    solver = SolverSettings(max_iter=200, function_tolerance=a.tol_rel, gradient_tolerance=1e-10,
+                            parameter_tolerance=1e-8, num_threads=a.threads, covariance=False)
+    pycolmap.logging.minloglevel = 2
+    opts = ba_options({"focal": False, "principal_point": False, "extra": False}, solver)
+    if a.solver == "sparse":
+        opts.ceres.max_num_images_direct_sparse_cpu_solver = 10 ** 9
+    t1 = time.perf_counter()
+    adjuster = pycolmap.create_default_ceres_bundle_adjuster(opts, config, rec)
+    t2 = time.perf_counter()
+    summary = adjuster.solve()
+    t3 = time.perf_counter()
+    cs = summary.ceres_summary
+    return {"solve_seconds": t3 - t2, "setup_seconds": t2 - t1, "build_seconds": build,
+            "iterations": int(cs.num_successful_steps + cs.num_unsuccessful_steps),
+            "linear_solver": str(cs.linear_solver_type_used).split(".")[-1], "threads": int(cs.num_threads_used),
+            "termination": str(cs.termination_type).split(".")[-1], "final_cost": float(cs.final_cost),
+            "pycolmap": pycolmap.__version__}
+
+
+def child_main(a) -> int:
+    if a.mem_gb > 0:
+        lim = int(a.mem_gb * GB)
+        resource.setrlimit(resource.RLIMIT_AS, (lim, lim))
+    try:
+        out = {"prepare": child_prepare, "pycolmap": child_pycolmap}[a.child](a)
+        out["status"] = "ok"
+        code = 0
+    except MemoryError:
+        out, code = {"status": "out of memory"}, 3
+    except Exception as exc:                     # reported in the row; the traceback goes to stderr
+        import traceback
+
+        traceback.print_exc()
+        out, code = {"status": f"error: {type(exc).__name__}: {exc}"}, 4
+    with open("/proc/self/status") as f:
+        out["peak_kb"] = next((int(line.split()[1]) for line in f if line.startswith("VmHWM:")), 0)
+    Path(a.out).write_text(json.dumps(out))
+    return code
+
+
+# -- the parent (imports no numpy) -------------------------------------------------------------------
+def _wait(cmd, *, workdir: Path, tag: str, timeout: float, env=None, cwd=None) -> dict:
+    """Run ``cmd`` to completion or timeout: exit code, wall seconds, CPU seconds and peak resident
+    set of the child (``wait4``)."""
+    with open(workdir / f"{tag}.stdout", "w") as so, open(workdir / f"{tag}.stderr", "w") as se:
+        t0 = time.perf_counter()
+        proc = subprocess.Popen(cmd, stdout=so, stderr=se, env=env, cwd=cwd or str(ROOT))
+        deadline = time.monotonic() + timeout
+        timed_out = False
+        while True:
+            pid, status, ru = os.wait4(proc.pid, os.WNOHANG)
+            if pid:
+                break
+            if time.monotonic() > deadline:
+                os.kill(proc.pid, signal.SIGKILL)
+                pid, status, ru = os.wait4(proc.pid, 0)
+                timed_out = True
+                break
+            time.sleep(0.05)
+        wall = time.perf_counter() - t0
+    rc = os.waitstatus_to_exitcode(status)
+    return {"rc": rc, "timed_out": timed_out, "wall_seconds": wall, "cpu_seconds": ru.ru_utime + ru.ru_stime,
+            "peak_kb": int(ru.ru_maxrss)}
+
+
+def _env() -> dict:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT / "benchmarks"), env.get("PYTHONPATH")]))
+    return env
+
+
+def run_child(kind: str, workdir: Path, tag: str, args: list[str], *, timeout: float, mem_gb: float) -> dict:
+    out = workdir / f"{tag}.json"
+    out.unlink(missing_ok=True)
+    w = _wait([sys.executable, str(Path(__file__).resolve()), "--child", kind, "--out", str(out),
+               "--mem-gb", str(mem_gb), *args], workdir=workdir, tag=tag, timeout=timeout, env=_env())
+    res = json.loads(out.read_text()) if out.exists() else {}
+    if w["timed_out"]:
+        res["status"] = f"timeout ({timeout:.0f} s)"
+    elif not res.get("status"):
+        res["status"] = f"failed (exit {w['rc']})"
+    res.setdefault("peak_kb", w["peak_kb"])
+    return res
+
+
+def run_baarda(project: str, workdir: Path, tag: str, *, threads: int, timeout: float) -> dict:
+    """``baarda run`` as a user runs it (its own process, every output), timed from outside."""
+    baarda = Path(sys.executable).with_name("baarda")
+    cmd = [str(baarda)] if baarda.exists() else [sys.executable, "-m", "baarda.pipeline.cli"]
+    out = workdir / f"{tag}-run"
+    cmd += ["run", project, "--out", str(out)] + (["--threads", str(threads)] if threads > 0 else [])
+    w = _wait(cmd, workdir=workdir, tag=f"{tag}-baarda", timeout=timeout)
+    w["status"] = "ok" if w["rc"] == 0 else (f"timeout ({timeout:.0f} s)" if w["timed_out"] else f"exit {w['rc']}")
+    size = sum(f.stat().st_size for f in out.rglob("*") if f.is_file()) if out.exists() else 0
+    w["output_mb"] = size / 1e6
+    w["stages"] = {**_stage_seconds(workdir / f"{tag}-baarda.stderr"), **_stage_seconds(workdir / f"{tag}-baarda.stdout")}
+    return w
+
+
+def _stage_seconds(log: Path) -> dict:
+    """``{stage: seconds}`` from the runner's ``done in … s`` lines."""
+    out, stage = {}, None
+    for line in log.read_text(errors="replace").splitlines() if log.exists() else []:
+        s = line.strip()
+        if s.startswith("[") and "] " in s and s.endswith("…"):
+            stage = s.split("] ", 1)[1].split(" ", 1)[0]
+        elif s.startswith("done in ") and stage:
+            try:
+                out[stage] = float(s.split()[2])
+            except (IndexError, ValueError):
+                pass
+    return out
+
+
+def _gb(kb) -> str:
+    return f"{kb / 1024 ** 2:.2f}" if kb else "–"
+
+
+def _machine() -> str:
+    load = os.getloadavg()
+    return (f"{os.cpu_count()} cores, load average {load[0]:.2f} / {load[1]:.2f} / {load[2]:.2f}; "
+            f"Python {sys.version.split()[0]}; BLAS threads in the pycolmap children "
+            f"{os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}")
+
+
+HEADER = ("| case | photos | points | observations | whole run s (CPU s) | run peak GB | output MB | "
+          "pycolmap SPARSE_SCHUR solve s (iter.) | peak GB | pycolmap default solve s (solver, iter.) | peak GB | "
+          "run / SPARSE_SCHUR | memory / SPARSE_SCHUR | run / default | memory / default |")
+
+
+def row(name: str, r: dict) -> str:
+    p, b = r.get("prepare", {}), r.get("baarda", {})
+    cells = [name, str(p.get("photos", "–")), f"{p.get('points', 0):,}".replace(",", " "),
+             f"{p.get('observations', 0):,}".replace(",", " "),
+             f"{b['wall_seconds']:.1f} ({b['cpu_seconds']:.1f})" if b.get("status") == "ok" else b.get("status", "–"),
+             _gb(b.get("peak_kb")), f"{b.get('output_mb', 0):.0f}"]
+    for s in PYCOLMAP_SOLVERS:
+        q = r.get(s)
+        if q and q.get("status") == "ok":
+            cells += [f"{q['solve_seconds']:.1f} ({q['iterations']})" if s == "sparse"
+                      else f"{q['solve_seconds']:.1f} ({q['linear_solver']}, {q['iterations']})", _gb(q["peak_kb"])]
+        else:
+            cells += [q.get("status", "–") if q else "–", "–"]
+    for s in PYCOLMAP_SOLVERS:
+        q = r.get(s)
+        if q and q.get("status") == "ok" and b.get("status") == "ok":
+            cells += [f"**{b['wall_seconds'] / q['solve_seconds']:.2f}**", f"**{b['peak_kb'] / q['peak_kb']:.2f}**"]
+        else:
+            cells += ["–", "–"]
+    return "| " + " | ".join(cells) + " |"
+
+
+def run(sizes=(2000, 10000), *, closerange: bool = True, dbat: str | None = None, pycolmap: bool = True,
+        timeout: float = 3600.0, mem_gb: float = 22.0, threads: int = -1, tol_rel: float = 1e-6, seed: int = 1,
+        workdir: Path | None = None, stream=sys.stdout) -> dict:
+    say = lambda *a: print(*a, file=stream, flush=True)
+    tmp = None
+    if workdir is None:
+        tmp = tempfile.TemporaryDirectory(prefix="baarda-run-")
+        workdir = Path(tmp.name)
+    workdir.mkdir(parents=True, exist_ok=True)
+    kw = {"timeout": timeout, "mem_gb": mem_gb}
+    results = {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "machine": _machine(), "cases": {}}
+    say(f"machine: {results['machine']}")
+    cases = [(f"aerial {n}", ["--kind", "aerial", "--size", str(n)], True) for n in sizes]
+    if dbat:
+        cases.append(("DBAT " + Path(dbat).stem, ["--kind", "dbat", "--dbat", dbat], False))
+    elif closerange:
+        cases.append(("close-range 60", ["--kind", "closerange"], False))
+    try:
+        for name, args, with_pycolmap in cases:
+            tag = name.replace(" ", "-")
+            folder = workdir / tag
+            r = {"prepare": run_child("prepare", workdir, f"{tag}-prepare",
+                                      ["--folder", str(folder), "--seed", str(seed), *args], **kw)}
+            results["cases"][name] = r
+            if r["prepare"].get("status") != "ok":
+                say(f"\n{name}: preparing failed: {r['prepare'].get('status')}")
+                continue
+            p = r["prepare"]
+            say(f"\n{name}: {p.get('photos')} photos, {p.get('points')} points, {p.get('observations')} observations "
+                f"({p['project']})")
+            b = r["baarda"] = run_baarda(p["project"], workdir, tag, threads=threads, timeout=timeout)
+            say(f"  baarda run: {b['status']}, {b['wall_seconds']:.1f} s wall, {b['cpu_seconds']:.1f} s CPU, peak "
+                f"{_gb(b['peak_kb'])} GB, outputs {b['output_mb']:.0f} MB; stages "
+                + ", ".join(f"{k} {v:.1f} s" for k, v in b["stages"].items()))
+            if pycolmap and with_pycolmap:
+                for s in PYCOLMAP_SOLVERS:
+                    q = r[s] = run_child("pycolmap", workdir, f"{tag}-pycolmap-{s}",
+                                         ["--block", str(folder / "start.npz"), "--solver", s, "--threads",
+                                          str(threads), "--tol-rel", repr(tol_rel)], **kw)
+                    if q.get("status") == "ok":
+                        say(f"  pycolmap ({s}): {q['linear_solver']}, {q['threads']} threads, {q['iterations']} "
+                            f"iterations, solve {q['solve_seconds']:.1f} s (set-up {q['setup_seconds']:.1f} s, "
+                            f"reconstruction built in {q['build_seconds']:.1f} s), peak {_gb(q['peak_kb'])} GB, "
+                            f"{q['termination']}")
+                    else:
+                        say(f"  pycolmap ({s}): {q.get('status')}")
+    finally:
+        if tmp is not None:
+            tmp.cleanup()
+    say("\n" + HEADER)
+    say("|" + "---|" * (HEADER.count("|") - 1))
+    for name, r in results["cases"].items():
+        say(row(name, r))
+    say("\nwhole run = `baarda run` wall time, every output written; goals: aerial 2 000 run / SPARSE_SCHUR ≤ 1.0 "
+        "and memory ≤ 2; aerial 10 000 ≤ 180 s and ≤ 6 GB; close-range 60 photos ≤ 15 s")
+    return results
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sizes", type=int, nargs="*", default=[2000, 10000], help="aerial blocks, photos each")
+    ap.add_argument("--no-closerange", dest="closerange", action="store_false",
+                    help="leave out the 60-photo close-range project")
+    ap.add_argument("--dbat", default=None, help="a real DBAT script (.xml) instead of the simulated close-range one")
+    ap.add_argument("--skip-pycolmap", action="store_true")
+    ap.add_argument("--timeout", type=float, default=3600.0, help="seconds per child before it is killed")
+    ap.add_argument("--mem-gb", type=float, default=22.0, help="address-space limit of the helper children")
+    ap.add_argument("--threads", type=int, default=-1, help="baarda --threads and Ceres threads (-1: all cores)")
+    ap.add_argument("--tol-rel", type=float, default=1e-6, help="pycolmap's function tolerance")
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--workdir", type=Path, default=None, help="keep every file here (default: temporary)")
+    ap.add_argument("--json", type=Path, default=None, help="write every number to this file")
+    # the child side (internal)
+    ap.add_argument("--child", choices=("prepare", "pycolmap"), help=argparse.SUPPRESS)
+    ap.add_argument("--out", help=argparse.SUPPRESS)
+    ap.add_argument("--folder", help=argparse.SUPPRESS)
+    ap.add_argument("--kind", help=argparse.SUPPRESS)
+    ap.add_argument("--size", type=int, help=argparse.SUPPRESS)
+    ap.add_argument("--block", help=argparse.SUPPRESS)
+    ap.add_argument("--solver", choices=PYCOLMAP_SOLVERS, help=argparse.SUPPRESS)
+    a = ap.parse_args(argv)
+    if a.child:
+        return child_main(a)
+    res = run(a.sizes, closerange=a.closerange, dbat=a.dbat, pycolmap=not a.skip_pycolmap, timeout=a.timeout,
+              mem_gb=a.mem_gb, threads=a.threads, tol_rel=a.tol_rel, seed=a.seed, workdir=a.workdir)
+    if a.json:
+        a.json.write_text(json.dumps(res, indent=1, default=str))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    raise SystemExit(main())

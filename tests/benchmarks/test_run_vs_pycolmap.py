@@ -1,0 +1,53 @@
+"""The whole-run benchmark's machinery at its smallest (``make bench``; never part of ``make test``).
+
+``benchmarks/run_vs_pycolmap.py`` on a 200-photo aerial BAL project: ``baarda run`` in its own
+process with every output written, pycolmap's SPARSE_SCHUR-forced and default solves in theirs.
+Asserted is what holds on any machine: every child finishes, the run wrote its outputs, each child
+reports its peak memory, pycolmap used the solver asked for.  The close-range generator is checked
+on its own (size, rays per point, tie points to intersect).  The goals are for ``make bench-run``
+(docs/benchmarks.md, "Whole runs").
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import io
+import sys
+
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.benchmark
+
+
+def _module(repo_root):
+    path = repo_root / "benchmarks" / "run_vs_pycolmap.py"
+    sys.path.insert(0, str(path.parent))
+    spec = importlib.util.spec_from_file_location("run_vs_pycolmap", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_whole_run_200_photos(repo_root, tmp_path):
+    bench = _module(repo_root)
+    buf = io.StringIO()
+    out = bench.run([200], closerange=False, timeout=900, mem_gb=8, workdir=tmp_path, stream=buf)
+    print(buf.getvalue())
+    r = out["cases"]["aerial 200"]
+    assert r["prepare"]["status"] == r["baarda"]["status"] == "ok", r
+    assert r["baarda"]["peak_kb"] > 0 and r["baarda"]["output_mb"] > 0
+    assert set(r["baarda"]["stages"]) == {"source", "bundle"}
+    assert r["sparse"]["status"] == r["default"]["status"] == "ok"
+    assert r["sparse"]["linear_solver"] == "SPARSE_SCHUR"
+    assert (tmp_path / "aerial-200-run" / "results.json").exists()
+
+
+def test_closerange_block(repo_root):
+    bench = _module(repo_root)
+    block = bench.closerange_block(np.random.default_rng(0), n_photos=12, n_points=600, n_control=10)
+    obs = block.observations
+    rays = np.bincount(obs.point, minlength=len(block.points))
+    assert len(block.photos) == 12 and (rays[10:] >= 2).all() and 2.9 < rays[10:].mean() < 4.0
+    assert np.isnan(block.points.XYZ[10:]).all() and np.isfinite(block.points.XYZ[:10]).all()
+    assert block.photos.has_orientation.all() and str(block.cameras.ap_model[0]) == "brown-backward"
