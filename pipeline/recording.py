@@ -358,6 +358,37 @@ def log_per_entity(rec, paths, lengths, *archetype_columns) -> None:
             for d, v, per in comps])
 
 
+ENTITIES_MAX = 1000
+"""Above this many photos (or cameras) a stage logs their 2-D data as one entity over a timeline
+(:func:`log_on_timeline`) instead of one entity each: an ``.rrd`` file's footer lists every chunk,
+and with tens of thousands of entities it outgrows what rerun's reader accepts (``TooManyTables``:
+the file of a 10 000-photo bundle could not be opened), besides one view per photo being no use."""
+
+
+def log_on_timeline(rec, entity: str, timeline: str, lengths, *archetype_columns) -> None:
+    """Many groups of instances — the image points of 10 000 photos — as *one* entity with one row per
+    group on the sequence timeline ``timeline`` (step ``k`` = group ``k``), sent in a single
+    ``rr.send_columns`` call; the viewer shows the group at the time cursor.  ``archetype_columns``
+    as for :func:`log_per_entity` (a component with one value in all is repeated on every step)."""
+    import rerun as rr
+
+    lengths = np.asarray(lengths, np.int64).reshape(-1)
+    n, total = lengths.size, int(lengths.sum())
+    columns = []
+    for cols in archetype_columns:
+        for c in cols:
+            values = c.component_batch.as_arrow_array()
+            if len(values) == total:
+                columns.append(rr.ComponentColumn(c.descriptor, _Arrow(values), lengths=lengths))
+            elif len(values) == 1:
+                columns.append(rr.ComponentColumn(c.descriptor, _Arrow(values.take(np.zeros(n, np.int64))),
+                                                  lengths=np.ones(n, np.int64)))
+            else:
+                raise ValueError(f"{c.descriptor.component}: {len(values)} values for {total} instances "
+                                 f"in {n} steps")
+    rec.send_columns(entity, indexes=[rr.TimeColumn(timeline, sequence=np.arange(n))], columns=columns)
+
+
 def log_text(rec, entity: str, markdown: str) -> None:
     import rerun as rr
 

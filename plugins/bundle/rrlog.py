@@ -26,7 +26,7 @@ from baarda.pipeline.camera import get_ap_model
 
 from .protocol import image_units
 from baarda.pipeline.api import point_ellipsoids, role_colors, thin, view_from_photo, view_vectors
-from baarda.pipeline.recording import log_per_entity, log_series
+from baarda.pipeline.recording import ENTITIES_MAX, log_on_timeline, log_per_entity, log_series
 
 RED, GREY, BLUE = [230, 40, 40], [150, 150, 150], [40, 90, 230]
 
@@ -117,10 +117,21 @@ def log_bundle(rec, rep, report: str, max_photos: int | None = None) -> None:
     K[:, 0, 2] = f[:, 0] / 2 + cp[:, 1]
     K[:, 1, 2] = f[:, 1] / 2 - cp[:, 2]
     K[:, 2, 2] = 1.0
-    log_per_entity(rec, [f"world/photos/{p}" for p in pids], np.ones(shown.size, int),
-                   rr.Transform3D.columns(translation=st.X0[shown], mat3x3=R[shown].transpose(0, 2, 1)),
-                   rr.Pinhole.columns(image_from_camera=K, resolution=f, camera_xyz=rr.ViewCoordinates.RUB,
-                                      image_plane_distance=0.1 * depth))
+    many = shown.size > ENTITIES_MAX
+    if many:       # one entity per photo would make the file unreadable: centres here, 2-D data on a timeline
+        rec.note(f"{shown.size} photos (more than {ENTITIES_MAX}): the cameras are drawn as their projection "
+                 "centres (world/photos, labelled), and the image points and residual arrows of all photos are "
+                 "one 2-D view (images/all) over the timeline 'photo': step k is the k-th photo, named in "
+                 "images/all/photo")
+        rec.log("world/photos", rr.Points3D(st.X0[shown], labels=pa.array(pids), colors=GREY,
+                                            radii=rr.Radius.ui_points(3.0)), static=True)
+        log_on_timeline(rec, "images/all/photo", "photo", np.ones(shown.size, int),
+                        rr.AnyValues.columns(photo=pa.array(np.asarray(photos.ids)[shown].astype(str))))
+    else:
+        log_per_entity(rec, [f"world/photos/{p}" for p in pids], np.ones(shown.size, int),
+                       rr.Transform3D.columns(translation=st.X0[shown], mat3x3=R[shown].transpose(0, 2, 1)),
+                       rr.Pinhole.columns(image_from_camera=K, resolution=f, camera_xyz=rr.ViewCoordinates.RUB,
+                                          image_plane_distance=0.1 * depth))
     # image points and residual arrows of the photos shown, grouped by photo (in observation order)
     pos = np.full(n_ph, -1)
     pos[shown] = np.arange(shown.size)
@@ -130,15 +141,21 @@ def log_bundle(rec, rep, report: str, max_photos: int | None = None) -> None:
     counts = np.bincount(pos[rph], minlength=shown.size)
     half = np.where(np.isfinite(fmts), fmts, 0.0) / 2          # view_from_photo's offset, per photo
     xy_view = view_from_photo(obs.xy[rows], None) + half[rph]
-    log_per_entity(rec, [f"images/{p}/observed" for p in pids], counts,
-                   rr.Points2D.columns(positions=xy_view, labels=point_ids.take(pa.array(obs.point[rows])),
-                                       colors=_colors(bad[rows], RED, BLUE), radii=rr.Radius.ui_points(3.0)))
+    observed = rr.Points2D.columns(positions=xy_view, labels=point_ids.take(pa.array(obs.point[rows])),
+                                   colors=_colors(bad[rows], RED, BLUE), radii=rr.Radius.ui_points(3.0))
+    if many:
+        log_on_timeline(rec, "images/all/observed", "photo", counts, observed)
+    else:
+        log_per_entity(rec, [f"images/{p}/observed" for p in pids], counts, observed)
     ok = rows[fin[rows]]
     okc = np.bincount(pos[obs.photo[ok]], minlength=shown.size)
     with_arrows = np.flatnonzero(okc > 0)
-    log_per_entity(rec, [f"images/{pids[k]}/residuals" for k in with_arrows], okc[with_arrows],
-                   rr.Arrows2D.columns(origins=view_from_photo(computed[ok], None) + half[obs.photo[ok]],
-                                       vectors=view_vectors(v[ok] * scale), colors=_colors(bad[ok], RED, GREY)))
+    arrows = rr.Arrows2D.columns(origins=view_from_photo(computed[ok], None) + half[obs.photo[ok]],
+                                 vectors=view_vectors(v[ok] * scale), colors=_colors(bad[ok], RED, GREY))
+    if many:
+        log_on_timeline(rec, "images/all/residuals", "photo", okc, arrows)
+    else:
+        log_per_entity(rec, [f"images/{pids[k]}/residuals" for k in with_arrows], okc[with_arrows], arrows)
     # rejected / flagged rays
     rb = np.flatnonzero(bad & res.photo_used[obs.photo] & used[obs.point])
     if rb.size:
@@ -170,12 +187,19 @@ def log_bundle(rec, rep, report: str, max_photos: int | None = None) -> None:
         cids = [c for c, *_ in fields]
         mags = np.concatenate([m for *_, m in fields]) * uscale
         labels = np.char.add(np.char.mod(f"%.{2 if unit == 'px' else 1}f ", mags), unit)
-        log_per_entity(rec, [f"cameras/{c}/distortion" for c in cids], [len(m) for *_, m in fields],
-                       rr.Arrows2D.columns(origins=np.concatenate([o for _, o, _, _ in fields]),
+        field_arrows = rr.Arrows2D.columns(origins=np.concatenate([o for _, o, _, _ in fields]),
                                            vectors=np.concatenate([w for _, _, w, _ in fields]),
-                                           labels=pa.array(labels.tolist())))
-        log_per_entity(rec, [f"cameras/{c}/distortion_scale" for c in cids], np.ones(len(cids), int),
-                       rr.AnyValues.columns(arrow_scale=np.asarray(scales, float)))
+                                           labels=pa.array(labels.tolist()))
+        if len(cids) > ENTITIES_MAX:
+            rec.note(f"{len(cids)} cameras with a distortion field (more than {ENTITIES_MAX}): one 2-D view "
+                     "(cameras/all) over the timeline 'camera', step k the k-th camera, named in cameras/all/camera")
+            log_on_timeline(rec, "cameras/all/distortion", "camera", [len(m) for *_, m in fields], field_arrows)
+            log_on_timeline(rec, "cameras/all/camera", "camera", np.ones(len(cids), int),
+                            rr.AnyValues.columns(camera=pa.array(cids), arrow_scale=np.asarray(scales, float)))
+        else:
+            log_per_entity(rec, [f"cameras/{c}/distortion" for c in cids], [len(m) for *_, m in fields], field_arrows)
+            log_per_entity(rec, [f"cameras/{c}/distortion_scale" for c in cids], np.ones(len(cids), int),
+                           rr.AnyValues.columns(arrow_scale=np.asarray(scales, float)))
     if rep.gnss is not None:     # GNSS antennas: observed positions, residual arrows computed → observed (scaled)
         gs, gnss = rep.gnss.rows, block.gnss
         g_obs, g_v = gnss.XYZ[gs.index], gs.v

@@ -108,3 +108,28 @@ def test_later_stage_layout_does_not_read_back_what_this_process_wrote(tmp_path,
 
     os.utime(tmp_path / "a.rrd", ns=(1, 1))
     assert "a/fake" not in R.earlier_stages(tmp_path / "b.rrd", "rid")[0][1]
+
+
+def test_log_on_timeline_one_row_per_group(tmp_path):
+    lengths = [2, 0, 3]
+    xy = np.arange(10, dtype=float).reshape(5, 2)
+    rec = R.open_recording(tmp_path / "t.rrd", "rid", stage_id="s")
+    R.log_on_timeline(rec, "images/all/observed", "photo", lengths,
+                      rr.Points2D.columns(positions=xy, radii=rr.Radius.ui_points(3.0)))
+    assert rec.logged["s/images/all/observed"] == {"Points2D"}
+    rec.disconnect()
+    from rerun.chunk import RrdReader
+
+    rows = []
+    for ch in RrdReader(str(tmp_path / "t.rrd")).stream().to_chunks():
+        if str(ch.entity_path) == "/s/images/all/observed":
+            b = ch.to_record_batch()
+            rows += list(zip(b.column("photo").to_pylist(), b.column("Points2D:positions").to_pylist(),
+                             b.column("Points2D:radii").to_pylist()))
+    rows.sort(key=lambda r: r[0])
+    assert [r[0] for r in rows] == [0, 1, 2]
+    assert [len(r[1]) for r in rows] == lengths
+    assert rows[2][1] == [[4.0, 5.0], [6.0, 7.0], [8.0, 9.0]]
+    assert all(r[2] == [-3.0] for r in rows)          # the splat radius on every step
+    views = R.read_recording(tmp_path / "t.rrd").views
+    assert [v.origin for v in views if v.kind == "2D"] == ["/s/images/all"]
