@@ -665,21 +665,32 @@ def log_block(rec, block, root: str = "block", max_photos: int | None = None) ->
     oriented = thin(rec, np.flatnonzero(ph.has_orientation), max_photos, "oriented photos")
     if oriented.size == 0:
         return
+    paths = [f"{root}/photos/{entity_part(i)}" for i in np.asarray(ph.ids)[oriented].tolist()]
+    if oriented.size > ENTITIES_MAX:      # one entity per photo would make the file unreadable
+        rec.note(f"{oriented.size} oriented photos (more than {ENTITIES_MAX}): drawn as their projection "
+                 f"centres ({root}/photos, labelled), not as one camera entity each")
+        rec.log(f"{root}/photos", rr.Points3D(ph.X0[oriented], labels=[entity_part(i) for i in
+                                                                       np.asarray(ph.ids)[oriented].tolist()],
+                                              radii=rr.Radius.ui_points(3.0)), static=True)
+        return
     R = rotation_from_opk_many(ph.opk[oriented])
-    for k, Rk in zip(oriented, R):
-        path = f"{root}/photos/{entity_part(ph.ids[k])}"
-        t = -Rk @ ph.X0[k]
-        rec.log(path, rr.Transform3D(translation=t, mat3x3=Rk, relation=rr.TransformRelation.ChildFromParent),
-                static=True)
-        cam = ph.camera[k]
-        pitch = cams.pixel_mm[cam]
-        w, h = cams.resolution[cam]
-        if np.isfinite(pitch) and pitch > 0 and w > 0 and h > 0:
-            f = cams.c[cam] / pitch
-            cx = (w - 1) / 2 + cams.xp[cam] / pitch
-            cy = (h - 1) / 2 - cams.yp[cam] / pitch
-            rec.log(path, rr.Pinhole(image_from_camera=[[f, 0, cx], [0, f, cy], [0, 0, 1]], resolution=[w, h],
-                                     camera_xyz=rr.ViewCoordinates.RUB, image_plane_distance=None), static=True)
+    t = -np.einsum("kij,kj->ki", R, ph.X0[oriented])
+    log_per_entity(rec, paths, np.ones(oriented.size, int),
+                   rr.Transform3D.columns(translation=t, mat3x3=R, relation=np.full(
+                       oriented.size, rr.TransformRelation.ChildFromParent)))
+    cam = np.asarray(ph.camera)[oriented]
+    pitch = np.asarray(cams.pixel_mm, float)[cam]
+    wh = np.asarray(cams.resolution, float).reshape(-1, 2)[cam]
+    ok = np.isfinite(pitch) & (pitch > 0) & (wh[:, 0] > 0) & (wh[:, 1] > 0)
+    if ok.any():
+        f = np.asarray(cams.c, float)[cam][ok] / pitch[ok]
+        K = np.zeros((int(ok.sum()), 3, 3))
+        K[:, 0, 0] = K[:, 1, 1] = f
+        K[:, 0, 2] = (wh[ok, 0] - 1) / 2 + np.asarray(cams.xp, float)[cam][ok] / pitch[ok]
+        K[:, 1, 2] = (wh[ok, 1] - 1) / 2 - np.asarray(cams.yp, float)[cam][ok] / pitch[ok]
+        K[:, 2, 2] = 1.0
+        log_per_entity(rec, [p for p, k in zip(paths, ok) if k], np.ones(int(ok.sum()), int),
+                       rr.Pinhole.columns(image_from_camera=K, resolution=wh[ok], camera_xyz=rr.ViewCoordinates.RUB))
 
 
 def thin(rec, index, most: int | None, what: str) -> np.ndarray:

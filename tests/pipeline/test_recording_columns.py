@@ -133,3 +133,20 @@ def test_log_on_timeline_one_row_per_group(tmp_path):
     assert all(r[2] == [-3.0] for r in rows)          # the splat radius on every step
     views = R.read_recording(tmp_path / "t.rrd").views
     assert [v.origin for v in views if v.kind == "2D"] == ["/s/images/all"]
+
+
+def test_log_block_above_the_entity_limit_draws_centres(tmp_path, monkeypatch):
+    from baarda.pipeline.synthetic.aerial import simulate_aerial
+
+    block, _ = simulate_aerial(np.random.default_rng(0), n_strips=2, photos_per_strip=3, points_per_photo=20)
+    few = R.open_recording(tmp_path / "few.rrd", "rid", stage_id="s")
+    R.log_block(few, block)
+    assert few.logged["s/block/photos/" + R.entity_part(block.photos.ids[0])] == {"Transform3D", "Pinhole"}
+    few.disconnect()
+    monkeypatch.setattr(R, "ENTITIES_MAX", 3)
+    many = R.open_recording(tmp_path / "many.rrd", "rid", stage_id="s")
+    R.log_block(many, block)
+    assert many.logged["s/block/photos"] == {"Points3D"}
+    assert not any(p.startswith("s/block/photos/") for p in many.logged)
+    assert any("6 oriented photos" in n for n in many.notes)
+    many.disconnect()
