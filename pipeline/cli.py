@@ -10,6 +10,7 @@
     baarda stages [NAME …] [--verbose]              list installed stages; with names, each one in full
     baarda review RUN_DIR [--entities]              what was flagged, where to look; the recordings' layout
     baarda view RUN_DIR [--print]                   open the run's recordings in the viewer, in run order
+                                                    (without a display: a message, exit status 4)
 
 Exit status (:data:`EXIT_STATUS`): 0 success; 1 an adjustment cannot be solved (singular, no datum,
 no convergence; earlier stages' results kept); 2 an input or project error (one line naming the
@@ -50,6 +51,21 @@ EXIT_HELP = """exit status:
        (validate and run alike)
   3    an internal error (a bug): the traceback is in the run directory
   130  interrupted (what was done is kept)"""
+
+
+REVIEW_EXIT_HELP = """exit status:
+  0    the run directory was summarised
+  2    not a run directory: missing, no recordings, or a damaged results.json or
+       recording (one line naming the file)
+  3    an internal error (a bug): one line; -v prints the traceback
+  130  interrupted"""
+
+VIEW_EXIT_HELP = """exit status:
+  0    the viewer ran and closed (or --print printed its command)
+  2    not a run directory: missing or without recordings
+  4    no display to open the viewer on (DISPLAY / WAYLAND_DISPLAY unset): a
+       message says what to do instead
+  other  the viewer's own exit status"""
 
 
 def _set_threads(n: int | None) -> int:
@@ -274,7 +290,31 @@ def _cmd_view(args) -> int:
     if args.print:
         print(shlex.join(cmd))
         return 0
+    if not has_display():
+        print(NO_DISPLAY.format(run_dir=shlex.quote(str(run_dir))), file=sys.stderr)
+        return VIEW_NO_DISPLAY
     return subprocess.call(cmd)
+
+
+VIEW_NO_DISPLAY = 4
+"""Exit status of ``baarda view`` when there is no display to open the viewer on."""
+
+NO_DISPLAY = """baarda view: no display to open the rerun viewer on (neither DISPLAY nor WAYLAND_DISPLAY is set:
+  a remote shell, a container or a CI job). Instead:
+  - open the run on a machine with a screen: copy {run_dir} there and run `baarda view` (or the
+    command `baarda view {run_dir} --print` prints), or use `ssh -X` for a forwarded display;
+  - read it here: `baarda review {run_dir}` summarises every recording, and the tables, report.md
+    and report.html hold every number;
+  - take a screenshot headlessly (Xvfb): see docs/recordings.md, "Seen in the viewer"."""
+
+
+def has_display(environ=None) -> bool:
+    """Whether the viewer can open a window: always on macOS and Windows; elsewhere (X11, Wayland) only
+    with ``DISPLAY``, ``WAYLAND_DISPLAY`` or ``WAYLAND_SOCKET`` set — without, winit stops with a raw error."""
+    env = os.environ if environ is None else environ
+    if sys.platform in ("darwin", "win32", "cygwin"):
+        return True
+    return any(env.get(k) for k in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET"))
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -332,7 +372,7 @@ def build_parser() -> argparse.ArgumentParser:
     _noise_args(s, verbose_help="with no NAME: also show reads/writes and options of every stage")
     s.set_defaults(func=_cmd_stages)
     rv = sub.add_parser("review", help="what a run flagged and where to look; the recordings' layout",
-                        epilog=EXIT_HELP, formatter_class=argparse.RawDescriptionHelpFormatter,
+                        epilog=REVIEW_EXIT_HELP, formatter_class=argparse.RawDescriptionHelpFormatter,
                         description="Summarise a run directory: each stage's status, time and finding, "
                                     "its warnings, what was flagged or rejected and in which file and view "
                                     "to look, and what each recording shows (read back from the files).")
@@ -341,6 +381,7 @@ def build_parser() -> argparse.ArgumentParser:
     _noise_args(rv)
     rv.set_defaults(func=_cmd_review)
     vw = sub.add_parser("view", help="open a run's recordings in the rerun viewer, in run order",
+                        epilog=VIEW_EXIT_HELP, formatter_class=argparse.RawDescriptionHelpFormatter,
                         description="Open every recording of a run directory in the rerun viewer that matches "
                                     "this SDK, in the order the stages ran: the files merge into one recording "
                                     "and the last stage's layout (one tab per stage) is the one shown. Needs a "

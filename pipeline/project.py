@@ -487,11 +487,14 @@ def validate_inputs(project: Project) -> list[str]:
     For every stage in order: each option naming files (:func:`path_roles`) is resolved against
     the project file and must exist; then the stage's ``validate(options, ctx)`` hook, if any,
     runs (a source stage parses its files there; when it returns the block it read, the checks
-    every source's block gets in a run, :func:`~baarda.pipeline.plausibility.check_block`, run too).  The first mistake raises :class:`InputError`
+    every source's block gets in a run, :func:`~baarda.pipeline.plausibility.check_block`, run too);
+    a stage without it but with ``validate_block(block, options, ctx)`` gets the last source's block
+    (the bundle checks its ``fix``/``free``/``sigma`` names against the cameras' models there).  The first mistake raises :class:`InputError`
     (the project file, the option's line and name for a missing path; the input file's own line
     and field for a mistake inside it).  Returns the warnings of the hooks as ``"[id] text"``.
     """
     warnings = []
+    block = None                   # the block the last source read: a later stage's validate_block checks options against it
     for spec in project.stages:
         for name, role in path_roles(spec.cls).items():
             if role == "output":
@@ -500,12 +503,17 @@ def validate_inputs(project: Project) -> list[str]:
             if problem:
                 raise InputError(problem, project.path, spec.option_lines.get(name, spec.line), name)
         hook = getattr(spec.cls, "validate", None)
-        if hook is None:
+        on_block = getattr(spec.cls, "validate_block", None)
+        if hook is None and (on_block is None or block is None):
             continue
         ctx = stage_context(project, spec)
-        block = spec.cls().validate(spec.options, ctx)
-        if block is not None and hasattr(block, "observations"):      # a source's block: the runner's checks
-            for w in check_block(block):
-                ctx.warn(w)
+        if hook is not None:
+            got = spec.cls().validate(spec.options, ctx)
+            if got is not None and hasattr(got, "observations"):      # a source's block: the runner's checks
+                block = got
+                for w in check_block(block):
+                    ctx.warn(w)
+        elif block is not None:    # e.g. the bundle: fix/free/sigma names against the block's camera models
+            spec.cls().validate_block(block, spec.options, ctx)
         warnings += [f"[{spec.id}] {w}" for w in ctx.warnings]
     return warnings

@@ -90,6 +90,17 @@ class StageRecording:
             kinds.add(type(e).__name__)
         self.stream.log(p, *entities, **kwargs)
 
+    def send_columns(self, entity: str, indexes, columns, **kwargs) -> None:
+        """:func:`rerun.send_columns` on the rooted path; notes the archetypes of the columns."""
+        p = self.path(entity)
+        columns = list(columns)
+        kinds = self.logged.setdefault(p, set())
+        for c in columns:
+            arch = getattr(c.component_descriptor(), "archetype", None)
+            if arch:
+                kinds.add(str(arch).rsplit(".", 1)[-1])
+        self.stream.send_columns(p, indexes=indexes, columns=columns, **kwargs)
+
     def note(self, text: str) -> None:
         """Say in the recording (``<stage>/notes``) that something was thinned or left out."""
         self.notes.append(text)
@@ -108,6 +119,8 @@ class StageRecording:
                                     make_default=True)
         finally:
             self.stream.disconnect()
+            if self.path_on_disk is not None:
+                _remember_manifest(self.path_on_disk, self.recording_id, self.logged)
 
     def __getattr__(self, name):
         return getattr(self.stream, name)
@@ -129,10 +142,40 @@ def photo_root(entity: str) -> str:
     return "/".join(parts)
 
 
+_MANIFESTS: dict[str, tuple[int, int, str | None, dict[str, set[str]]]] = {}
+"""What this process wrote into each closed ``.rrd`` file (resolved path → mtime, size, recording
+id, entity path → archetype names), so that a later stage's layout does not read a big earlier
+file back (about 2 s for 50 MB).  A file that changed since (other mtime or size) is read again."""
+
+
+def _file_key(path: Path) -> tuple[str, int, int] | None:
+    try:
+        st = Path(path).stat()
+        return str(Path(path).resolve()), st.st_mtime_ns, st.st_size
+    except OSError:
+        return None
+
+
+def _remember_manifest(path: Path, recording_id: str | None, logged: dict[str, set[str]]) -> None:
+    key = _file_key(path)
+    if key is not None:
+        _MANIFESTS[key[0]] = (key[1], key[2], recording_id, {p: set(k) for p, k in logged.items()})
+
+
+def _known_manifest(path: Path):
+    """``(recording id, logged)`` of a file this process wrote and that is unchanged, else ``None``."""
+    key = _file_key(path)
+    got = _MANIFESTS.get(key[0]) if key else None
+    if got is None or got[:2] != key[1:]:
+        return None
+    return got[2], got[3]
+
+
 def earlier_stages(path: Path, recording_id: str | None) -> list[tuple[str, dict[str, set[str]]]]:
     """The stages recorded before ``path`` in its folder with the same recording id (the run's
     earlier stages, in the order they were written): ``(stage id, entity path → archetype names)``
-    from each file's manifest (no data is read).  Files that cannot be read are left out."""
+    from each file's manifest (no data is read; what this process wrote itself is remembered, not
+    read back).  Files that cannot be read are left out."""
     from rerun.chunk import RrdReader
 
     out = []
@@ -143,6 +186,11 @@ def earlier_stages(path: Path, recording_id: str | None) -> list[tuple[str, dict
     except OSError:
         return out
     for f in siblings:
+        known = _known_manifest(f)
+        if known is not None:
+            if recording_id is None or known[0] == recording_id:
+                out.append((f.stem, {p: set(k) for p, k in known[1].items() if not p.startswith("__")}))
+            continue
         try:
             reader = RrdReader(str(f))
             recs = reader.recordings()
@@ -211,7 +259,7 @@ def stage_layout(stage_id: str, logged: dict[str, set[str]], name: str | None = 
 
     left = []
     if three:
-        tops = [p for p in three if not any(p.startswith(q + "/") for q in three)]
+        tops = top_entities(three)
         left.append(rrb.Spatial3DView(origin=root, contents=[f"/{p}/**" for p in tops], name=f"{stage_id}: 3-D"))
     if photos:
         views = [rrb.Spatial2DView(origin=f"/{ph}", contents=["$origin/**"], name=_view_name(ph, stage_id))
@@ -227,6 +275,18 @@ def stage_layout(stage_id: str, logged: dict[str, set[str]], name: str | None = 
     if len(cols) == 1 and name is None:
         return cols[0]
     return rrb.Horizontal(*cols, column_shares=[3, 2] if len(cols) == 2 else None, name=name)
+
+
+def top_entities(paths) -> list[str]:
+    """The paths of ``paths`` that have no ancestor among them, sorted (``a/b`` and ``a/b/c`` → ``a/b``).
+    Linear in the number of paths (each path's ancestors are looked up in a set), not quadratic."""
+    given = set(paths)
+    out = []
+    for p in sorted(given):
+        parts = p.split("/")
+        if not any("/".join(parts[:k]) in given for k in range(1, len(parts))):
+            out.append(p)
+    return out
 
 
 def _view_name(entity: str, stage_id: str) -> str:
@@ -248,6 +308,85 @@ def viewer_text(text: str) -> str:
         else:
             out.append(ch)
     return "".join(out)
+
+
+class _Arrow:
+    """A ready Arrow array as a component batch (what :class:`rerun.ComponentColumn` reads)."""
+
+    def __init__(self, array):
+        self.array = array
+
+    def as_arrow_array(self):
+        return self.array
+
+
+def log_per_entity(rec, paths, lengths, *archetype_columns) -> None:
+    """Static data of many entities of the same kind — the observed points of every photo, every
+    photo's camera — sent with rerun's columnar API, one message per entity.
+
+    ``archetype_columns`` are ``rr.<Archetype>.columns(...)`` built *once* over the instances of all
+    entities concatenated in the order of ``paths`` (entity ``k`` has ``lengths[k]`` of them: its
+    observations, or 1 for a camera), so every array is converted to Arrow once, not once per
+    entity; each entity then gets its slice of every component (zero-copy) in one static row,
+    exactly what ``rec.log(path, rr.<Archetype>(…), static=True)`` would have written.  A component
+    with one value in all (a radius for every point) is given whole to every entity.
+    """
+    import rerun as rr
+
+    paths = list(paths)
+    lengths = np.asarray(lengths, np.int64).reshape(-1)
+    if lengths.size != len(paths):
+        raise ValueError(f"{len(paths)} entities but {lengths.size} lengths")
+    offsets = np.concatenate([[0], np.cumsum(lengths)])
+    total = int(offsets[-1])
+    comps = []
+    for cols in archetype_columns:
+        for c in cols:
+            values = c.component_batch.as_arrow_array()
+            if len(values) == total:
+                comps.append((c.descriptor, values, True))
+            elif len(values) == 1:
+                comps.append((c.descriptor, values, False))
+            else:
+                raise ValueError(f"{c.descriptor.component}: {len(values)} values for {total} instances "
+                                 f"of {len(paths)} entities")
+    send = rec.send_columns
+    for k, path in enumerate(paths):
+        a, n = int(offsets[k]), int(lengths[k])
+        send(path, indexes=[], columns=[
+            rr.ComponentColumn(d, _Arrow(v.slice(a, n) if per else v), lengths=[n if per else 1])
+            for d, v, per in comps])
+
+
+ENTITIES_MAX = 1000
+"""Above this many photos (or cameras) a stage logs their 2-D data as one entity over a timeline
+(:func:`log_on_timeline`) instead of one entity each: an ``.rrd`` file's footer lists every chunk,
+and with tens of thousands of entities it outgrows what rerun's reader accepts (``TooManyTables``:
+the file of a 10 000-photo bundle could not be opened), besides one view per photo being no use."""
+
+
+def log_on_timeline(rec, entity: str, timeline: str, lengths, *archetype_columns) -> None:
+    """Many groups of instances — the image points of 10 000 photos — as *one* entity with one row per
+    group on the sequence timeline ``timeline`` (step ``k`` = group ``k``), sent in a single
+    ``rr.send_columns`` call; the viewer shows the group at the time cursor.  ``archetype_columns``
+    as for :func:`log_per_entity` (a component with one value in all is repeated on every step)."""
+    import rerun as rr
+
+    lengths = np.asarray(lengths, np.int64).reshape(-1)
+    n, total = lengths.size, int(lengths.sum())
+    columns = []
+    for cols in archetype_columns:
+        for c in cols:
+            values = c.component_batch.as_arrow_array()
+            if len(values) == total:
+                columns.append(rr.ComponentColumn(c.descriptor, _Arrow(values), lengths=lengths))
+            elif len(values) == 1:
+                columns.append(rr.ComponentColumn(c.descriptor, _Arrow(values.take(np.zeros(n, np.int64))),
+                                                  lengths=np.ones(n, np.int64)))
+            else:
+                raise ValueError(f"{c.descriptor.component}: {len(values)} values for {total} instances "
+                                 f"in {n} steps")
+    rec.send_columns(entity, indexes=[rr.TimeColumn(timeline, sequence=np.arange(n))], columns=columns)
 
 
 def log_text(rec, entity: str, markdown: str) -> None:
@@ -526,21 +665,32 @@ def log_block(rec, block, root: str = "block", max_photos: int | None = None) ->
     oriented = thin(rec, np.flatnonzero(ph.has_orientation), max_photos, "oriented photos")
     if oriented.size == 0:
         return
+    paths = [f"{root}/photos/{entity_part(i)}" for i in np.asarray(ph.ids)[oriented].tolist()]
+    if oriented.size > ENTITIES_MAX:      # one entity per photo would make the file unreadable
+        rec.note(f"{oriented.size} oriented photos (more than {ENTITIES_MAX}): drawn as their projection "
+                 f"centres ({root}/photos, labelled), not as one camera entity each")
+        rec.log(f"{root}/photos", rr.Points3D(ph.X0[oriented], labels=[entity_part(i) for i in
+                                                                       np.asarray(ph.ids)[oriented].tolist()],
+                                              radii=rr.Radius.ui_points(3.0)), static=True)
+        return
     R = rotation_from_opk_many(ph.opk[oriented])
-    for k, Rk in zip(oriented, R):
-        path = f"{root}/photos/{entity_part(ph.ids[k])}"
-        t = -Rk @ ph.X0[k]
-        rec.log(path, rr.Transform3D(translation=t, mat3x3=Rk, relation=rr.TransformRelation.ChildFromParent),
-                static=True)
-        cam = ph.camera[k]
-        pitch = cams.pixel_mm[cam]
-        w, h = cams.resolution[cam]
-        if np.isfinite(pitch) and pitch > 0 and w > 0 and h > 0:
-            f = cams.c[cam] / pitch
-            cx = (w - 1) / 2 + cams.xp[cam] / pitch
-            cy = (h - 1) / 2 - cams.yp[cam] / pitch
-            rec.log(path, rr.Pinhole(image_from_camera=[[f, 0, cx], [0, f, cy], [0, 0, 1]], resolution=[w, h],
-                                     camera_xyz=rr.ViewCoordinates.RUB, image_plane_distance=None), static=True)
+    t = -np.einsum("kij,kj->ki", R, ph.X0[oriented])
+    log_per_entity(rec, paths, np.ones(oriented.size, int),
+                   rr.Transform3D.columns(translation=t, mat3x3=R, relation=np.full(
+                       oriented.size, rr.TransformRelation.ChildFromParent)))
+    cam = np.asarray(ph.camera)[oriented]
+    pitch = np.asarray(cams.pixel_mm, float)[cam]
+    wh = np.asarray(cams.resolution, float).reshape(-1, 2)[cam]
+    ok = np.isfinite(pitch) & (pitch > 0) & (wh[:, 0] > 0) & (wh[:, 1] > 0)
+    if ok.any():
+        f = np.asarray(cams.c, float)[cam][ok] / pitch[ok]
+        K = np.zeros((int(ok.sum()), 3, 3))
+        K[:, 0, 0] = K[:, 1, 1] = f
+        K[:, 0, 2] = (wh[ok, 0] - 1) / 2 + np.asarray(cams.xp, float)[cam][ok] / pitch[ok]
+        K[:, 1, 2] = (wh[ok, 1] - 1) / 2 - np.asarray(cams.yp, float)[cam][ok] / pitch[ok]
+        K[:, 2, 2] = 1.0
+        log_per_entity(rec, [p for p, k in zip(paths, ok) if k], np.ones(int(ok.sum()), int),
+                       rr.Pinhole.columns(image_from_camera=K, resolution=wh[ok], camera_xyz=rr.ViewCoordinates.RUB))
 
 
 def thin(rec, index, most: int | None, what: str) -> np.ndarray:

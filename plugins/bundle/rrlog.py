@@ -26,7 +26,7 @@ from baarda.pipeline.camera import get_ap_model
 
 from .protocol import image_units
 from baarda.pipeline.api import point_ellipsoids, role_colors, thin, view_from_photo, view_vectors
-from baarda.pipeline.recording import log_series
+from baarda.pipeline.recording import ENTITIES_MAX, log_on_timeline, log_per_entity, log_series
 
 RED, GREY, BLUE = [230, 40, 40], [150, 150, 150], [40, 90, 230]
 
@@ -35,18 +35,49 @@ def _safe(s: str) -> str:
     return "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in str(s))
 
 
-def _format(block, j, xy):
-    f = np.asarray(block.cameras.format_mm[j], float)
-    if not np.all(np.isfinite(f)) or np.any(f <= 0):
-        ext = np.nanmax(np.abs(xy), axis=0) if len(xy) else np.array([10.0, 10.0])
-        f = 2.0 * np.maximum(ext, 1e-3)
-    return f
+def _formats(block, group, n_groups, cam_of_group):
+    """:func:`_format` of every group at once (a photo's or a camera's observations): ``group`` is the
+    group of each observation, ``cam_of_group`` the camera of each group; without a known format the
+    extent of the group's image points (20 × 20 mm for a group without any)."""
+    xy = np.abs(np.asarray(block.observations.xy, float))
+    ext = np.full((n_groups, 2), -np.inf)
+    np.maximum.at(ext, np.asarray(group, np.int64), np.where(np.isnan(xy), -np.inf, xy))
+    seen = np.bincount(np.asarray(group, np.int64), minlength=n_groups)[:n_groups] > 0
+    ext[~seen] = 10.0
+    ext[np.isneginf(ext)] = np.nan                   # only NaN coordinates: as np.nanmax
+    own = 2.0 * np.maximum(ext, 1e-3)
+    f = np.asarray(block.cameras.format_mm, float).reshape(-1, 2)[np.asarray(cam_of_group, np.int64)]
+    known = np.isfinite(f).all(axis=1) & (f > 0).all(axis=1)
+    return np.where(known[:, None], f, own)
+
+
+def _group_median(values, group, n_groups):
+    """``np.median`` of ``values`` per group (NaN for an empty group), in one sort."""
+    values = np.asarray(values, float)
+    group = np.asarray(group, np.int64)
+    order = np.lexsort((values, group))
+    counts = np.bincount(group, minlength=n_groups)[:n_groups]
+    start = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    out = np.full(n_groups, np.nan)
+    has = counts > 0
+    lo = values[order[start[has] + (counts[has] - 1) // 2]]
+    hi = values[order[start[has] + counts[has] // 2]]
+    out[has] = (lo + hi) / 2.0
+    return out
+
+
+def _colors(flags, yes, no) -> np.ndarray:
+    return np.where(np.asarray(flags, bool)[:, None], np.asarray(yes, np.uint8), np.asarray(no, np.uint8)).astype(np.uint8)
 
 
 def log_bundle(rec, rep, report: str, max_photos: int | None = None) -> None:
     """The recording of the workflow's :class:`~baarda.pipeline.adjustment.BundleReport` ``rep``.
     Every used photo is logged unless ``max_photos`` is given (then every k-th, and the recording's
-    notes say so)."""
+    notes say so).  Per-observation and per-photo data go through rerun's columnar API
+    (:func:`~baarda.pipeline.recording.log_per_entity`): each array is converted once and every
+    photo's entity gets its slice, so the time is linear in the observations, not in photos ×
+    observations."""
+    import pyarrow as pa
     import rerun as rr
 
     res, decision, options = rep.result, rep.decision, rep.config.output
@@ -54,59 +85,93 @@ def log_bundle(rec, rep, report: str, max_photos: int | None = None) -> None:
     st = res.state
     pts, photos, obs = block.points, block.photos, block.observations
     used = res.point_used
-    rec.log("world/points", rr.Points3D(st.XYZ[used], labels=pts.ids[used].tolist(),
+    point_ids = pa.array(np.asarray(pts.ids).astype(str))
+    rec.log("world/points", rr.Points3D(st.XYZ[used], labels=point_ids.filter(pa.array(used)),
                                         colors=role_colors(pts.role[used]),
                                         radii=rr.Radius.ui_points(4.0)), static=True)
     pscale = _log_precision(rec, res, used)
     R = rotation_from_opk_many(np.nan_to_num(st.opk))
     v = res.residuals
     fin = np.isfinite(v).all(axis=1)
+    n_ph = len(photos)
+    fmts = _formats(block, obs.photo, n_ph, photos.camera)          # per photo
     scale = options.arrow_scale
     if scale <= 0:
         act = res.obs_active & fin
         rms = float(np.sqrt(np.mean(v[act] ** 2))) if act.any() else 0.0
-        ext = float(np.nanmedian([_format(block, j, obs.xy[obs.photo == i]).max()
-                                  for i, j in enumerate(photos.camera)])) if len(photos) else 1.0
+        ext = float(np.nanmedian(fmts.max(axis=1))) if n_ph else 1.0
         scale = 0.03 * ext / rms if rms > 0 else 1.0
     computed = obs.xy - np.nan_to_num(v)
     bad = np.isin(decision, ("rejected", "flagged"))
-    for i in thin(rec, np.flatnonzero(res.photo_used), max_photos, "photos"):
-        pid = _safe(photos.ids[i])
-        j = photos.camera[i]
-        sel = np.flatnonzero(obs.photo == i)
-        fmt = _format(block, j, obs.xy[sel])
-        c = float(st.cam_params[j, 0])
-        rec.log(f"world/photos/{pid}", rr.Transform3D(translation=st.X0[i], mat3x3=R[i].T), static=True)
-        rec.log(f"world/photos/{pid}", rr.Pinhole(focal_length=c, width=float(fmt[0]), height=float(fmt[1]),
-                                                   principal_point=[fmt[0] / 2 + st.cam_params[j, 1],
-                                                                    fmt[1] / 2 - st.cam_params[j, 2]],
-                                                   camera_xyz=rr.ViewCoordinates.RUB,
-                                                   image_plane_distance=float(0.1 * _depth(st, i, obs, sel))),
-                static=True)
-        labels = pts.ids[obs.point[sel]].tolist()
-        rec.log(f"images/{pid}/observed", rr.Points2D(view_from_photo(obs.xy[sel], fmt), labels=labels,
-                                                      colors=[RED if b else BLUE for b in bad[sel]],
-                                                      radii=rr.Radius.ui_points(3.0)), static=True)
-        ok = sel[fin[sel]]
-        if ok.size:
-            vec = v[ok] * scale
-            rec.log(f"images/{pid}/residuals",
-                    rr.Arrows2D(origins=view_from_photo(computed[ok], fmt), vectors=view_vectors(vec),
-                                colors=[RED if b else GREY for b in bad[ok]]), static=True)
+    shown = thin(rec, np.flatnonzero(res.photo_used), max_photos, "photos")
+    pids = [_safe(p) for p in np.asarray(photos.ids)[shown].tolist()]
+    # the photos' cameras: one Transform3D + Pinhole per photo, from whole arrays
+    d = np.linalg.norm(st.XYZ[obs.point] - st.X0[obs.photo], axis=1)
+    dok = np.isfinite(d)
+    depth = _group_median(d[dok], obs.photo[dok], n_ph)
+    depth = np.where(np.isfinite(depth), depth, 1.0)[shown]
+    cp = st.cam_params[photos.camera[shown]]
+    f = fmts[shown]
+    K = np.zeros((shown.size, 3, 3))
+    K[:, 0, 0] = K[:, 1, 1] = cp[:, 0]
+    K[:, 0, 2] = f[:, 0] / 2 + cp[:, 1]
+    K[:, 1, 2] = f[:, 1] / 2 - cp[:, 2]
+    K[:, 2, 2] = 1.0
+    many = shown.size > ENTITIES_MAX
+    if many:       # one entity per photo would make the file unreadable: centres here, 2-D data on a timeline
+        rec.note(f"{shown.size} photos (more than {ENTITIES_MAX}): the cameras are drawn as their projection "
+                 "centres (world/photos, labelled), and the image points and residual arrows of all photos are "
+                 "one 2-D view (images/all) over the timeline 'photo': step k is the k-th photo, named in "
+                 "images/all/photo")
+        rec.log("world/photos", rr.Points3D(st.X0[shown], labels=pa.array(pids), colors=GREY,
+                                            radii=rr.Radius.ui_points(3.0)), static=True)
+        log_on_timeline(rec, "images/all/photo", "photo", np.ones(shown.size, int),
+                        rr.AnyValues.columns(photo=pa.array(np.asarray(photos.ids)[shown].astype(str))))
+    else:
+        log_per_entity(rec, [f"world/photos/{p}" for p in pids], np.ones(shown.size, int),
+                       rr.Transform3D.columns(translation=st.X0[shown], mat3x3=R[shown].transpose(0, 2, 1)),
+                       rr.Pinhole.columns(image_from_camera=K, resolution=f, camera_xyz=rr.ViewCoordinates.RUB,
+                                          image_plane_distance=0.1 * depth))
+    # image points and residual arrows of the photos shown, grouped by photo (in observation order)
+    pos = np.full(n_ph, -1)
+    pos[shown] = np.arange(shown.size)
+    rows = np.flatnonzero(pos[obs.photo] >= 0)
+    rows = rows[np.argsort(pos[obs.photo[rows]], kind="stable")]
+    rph = obs.photo[rows]
+    counts = np.bincount(pos[rph], minlength=shown.size)
+    half = np.where(np.isfinite(fmts), fmts, 0.0) / 2          # view_from_photo's offset, per photo
+    xy_view = view_from_photo(obs.xy[rows], None) + half[rph]
+    observed = rr.Points2D.columns(positions=xy_view, labels=point_ids.take(pa.array(obs.point[rows])),
+                                   colors=_colors(bad[rows], RED, BLUE), radii=rr.Radius.ui_points(3.0))
+    if many:
+        log_on_timeline(rec, "images/all/observed", "photo", counts, observed)
+    else:
+        log_per_entity(rec, [f"images/{p}/observed" for p in pids], counts, observed)
+    ok = rows[fin[rows]]
+    okc = np.bincount(pos[obs.photo[ok]], minlength=shown.size)
+    with_arrows = np.flatnonzero(okc > 0)
+    arrows = rr.Arrows2D.columns(origins=view_from_photo(computed[ok], None) + half[obs.photo[ok]],
+                                 vectors=view_vectors(v[ok] * scale), colors=_colors(bad[ok], RED, GREY))
+    if many:
+        log_on_timeline(rec, "images/all/residuals", "photo", okc, arrows)
+    else:
+        log_per_entity(rec, [f"images/{pids[k]}/residuals" for k in with_arrows], okc[with_arrows], arrows)
     # rejected / flagged rays
     rb = np.flatnonzero(bad & res.photo_used[obs.photo] & used[obs.point])
     if rb.size:
-        strips = [np.vstack([st.X0[obs.photo[k]], st.XYZ[obs.point[k]]]) for k in rb]
+        strips = np.stack([st.X0[obs.photo[rb]], st.XYZ[obs.point[rb]]], axis=1)
         rec.log("world/rejected_rays", rr.LineStrips3D(strips, colors=RED,
                                                        labels=[f"{photos.ids[obs.photo[k]]}/{pts.ids[obs.point[k]]}: "
                                                                f"{decision[k]}" for k in rb]), static=True)
     # distortion field of the estimated APs (labelled in px for a pixel source, else µm)
     unit, uscale, _ = image_units(block)
+    cam_fmts = _formats(block, photos.camera[obs.photo], len(block.cameras), np.arange(len(block.cameras)))
+    fields, scales = [], []
     for j in np.flatnonzero(res.camera_used):
         mdl = get_ap_model(block.cameras.ap_model[j])
         if mdl.n_params == 0:
             continue
-        fmt = _format(block, j, obs.xy[np.isin(obs.photo, np.flatnonzero(photos.camera == j))])
+        fmt = cam_fmts[j]
         gx, gy = np.meshgrid(np.linspace(-fmt[0] / 2, fmt[0] / 2, 15), np.linspace(-fmt[1] / 2, fmt[1] / 2, 11))
         xb, yb = gx.ravel(), gy.ravel()
         prm = np.broadcast_to(st.cam_params[j, 3:3 + mdl.n_params], (xb.size, mdl.n_params))
@@ -115,12 +180,26 @@ def log_bundle(rec, rep, report: str, max_photos: int | None = None) -> None:
         if not mag.max() > 0:          # no distortion at all (APs zero, e.g. fixed): no empty view
             continue
         dscale = 0.05 * fmt.max() / mag.max()
-        rec.log(f"cameras/{_safe(block.cameras.ids[j])}/distortion",
-                rr.Arrows2D(origins=view_from_photo(np.column_stack([xb, yb]), fmt),
-                            vectors=view_vectors(np.column_stack([dx, dy]) * dscale),
-                            labels=[f"{m * uscale:.{2 if unit == 'px' else 1}f} {unit}" for m in mag]), static=True)
-        rec.log(f"cameras/{_safe(block.cameras.ids[j])}/distortion_scale", rr.AnyValues(arrow_scale=dscale),
-                static=True)
+        fields.append((_safe(block.cameras.ids[j]), view_from_photo(np.column_stack([xb, yb]), fmt),
+                       view_vectors(np.column_stack([dx, dy]) * dscale), mag))
+        scales.append(dscale)
+    if fields:
+        cids = [c for c, *_ in fields]
+        mags = np.concatenate([m for *_, m in fields]) * uscale
+        labels = np.char.add(np.char.mod(f"%.{2 if unit == 'px' else 1}f ", mags), unit)
+        field_arrows = rr.Arrows2D.columns(origins=np.concatenate([o for _, o, _, _ in fields]),
+                                           vectors=np.concatenate([w for _, _, w, _ in fields]),
+                                           labels=pa.array(labels.tolist()))
+        if len(cids) > ENTITIES_MAX:
+            rec.note(f"{len(cids)} cameras with a distortion field (more than {ENTITIES_MAX}): one 2-D view "
+                     "(cameras/all) over the timeline 'camera', step k the k-th camera, named in cameras/all/camera")
+            log_on_timeline(rec, "cameras/all/distortion", "camera", [len(m) for *_, m in fields], field_arrows)
+            log_on_timeline(rec, "cameras/all/camera", "camera", np.ones(len(cids), int),
+                            rr.AnyValues.columns(camera=pa.array(cids), arrow_scale=np.asarray(scales, float)))
+        else:
+            log_per_entity(rec, [f"cameras/{c}/distortion" for c in cids], [len(m) for *_, m in fields], field_arrows)
+            log_per_entity(rec, [f"cameras/{c}/distortion_scale" for c in cids], np.ones(len(cids), int),
+                           rr.AnyValues.columns(arrow_scale=np.asarray(scales, float)))
     if rep.gnss is not None:     # GNSS antennas: observed positions, residual arrows computed → observed (scaled)
         gs, gnss = rep.gnss.rows, block.gnss
         g_obs, g_v = gnss.XYZ[gs.index], gs.v
@@ -168,11 +247,3 @@ def _log_precision(rec, res, used) -> float:
                                                       colors=[40, 170, 170], fill_mode="MajorWireframe"),
             static=True)
     return float(scale)
-
-
-def _depth(st, i, obs, sel):
-    if sel.size == 0:
-        return 1.0
-    d = np.linalg.norm(st.XYZ[obs.point[sel]] - st.X0[i], axis=1)
-    d = d[np.isfinite(d)]
-    return float(np.median(d)) if d.size else 1.0

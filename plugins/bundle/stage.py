@@ -56,6 +56,18 @@ class BundleAdjustment:
         return StageResult(artefacts=artefacts, summary=summary, report=text, tables=tables,
                            data={"report": rep, "result": res, "decision": rep.decision, "options": options})
 
+    def validate_block(self, block: Block, options: BundleConfig, ctx: Context) -> None:
+        """``baarda validate``: the options that depend on the block — ``fix``, ``free``, ``sigma``
+        against each camera's AP model, ``ap_models`` against the camera ids — fail as in ``run``."""
+        from baarda.pipeline.adjustment import configure_block
+
+        try:
+            configure_block(block, options)
+        except InputError as e:
+            if e.path is None and str(e.field).split(".")[0] in OPTION_FIELDS:
+                raise ctx.option_error(e.message, e.field) from None
+            raise
+
     def plots(self, result: StageResult, ctx: Context) -> dict:
         """Figures for report.html (drawn by the engine; see plugins/bundle/figures.py)."""
         from .figures import bundle_figures
