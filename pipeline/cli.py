@@ -74,11 +74,11 @@ def _set_threads(n: int | None) -> int:
 
     Single-threaded BLAS: the bundle's many small dense solves run slower with threaded OpenBLAS
     (measured: the AICON fixture 25.5 s threaded, 15.8 s with one thread).  The adjustment limits
-    its own BLAS threads the same way (``baarda.pipeline.adjustment.threads``) for any caller.  Where threads pay —
+    its own BLAS threads the same way (``baarda.pipeline.threads``) for any caller.  Where threads pay —
     the dense route's photo-pair products, Monte Carlo and batch workers — the code asks for them
     (``docs/benchmarks.md``, "Threads").
     """
-    from .adjustment.threads import limit_process       # lazy: see the imports above
+    from .threads import limit_process                  # lazy: see the imports above
 
     limit_process(1)            # numpy's and scipy's BLAS, as the adjustment limits them itself
     return int(n) if n else max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")

@@ -24,7 +24,7 @@ from .problem import BundleProblem
 from .records import Convergence, Timings
 from .route import Route
 from .settings import BundleSettings, BundleState
-from .threads import single_blas
+from ..threads import single_blas
 
 __all__ = ["adjust", "BundleResult", "padded_ap", "result_of"]
 

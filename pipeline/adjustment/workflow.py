@@ -39,7 +39,7 @@ from .adjust import BundleResult, adjust, padded_ap, result_of
 from .apselect import APSelection, select_aps
 from .reliability import GlobalRowStats, OwnEffects, global_rows, own_effects, parameter_covariance
 from .settings import BundleSettings, Distance
-from .threads import single_blas
+from ..threads import single_blas
 from .variance import VarianceComponents, estimate_components
 
 EO_LABELS = ("X0", "Y0", "Z0", "omega", "phi", "kappa")

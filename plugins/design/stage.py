@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from baarda.pipeline import montecarlo
-from baarda.pipeline.adjustment import parameter_covariance
-from baarda.pipeline.api import Context, InputError, SourceStage, Stage, StageResult, TableData, option
+from baarda.pipeline.api import (Context, InputError, SourceStage, Stage, StageResult, TableData, option,
+                                 parameter_covariance)
 from baarda.pipeline.camera import ap_model_names, get_ap_model
 from baarda.pipeline.errors import quote
 from baarda.pipeline.geometry import opk_from_rotation

@@ -23,7 +23,7 @@ from baarda.pipeline.api import Context, InputError, Stage, StageResult, TableDa
 from baarda.pipeline.geometry import rotation_from_opk
 
 from baarda.pipeline.geometry.image import pixels_from_mm
-from baarda.pipeline.adjustment import project_block
+from baarda.pipeline.api import project_block
 from baarda.pipeline.camera.convert import BROWN
 
 from .blocks import IOP, detection_block

@@ -5,7 +5,7 @@ import pytest
 from threadpoolctl import ThreadpoolController
 
 from baarda.pipeline.adjustment import BundleSettings, adjust
-from baarda.pipeline.adjustment import threads as thr
+from baarda.pipeline import threads as thr
 from baarda.pipeline.synthetic.closerange import make_block
 
 

@@ -23,7 +23,7 @@ ROOT = Path(__file__).resolve().parents[2]
 
 #: numerical libraries (modules or packages under pipeline/)
 LIBRARIES = ("geometry", "camera", "adjustment", "stats", "synthetic", "contracts", "accuracy", "model",
-             "imodels", "options")
+             "imodels", "options", "threads")
 #: what a library may import besides the standard library and other libraries
 #: (pymetis: the sparse route's fill-reducing ordering; threadpoolctl: its BLAS threads per phase)
 LIBRARY_THIRD_PARTY = {"numpy", "scipy", "pymetis", "threadpoolctl"}
