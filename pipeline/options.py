@@ -455,19 +455,54 @@ def to_plain(obj: Any) -> Any:
     return obj
 
 
-def output_problem(value: Any) -> str | None:
-    """Why an output path may not be used (None when it is fine): outputs are written inside the
-    run directory, so the path must be relative and must not climb out of it."""
-    text = str(value or "")
-    if not text:
+RUN_OWN_FILES = ("report.md", "report.html", "results.json", "project.resolved.toml", ".baarda-incomplete")
+"""Files the runner itself writes at the top of every run directory (besides ``*.rrd`` and the
+stages' ``<id>.error.txt``; the stages' tables ``<id>_<name>.csv/.png`` are known when they are
+written: :meth:`~baarda.pipeline.stage.Context.output_path` refuses a file already in the run)."""
+
+
+def run_file_clash(name: str, stage_ids=()) -> str | None:
+    """Why ``name`` (a POSIX path relative to the run directory) is a file the run writes itself,
+    or None."""
+    if "/" in name:
         return None
+    if name in RUN_OWN_FILES:
+        return f"'{name}' is a file the run writes itself"
+    if name.endswith(".rrd"):
+        return f"'{name}' would be a recording (*.rrd), which the run writes itself"
+    for sid in stage_ids:
+        if name in (f"{sid}.error.txt", f"{sid}.plots-error.txt"):
+            return f"'{name}' is where the run writes the error of stage '{sid}'"
+    return None
+
+
+def output_problem(value: Any, stage_ids=(), adds=("",)) -> str | None:
+    """Why an output path may not be used (None when it is fine) — the one rule of every writer.
+
+    Outputs are written inside the run directory: the path must be relative, must not climb out
+    of it, must not be empty or the run directory itself (``""``, ``"."``, ``"a/.."``), and none of
+    the names the writer makes of it (``value`` + each of ``adds``, e.g. ``.ply``/``.csv``) may be
+    a file the run writes itself (:func:`run_file_clash`)."""
+    text = str(value if value is not None else "")
+    if not text.strip():
+        return "an output path must name a file or folder inside the run directory; got an empty path"
     p = Path(text)
     if p.is_absolute() or text.startswith("~"):
         return (f"an output path must be relative to the run directory (everything a run writes stays "
                 f"inside it); got an absolute path")
-    depth = 0
+    parts: list[str] = []
     for part in p.parts:
-        depth += -1 if part == ".." else (0 if part == "." else 1)
-        if depth < 0:
-            return "an output path must stay inside the run directory; this one climbs out of it with '..'"
+        if part == "..":
+            if not parts:
+                return "an output path must stay inside the run directory; this one climbs out of it with '..'"
+            parts.pop()
+        elif part != ".":
+            parts.append(part)
+    if not parts:
+        return (f"an output path must name a file or folder inside the run directory; {text!r} is the run "
+                "directory itself")
+    for add in adds:
+        clash = run_file_clash("/".join(parts[:-1] + [parts[-1] + add]), stage_ids)
+        if clash:
+            return f"{clash}; choose another name"
     return None

@@ -305,6 +305,8 @@ def _build(path: Path, text: str, data: dict, plugins: PluginManager,
     by_id = _overrides_by_stage(overrides, [c[2] for c in chosen], path.name) if overrides is not None else {}
 
     available: dict[str, str] = {}
+    all_ids = tuple(c[2] for c in chosen)
+    outputs: dict[str, str] = {}             # every output name of the project → its stage
     for k, raw, sid, info in chosen:
         use, line = info.name, loc.stage(k)
         mine = by_id.get(sid, {})
@@ -324,7 +326,15 @@ def _build(path: Path, text: str, data: dict, plugins: PluginManager,
 
         options = parse_options(info.cls.Options, raw, path=path, line=line, locate=locate)
         for name, role in path_roles(info.cls).items():
-            problem = output_problem(getattr(options, name)) if role == "output" else None
+            problem = (output_problem(getattr(options, name), all_ids, getattr(info.cls, "output_adds", {}).get(name, ("",)))
+                       if role == "output" else None)
+            if role == "output" and not problem:      # two writers, one file: the second would fail
+                for made in _output_names(getattr(options, name), getattr(info.cls, "output_adds", {}).get(name, ("",))):
+                    if made in outputs:
+                        problem = (f"'{made}' is written by stage '{outputs[made]}' already (an earlier output "
+                                   "option); choose another name")
+                        break
+                    outputs[made] = sid
             if problem:
                 w = locate(name)
                 w = w if isinstance(w, Where) else Where(path, w)
@@ -367,6 +377,20 @@ def _overrides_by_stage(overrides: Overrides, ids: list[str], project_name: str)
 
 PATH_ROLES = ("input", "glob", "prefix", "output")
 """Roles of options naming files (a stage's ``paths`` class attribute; see pipeline/stage.py)."""
+
+
+def _output_names(value: Any, adds: tuple[str, ...]) -> list[str]:
+    """The names (relative POSIX paths, normalised) an output option makes of ``value``."""
+    parts: list[str] = []
+    for part in Path(str(value)).parts:
+        if part == "..":
+            if parts:
+                parts.pop()
+        elif part != ".":
+            parts.append(part)
+    if not parts:
+        return []
+    return ["/".join(parts[:-1] + [parts[-1] + add]) for add in adds]
 
 
 def path_roles(cls: type) -> dict[str, str]:
@@ -419,7 +443,8 @@ def stage_context(project: Project, spec: StageSpec, **kw):
     """The :class:`~baarda.pipeline.stage.Context` of ``spec`` in ``project`` (``kw``: run_dir, progress…)."""
     return Context(stage_id=spec.id, project_dir=project.directory, seed=project.seed,
                    project_file=project.path, object_unit=project.object_unit,
-                   option_lines=dict(spec.option_lines), stage_line=spec.line, **kw)
+                   option_lines=dict(spec.option_lines), stage_line=spec.line,
+                   stage_ids=tuple(s.id for s in project.stages), **kw)
 
 
 def validate_inputs(project: Project) -> list[str]:
