@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from baarda.pipeline.api import Block, InputError
-from baarda.pipeline.errors import quote
+from baarda.pipeline.errors import quote, read_limited
 from baarda.pipeline.errors import finite_number as _num
 from baarda.pipeline.model import (FIXED, FREE, Cameras, FrozenMap, Observations, Photos, Points, ScaleBars,
                                    SourceInfo)
@@ -103,13 +103,10 @@ def _path(prefix: Path, suffix: str) -> Path:
 
 def _lines(path: Path) -> list[tuple[int, list[str]]]:
     """Non-blank lines as (1-based line number, tokens); ``InputError`` if the file is missing."""
-    try:
-        text = path.read_text(encoding="utf-8", errors="replace")
-    except FileNotFoundError:
+    if not path.exists():
         raise InputError("file not found (an AICON export needs .ior, .eor, .obc and .phc; "
-                         ".scale is optional)", path=path) from None
-    except OSError as e:
-        raise InputError(f"cannot read: {e.strerror}", path=path) from None
+                         ".scale is optional)", path=path)
+    text = read_limited(path, what="an AICON file").decode("utf-8", errors="replace")
     out = []
     for i, line in enumerate(text.splitlines(), start=1):
         if line.strip() and not line.lstrip().startswith("#"):
@@ -241,7 +238,7 @@ def read_scale(path: Path) -> list[tuple]:
     """Scale bars of a ``.scale``: (name, point_a, point_b, distance, sigma, flag, line)."""
     out = []
     lines = _lines(path)
-    raw_lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
+    raw_lines = read_limited(path, what="an AICON file").decode("utf-8", errors="replace").splitlines()
     for ln, _ in lines:
         raw = raw_lines[ln - 1]
         try:

@@ -360,7 +360,8 @@ def _format(node: Node, path, required: set[str], allowed: set[str]) -> list[str
 def _rows(file: Path, cols: list[str], xml_path, xml_line):
     """``(line, {column: token})`` of a comma-separated text file; ``#`` starts a comment."""
     try:
-        text = file.read_bytes().decode("utf-8")
+        text = (read_limited(file, what="a DBAT data file") if file.exists() and not file.is_dir()
+                else file.read_bytes()).decode("utf-8")
     except FileNotFoundError:
         raise InputError(f"file not found: {file}", path=xml_path, line=xml_line, field="file") from None
     except IsADirectoryError:
