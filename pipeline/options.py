@@ -198,6 +198,23 @@ _NAME_RANGES: list[tuple[str, Any]] = [
 ]
 
 
+COUNT_LIMITS: dict[str, int] = {
+    "n_sim": 1_000_000, "repetitions": 100_000, "max_iter": 100_000, "iterations": 100_000,
+    "max_rejections": 1_000_000, "rho": 1_000_000, "supersample": 64, "grid": 10_000, "smallest_angles": 1_000_000,
+    "min_points": 1_000_000, "log_max_size": 100_000, "width": 1_000_000, "height": 1_000_000,
+    "num_threads": 4096, "seed": 2**63 - 1,
+}
+"""Upper bound of every count option by name: a count without one (``n_sim = 2e9``) would run for
+ever.  An integer option not named here is bounded by :data:`INT_LIMIT`."""
+
+INT_LIMIT = 2**31 - 1
+"""Largest magnitude of an integer option without a bound of its own."""
+
+FLOAT_MAGNITUDE = (1e-30, 1e30)
+"""Smallest and largest magnitude (besides 0) of a number in an option: a σ of 1e-320 (a
+denormal: 1/σ² overflows) or 1e300 is a typing mistake, never a measurement."""
+
+
 def option_range(name: str, default: Any = None, declared: dict | None = None) -> dict | None:
     """The range of option ``name`` (``{"gt": 0}`` …): the one declared with :func:`option`, else
     the one its name implies (``sigma…`` and ``tol_…`` positive, ``alpha…``/``beta…`` in (0, 1),
@@ -271,6 +288,18 @@ def _check_range(value: Any, name: str, rng: dict | None, where: dict) -> None:
         return
     if value != value or value in (float("inf"), float("-inf")):
         raise InputError(f"must be a finite number, got {value}", field=name, **where)
+    if isinstance(value, int) and not (rng and ("le" in rng or "lt" in rng)):     # every count is bounded
+        base = name.rsplit(".", 1)[-1]
+        cap = COUNT_LIMITS.get(base)
+        if cap is not None and value > cap:
+            raise InputError(f"must be at most {cap}, got {value}", field=name, **where)
+        if base == "seed" and value < 0:
+            raise InputError(f"must be at least 0, got {value}", field=name, **where)
+        if cap is None and abs(value) > INT_LIMIT:
+            raise InputError(f"must be at most {INT_LIMIT} in magnitude, got {value}", field=name, **where)
+    if isinstance(value, float) and value != 0 and not FLOAT_MAGNITUDE[0] <= abs(value) <= FLOAT_MAGNITUDE[1]:
+        raise InputError(f"must be 0 or between {FLOAT_MAGNITUDE[0]:g} and {FLOAT_MAGNITUDE[1]:g} in magnitude, "
+                         f"got {value:g}", field=name, **where)
     if not rng:
         return
     text = {"gt": "greater than", "ge": "at least", "lt": "less than", "le": "at most"}
@@ -278,8 +307,13 @@ def _check_range(value: Any, name: str, rng: dict | None, where: dict) -> None:
           "le": value <= rng.get("le", 0)}
     for k in ("gt", "ge", "lt", "le"):
         if k in rng and not ok[k]:
-            limits = " and ".join(f"{text[j]} {rng[j]:g}" for j in ("gt", "ge", "lt", "le") if j in rng)
-            raise InputError(f"must be {limits}, got {value:g}", field=name, **where)
+            limits = " and ".join(f"{text[j]} {_num_text(rng[j])}" for j in ("gt", "ge", "lt", "le") if j in rng)
+            raise InputError(f"must be {limits}, got {_num_text(value)}", field=name, **where)
+
+
+def _num_text(v) -> str:
+    """A bound or value for a message: whole numbers in full, others with :g."""
+    return str(v) if isinstance(v, int) else f"{v:g}"
 
 
 def _coerce(value: Any, tp, name: str, where: dict, nested=None) -> Any:

@@ -256,6 +256,9 @@ def _build(path: Path, text: str, data: dict, plugins: PluginManager,
     if isinstance(seed, bool) or not isinstance(seed, int):
         raise InputError(f"seed must be an integer, got {seed!r}", path=path, line=loc.top_key("seed"),
                          field="project.seed")
+    if not 0 <= seed <= 2**63 - 1:
+        raise InputError(f"seed must be a whole number from 0 to 2^63 − 1, got {seed}", path=path,
+                         line=loc.top_key("seed"), field="project.seed")
     unit = proj.get("object_unit", "m")
     if unit not in ("m", "mm", "cm", "ft"):
         raise InputError(f"object_unit must be one of m, mm, cm, ft; got {unit!r}", path=path,

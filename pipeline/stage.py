@@ -338,7 +338,8 @@ class Context:
         The one rule of every writer (:func:`~baarda.pipeline.options.output_problem`): the path
         must be relative, stay inside the run directory, not be empty or ``"."``, and no name the
         writer makes of it (``value`` + each of ``adds``) may be a file the run writes itself or
-        one already in the run directory — each an :class:`InputError` on the option.
+        a file already in the run directory (a folder may be: writers add files to it) — each an
+        :class:`InputError` on the option.
         """
         problem = output_problem(value, self.stage_ids, adds)
         if problem:
@@ -348,7 +349,7 @@ class Context:
         if self.run_dir is not None:
             for add in adds:
                 f = out.with_name(out.name + add)
-                if f.exists() or f.is_symlink():
+                if (f.exists() and not f.is_dir()) or f.is_symlink():    # a folder is shared (rendered images)
                     rel = f.relative_to(base).as_posix()
                     raise self.option_error(f"'{rel}' is already in the run directory (written earlier in this "
                                             f"run); choose another {key}", key)
