@@ -183,14 +183,43 @@ class GnssOptions:
             raise ValueError(f"on_unknown must be 'error' or 'skip', got {self.on_unknown!r}")
 
 
+LEVER_ARM_MAX_M = 30.0
+"""Largest antenna offset from the camera (metres) accepted: larger ones are lever arms in mm."""
+
+
 class GnssCentres:
     summary = "GNSS antenna positions per photo (CSV, any CRS, lever arm per camera) as observations of the bundle"
     reads = ("block",)
     writes = ("block",)
     Options = GnssOptions
 
+    def validate(self, options: GnssOptions, ctx: Context):
+        """Read the GNSS CSV and its CRS, check the lever arms — what ``run`` reads, before any block."""
+        self._checked(options, ctx)
+        return None
+
+    def _checked(self, options: GnssOptions, ctx: Context):
+        """The CSV read, its CRS and the crs option parsed, the lever arms plausible (in metres)."""
+        from baarda.pipeline.crs import parse_crs
+
+        if options.path is None or not str(options.path) or str(options.path) == ".":
+            raise InputError("the gnss-centres stage needs the option 'path' (the GNSS CSV)", path=ctx.project_file,
+                             field="path")
+        g = read_gnss_csv(ctx.resolve(options.path))
+        if g.crs and str(g.crs).strip().lower() not in ("local", "none"):
+            parse_crs(g.crs, path=g.path, line=g.crs_line, field="crs")
+        if options.crs and str(options.crs).strip().lower() not in ("local", "none"):
+            parse_crs(options.crs, path=ctx.project_file, field="crs")
+        for cid, arm in options.lever_arm.items():
+            if max(abs(float(x)) for x in arm) > LEVER_ARM_MAX_M:
+                raise ctx.option_error(f"lever_arm.{cid}: an antenna offset of {max(abs(float(x)) for x in arm):g} m "
+                                       f"(more than {LEVER_ARM_MAX_M:g} m); the lever arm is in metres — given in mm?",
+                                       "lever_arm")
+        return g
+
     def run(self, inputs, options: GnssOptions, ctx: Context) -> StageResult:
         block = inputs["block"]
+        self._checked(options, ctx)
         if options.path is None or not str(options.path) or str(options.path) == ".":
             raise InputError("the gnss-centres stage needs the option 'path' (the GNSS CSV)", path=ctx.project_file,
                              field="path")
