@@ -227,6 +227,8 @@ def read_eor(path: Path) -> dict:
 def read_obc(path: Path) -> dict:
     """Object points of an ``.obc``: id, XYZ (n, 3), sigma (n, 3), rays, flags (n, 3), line."""
     (pid,), v, lines = _table(path, _OBC, 4, 1)
+    if not pid:
+        raise InputError("no object point in the file (an AICON .obc lists point, X, Y, Z …)", path=path)
     seen = {}
     for i, ln in zip(pid, lines):
         if i in seen:

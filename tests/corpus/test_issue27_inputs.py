@@ -50,6 +50,7 @@ CASES = [
          source_project("aicon", "ex"), names="ex.ior:1, field 'c'"),
     Case("aicon/obc-negative-sigma", aicon_files(obc=lambda t: first_obc(t, 4, "-0.01")),
          source_project("aicon", "ex"), names="ex.obc:1, field 'sX'"),
+    Case("aicon/obc-empty", aicon_files(obc=lambda t: ""), source_project("aicon", "ex"), names="ex.obc"),
     Case("aicon/phc-empty", aicon_files(phc=lambda t: ""), source_project("aicon", "ex"), names="ex.phc"),
     Case("aicon/phc-measured-twice", aicon_files(phc=second_phc_twice), source_project("aicon", "ex"),
          names="ex.phc:2, field 'point'"),
