@@ -29,7 +29,8 @@ class CameraOptions:
     pixel_mm: float = option(0.0, "pixel pitch in mm (or give sensor_width_mm)")
     sensor_width_mm: float = option(0.0, "sensor width in mm (pixel pitch = sensor_width_mm / width)")
     principal_point_px: list[float] = option([0.0, 0.0], "principal point offset from the image centre in pixels "
-                                                         "(x right, y down)")
+                                                         "(x right, y down; any sign, inside the image)",
+                                             ge=-1_000_000.0, le=1_000_000.0)
 
 
 @dataclass(frozen=True)
@@ -79,6 +80,12 @@ def _camera_spec(options: GcpOptions, ctx: Context) -> CameraSpec:
         fpx = c.focal_mm / pixel
     if len(pp) != 2:
         raise ctx.option_error("principal_point_px: expected 2 numbers", "camera")
+    if abs(pp[0]) > width / 2 or abs(pp[1]) > height / 2:
+        raise ctx.option_error(f"principal_point_px = [{pp[0]:g}, {pp[1]:g}] px from the image centre lies outside the "
+                               f"{width} × {height} pixel image", "camera")
+    if c.focal_px and c.focal_mm:
+        raise ctx.option_error(f"the camera gives the focal length twice (focal_px = {c.focal_px:g} and focal_mm = "
+                               f"{c.focal_mm:g}); give one", "camera")
     return CameraSpec(cid, int(width), int(height), float(fpx), float(pixel), float(pp[0]), float(pp[1]), k1, k2)
 
 

@@ -42,7 +42,22 @@ def second_phc_twice(text):
     return "\n".join([lines[0], " ".join(t)] + lines[2:]) + "\n"
 
 
+ODM = SHARED / "odm-br-gcp"
+GCP_TEXT = (ODM / "gcp_list_floatxy_raw.txt").read_text(encoding="utf-8") if ODM.is_dir() else ""
+
+
+def odm_camera(extra):
+    return ('camera = { width = 4000, height = 3000, focal_px = 2904.0, sensor_width_mm = 6.17' + extra + ' }\n'
+            'skip_lines = [19, 51, 52, 55, 70]\n')
+
+
 CASES = [
+    # ODM cameras: a valid principal point accepted (below), an impossible one named, focal length twice
+    Case("gcp/principal-point-outside", {"gcp_list.txt": GCP_TEXT},
+         source_project("gcp-list", "gcp_list.txt", odm_camera(", principal_point_px = [100000, 0.0]")),
+         names="lies outside the 4000 × 3000"),
+    Case("gcp/focal-mm-and-px", {"gcp_list.txt": GCP_TEXT},
+         source_project("gcp-list", "gcp_list.txt", odm_camera(", focal_mm = 4.5")), names="focal length twice"),
     # AICON
     Case("aicon/ior-zero-pixels", aicon_files(ior=lambda t: ior_last_line(t, "    23.6 15.6 0 0")),
          source_project("aicon", "ex"), names="ex.ior:5"),
@@ -98,3 +113,11 @@ def test_rrr_rho_beyond_the_clean_set_names_the_option(tmp_path):
     case = Case("rrr/rho-too-big", {"data1.cmp": DATA1}, text, names="field 'rho'", extra_args=["--scheduler", "sync"])
     res = run_case(case, tmp_path / "case")
     assert res.code == 2 and "n − u = 14" in res.err and case.names in res.err, res.err
+
+
+def test_an_odm_principal_point_with_a_zero_is_accepted(tmp_path):
+    case = Case("gcp/principal-point-zero", {"gcp_list.txt": GCP_TEXT},
+                source_project("gcp-list", "gcp_list.txt", odm_camera(", principal_point_px = [12.5, 0.0]")),
+                command="validate")
+    res = run_case(case, tmp_path / "case")
+    assert res.code == 0, res.err
