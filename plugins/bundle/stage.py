@@ -42,7 +42,10 @@ class BundleAdjustment:
                 raise
             except InputError as e:
                 if e.path is None and str(e.field).split(".")[0] in OPTION_FIELDS:   # an option that does not
-                    raise ctx.option_error(e.message, e.field) from None             # fit the block: file, line
+                    field = e.field                                                  # fit the block: file, line
+                    if field == "fix/free/sigma":       # the one of them the project sets
+                        field = next((k for k in ("fix", "free", "sigma") if k in ctx.option_lines), field)
+                    raise ctx.option_error(e.message, field) from None
                 raise
             for w in rep.warnings:
                 ctx.warn(w)

@@ -34,7 +34,7 @@ if not SHARED.is_dir():  # pragma: no cover
     pytest.skip(f"shared data not found at {SHARED}", allow_module_level=True)
 
 TIME_LIMIT_S = 30          # one example of one reader; a hang fails the test
-QUICK = settings(max_examples=5, deadline=None, database=None, derandomize=True,
+QUICK = settings(max_examples=3, deadline=None, database=None, derandomize=True,
                  suppress_health_check=list(HealthCheck))
 LARGE = settings(max_examples=300, deadline=None, database=None, suppress_health_check=list(HealthCheck))
 

@@ -89,6 +89,11 @@ CASES = [
         '[[stage]]\nuse = "aicon"\nid = "a"\n[stage.options]\npath = "ex"\nseed = -5\n'), command="validate",
         names="field 'seed'"),
     # bundle options naming unknown points
+    Case("bundle/fix-unknown-parameter", {"data.cmp": DATA1}, comparator_project(
+        '[[stage]]\nuse = "bundle"\n[stage.options]\nfix = ["NOPE"]\n'), names="project.toml:10, field 'fix'"),
+    Case("bundle/ap-models-unknown-camera", {"data.cmp": DATA1}, comparator_project(
+        '[[stage]]\nuse = "bundle"\n[stage.options]\nap_models = { nocam = "brown" }\n'),
+        names="project.toml:10, field 'ap_models'"),
     Case("bundle/datum-points-unknown", {"data.cmp": DATA1}, comparator_project(
         '[[stage]]\nuse = "bundle"\n[stage.options]\ndatum_points = ["NOPE", "1", "2"]\n'),
         names="field 'datum_points'"),
