@@ -56,6 +56,15 @@ CASES = [
     Case("gcp/principal-point-outside", {"gcp_list.txt": GCP_TEXT},
          source_project("gcp-list", "gcp_list.txt", odm_camera(", principal_point_px = [100000, 0.0]")),
          names="lies outside the 4000 × 3000"),
+    Case("gcp/geocentric-crs", {"gcp_list.txt": "+proj=geocent +datum=WGS84 +units=m +no_defs\n"
+                                                + "\n".join(GCP_TEXT.splitlines()[1:]) + "\n"},
+         source_project("gcp-list", "gcp_list.txt", odm_camera("")), command="validate",
+         names="gcp_list.txt:1, field 'crs'"),
+    Case("gcp/heights-in-mm", {"gcp_list.txt": "\n".join(
+        [GCP_TEXT.splitlines()[0]] + [" ".join(t[:2] + [str(float(t[2]) * 1000)] + t[3:])
+                                      for t in (ln.split() for ln in GCP_TEXT.splitlines()[1:] if ln.strip())]) + "\n"},
+         source_project("gcp-list", "gcp_list.txt", odm_camera("")), command="validate",
+         names="gcp_list.txt:1, field 'crs'"),
     Case("gcp/focal-mm-and-px", {"gcp_list.txt": GCP_TEXT},
          source_project("gcp-list", "gcp_list.txt", odm_camera(", focal_mm = 4.5")), names="focal length twice"),
     # AICON
