@@ -458,9 +458,13 @@ def validate_inputs(project: Project) -> list[str]:
     runs (a source stage parses its files there; when it returns the block it read, the checks
     every source's block gets in a run, :func:`~baarda.pipeline.plausibility.check_block`, run too).  The first mistake raises :class:`InputError`
     (the project file, the option's line and name for a missing path; the input file's own line
-    and field for a mistake inside it).  Returns the warnings of the hooks as ``"[id] text"``.
+    and field for a mistake inside it).  A stage that reads the block may have a
+    ``validate_block(options, block, ctx)`` hook: it gets the block the sources before it read (as
+    read, before any adjustment) and checks the options that must fit it (point ids of a datum,
+    camera names).  Returns the warnings of the hooks as ``"[id] text"``.
     """
     warnings = []
+    latest = None                   # the block the sources read so far (for ``validate_block`` hooks)
     for spec in project.stages:
         for name, role in path_roles(spec.cls).items():
             if role == "output":
@@ -468,13 +472,17 @@ def validate_inputs(project: Project) -> list[str]:
             problem = _missing(getattr(spec.options, name), role, project.directory)
             if problem:
                 raise InputError(problem, project.path, spec.option_lines.get(name, spec.line), name)
-        hook = getattr(spec.cls, "validate", None)
-        if hook is None:
-            continue
         ctx = stage_context(project, spec)
-        block = spec.cls().validate(spec.options, ctx)
+        block_hook = getattr(spec.cls, "validate_block", None)
+        if block_hook is not None and latest is not None and "block" in [r.rstrip("?") for r in spec.cls.reads]:
+            spec.cls().validate_block(spec.options, latest, ctx)      # options that must fit the block
+        hook = getattr(spec.cls, "validate", None)
+        block = spec.cls().validate(spec.options, ctx) if hook is not None else None
         if block is not None and hasattr(block, "observations"):      # a source's block: the runner's checks
             for w in check_block(block):
                 ctx.warn(w)
+            latest = block
+        elif "block" in [w.rstrip("?") for w in spec.cls.writes]:
+            latest = None           # a stage changes the block in ways validate cannot know: no guesses
         warnings += [f"[{spec.id}] {w}" for w in ctx.warnings]
     return warnings

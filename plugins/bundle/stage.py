@@ -31,6 +31,18 @@ class BundleAdjustment:
     writes = ("bundle", "adjustment", "block")
     Options = BundleConfig          # the stage's option table is the library's config (one schema)
 
+    def validate_block(self, options: BundleConfig, block, ctx: Context) -> None:
+        """``baarda validate``: the options that name points (datum_points, distances) must name
+        points of the block the sources read."""
+        from baarda.pipeline.adjustment.workflow import bundle_settings
+
+        try:
+            bundle_settings(options, block)
+        except InputError as e:
+            if e.path is None and str(e.field).split(".")[0] in OPTION_FIELDS:
+                raise ctx.option_error(e.message, e.field) from None
+            raise
+
     def run(self, inputs, options: BundleConfig, ctx: Context) -> StageResult:
         from .progress import iteration_progress
 

@@ -135,3 +135,13 @@ def test_an_odm_principal_point_with_a_zero_is_accepted(tmp_path):
                 command="validate")
     res = run_case(case, tmp_path / "case")
     assert res.code == 0, res.err
+
+
+@pytest.mark.parametrize("line,field", [('datum_points = ["NOPE", "1", "2"]', "datum_points"),
+                                        ('distances = [{ from = "1", to = "NOPE", distance = 1.0, sigma = 0.1 }]',
+                                         "distances")])
+def test_validate_checks_bundle_point_ids_against_the_block(tmp_path, line, field):
+    case = Case("bundle/validate", {"data.cmp": DATA1},
+                comparator_project('[[stage]]\nuse = "bundle"\n[stage.options]\n' + line + "\n"), command="validate")
+    res = run_case(case, tmp_path / "case")
+    assert res.code == 2 and f"field '{field}'" in res.err and "NOPE" in res.err, res.err
