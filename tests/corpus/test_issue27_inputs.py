@@ -145,3 +145,14 @@ def test_validate_checks_bundle_point_ids_against_the_block(tmp_path, line, fiel
                 comparator_project('[[stage]]\nuse = "bundle"\n[stage.options]\n' + line + "\n"), command="validate")
     res = run_case(case, tmp_path / "case")
     assert res.code == 2 and f"field '{field}'" in res.err and "NOPE" in res.err, res.err
+
+
+def test_with_set_an_error_in_the_file_names_the_users_project(tmp_path):
+    proj = comparator_project('[[stage]]\nuse = "helmert-screening"\nid = "screening"\n[stage.options]\n'
+                              'alpha0 = 2.0\n')
+    for command in ("validate", "run"):
+        case = Case("set/file-error", {"data.cmp": DATA1}, proj, command=command,
+                    extra_args=["--set", "screening.beta0=0.8"])
+        res = run_case(case, tmp_path / command)
+        line = [ln for ln in res.err.splitlines() if ln.startswith("baarda:")][0]
+        assert res.code == 2 and f"{tmp_path / command / 'project.toml'}:" in line and "alpha0" in line, line
