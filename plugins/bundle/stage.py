@@ -34,7 +34,7 @@ class BundleAdjustment:
     def validate_block(self, options: BundleConfig, block, ctx: Context) -> None:
         """``baarda validate``: the options that name points (datum_points, distances) must name
         points of the block the sources read."""
-        from baarda.pipeline.adjustment.workflow import bundle_settings
+        from baarda.pipeline.adjustment import bundle_settings
 
         try:
             bundle_settings(options, block)
