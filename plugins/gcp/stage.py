@@ -205,6 +205,21 @@ class GnssCentres:
         self._checked(options, ctx)
         return None
 
+    def validate_block(self, options: GnssOptions, block, ctx: Context) -> None:
+        """``baarda validate`` with the block the sources read: every photo of the CSV in the block
+        (unless on_unknown = 'skip'), every lever arm's camera a camera of the block."""
+        g = self._checked(options, ctx)
+        known = set(block.photos.ids.tolist())
+        unknown = [(p, ln) for p, ln in zip(g.photo, g.line) if p not in known]
+        if unknown and options.on_unknown == "error":
+            p, ln = unknown[0]
+            raise InputError(f"photo {p!r} is not in the block ({len(unknown)} unknown; on_unknown = 'skip' ignores "
+                             "them)", path=g.path, line=int(ln), field="photo")
+        for cid in options.lever_arm:
+            if cid not in block.cameras.ids:
+                raise ctx.option_error(f"lever_arm: unknown camera {cid!r} (cameras: "
+                                       f"{', '.join(block.cameras.ids.tolist())})", "lever_arm")
+
     def _checked(self, options: GnssOptions, ctx: Context):
         """The CSV read, its CRS and the crs option parsed, the lever arms plausible (in metres)."""
         from baarda.pipeline.crs import parse_crs

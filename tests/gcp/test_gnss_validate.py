@@ -67,3 +67,15 @@ def test_a_lever_arm_in_mm_is_an_input_error(project):
 def test_the_fixture_validates(project):
     code, err = validate(project)
     assert code == 0, err
+
+
+def test_validate_checks_the_csv_photos_and_lever_arm_cameras_against_the_block(project):
+    line = edit_csv(project, lambda ln: "IMG_NOPE" + ln[ln.index(","):])
+    code, err = validate(project)
+    assert code == 2 and f"gnss.csv:{line}, field 'photo'" in err and "IMG_NOPE" in err, err
+    edit_csv(project, lambda ln: ln)
+    t = project / "gnss.toml"
+    shutil.copy(FIX / "gnss.csv", project / "gnss.csv")
+    t.write_text(t.read_text().replace('lever_arm = { "1" =', 'lever_arm = { "nocam" ='))
+    code, err = validate(project)
+    assert code == 2 and "field 'lever_arm'" in err and "nocam" in err, err
