@@ -32,15 +32,18 @@ class BundleAdjustment:
     Options = BundleConfig          # the stage's option table is the library's config (one schema)
 
     def validate_block(self, options: BundleConfig, block, ctx: Context) -> None:
-        """``baarda validate``: the options that name points (datum_points, distances) must name
-        points of the block the sources read."""
-        from baarda.pipeline.adjustment import bundle_settings
+        """``baarda validate``: the options that name points (datum_points, distances), cameras
+        (ap_models) or parameters (fix, free, sigma) must name those of the block the sources read."""
+        from baarda.pipeline.adjustment import bundle_settings, configure_block
 
         try:
-            bundle_settings(options, block)
+            bundle_settings(options, configure_block(block, options))
         except InputError as e:
             if e.path is None and str(e.field).split(".")[0] in OPTION_FIELDS:
-                raise ctx.option_error(e.message, e.field) from None
+                field = e.field
+                if field == "fix/free/sigma":       # the one of them the project sets
+                    field = next((k for k in ("fix", "free", "sigma") if k in ctx.option_lines), field)
+                raise ctx.option_error(e.message, field) from None
             raise
 
     def run(self, inputs, options: BundleConfig, ctx: Context) -> StageResult:

@@ -138,6 +138,7 @@ def test_an_odm_principal_point_with_a_zero_is_accepted(tmp_path):
 
 
 @pytest.mark.parametrize("line,field", [('datum_points = ["NOPE", "1", "2"]', "datum_points"),
+                                        ('fix = ["NOPE"]', "fix"), ('ap_models = { NOPE = "brown" }', "ap_models"),
                                         ('distances = [{ from = "1", to = "NOPE", distance = 1.0, sigma = 0.1 }]',
                                          "distances")])
 def test_validate_checks_bundle_point_ids_against_the_block(tmp_path, line, field):
