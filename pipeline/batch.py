@@ -196,6 +196,16 @@ def read_sweep(path: str | Path, project, plugins: PluginManager | None = None) 
                          "overrides": {c: toml_value(v) for c, v in row.items() if v.strip() != ""}})
     if not rows:
         raise InputError("the sweep table has no runs", path=path)
+    named: dict[str, int] = {}       # explicit names, as their folders will be named: each once
+    for row in rows:
+        if not row["name"]:
+            continue
+        folder = _unique_names([row["name"]])[0]
+        if folder in named:
+            raise InputError(f"run name {row['name']!r} (folder runs/{folder}) given twice (first on line "
+                             f"{named[folder]}); each row needs its own name", path=path, line=row["line"],
+                             field="name")
+        named[folder] = row["line"]
     is_toml = path.suffix.lower() == ".toml"
     for row in rows:       # names, types and ranges as --set checks them: the table, its line, the column
         with_overrides(project, Overrides(row["overrides"], source=path, line=row["line"],

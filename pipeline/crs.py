@@ -359,6 +359,15 @@ def local_frame(crs_text: str | None, xyz, *, path=None, line=None, field="crs")
         raise InputError(f"CRS {str(crs_text).strip()[:60]!r}: {e.message}", path=path, line=line, field=field) from None
     if tmp._transformers()[0].is_geographic and (np.abs(g[:, 1]) > 90).any():
         raise InputError("latitude outside ±90° (are longitude and latitude swapped?)", path=path, field=field)
+    # the heights the CRS gives these coordinates: a point is on the Earth (−1 km … +100 km), or the
+    # CRS is not theirs (projected E, N read as geocentric X, Y; metres read as degrees)
+    h_bad = ~((g[:, 2] > -1_000.0) & (g[:, 2] < 100_000.0))
+    if h_bad.any():
+        k = int(np.flatnonzero(h_bad)[0])
+        kind = "geocentric" if crs.is_geocentric else ("geographic" if crs.is_geographic else "projected")
+        raise InputError(f"in the {kind} CRS {str(crs_text).strip()[:60]!r} these coordinates lie {g[k, 2] / 1000:.0f} km "
+                         f"from the ellipsoid (point {k + 1} of {len(g)}): the coordinates are not in this CRS "
+                         "(projected E, N given a geocentric CRS, or a unit mistake?)", path=path, line=line, field=field)
     origin = ecef_from_geodetic(g[:, 0], g[:, 1], g[:, 2], a, f).mean(axis=0)
     lon, lat, h = geodetic_from_ecef(origin, a, f)
     return LocalFrame(text, (float(lon), float(lat), float(np.mean(g[:, 2]))), a, f)

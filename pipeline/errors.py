@@ -90,3 +90,48 @@ def finite_number(tok: str, path, line: int | None, field: str) -> float:
     if not math.isfinite(v):
         raise InputError(f"expected a finite number, got {quote(tok)}", path=path, line=line, field=field)
     return v
+
+
+TEXT_MAX_BYTES = 512 * 2**20
+"""Largest text input a reader takes by default (a BAL problem of a million observations is ≈ 60 MB):
+an endless stream (``/dev/zero``, a FIFO) ends in a size error, never in "out of memory"."""
+
+
+def read_limited(path, limit: int = TEXT_MAX_BYTES, what: str = "this input") -> bytes:
+    """The bytes of ``path``, at most ``limit`` of them: a larger file, or a stream that does not
+    end, is an :class:`InputError` naming the file and the limit; a missing file, a folder or an
+    unreadable file too."""
+    p = Path(path)
+    try:
+        with open(p, "rb") as f:
+            import os
+            import stat
+
+            st = os.fstat(f.fileno())
+            if stat.S_ISREG(st.st_mode) and st.st_size > limit:
+                raise InputError(f"{what} is {st.st_size / 2**20:.1f} MB, more than the {limit / 2**20:.0f} MB "
+                                 "a reader takes", path=p)
+            data = f.read(limit + 1)
+    except FileNotFoundError:
+        raise InputError("file not found", path=p) from None
+    except IsADirectoryError:
+        raise InputError("is a folder, not a file", path=p) from None
+    except OSError as e:
+        raise InputError(f"cannot read: {e.strerror or e}", path=p) from None
+    if len(data) > limit:
+        raise InputError(f"{what} is larger than the {limit / 2**20:.0f} MB a reader takes (or a stream that "
+                         "does not end)", path=p)
+    return data
+
+
+def read_text_limited(path, limit: int = TEXT_MAX_BYTES, what: str = "this input",
+                      encoding: str = "utf-8") -> str:
+    """:func:`read_limited`, decoded: bytes that are not ``encoding`` are an :class:`InputError`
+    naming the line and the byte (never a ``UnicodeDecodeError``)."""
+    data = read_limited(path, limit, what)
+    try:
+        return data.decode(encoding)
+    except UnicodeDecodeError as e:
+        line = data.count(b"\n", 0, e.start) + 1
+        raise InputError(f"not {encoding.upper()} text (byte 0x{data[e.start]:02x}); save the file as "
+                         f"{encoding.upper()}", path=path, line=line) from None

@@ -198,6 +198,23 @@ _NAME_RANGES: list[tuple[str, Any]] = [
 ]
 
 
+COUNT_LIMITS: dict[str, int] = {
+    "n_sim": 1_000_000, "repetitions": 100_000, "max_iter": 100_000, "iterations": 100_000,
+    "max_rejections": 1_000_000, "rho": 1_000_000, "supersample": 64, "grid": 10_000, "smallest_angles": 1_000_000,
+    "min_points": 1_000_000, "log_max_size": 100_000, "width": 1_000_000, "height": 1_000_000,
+    "num_threads": 4096, "seed": 2**63 - 1,
+}
+"""Upper bound of every count option by name: a count without one (``n_sim = 2e9``) would run for
+ever.  An integer option not named here is bounded by :data:`INT_LIMIT`."""
+
+INT_LIMIT = 2**31 - 1
+"""Largest magnitude of an integer option without a bound of its own."""
+
+FLOAT_MAGNITUDE = (1e-30, 1e30)
+"""Smallest and largest magnitude (besides 0) of a number in an option: a σ of 1e-320 (a
+denormal: 1/σ² overflows) or 1e300 is a typing mistake, never a measurement."""
+
+
 def option_range(name: str, default: Any = None, declared: dict | None = None) -> dict | None:
     """The range of option ``name`` (``{"gt": 0}`` …): the one declared with :func:`option`, else
     the one its name implies (``sigma…`` and ``tol_…`` positive, ``alpha…``/``beta…`` in (0, 1),
@@ -271,6 +288,18 @@ def _check_range(value: Any, name: str, rng: dict | None, where: dict) -> None:
         return
     if value != value or value in (float("inf"), float("-inf")):
         raise InputError(f"must be a finite number, got {value}", field=name, **where)
+    if isinstance(value, int) and not (rng and ("le" in rng or "lt" in rng)):     # every count is bounded
+        base = name.rsplit(".", 1)[-1]
+        cap = COUNT_LIMITS.get(base)
+        if cap is not None and value > cap:
+            raise InputError(f"must be at most {cap}, got {value}", field=name, **where)
+        if base == "seed" and value < 0:
+            raise InputError(f"must be at least 0, got {value}", field=name, **where)
+        if cap is None and abs(value) > INT_LIMIT:
+            raise InputError(f"must be at most {INT_LIMIT} in magnitude, got {value}", field=name, **where)
+    if isinstance(value, float) and value != 0 and not FLOAT_MAGNITUDE[0] <= abs(value) <= FLOAT_MAGNITUDE[1]:
+        raise InputError(f"must be 0 or between {FLOAT_MAGNITUDE[0]:g} and {FLOAT_MAGNITUDE[1]:g} in magnitude, "
+                         f"got {value:g}", field=name, **where)
     if not rng:
         return
     text = {"gt": "greater than", "ge": "at least", "lt": "less than", "le": "at most"}
@@ -278,8 +307,13 @@ def _check_range(value: Any, name: str, rng: dict | None, where: dict) -> None:
           "le": value <= rng.get("le", 0)}
     for k in ("gt", "ge", "lt", "le"):
         if k in rng and not ok[k]:
-            limits = " and ".join(f"{text[j]} {rng[j]:g}" for j in ("gt", "ge", "lt", "le") if j in rng)
-            raise InputError(f"must be {limits}, got {value:g}", field=name, **where)
+            limits = " and ".join(f"{text[j]} {_num_text(rng[j])}" for j in ("gt", "ge", "lt", "le") if j in rng)
+            raise InputError(f"must be {limits}, got {_num_text(value)}", field=name, **where)
+
+
+def _num_text(v) -> str:
+    """A bound or value for a message: whole numbers in full, others with :g."""
+    return str(v) if isinstance(v, int) else f"{v:g}"
 
 
 def _coerce(value: Any, tp, name: str, where: dict, nested=None) -> Any:
@@ -455,19 +489,54 @@ def to_plain(obj: Any) -> Any:
     return obj
 
 
-def output_problem(value: Any) -> str | None:
-    """Why an output path may not be used (None when it is fine): outputs are written inside the
-    run directory, so the path must be relative and must not climb out of it."""
-    text = str(value or "")
-    if not text:
+RUN_OWN_FILES = ("report.md", "report.html", "results.json", "project.resolved.toml", ".baarda-incomplete")
+"""Files the runner itself writes at the top of every run directory (besides ``*.rrd`` and the
+stages' ``<id>.error.txt``; the stages' tables ``<id>_<name>.csv/.png`` are known when they are
+written: :meth:`~baarda.pipeline.stage.Context.output_path` refuses a file already in the run)."""
+
+
+def run_file_clash(name: str, stage_ids=()) -> str | None:
+    """Why ``name`` (a POSIX path relative to the run directory) is a file the run writes itself,
+    or None."""
+    if "/" in name:
         return None
+    if name in RUN_OWN_FILES:
+        return f"'{name}' is a file the run writes itself"
+    if name.endswith(".rrd"):
+        return f"'{name}' would be a recording (*.rrd), which the run writes itself"
+    for sid in stage_ids:
+        if name in (f"{sid}.error.txt", f"{sid}.plots-error.txt"):
+            return f"'{name}' is where the run writes the error of stage '{sid}'"
+    return None
+
+
+def output_problem(value: Any, stage_ids=(), adds=("",)) -> str | None:
+    """Why an output path may not be used (None when it is fine) — the one rule of every writer.
+
+    Outputs are written inside the run directory: the path must be relative, must not climb out
+    of it, must not be empty or the run directory itself (``""``, ``"."``, ``"a/.."``), and none of
+    the names the writer makes of it (``value`` + each of ``adds``, e.g. ``.ply``/``.csv``) may be
+    a file the run writes itself (:func:`run_file_clash`)."""
+    text = str(value if value is not None else "")
+    if not text.strip():
+        return "an output path must name a file or folder inside the run directory; got an empty path"
     p = Path(text)
     if p.is_absolute() or text.startswith("~"):
         return (f"an output path must be relative to the run directory (everything a run writes stays "
                 f"inside it); got an absolute path")
-    depth = 0
+    parts: list[str] = []
     for part in p.parts:
-        depth += -1 if part == ".." else (0 if part == "." else 1)
-        if depth < 0:
-            return "an output path must stay inside the run directory; this one climbs out of it with '..'"
+        if part == "..":
+            if not parts:
+                return "an output path must stay inside the run directory; this one climbs out of it with '..'"
+            parts.pop()
+        elif part != ".":
+            parts.append(part)
+    if not parts:
+        return (f"an output path must name a file or folder inside the run directory; {text!r} is the run "
+                "directory itself")
+    for add in adds:
+        clash = run_file_clash("/".join(parts[:-1] + [parts[-1] + add]), stage_ids)
+        if clash:
+            return f"{clash}; choose another name"
     return None

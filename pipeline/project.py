@@ -285,6 +285,9 @@ def _build(path: Path, text: str, data: dict, plugins: PluginManager,
     if isinstance(seed, bool) or not isinstance(seed, int):
         raise InputError(f"seed must be an integer, got {seed!r}", path=path, line=loc.top_key("seed"),
                          field="project.seed")
+    if not 0 <= seed <= 2**63 - 1:
+        raise InputError(f"seed must be a whole number from 0 to 2^63 − 1, got {seed}", path=path,
+                         line=loc.top_key("seed"), field="project.seed")
     unit = proj.get("object_unit", "m")
     if unit not in ("m", "mm", "cm", "ft"):
         raise InputError(f"object_unit must be one of m, mm, cm, ft; got {unit!r}", path=path,
@@ -336,6 +339,8 @@ def _build(path: Path, text: str, data: dict, plugins: PluginManager,
     by_id = _overrides_by_stage(overrides, [c[2] for c in chosen], path.name) if overrides is not None else {}
 
     available: dict[str, str] = {}
+    all_ids = tuple(c[2] for c in chosen)
+    outputs: dict[str, str] = {}             # every output name of the project → its stage
     for k, raw, sid, info in chosen:
         use, line = info.name, loc.stage(k)
         mine = by_id.get(sid, {})
@@ -355,7 +360,15 @@ def _build(path: Path, text: str, data: dict, plugins: PluginManager,
 
         options = parse_options(info.cls.Options, raw, path=path, line=line, locate=locate)
         for name, role in path_roles(info.cls).items():
-            problem = output_problem(getattr(options, name)) if role == "output" else None
+            problem = (output_problem(getattr(options, name), all_ids, getattr(info.cls, "output_adds", {}).get(name, ("",)))
+                       if role == "output" else None)
+            if role == "output" and not problem:      # two writers, one file: the second would fail
+                for made in _output_names(getattr(options, name), getattr(info.cls, "output_adds", {}).get(name, ("",))):
+                    if made in outputs:
+                        problem = (f"'{made}' is written by stage '{outputs[made]}' already (an earlier output "
+                                   "option); choose another name")
+                        break
+                    outputs[made] = sid
             if problem:
                 w = locate(name)
                 w = w if isinstance(w, Where) else Where(path, w)
@@ -428,6 +441,20 @@ PATH_ROLES = ("input", "glob", "prefix", "output")
 """Roles of options naming files (a stage's ``paths`` class attribute; see pipeline/stage.py)."""
 
 
+def _output_names(value: Any, adds: tuple[str, ...]) -> list[str]:
+    """The names (relative POSIX paths, normalised) an output option makes of ``value``."""
+    parts: list[str] = []
+    for part in Path(str(value)).parts:
+        if part == "..":
+            if parts:
+                parts.pop()
+        elif part != ".":
+            parts.append(part)
+    if not parts:
+        return []
+    return ["/".join(parts[:-1] + [parts[-1] + add]) for add in adds]
+
+
 def path_roles(cls: type) -> dict[str, str]:
     """``{option: role}`` for every option of stage ``cls`` that names files.
 
@@ -478,7 +505,8 @@ def stage_context(project: Project, spec: StageSpec, **kw):
     """The :class:`~baarda.pipeline.stage.Context` of ``spec`` in ``project`` (``kw``: run_dir, progress…)."""
     return Context(stage_id=spec.id, project_dir=project.directory, seed=project.seed,
                    project_file=project.path, object_unit=project.object_unit,
-                   option_lines=dict(spec.option_lines), stage_line=spec.line, **kw)
+                   option_lines=dict(spec.option_lines), stage_line=spec.line,
+                   stage_ids=tuple(s.id for s in project.stages), **kw)
 
 
 def validate_inputs(project: Project) -> list[str]:
@@ -491,10 +519,13 @@ def validate_inputs(project: Project) -> list[str]:
     a stage without it but with ``validate_block(block, options, ctx)`` gets the last source's block
     (the bundle checks its ``fix``/``free``/``sigma`` names against the cameras' models there).  The first mistake raises :class:`InputError`
     (the project file, the option's line and name for a missing path; the input file's own line
-    and field for a mistake inside it).  Returns the warnings of the hooks as ``"[id] text"``.
+    and field for a mistake inside it).  A stage that reads the block may have a
+    ``validate_block(options, block, ctx)`` hook: it gets the block the sources before it read (as
+    read, before any adjustment) and checks the options that must fit it (point ids of a datum,
+    camera names).  Returns the warnings of the hooks as ``"[id] text"``.
     """
     warnings = []
-    block = None                   # the block the last source read: a later stage's validate_block checks options against it
+    latest = None                   # the block the sources read so far (for ``validate_block`` hooks)
     for spec in project.stages:
         for name, role in path_roles(spec.cls).items():
             if role == "output":
@@ -502,18 +533,17 @@ def validate_inputs(project: Project) -> list[str]:
             problem = _missing(getattr(spec.options, name), role, project.directory)
             if problem:
                 raise InputError(problem, project.path, spec.option_lines.get(name, spec.line), name)
-        hook = getattr(spec.cls, "validate", None)
-        on_block = getattr(spec.cls, "validate_block", None)
-        if hook is None and (on_block is None or block is None):
-            continue
         ctx = stage_context(project, spec)
-        if hook is not None:
-            got = spec.cls().validate(spec.options, ctx)
-            if got is not None and hasattr(got, "observations"):      # a source's block: the runner's checks
-                block = got
-                for w in check_block(block):
-                    ctx.warn(w)
-        elif block is not None:    # e.g. the bundle: fix/free/sigma names against the block's camera models
-            spec.cls().validate_block(block, spec.options, ctx)
+        block_hook = getattr(spec.cls, "validate_block", None)
+        if block_hook is not None and latest is not None and "block" in [r.rstrip("?") for r in spec.cls.reads]:
+            spec.cls().validate_block(spec.options, latest, ctx)      # options that must fit the block
+        hook = getattr(spec.cls, "validate", None)
+        block = spec.cls().validate(spec.options, ctx) if hook is not None else None
+        if block is not None and hasattr(block, "observations"):      # a source's block: the runner's checks
+            for w in check_block(block):
+                ctx.warn(w)
+            latest = block
+        elif "block" in [w.rstrip("?") for w in spec.cls.writes]:
+            latest = None           # a stage changes the block in ways validate cannot know: no guesses
         warnings += [f"[{spec.id}] {w}" for w in ctx.warnings]
     return warnings

@@ -15,13 +15,23 @@ on the same file system) and moved into place only when it ends:
 (``files``).  A staging directory carries the marker ``.baarda-incomplete`` (the process id and
 start time) while it is written: a run killed without a chance to clean up is recognisable by the
 marker and by its name, and the next run into the same target removes it once its process is gone.
+
+**One run at a time per target.**  :func:`open_run` takes an exclusive ``flock`` on the lock file
+``.<name>.lock`` beside the target (it records the process id and host) and :func:`close_run`
+releases and removes it.  A second run into the same ``--out`` while the first one runs is refused
+by name (an :class:`InputError` naming the other run's process and host).  The kernel drops a
+``flock`` when its process ends, however it ends, so a lock file left by a killed run is stale by
+construction: the next run takes it over.  When a run ends the target is examined again: a failed
+run never replaces a complete run, even one that appeared while it ran.
 """
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 import shutil
+import socket
 import tempfile
 import time
 from dataclasses import dataclass
@@ -40,6 +50,80 @@ class RunTarget:
     target: Path
     staging: Path
     previous: str            # "none" | "empty" | "complete" | "failed"
+    lock: "RunLock | None" = None
+
+
+def lock_path(target: Path) -> Path:
+    """The lock file of run directory ``target``: ``.<name>.lock`` beside it."""
+    return target.with_name(f".{target.name}.lock")
+
+
+class RunLock:
+    """An exclusive ``flock`` on ``.<name>.lock`` beside a run directory (see the module text).
+
+    The file carries ``{"pid", "host", "started"}`` for the message a second run prints.  The lock
+    dies with its process (``flock`` belongs to the open file), so there is no stale lock to break:
+    a leftover file whose lock nobody holds is simply taken over.
+    """
+
+    def __init__(self, target: Path):
+        self.target = target
+        self.path = lock_path(target)
+        self.fd: int | None = None
+
+    def acquire(self) -> "RunLock":
+        while True:
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                holder = _lock_holder(fd)
+                os.close(fd)
+                raise InputError(f"another baarda run ({holder}) is writing this run directory; wait for it "
+                                 "to end or choose another --out", path=self.target) from None
+            except OSError:
+                os.close(fd)
+                raise
+            # the holder before us may have removed the file between our open and our flock: a
+            # lock on an unlinked file locks nothing — open the path again
+            try:
+                same = os.stat(self.path).st_ino == os.fstat(fd).st_ino
+            except FileNotFoundError:
+                same = False
+            if same:
+                break
+            os.close(fd)
+        os.ftruncate(fd, 0)
+        os.write(fd, json.dumps({"pid": os.getpid(), "host": socket.gethostname(),
+                                 "started": time.strftime("%Y-%m-%dT%H:%M:%S")}).encode())
+        self.fd = fd
+        return self
+
+    def release(self) -> None:
+        if self.fd is None:
+            return
+        try:
+            try:
+                self.path.unlink()          # while we hold it: nobody else holds this file
+            except FileNotFoundError:
+                pass
+        finally:
+            os.close(self.fd)               # closing drops the flock
+            self.fd = None
+
+
+def _lock_holder(fd: int) -> str:
+    """``process 123 on host`` from a lock file, as far as it says."""
+    try:
+        data = json.loads(os.pread(fd, 4096, 0).decode("utf-8") or "{}")
+        who = f"process {int(data['pid'])}"
+        if data.get("host"):
+            who += f" on {str(data['host'])[:64]}"
+        if data.get("started"):
+            who += f", started {str(data['started'])[:32]}"
+        return who
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return "a process that is still running"
 
 
 def _run_manifest(path: Path) -> dict | None:
@@ -108,6 +192,22 @@ def open_run(target: str | Path) -> RunTarget:
     """Check ``target`` and create the staging directory of a new run (nothing is removed yet,
     but interrupted runs' staging directories of the same target)."""
     target = Path(target).expanduser().absolute()
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise InputError(f"cannot write the run directory: {e.strerror or e}", path=target) from None
+    try:
+        lock = RunLock(target).acquire()
+    except OSError as e:
+        raise InputError(f"cannot lock the run directory: {e.strerror or e}", path=target) from None
+    try:
+        return _open_locked(target, lock)
+    except BaseException:
+        lock.release()
+        raise
+
+
+def _open_locked(target: Path, lock: RunLock) -> RunTarget:
     previous = "none"
     if target.exists() or target.is_symlink():
         if not target.is_dir():
@@ -137,7 +237,7 @@ def open_run(target: str | Path) -> RunTarget:
             encoding="utf-8")
     except OSError as e:
         raise InputError(f"cannot write the run directory: {e.strerror or e}", path=target) from None
-    return RunTarget(target=target, staging=staging, previous=previous)
+    return RunTarget(target=target, staging=staging, previous=previous, lock=lock)
 
 
 def list_files(staging: Path) -> list[str]:
@@ -160,14 +260,32 @@ def _swap(new: Path, dest: Path) -> None:
 
 
 def close_run(run: RunTarget, ok: bool) -> Path:
-    """Move the finished staging directory into place; returns where the run now is."""
+    """Move the finished staging directory into place; returns where the run now is.  Releases
+    the run's lock."""
+    try:
+        return _close_locked(run, ok)
+    finally:
+        if run.lock is not None:
+            run.lock.release()
+
+
+def final_place(run: RunTarget, ok: bool) -> Path:
+    """Where :func:`close_run` will put the run: the target, or ``<name>.failed`` beside a complete
+    run (the one found at the start, or one that appeared since)."""
+    if ok:
+        return run.target
+    manifest = _run_manifest(run.target)
+    if run.previous == "complete" or (manifest is not None and manifest.get("ok") is True):
+        return run.target.with_name(run.target.name + ".failed")
+    return run.target
+
+
+def _close_locked(run: RunTarget, ok: bool) -> Path:
     marker = run.staging / INCOMPLETE_MARKER
     if marker.exists():
         marker.unlink()
-    if ok or run.previous != "complete":
-        dest = run.target
-    else:
-        dest = run.target.with_name(run.target.name + ".failed")
+    dest = final_place(run, ok)
+    if dest != run.target:
         if dest.exists() and _run_manifest(dest) is None:        # not ours: keep the run where it is
             dest = run.target.with_name(f"{run.target.name}.failed-{time.strftime('%Y%m%d-%H%M%S')}")
             if dest.exists():

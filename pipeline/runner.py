@@ -40,7 +40,7 @@ from .plausibility import check_block
 from .project import Project, load_project, stage_context
 from .recording import log_text, log_values, new_recording_id, open_recording
 from .report import jsonable, write_json, write_toml
-from .rundir import RUN_MARKER, close_run, list_files, open_run
+from .rundir import RUN_MARKER, close_run, final_place, list_files, open_run
 from .stage import Finding, Progress, StageResult
 from .tables import skipped_note, write_tables
 
@@ -169,7 +169,7 @@ def run_project(project_path: str | Path, out: str | Path | None = None, *,
         message = f"the run is complete but could not be moved into place; it is in {final}"
     outcome = RunOutcome(ok=ok, run_dir=final, project=project, stages=records, message=_moved(message, run, final),
                          artefacts=store, failure=failure,
-                         kept=run.target if (not ok and final != run.target and run.previous == "complete") else None)
+                         kept=run.target if (not ok and final != run.target and (run.target / RUN_MARKER).is_file()) else None)
     if interrupted:
         raise RunInterrupted(outcome)
     return outcome
@@ -242,7 +242,7 @@ def _moved(text: str, run, final: Path) -> str:
 
 def _finish(run, project, records, recording_id, started, ok) -> Path:
     """Write ``results.json`` last and move the run into place."""
-    dest = run.target if (ok or run.previous != "complete") else run.target.with_name(run.target.name + ".failed")
+    dest = final_place(run, ok)
     for r in records:
         r.error = _moved(r.error, run, dest) if r.error else r.error
         r.report = _moved(r.report, run, dest)

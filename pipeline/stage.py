@@ -311,6 +311,8 @@ class Context:
     """Line of each option the project sets, in ``project_file`` (for :meth:`option_error`)."""
     stage_line: int | None = None
     """Line of the stage's ``[[stage]]`` table in ``project_file``."""
+    stage_ids: tuple[str, ...] = ()
+    """Ids of every stage of the project (their tables' names are the run's own; :meth:`output_path`)."""
     threads: int = 1
     """Cores the stage may use for work that pays (``baarda run --threads``; e.g. the bundle's
     sparse route).  BLAS itself stays single-threaded outside such work."""
@@ -330,16 +332,28 @@ class Context:
         p = Path(path).expanduser()
         return p if p.is_absolute() else (self.project_dir / p)
 
-    def output_path(self, value: str | Path, key: str) -> Path:
+    def output_path(self, value: str | Path, key: str, adds: tuple[str, ...] = ("",)) -> Path:
         """Where a stage writes what option ``key`` names: ``value`` inside the run directory.
 
-        Every output stays inside the run directory: an absolute path or one that climbs out of
-        it (``..``) is an :class:`InputError` on the option (``load_project`` checks this too).
+        The one rule of every writer (:func:`~baarda.pipeline.options.output_problem`): the path
+        must be relative, stay inside the run directory, not be empty or ``"."``, and no name the
+        writer makes of it (``value`` + each of ``adds``) may be a file the run writes itself or
+        a file already in the run directory (a folder may be: writers add files to it) — each an
+        :class:`InputError` on the option.
         """
-        problem = output_problem(value)
+        problem = output_problem(value, self.stage_ids, adds)
         if problem:
             raise self.option_error(problem, key)
-        return (self.run_dir if self.run_dir is not None else self.project_dir) / Path(str(value))
+        base = self.run_dir if self.run_dir is not None else self.project_dir
+        out = base / Path(str(value))
+        if self.run_dir is not None:
+            for add in adds:
+                f = out.with_name(out.name + add)
+                if (f.exists() and not f.is_dir()) or f.is_symlink():    # a folder is shared (rendered images)
+                    rel = f.relative_to(base).as_posix()
+                    raise self.option_error(f"'{rel}' is already in the run directory (written earlier in this "
+                                            f"run); choose another {key}", key)
+        return out
 
     def option_error(self, message: str, key: str) -> InputError:
         """An :class:`InputError` naming the project file, the line of option ``key`` and ``key``.

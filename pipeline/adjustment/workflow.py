@@ -296,6 +296,14 @@ def configure_block(block: Block, config: BundleConfig) -> Block:
 def bundle_settings(config: BundleConfig, block: Block, threads: int = 1) -> BundleSettings:
     """The core's :class:`BundleSettings` from the config (the one place the config maps onto them)."""
     o, s = config, config.solver
+    known = set(block.points.ids.tolist())
+    for k, pid in enumerate(o.datum_points):         # an unknown id: the option's mistake, not a KeyError
+        if str(pid) not in known:
+            raise InputError(f"datum_points[{k}]: no point {str(pid)!r} in the block", field="datum_points")
+    for k, d in enumerate(o.distances):
+        for end in (d.from_, d.to):
+            if str(end) not in known:
+                raise InputError(f"distances[{k}]: no point {str(end)!r} in the block", field="distances")
     ap_meta = {cid: {"b": o.ebner_b} for cid in block.cameras.ids.tolist()} if o.ebner_b > 0 else {}
     return BundleSettings(
         datum=o.datum, datum_points=tuple(o.datum_points) or None, datum_centres=o.datum_on == "centres",

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from baarda.pipeline.errors import InputError
+from baarda.pipeline.errors import InputError, quote, read_text_limited
 
 # parameters per COLMAP camera model id (colmap/src/colmap/sensor/models.h)
 MODEL_PARAMS = {0: 3, 1: 4, 2: 4, 3: 5, 4: 8, 5: 8, 6: 12, 7: 5, 8: 4, 9: 5, 10: 12, 11: 4}
@@ -97,10 +97,8 @@ def check_cameras_text(folder: Path) -> None:
     from baarda.pipeline.errors import quote
 
     path = folder / "cameras.txt"
-    try:
-        text = path.read_text(encoding="utf-8")
-    except UnicodeDecodeError:
-        raise InputError("not a UTF-8 text file", path=path) from None
+    text = read_text_limited(path, what="a COLMAP text file")
+    seen: dict[str, int] = {}
     for ln, line in enumerate(text.splitlines(), start=1):
         toks = line.split()
         if not toks or toks[0].startswith("#"):
@@ -118,6 +116,10 @@ def check_cameras_text(folder: Path) -> None:
             if not toks[k].isdigit() or int(toks[k]) <= 0:
                 raise InputError(f"{name} must be a positive integer, got {quote(toks[k])}", path=path, line=ln,
                                  field=name)
+        if toks[0] in seen:
+            raise InputError(f"camera {toks[0]} given twice (first on line {seen[toks[0]]})", path=path, line=ln,
+                             field="CAMERA_ID")
+        seen[toks[0]] = ln
         for k, tok in enumerate(toks[4:]):
             try:
                 v = float(tok)
@@ -153,3 +155,129 @@ def check_values(rec, folder: Path, fmt: str) -> None:
     for pid, p in rec.points3D.items():
         if not np.isfinite(np.asarray(p.xyz, float)).all():
             raise InputError(f"point {pid}: coordinates are not finite", path=folder / f"points3D{ext}", field="xyz")
+
+
+def _int(tok: str, path: Path, ln: int, field: str, lo: int = 1) -> int:
+    try:
+        v = int(tok)
+    except ValueError:
+        raise InputError(f"{field} must be a whole number, got {quote(tok)}", path=path, line=ln, field=field) from None
+    if v < lo or v > 2**63 - 1:
+        raise InputError(f"{field} must be a whole number ≥ {lo}, got {v}", path=path, line=ln, field=field)
+    return v
+
+
+def _float(tok: str, path: Path, ln: int, field: str) -> float:
+    try:
+        v = float(tok)
+    except ValueError:
+        raise InputError(f"{field} must be a number, got {quote(tok)}", path=path, line=ln, field=field) from None
+    if not np.isfinite(v):
+        raise InputError(f"{field} must be a finite number, got {quote(tok)}", path=path, line=ln, field=field)
+    return v
+
+
+def _camera_ids_text(folder: Path) -> set[int]:
+    ids = set()
+    for line in read_text_limited(folder / "cameras.txt", what="a COLMAP text file").splitlines():
+        toks = line.split()
+        if toks and not toks[0].startswith("#") and toks[0].isdigit():
+            ids.add(int(toks[0]))
+    return ids
+
+
+def check_images_text(folder: Path) -> dict[int, int]:
+    """``images.txt``: per image a line ``IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME`` and a line of
+    ``X Y POINT3D_ID`` triples; numbers finite, ids whole, the camera in ``cameras.txt``, no image
+    twice.  Returns the number of 2-D points per image id.  InputError naming line and field."""
+    path = folder / "images.txt"
+    cameras = _camera_ids_text(folder)
+    lines = read_text_limited(path, what="a COLMAP text file").splitlines()
+    n2d: dict[int, int] = {}
+    first: dict[int, int] = {}
+    names: dict[str, int] = {}
+    k = 0
+    while k < len(lines):
+        ln, line = k + 1, lines[k].strip()
+        k += 1
+        if not line or line.startswith("#"):
+            continue
+        toks = line.split(maxsplit=9)
+        if len(toks) < 10:
+            raise InputError(f"expected 'IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME', got {len(toks)} value(s)",
+                             path=path, line=ln, field="image")
+        iid = _int(toks[0], path, ln, "IMAGE_ID")
+        for tok, name in zip(toks[1:8], ("QW", "QX", "QY", "QZ", "TX", "TY", "TZ")):
+            _float(tok, path, ln, name)
+        q = np.array([float(t) for t in toks[1:5]])
+        if not np.linalg.norm(q) > 1e-12:
+            raise InputError("the rotation quaternion QW QX QY QZ is zero", path=path, line=ln, field="QW")
+        cid = _int(toks[8], path, ln, "CAMERA_ID")
+        if cid not in cameras:
+            raise InputError(f"camera {cid} is not in cameras.txt", path=path, line=ln, field="CAMERA_ID")
+        if iid in first:
+            raise InputError(f"image {iid} given twice (first on line {first[iid]})", path=path, line=ln,
+                             field="IMAGE_ID")
+        name = toks[9].strip()
+        if name in names:
+            raise InputError(f"image name {quote(name)} given twice (first on line {names[name]})", path=path,
+                             line=ln, field="NAME")
+        first[iid], names[name] = ln, ln
+        pts = lines[k].split() if k < len(lines) else []
+        pln = k + 1
+        k += 1
+        if len(pts) % 3:
+            raise InputError(f"the 2-D points line holds {len(pts)} values, not X Y POINT3D_ID triples", path=path,
+                             line=pln, field="POINTS2D")
+        for j in range(0, len(pts), 3):
+            _float(pts[j], path, pln, f"POINTS2D[{j // 3}].X")
+            _float(pts[j + 1], path, pln, f"POINTS2D[{j // 3}].Y")
+            _int(pts[j + 2], path, pln, f"POINTS2D[{j // 3}].POINT3D_ID", lo=-1)
+        n2d[iid] = len(pts) // 3
+    return n2d
+
+
+def check_points_text(folder: Path, n2d: dict[int, int]) -> None:
+    """``points3D.txt``: ``POINT3D_ID X Y Z R G B ERROR TRACK[]`` (IMAGE_ID POINT2D_IDX pairs);
+    coordinates finite, colours 0–255, every track element an image of ``images.txt`` and one of
+    its 2-D points, no point twice.  InputError naming line and field."""
+    path = folder / "points3D.txt"
+    first: dict[int, int] = {}
+    for ln, line in enumerate(read_text_limited(path, what="a COLMAP text file").splitlines(), start=1):
+        toks = line.split()
+        if not toks or toks[0].startswith("#"):
+            continue
+        if len(toks) < 8:
+            raise InputError(f"expected 'POINT3D_ID X Y Z R G B ERROR TRACK[]', got {len(toks)} value(s)", path=path,
+                             line=ln, field="point")
+        pid = _int(toks[0], path, ln, "POINT3D_ID")
+        if pid in first:
+            raise InputError(f"point {pid} given twice (first on line {first[pid]})", path=path, line=ln,
+                             field="POINT3D_ID")
+        first[pid] = ln
+        for tok, name in zip(toks[1:4], "XYZ"):
+            _float(tok, path, ln, name)
+        for tok, name in zip(toks[4:7], "RGB"):
+            v = _int(tok, path, ln, name, lo=0)
+            if v > 255:
+                raise InputError(f"{name} must be 0–255, got {v}", path=path, line=ln, field=name)
+        _float(toks[7], path, ln, "ERROR")
+        track = toks[8:]
+        if len(track) % 2:
+            raise InputError(f"the track holds {len(track)} values, not IMAGE_ID POINT2D_IDX pairs", path=path,
+                             line=ln, field="TRACK")
+        for j in range(0, len(track), 2):
+            iid = _int(track[j], path, ln, f"TRACK[{j // 2}].IMAGE_ID")
+            idx = _int(track[j + 1], path, ln, f"TRACK[{j // 2}].POINT2D_IDX", lo=0)
+            if iid not in n2d:
+                raise InputError(f"the track names image {iid}, which is not in images.txt", path=path, line=ln,
+                                 field=f"TRACK[{j // 2}].IMAGE_ID")
+            if idx >= n2d[iid]:
+                raise InputError(f"the track names 2-D point {idx} of image {iid}, which has {n2d[iid]}", path=path,
+                                 line=ln, field=f"TRACK[{j // 2}].POINT2D_IDX")
+
+
+def check_text(folder: Path) -> None:
+    """Every file of a text model (baarda's own reading of COLMAP's text format), before pycolmap."""
+    check_cameras_text(folder)
+    check_points_text(folder, check_images_text(folder))

@@ -20,7 +20,7 @@ from baarda.pipeline.geometry.image import mm_from_pixels
 from baarda.pipeline.geometry.pose import pose_from_cv
 from baarda.pipeline.camera.convert import BROWN, FREE_BROWN, UnsupportedCamera, brown_from_colmap
 
-from .precheck import check_binary, check_cameras_text, check_values
+from .precheck import check_binary, check_text, check_values
 
 MODEL_FILES = ("cameras", "images", "points3D")
 
@@ -46,7 +46,7 @@ def read_reconstruction(path: str | Path):
     if fmt == "binary":
         check_binary(Path(path))              # names file, record and offset where pycolmap would not
     else:
-        check_cameras_text(Path(path))
+        check_text(Path(path))                # names file, line and field where pycolmap would not
     rec = pycolmap.Reconstruction()
     try:
         (rec.read_binary if fmt == "binary" else rec.read_text)(str(path))

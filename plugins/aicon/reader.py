@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from baarda.pipeline.api import Block, InputError
-from baarda.pipeline.errors import quote
+from baarda.pipeline.errors import quote, read_limited
 from baarda.pipeline.errors import finite_number as _num
 from baarda.pipeline.model import (FIXED, FREE, Cameras, FrozenMap, Observations, Photos, Points, ScaleBars,
                                    SourceInfo)
@@ -103,13 +103,10 @@ def _path(prefix: Path, suffix: str) -> Path:
 
 def _lines(path: Path) -> list[tuple[int, list[str]]]:
     """Non-blank lines as (1-based line number, tokens); ``InputError`` if the file is missing."""
-    try:
-        text = path.read_text(encoding="utf-8", errors="replace")
-    except FileNotFoundError:
+    if not path.exists():
         raise InputError("file not found (an AICON export needs .ior, .eor, .obc and .phc; "
-                         ".scale is optional)", path=path) from None
-    except OSError as e:
-        raise InputError(f"cannot read: {e.strerror}", path=path) from None
+                         ".scale is optional)", path=path)
+    text = read_limited(path, what="an AICON file").decode("utf-8", errors="replace")
     out = []
     for i, line in enumerate(text.splitlines(), start=1):
         if line.strip() and not line.lstrip().startswith("#"):
@@ -175,6 +172,17 @@ def read_ior(path: Path) -> list[AiconCamera]:
         (a3,), (b1, b2), (c1, c2), (sw, sh, pw, ph) = vals
         if c == 0:
             raise InputError("principal distance c is 0", path=path, line=ln, field="c")
+        if c > 0:
+            raise InputError(f"AICON writes the principal distance negative (c = -{c:g} for a {c:g} mm lens); "
+                             f"got c = +{c:g}", path=path, line=ln, field="c")
+        lns = lines[k + 4][0]
+        for v, nm in ((sw, "sensor_width"), (sh, "sensor_height")):
+            if not v > 0:
+                raise InputError(f"the sensor size must be positive (mm), got {v:g}", path=path, line=lns, field=nm)
+        for v, nm in ((pw, "pixels_x"), (ph, "pixels_y")):
+            if not (v >= 1 and float(v).is_integer() and v <= 1_000_000):
+                raise InputError(f"the pixel count must be a whole number from 1 to 1000000, got {v:g}", path=path,
+                                 line=lns, field=nm)
         if any(cm.id == cid for cm in cams):
             raise InputError(f"duplicate camera {cid}", path=path, line=ln, field="camera")
         cams.append(AiconCamera(id=cid, c=c, x0=x0, y0=y0, ap=(a1, a2, a3, b1, b2, c1, c2), r0=r0,
@@ -219,17 +227,40 @@ def read_eor(path: Path) -> dict:
 def read_obc(path: Path) -> dict:
     """Object points of an ``.obc``: id, XYZ (n, 3), sigma (n, 3), rays, flags (n, 3), line."""
     (pid,), v, lines = _table(path, _OBC, 4, 1)
+    if not pid:
+        raise InputError("no object point in the file (an AICON .obc lists point, X, Y, Z …)", path=path)
     seen = {}
     for i, ln in zip(pid, lines):
         if i in seen:
             raise InputError(f"duplicate point {i} (first on line {seen[i]})", path=path, line=int(ln), field="point")
         seen[i] = int(ln)
+    bad = np.argwhere(v[:, 3:6] < 0)
+    if bad.size:
+        r, j = bad[0]
+        raise InputError(f"a standard deviation must not be negative, got {v[r, 3 + j]:g}", path=path,
+                         line=int(lines[r]), field=_OBC[4 + j])
     return {"id": pid, "XYZ": v[:, 0:3], "sigma": v[:, 3:6], "rays": v[:, 6], "flags": v[:, 7:10], "line": lines}
 
 
 def read_phc(path: Path) -> dict:
     """Image measurements of a ``.phc``: image, point, xy (k, 2), sxy, vxy (k, 2), flags (k, 3), line."""
     (img, pid), v, lines = _table(path, _PHC, 4, 2)
+    if not img:
+        raise InputError("no image measurement in the file (an AICON .phc lists image, point, x, y …)", path=path)
+    bad = np.argwhere(v[:, 2:4] < 0)
+    if bad.size:
+        r, j = bad[0]
+        raise InputError(f"a standard deviation must not be negative, got {v[r, 2 + j]:g}", path=path,
+                         line=int(lines[r]), field=_PHC[4 + j])
+    first: dict = {}
+    for r, key in enumerate(zip(img, pid)):
+        if v[r, 7] == 0:                  # an inactive repeat is AICON's own record of a rejected measurement
+            continue
+        if key in first:
+            raise InputError(f"point {key[1]} measured twice (both active) in image {key[0]} (first on line "
+                             f"{first[key]})",
+                             path=path, line=int(lines[r]), field="point")
+        first[key] = int(lines[r])
     for r in np.flatnonzero(v[:, 7] == v[:, 7]):  # active column present
         if v[r, 7] not in (0.0, 1.0):
             raise InputError(f"expected 0 or 1, got {v[r, 7]:g}", path=path, line=int(lines[r]), field="active")
@@ -241,7 +272,7 @@ def read_scale(path: Path) -> list[tuple]:
     """Scale bars of a ``.scale``: (name, point_a, point_b, distance, sigma, flag, line)."""
     out = []
     lines = _lines(path)
-    raw_lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
+    raw_lines = read_limited(path, what="an AICON file").decode("utf-8", errors="replace").splitlines()
     for ln, _ in lines:
         raw = raw_lines[ln - 1]
         try:

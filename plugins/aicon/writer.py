@@ -115,6 +115,7 @@ class AiconExportStage:
     reads = ("block", "bundle?")
     writes = ()
     paths = {"path": "output"}
+    output_adds = {"path": (".ior", ".eor", ".obc", ".phc", ".scale")}   # the files made of the prefix
     Options = AiconExportOptions
 
     def run(self, inputs, options: AiconExportOptions, ctx: Context) -> StageResult:
@@ -126,7 +127,7 @@ class AiconExportStage:
             resid = bundle.residuals
             cov = np.asarray(bundle.cov_points, float)
             sig = np.sqrt(np.clip(np.einsum("kii->ki", cov), 0, None))
-        out = ctx.output_path(options.path, "path")
+        out = ctx.output_path(options.path, "path", adds=self.output_adds["path"])
         out.parent.mkdir(parents=True, exist_ok=True)
         try:
             info = write_aicon(block, out, residuals=resid, point_sigma=sig)

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from baarda.pipeline.errors import read_text_limited
 from baarda.pipeline.geometry.rotations import rotation_from_rotvec
 
 from baarda.pipeline.api import Block, InputError
@@ -105,12 +106,9 @@ def _parse_body(lines: list[str], ln: int, n_cams: int, n_pts: int, n_obs: int):
 def read_bal(path: str | Path) -> BalProblem:
     """Parse a BAL text file; every format error is an InputError naming the line and field."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="ascii", errors="strict")
-    except FileNotFoundError:
-        raise InputError("BAL file not found", path=path) from None
-    except (UnicodeDecodeError, IsADirectoryError) as e:
-        raise InputError(f"not a BAL text file ({type(e).__name__})", path=path) from None
+    if not path.exists():
+        raise InputError("BAL file not found", path=path)
+    text = read_text_limited(path, what="a BAL file", encoding="ascii")
     lines = text.splitlines()
     # skip leading blank lines for the header
     ln = 0

@@ -45,6 +45,10 @@ class BlunderRejection:
         if options.method == "rrr" and not art.supports_rrr:
             raise InputError(f"method 'rrr' needs a linear model; the adjustment '{art.name}' offers only "
                              "refit() — use data-snooping, ids or pope", None, None, "method")
+        dof = int(getattr(art.snapshot, "dof", 0) or 0)
+        if "rrr" in methods and options.rho and art.supports_rrr and options.rho >= dof:
+            raise ctx.option_error(f"rho = {options.rho} suspects leave no redundant clean observation: RRR needs "
+                                   f"rho < n − u = {dof} for this adjustment", "rho")
         results = run_methods(art, methods, options, ctx.rng, progress=ctx.progress)
         if options.method in ROBUST_METHODS and results[options.method].skipped:
             raise InputError(f"method '{options.method}' cannot run: {results[options.method].skipped}",

@@ -31,6 +31,21 @@ class BundleAdjustment:
     writes = ("bundle", "adjustment", "block")
     Options = BundleConfig          # the stage's option table is the library's config (one schema)
 
+    def validate_block(self, options: BundleConfig, block, ctx: Context) -> None:
+        """``baarda validate``: the options that name points (datum_points, distances), cameras
+        (ap_models) or parameters (fix, free, sigma) must name those of the block the sources read."""
+        from baarda.pipeline.adjustment import bundle_settings, configure_block
+
+        try:
+            bundle_settings(options, configure_block(block, options))
+        except InputError as e:
+            if e.path is None and str(e.field).split(".")[0] in OPTION_FIELDS:
+                field = e.field
+                if field == "fix/free/sigma":       # the one of them the project sets
+                    field = next((k for k in ("fix", "free", "sigma") if k in ctx.option_lines), field)
+                raise ctx.option_error(e.message, field) from None
+            raise
+
     def run(self, inputs, options: BundleConfig, ctx: Context) -> StageResult:
         from .progress import iteration_progress
 
@@ -42,7 +57,10 @@ class BundleAdjustment:
                 raise
             except InputError as e:
                 if e.path is None and str(e.field).split(".")[0] in OPTION_FIELDS:   # an option that does not
-                    raise ctx.option_error(e.message, e.field) from None             # fit the block: file, line
+                    field = e.field                                                  # fit the block: file, line
+                    if field == "fix/free/sigma":       # the one of them the project sets
+                        field = next((k for k in ("fix", "free", "sigma") if k in ctx.option_lines), field)
+                    raise ctx.option_error(e.message, field) from None
                 raise
             for w in rep.warnings:
                 ctx.warn(w)
@@ -55,18 +73,6 @@ class BundleAdjustment:
                                                          linearise=bundle_external.linearisation(res))
         return StageResult(artefacts=artefacts, summary=summary, report=text, tables=tables,
                            data={"report": rep, "result": res, "decision": rep.decision, "options": options})
-
-    def validate_block(self, block: Block, options: BundleConfig, ctx: Context) -> None:
-        """``baarda validate``: the options that depend on the block — ``fix``, ``free``, ``sigma``
-        against each camera's AP model, ``ap_models`` against the camera ids — fail as in ``run``."""
-        from baarda.pipeline.adjustment import configure_block
-
-        try:
-            configure_block(block, options)
-        except InputError as e:
-            if e.path is None and str(e.field).split(".")[0] in OPTION_FIELDS:
-                raise ctx.option_error(e.message, e.field) from None
-            raise
 
     def plots(self, result: StageResult, ctx: Context) -> dict:
         """Figures for report.html (drawn by the engine; see plugins/bundle/figures.py)."""

@@ -35,7 +35,6 @@ from __future__ import annotations
 import math
 import os
 import re
-import xml.parsers.expat
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -43,7 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from baarda.pipeline.api import Block, InputError
-from baarda.pipeline.errors import quote
+from baarda.pipeline.errors import quote, read_limited
 from baarda.pipeline.errors import finite_number as _num
 from baarda.pipeline.geometry import mm_from_pixels
 from baarda.pipeline.model import FIXED, FREE, Cameras, FrozenMap, Observations, Photos, Points, SourceInfo
@@ -87,41 +86,63 @@ class Node:
         return self.text.strip()
 
 
+XML_MAX_BYTES = 16 * 2**20
+"""Largest DBAT script read (a script is a few kB; its data are in the files it names)."""
+
+
 def parse_xml(path: Path) -> Node:
-    """The XML file as a tree of :class:`Node` (each with its 1-based line)."""
-    try:
-        data = Path(path).read_bytes()
-    except FileNotFoundError:
-        raise InputError("file not found", path=path) from None
-    except OSError as e:
-        raise InputError(f"cannot read: {e.strerror}", path=path) from None
-    parser = xml.parsers.expat.ParserCreate()
+    """The XML file as a tree of :class:`Node` (each with its 1-based line).
+
+    Parsed with defusedxml's hardened expat reader: no entity declarations (no "billion laughs"
+    expansion), no external entities or DTDs fetched, and at most :data:`XML_MAX_BYTES` read.
+    """
+    import xml.sax
+    import xml.sax.handler
+
+    from defusedxml import DefusedXmlException
+    from defusedxml.sax import make_parser
+
+    data = read_limited(path, XML_MAX_BYTES, what="a DBAT script")
     stack: list[Node] = []
     root: list[Node] = []
+    parser = make_parser()
+    parser.forbid_dtd, parser.forbid_entities, parser.forbid_external = False, True, True
+    parser.setFeature(xml.sax.handler.feature_external_ges, False)
+    parser.setFeature(xml.sax.handler.feature_external_pes, False)
 
-    def start(tag, attrib):
-        n = Node(tag, dict(attrib), parser.CurrentLineNumber)
-        if stack:
-            stack[-1].children.append(n)
-        else:
-            root.append(n)
-        stack.append(n)
+    class Handler(xml.sax.handler.ContentHandler):
+        def startElement(self, tag, attrib):
+            n = Node(tag, dict(attrib), parser._parser.CurrentLineNumber)     # the expat parser's line
+            if stack:
+                stack[-1].children.append(n)
+            else:
+                root.append(n)
+            stack.append(n)
 
-    def end(tag):
-        stack.pop()
+        def endElement(self, tag):
+            stack.pop()
 
-    def chars(text):
-        if stack:
-            stack[-1].text += text
+        def characters(self, text):
+            if stack:
+                stack[-1].text += text
 
-    parser.StartElementHandler = start
-    parser.EndElementHandler = end
-    parser.CharacterDataHandler = chars
+    handler = Handler()
+    parser.setContentHandler(handler)
     try:
-        parser.Parse(data, True)
-    except xml.parsers.expat.ExpatError as e:
-        raise InputError(f"not well-formed XML: {xml.parsers.expat.ErrorString(e.code)}", path=path,
-                         line=e.lineno) from None
+        parser.feed(data)
+        parser.close()
+    except xml.sax.SAXParseException as e:
+        msg = e.getMessage()
+        raise InputError(f"not well-formed XML: {msg}", path=path, line=e.getLineNumber()) from None
+    except DefusedXmlException as e:
+        expat = getattr(parser, "_parser", None)
+        line = getattr(expat, "CurrentLineNumber", None) if expat is not None else None
+        what = {"EntitiesForbidden": "an entity declaration", "ExternalReferenceForbidden": "an external reference",
+                "DTDForbidden": "a DTD"}.get(type(e).__name__, "a construct")
+        name = getattr(e, "name", None)
+        raise InputError(f"{what} is refused in a DBAT script (XML entities are not expanded and external "
+                         f"references are not read)", path=path, line=line,
+                         field=f"<!ENTITY {name}>" if isinstance(name, str) else None) from None
     if not root:
         raise InputError("empty XML document", path=path)
     return root[0]
@@ -345,7 +366,8 @@ def _format(node: Node, path, required: set[str], allowed: set[str]) -> list[str
 def _rows(file: Path, cols: list[str], xml_path, xml_line):
     """``(line, {column: token})`` of a comma-separated text file; ``#`` starts a comment."""
     try:
-        text = file.read_bytes().decode("utf-8")
+        text = (read_limited(file, what="a DBAT data file") if file.exists() and not file.is_dir()
+                else file.read_bytes()).decode("utf-8")
     except FileNotFoundError:
         raise InputError(f"file not found: {file}", path=xml_path, line=xml_line, field="file") from None
     except IsADirectoryError:

@@ -53,6 +53,7 @@ class PointExport:
     reads = ("block", "bundle?")
     writes = ()
     paths = {"path": "output"}
+    output_adds = {"path": (".ply", ".csv")}              # the files made of the prefix
     Options = ExportOptions
 
     def run(self, inputs, options: ExportOptions, ctx: Context) -> StageResult:
@@ -67,7 +68,7 @@ class PointExport:
         if cov is None:
             ctx.warn("no bundle result for these points: σ columns are nan")
         ex = export_points(block, frame, cov, roles=options.roles or None)
-        out = ctx.output_path(options.path, "path")
+        out = ctx.output_path(options.path, "path", adds=self.output_adds["path"])
         out.parent.mkdir(parents=True, exist_ok=True)
         written = []
         if "ply" in options.formats:

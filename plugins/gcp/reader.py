@@ -17,21 +17,20 @@ from pathlib import Path
 import numpy as np
 
 from baarda.pipeline.api import InputError
-from baarda.pipeline.errors import quote
+from baarda.pipeline.errors import quote, read_text_limited
 from baarda.pipeline.errors import finite_number as _num
 
 GCP_FIELDS = ("geo_x", "geo_y", "geo_z", "im_x", "im_y", "image_name", "gcp_name")
 
 
 def _text(path: Path, what: str) -> str:
-    try:
-        return Path(path).read_text(encoding="utf-8-sig", errors="replace")
-    except FileNotFoundError:
-        raise InputError(f"{what} not found", path=path) from None
-    except IsADirectoryError:
-        raise InputError(f"{what} is a directory, expected a file", path=path) from None
-    except OSError as e:
-        raise InputError(f"cannot read {what}: {e.strerror}", path=path) from None
+    """The file as UTF-8 text (a BOM allowed), read with a size limit; bytes that are not UTF-8
+    are an InputError naming the line (they used to be replaced silently)."""
+    if not Path(path).exists():
+        raise InputError(f"{what} not found", path=path)
+    if Path(path).is_dir():
+        raise InputError(f"{what} is a directory, expected a file", path=path)
+    return read_text_limited(path, what=what, encoding="utf-8-sig")
 
 
 
@@ -278,6 +277,9 @@ def read_gnss_csv(path: str | Path) -> GnssCentres:
         if len(row) < len(names):
             missing = names[len(row)]
             raise InputError(f"expected {len(names)} fields, got {len(row)}", path=path, line=ln, field=missing)
+        if len(row) > len(names) and any(row[len(names):]):
+            raise InputError(f"expected {len(names)} fields (the header's), got {len(row)}: an extra field",
+                             path=path, line=ln, field=f"field {len(names) + 1}")
         pid = row[idx["photo"]]
         if not pid:
             raise InputError("empty photo id", path=path, line=ln, field="photo")

@@ -29,7 +29,8 @@ class CameraOptions:
     pixel_mm: float = option(0.0, "pixel pitch in mm (or give sensor_width_mm)")
     sensor_width_mm: float = option(0.0, "sensor width in mm (pixel pitch = sensor_width_mm / width)")
     principal_point_px: list[float] = option([0.0, 0.0], "principal point offset from the image centre in pixels "
-                                                         "(x right, y down)")
+                                                         "(x right, y down; any sign, inside the image)",
+                                             ge=-1_000_000.0, le=1_000_000.0)
 
 
 @dataclass(frozen=True)
@@ -79,6 +80,12 @@ def _camera_spec(options: GcpOptions, ctx: Context) -> CameraSpec:
         fpx = c.focal_mm / pixel
     if len(pp) != 2:
         raise ctx.option_error("principal_point_px: expected 2 numbers", "camera")
+    if abs(pp[0]) > width / 2 or abs(pp[1]) > height / 2:
+        raise ctx.option_error(f"principal_point_px = [{pp[0]:g}, {pp[1]:g}] px from the image centre lies outside the "
+                               f"{width} × {height} pixel image", "camera")
+    if c.focal_px and c.focal_mm:
+        raise ctx.option_error(f"the camera gives the focal length twice (focal_px = {c.focal_px:g} and focal_mm = "
+                               f"{c.focal_mm:g}); give one", "camera")
     return CameraSpec(cid, int(width), int(height), float(fpx), float(pixel), float(pp[0]), float(pp[1]), k1, k2)
 
 
@@ -183,14 +190,58 @@ class GnssOptions:
             raise ValueError(f"on_unknown must be 'error' or 'skip', got {self.on_unknown!r}")
 
 
+LEVER_ARM_MAX_M = 30.0
+"""Largest antenna offset from the camera (metres) accepted: larger ones are lever arms in mm."""
+
+
 class GnssCentres:
     summary = "GNSS antenna positions per photo (CSV, any CRS, lever arm per camera) as observations of the bundle"
     reads = ("block",)
     writes = ("block",)
     Options = GnssOptions
 
+    def validate(self, options: GnssOptions, ctx: Context):
+        """Read the GNSS CSV and its CRS, check the lever arms — what ``run`` reads, before any block."""
+        self._checked(options, ctx)
+        return None
+
+    def validate_block(self, options: GnssOptions, block, ctx: Context) -> None:
+        """``baarda validate`` with the block the sources read: every photo of the CSV in the block
+        (unless on_unknown = 'skip'), every lever arm's camera a camera of the block."""
+        g = self._checked(options, ctx)
+        known = set(block.photos.ids.tolist())
+        unknown = [(p, ln) for p, ln in zip(g.photo, g.line) if p not in known]
+        if unknown and options.on_unknown == "error":
+            p, ln = unknown[0]
+            raise InputError(f"photo {p!r} is not in the block ({len(unknown)} unknown; on_unknown = 'skip' ignores "
+                             "them)", path=g.path, line=int(ln), field="photo")
+        for cid in options.lever_arm:
+            if cid not in block.cameras.ids:
+                raise ctx.option_error(f"lever_arm: unknown camera {cid!r} (cameras: "
+                                       f"{', '.join(block.cameras.ids.tolist())})", "lever_arm")
+
+    def _checked(self, options: GnssOptions, ctx: Context):
+        """The CSV read, its CRS and the crs option parsed, the lever arms plausible (in metres)."""
+        from baarda.pipeline.crs import parse_crs
+
+        if options.path is None or not str(options.path) or str(options.path) == ".":
+            raise InputError("the gnss-centres stage needs the option 'path' (the GNSS CSV)", path=ctx.project_file,
+                             field="path")
+        g = read_gnss_csv(ctx.resolve(options.path))
+        if g.crs and str(g.crs).strip().lower() not in ("local", "none"):
+            parse_crs(g.crs, path=g.path, line=g.crs_line, field="crs")
+        if options.crs and str(options.crs).strip().lower() not in ("local", "none"):
+            parse_crs(options.crs, path=ctx.project_file, field="crs")
+        for cid, arm in options.lever_arm.items():
+            if max(abs(float(x)) for x in arm) > LEVER_ARM_MAX_M:
+                raise ctx.option_error(f"lever_arm.{cid}: an antenna offset of {max(abs(float(x)) for x in arm):g} m "
+                                       f"(more than {LEVER_ARM_MAX_M:g} m); the lever arm is in metres — given in mm?",
+                                       "lever_arm")
+        return g
+
     def run(self, inputs, options: GnssOptions, ctx: Context) -> StageResult:
         block = inputs["block"]
+        self._checked(options, ctx)
         if options.path is None or not str(options.path) or str(options.path) == ".":
             raise InputError("the gnss-centres stage needs the option 'path' (the GNSS CSV)", path=ctx.project_file,
                              field="path")

@@ -21,6 +21,7 @@ import numpy as np
 
 from baarda.pipeline.api import Context, InputError, Stage, StageResult, TableData, entity_part, log_block, option
 from baarda.pipeline.geometry import rotation_from_opk
+from baarda.pipeline.imagefiles import read_gray
 
 from baarda.pipeline.geometry.image import pixels_from_mm
 from baarda.pipeline.api import project_block
@@ -175,7 +176,7 @@ class TargetDetection(Stage):
         _quiet_opencv()
         usable = 0
         for f in files:
-            gray = cv2.imread(str(f), cv2.IMREAD_GRAYSCALE) if f.is_file() else None
+            gray = read_gray(f) if f.is_file() else None
             if gray is None or min(gray.shape) < MIN_IMAGE_PX:
                 ctx.warn(f"{f}: {'not a readable image' if gray is None else 'too small'}; a run skips it")
             else:
@@ -198,6 +199,9 @@ class TargetDetection(Stage):
         geom = options.geometry()
         art_ids = None
         if options.images:
+            for pat in options.images:      # an explicit list is not a glob: a file it names must exist
+                if not glob.has_magic(str(pat)) and not ctx.resolve(pat).is_file():
+                    raise ctx.option_error(f"image file not found: {ctx.resolve(pat)}", "images")
             files = find_images(options.images, ctx.project_dir)
             if not files:
                 raise InputError(f"no image matches {options.images}", field="images", path=ctx.project_file)
@@ -231,7 +235,7 @@ class TargetDetection(Stage):
                 ctx.warn(f"{file.name}: {row['message']} '{options.camera_from_name}'")
                 continue
             row["camera"] = cam
-            gray = cv2.imread(str(file), cv2.IMREAD_GRAYSCALE) if file.is_file() else None
+            gray = read_gray(file) if file.is_file() else None
             if gray is None:
                 row["status"] = "skipped"
                 row["message"] = "file not found" if not file.exists() else "not a readable image"

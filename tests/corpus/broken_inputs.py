@@ -50,6 +50,7 @@ class Case:
     earlier: list[str] = field(default_factory=list)   # files of earlier stages that must be in the run
     out: str = "out"
     extra_args: list[str] = field(default_factory=list)
+    quick: bool = True              # in `make test`; False: only under the slow marker (`make test-slow`)
 
 
 # -- projects -------------------------------------------------------------------------------------
@@ -651,9 +652,190 @@ def run_cases() -> list[Case]:
     return c
 
 
+# -- every option of every installed stage (generated from the options' declarations) -----------
+
+BAD_VALUES = {
+    "float": ["nan", "inf", "1e300", "1e-320", '"text"'],
+    "int": ["2.5", "9223372036854775808", '"text"'],
+    "bool": ['"maybe"', "2"],
+    "literal": ['"no-such-choice"', "42"],
+}
+
+
+def _kind(tp: str) -> str | None:
+    t = tp.replace(" | NoneType", "")
+    if t in ("float", "int", "bool"):
+        return t
+    if t.startswith("'") and "|" in t:
+        return "literal"
+    return None
+
+
+def _stage_project(use: str, reads_block: bool, line: str, sid: str = "under_test") -> str:
+    stage = f'[[stage]]\nuse = "{use}"\nid = "{sid}"\n[stage.options]\n{line}\n'
+    return comparator_project(stage) if reads_block else stage
+
+
+def generated_option_cases() -> list[Case]:
+    """A bad value for every number, flag and choice of every installed stage's options: in the
+    project file (validate), and a share of them through ``--set`` (validate and run)."""
+    from baarda.pipeline.options import describe
+    from baarda.pipeline.plugins import PluginManager
+
+    c, k = [], 0
+    for info in PluginManager():
+        reads_block = bool(info.cls.reads) and info.name != "comparator"
+        for o in describe(info.cls.Options):
+            kind = _kind(o["type"])
+            if kind is None:
+                continue
+            for value in BAD_VALUES[kind]:
+                k += 1
+                name = f"{info.name}-{o['name']}={value.strip(chr(34))[:12]}"
+                line = f"{o['name']} = {value}"
+                c.append(Case(f"stage-options/{name}", {"data.cmp": DATA1}, _stage_project(info.name, reads_block, line),
+                              command="validate", names="project.toml", quick=k % 60 == 0))
+                if value in ("nan", "2.5", '"maybe"', '"no-such-choice"'):
+                    c.append(Case(f"set/{name}", {"data.cmp": DATA1},
+                                  _stage_project(info.name, reads_block, ""), command="validate" if k % 2 else "run",
+                                  names="--set", extra_args=["--set", f"under_test.{o['name']}={value}"],
+                                  quick=k % 60 == 1))
+    return c
+
+
+WRITERS = ["export", "aicon-export", "bal-export", "colmap-export", "comparator-export", "gcp-export",
+           "libmv-export", "dbat-export"]
+BAD_OUTPUTS = ["", ".", "./", "a/..", "../x", "/tmp/x", "~/x", "results.json", "project.resolved.toml",
+               "source.rrd", "report.md", "under_test.error.txt"]
+
+
+def writer_cases() -> list[Case]:
+    """Every writer with every kind of output path that must not be written (validate and run)."""
+    from baarda.pipeline.plugins import PluginManager
+
+    pm = PluginManager()
+    c = []
+    for use in WRITERS:
+        try:
+            cls = pm.get(use).cls
+        except Exception:       # noqa: BLE001 - a writer not installed under this name
+            continue
+        adds = getattr(cls, "output_adds", {}).get("path", ("",))
+        prefix = adds != ("",)
+        for k, bad in enumerate(BAD_OUTPUTS):
+            if prefix and "." in bad.strip("./~") and not bad.startswith(("/", "~", "..")):
+                continue        # a prefix writer makes results.json.ply: its own file
+            proj = _stage_project(use, True, f'path = "{bad}"')
+            c.append(Case(f"writers/{use}-{bad or 'empty'}", {"data.cmp": DATA1}, proj,
+                          command="validate" if k % 2 else "run", names="field 'path'", quick=k % 4 == 0))
+        if prefix and ".csv" not in adds:
+            continue            # its files (.ior …) cannot be a table's
+        c.append(Case(f"writers/{use}-collides-with-a-table", {"data.cmp": DATA1},
+                      _stage_project(use, True, 'path = "source_observations"' if prefix
+                                     else 'path = "source_observations.csv"'),
+                      names="already in the run directory", quick=use == "colmap-export"))
+    return c
+
+
+def batch_cases() -> list[Case]:
+    """Sweep tables: names given twice (as their folders would be named), unknown columns, bad
+    values, empty tables — refused with the table's line before anything runs."""
+    base = comparator_project(SCREENING)
+    tables = {
+        "duplicate-name": "name,screening.alpha0\nok,0.01\nok,0.02\n",
+        "duplicate-after-sanitising": "name,screening.alpha0\na/b,0.01\na b,0.02\n",
+        "unknown-column": "screening.alpha,0.01\n0.01\n",
+        "bad-value": "screening.alpha0\n2.0\n",
+        "nan-value": "screening.alpha0\nnan\n",
+        "empty": "",
+        "no-rows": "screening.alpha0\n",
+        "cells-missing": "name,screening.alpha0\nx\n",
+        "unknown-stage": "bundle.max_iter\n3\n",
+    }
+    return [Case(f"batch/{n}", {"data.cmp": DATA1, "sweep.csv": t}, base, command="batch", names="sweep.csv",
+                 out="bout") for n, t in tables.items()]
+
+
+def hardening_cases() -> list[Case]:
+    """Issue 27: XML bombs and external entities, images whose header claims too many pixels,
+    COLMAP text models pycolmap refuses, text a reader must not take."""
+    import cv2
+    import struct as _st
+    import zlib
+
+    names = {"p.xml": "camcaldemo.xml", "reference/camcal-fixed.txt": "reference/camcal-fixed.txt",
+             "images/images.txt": "images/images.txt", "measurements/markpts.txt": "measurements/markpts.txt"}
+    files = {k: (DBAT_CAMCAL / v).read_text(encoding="utf-8") for k, v in names.items()}
+    laughs = ('<?xml version="1.0"?>\n<!DOCTYPE lolz [\n <!ENTITY lol "lol">\n'
+              + "".join(f' <!ENTITY lol{k} "{("&lol" + (str(k - 1) if k > 1 else "") + ";") * 10}">\n'
+                        for k in range(1, 10)) + ']>\n<document dbat_script_version="1.0.0"><c>&lol9;</c></document>\n')
+    external = ('<?xml version="1.0"?>\n<!DOCTYPE d [\n <!ENTITY x SYSTEM "file:///etc/passwd">\n]>\n'
+                '<document dbat_script_version="1.0.0"><c>&x;</c></document>\n')
+    c = []
+    for cmd in ("run", "validate"):
+        c.append(Case(f"dbat/billion-laughs-{cmd}", {**files, "p.xml": laughs}, source_project("dbat", "p.xml"),
+                      command=cmd, names="p.xml:3"))
+        c.append(Case(f"dbat/external-entity-{cmd}", {**files, "p.xml": external}, source_project("dbat", "p.xml"),
+                      command=cmd, names="p.xml:3"))
+
+    def png(w, h):
+        def chunk(kind, data):
+            return _st.pack(">I", len(data)) + kind + data + _st.pack(">I", zlib.crc32(kind + data))
+        return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", _st.pack(">IIBBBBB", w, h, 8, 0, 0, 0, 0))
+                + chunk(b"IDAT", zlib.compress(b"\0" * 100)) + chunk(b"IEND", b""))
+
+    proj = ('[[stage]]\nuse = "opencv-targets"\nid = "source"\n[stage.options]\ntarget = "chessboard"\n'
+            'images = ["img/*.png"]\nsquares = [9, 6]\nsquare_size = 25.0\n')
+    for w, h in ((200_000, 200_000), (1_000_000, 300), (65_535, 65_535)):
+        c.append(Case(f"targets/huge-header-{w}x{h}", {"img/a.png": png(w, h)}, proj, names="a.png"))
+    c.append(Case("targets/missing-listed-image",
+                  {"img": lambda d: (d / "img").mkdir() or cv2.imwrite(str(d / "img" / "a.png"),
+                                                                      np.zeros((64, 64), np.uint8))},
+                  proj.replace('["img/*.png"]', '["img/a.png", "img/gone.png"]'), names="project.toml"))
+
+    def text_model(d: Path, fname, fn):
+        import pycolmap
+
+        rec = pycolmap.Reconstruction()
+        rec.read_binary(str(COLMAP))
+        (d / "model").mkdir()
+        rec.write_text(str(d / "model"))
+        f = d / "model" / fname
+        lines = f.read_text().splitlines()
+        k = next(i for i, ln in enumerate(lines) if ln and not ln.startswith("#"))
+        t = lines[k].split(" ")
+        fn(t)
+        lines[k] = " ".join(t)
+        f.write_text("\n".join(lines) + "\n")
+
+    edits = {"images-nan-pose": ("images.txt", lambda t: t.__setitem__(5, "nan")),
+             "images-bad-number": ("images.txt", lambda t: t.__setitem__(1, "0.7x")),
+             "images-missing-camera": ("images.txt", lambda t: t.__setitem__(8, "999")),
+             "points-inf": ("points3D.txt", lambda t: t.__setitem__(2, "inf")),
+             "points-track-missing-image": ("points3D.txt", lambda t: t.__setitem__(8, "99999")),
+             "points-track-missing-2d": ("points3D.txt", lambda t: t.__setitem__(9, "999999"))}
+    for n, (fname, fn) in edits.items():
+        c.append(Case(f"colmap/text-{n}", {"m": lambda d, fname=fname, fn=fn: text_model(d, fname, fn)},
+                      source_project("colmap", "model"), names=f"{fname}:"))
+    gnss_stage = '[[stage]]\nuse = "gnss-centres"\nid = "gnss"\n[stage.options]\npath = "gnss.csv"\n'
+    good = "# crs: EPSG:32722\nphoto,E,N,h,sigma\nIMG_5350.JPG,658530.0,7167000.0,965.0,0.05\n"
+    text = (ODM_GCP / "gcp_list_floatxy_raw.txt").read_text(encoding="utf-8")
+    camera = ('camera = { width = 4000, height = 3000, focal_px = 2904.0, sensor_width_mm = 6.17 }\n'
+              'skip_lines = [19, 51, 52, 55, 70]\n')
+    c.append(Case("gcp/gnss-extra-field", {"gcp_list.txt": text, "gnss.csv": good.replace(",0.05", ",0.05,1")},
+                  source_project("gcp-list", "gcp_list.txt", camera) + gnss_stage, command="validate",
+                  names="gnss.csv:3"))
+    c.append(Case("gcp/not-utf8", {"gcp_list.txt": text.encode("utf-8").replace(b"IMG_5352", b"IMG_\xe95352", 1)},
+                  source_project("gcp-list", "gcp_list.txt", camera), names="gcp_list.txt:"))
+    c.append(Case("bal/utf8", {"problem.txt": BAL_FILE.read_text().replace("\n", " # café\n", 3)},
+                  source_project("bal", "problem.txt"), names="problem.txt:"))
+    return c
+
+
 def all_cases() -> list[Case]:
     return (comparator_cases() + bal_cases() + aicon_cases() + colmap_cases() + targets_cases()
-            + dbat_cases() + gcp_cases() + option_cases() + project_cases() + run_cases())
+            + dbat_cases() + gcp_cases() + option_cases() + project_cases() + run_cases()
+            + generated_option_cases() + writer_cases() + batch_cases() + hardening_cases())
 
 
 # -- running a case -------------------------------------------------------------------------------
@@ -695,7 +877,10 @@ def run_case(case: Case, folder: Path) -> Outcome:
     if case.command == "review":
         argv = ["review", str(folder / "r")]
     elif case.command == "validate":
-        argv = ["validate", str(folder / "project.toml")]
+        argv = ["validate", str(folder / "project.toml"), *case.extra_args]
+    elif case.command == "batch":
+        argv = ["batch", str(folder / "project.toml"), "--sweep", str(folder / "sweep.csv"), "--out", str(out),
+                "--scheduler", "sync", "--quiet"]
     else:
         argv = ["run", str(folder / "project.toml"), "--out", str(out), "--quiet", *case.extra_args]
     o, e = io.StringIO(), io.StringIO()

@@ -19,14 +19,17 @@ CASES = all_cases()
 
 
 def test_the_corpus_is_large_and_covers_every_reader():
-    assert len(CASES) >= 150
+    assert len(CASES) >= 600
     kinds = {c.name.split("/")[0] for c in CASES}
-    assert {"comparator", "bal", "libmv", "aicon", "colmap", "targets", "options", "project", "run",
-            "review"} <= kinds
-    assert sum(c.command == "validate" for c in CASES) >= 20
+    assert {"comparator", "bal", "libmv", "aicon", "colmap", "targets", "dbat", "gcp", "options", "project", "run",
+            "review", "stage-options", "set", "writers", "batch"} <= kinds
+    assert sum(c.command == "validate" for c in CASES) >= 200
 
 
-@pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
+PARAMS = [pytest.param(c, id=c.name, marks=() if c.quick else pytest.mark.slow) for c in CASES]
+
+
+@pytest.mark.parametrize("case", PARAMS)
 def test_broken_input(case, tmp_path):
     res = run_case(case, tmp_path / "case")
     err = res.err

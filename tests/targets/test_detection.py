@@ -295,15 +295,17 @@ def test_broken_images_are_warnings(tmp_path, shared_data):
 
     cv2.imwrite(str(tmp_path / "blank.png"), blank)
     shutil.copy(shared_data / "opencv-chessboard" / "left01.jpg", tmp_path / "left01.jpg")
-    res, ctx = _run(tmp_path, images=["broken.jpg", "blank.png", "left01.jpg", "gone.jpg"], target="chessboard",
+    res, ctx = _run(tmp_path, images=["broken.jpg", "blank.png", "left01.jpg"], target="chessboard",
                     squares=[10, 7], square_size=25.0, chessboard_method="classic")
     assert len(res.artefacts["block"].photos) == 1
-    assert res.summary["detections"] == {"broken": 0, "blank": 0, "left01": 54, "gone": 0}
+    assert res.summary["detections"] == {"broken": 0, "blank": 0, "left01": 54}
     text = "\n".join(ctx.warnings)
-    assert "broken.jpg: not a readable image" in text and "gone.jpg: file not found" in text
+    assert "broken.jpg: not a readable image" in text
     assert "blank.png: no 9×6 inner-corner chessboard found" in text
     table = res.tables["detections"]
-    assert table.columns["status"] == ["skipped", "skipped", "ok", "skipped"]
+    assert table.columns["status"] == ["skipped", "skipped", "ok"]
+    with pytest.raises(InputError, match="image file not found.*gone.jpg"):   # an explicit list is not a glob
+        _run(tmp_path, images=["left01.jpg", "gone.jpg"], target="chessboard", squares=[10, 7], square_size=25.0)
     with pytest.raises(InputError, match="no usable detection"):
         _run(tmp_path, images=["broken.jpg", "blank.png"], target="chessboard", squares=[10, 7], square_size=25.0)
     with pytest.raises(InputError, match="no image matches"):
@@ -360,7 +362,7 @@ def test_stage_contract_and_project(shared_data, tmp_path):
 use = "opencv-targets"
 id = "charuco"
 [stage.options]
-images = ["{folder}/img_01.jpg", "{folder}/chocclusion_original.jpg", "{folder}/nothing.jpg"]
+images = ["{folder}/img_01.jpg", "{folder}/chocclusion_original.jpg"]
 target = "charuco"
 squares = [5, 7]
 square_size = 40.0
@@ -369,7 +371,6 @@ pixel_mm = 0.0014
 """, tmp_path)
     assert out.ok, out.message
     rec = out.stages[0]
-    assert any("nothing.jpg: file not found" in w for w in rec.warnings)
     assert (out.run_dir / "charuco_detections.csv").is_file() and (out.run_dir / "charuco.rrd").is_file()
     b = out.artefacts["block"]
     assert len(b.photos) == 2 and b.object_unit == "mm"
