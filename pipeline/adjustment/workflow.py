@@ -509,8 +509,10 @@ def adjust_block(block: Block, config: BundleConfig | None = None, *,
             joint = stats.joint_test_2d(snap, alpha=t.alpha0)
         except ValueError:
             joint = None
-        # flagged: the w-test exceeded K, the point is kept (whatever `blunders` says; docs/statistics.md)
-        decision[np.unique(np.flatnonzero(ds.flagged) // 2)] = "flagged"
+        # flagged: the w-test exceeded K, the point is kept (whatever `blunders` says; docs/statistics.md);
+        # a point robust estimation down-weighted stays "downweighted" (what was done to it)
+        hit = np.unique(np.flatnonzero(ds.flagged) // 2)
+        decision[hit[decision[hit] == "ok"]] = "flagged"
         decision[np.unique(np.flatnonzero(rejected_rows) // 2)] = "rejected"
     d0 = _delta0(t.alpha0, t.beta0)
     external = own_effects(res, d0) if snap is not None and o.output.external_reliability else None
