@@ -36,7 +36,7 @@ from typing import Any, Iterable
 from .report import cap_text
 
 FIGURE_DPI = 100
-INLINE_ROWS = 12
+INLINE_ROWS = 15
 """Rows of a stage's table shown in place in report.html; a longer table keeps these rows, says how
 many there are and goes whole into the collapsed appendix."""
 PROTOCOL_SECTIONS = ("Protocol summary", "Camera parameters")
@@ -185,6 +185,17 @@ def fmt(x: Any, nd: int = 4) -> str:
     return f"{f:.{nd}g}"
 
 
+def zero_columns(cameras: list[dict], key: str = "opencv") -> list[str]:
+    """Names of the parameters (``cam[key]``: list of {name, value, sigma}) that are 0 ± 0 in every
+    camera: held fixed at zero, folded into one line instead of a column of "0 ± 0"."""
+    if not cameras:
+        return []
+    names = [q["name"] for q in cameras[0][key]]
+    return [n for n in names
+            if all(float(q.get("value") or 0) == 0 and float(q.get("sigma") or 0) == 0
+                   for c in cameras for q in c[key] if q["name"] == n)]
+
+
 def _env():
     from jinja2 import Environment, PackageLoader, select_autoescape
 
@@ -192,6 +203,7 @@ def _env():
                       autoescape=select_autoescape(["html", "j2"]), trim_blocks=True, lstrip_blocks=True)
     env.filters["num"] = fmt
     env.filters["md"] = markdown_html
+    env.filters["zero_columns"] = zero_columns
     return env
 
 
