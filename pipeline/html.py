@@ -36,7 +36,7 @@ from typing import Any, Iterable
 from .report import cap_text
 
 FIGURE_DPI = 100
-INLINE_ROWS = 15
+INLINE_ROWS = 10
 """Rows of a stage's table shown in place in report.html; a longer table keeps these rows, says how
 many there are and goes whole into the collapsed appendix."""
 PROTOCOL_SECTIONS = ("Protocol summary", "Camera parameters")

@@ -50,7 +50,7 @@ def w_distribution(w, critical: float, title: str = "w-test statistics"):
     plt = _plt()
     w = np.asarray(w, float)
     w = w[np.isfinite(w)]
-    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 3.8))
+    fig, (a, b) = plt.subplots(1, 2, figsize=(9, 3.6))
     lim = max(4.5, float(np.max(np.abs(w))) if w.size else 4.5)
     bins = np.linspace(-lim, lim, max(15, min(80, int(np.sqrt(max(w.size, 1))) * 2)))
     a.hist(w, bins=bins, density=True, color="#8fb3de", ec="#4a6fa0", lw=0.5, label=f"w ({w.size})")

@@ -335,7 +335,7 @@ def reliability_maps(res):
     used = res.point_used & np.isfinite(XYZ).all(axis=1)
     mfin = m_img[np.isfinite(m_img)]
     mtop = float(np.quantile(mfin, 0.98)) if mfin.size else 1.0
-    fig, axes = plt.subplots(2, 2, figsize=(12, 8.2))
+    fig, axes = plt.subplots(2, 2, figsize=(11.5, 7.0))
     big = act.sum() > BIG
     what = "hexbin: mean r / largest MDB of each cell" if big else "one dot per image point"
     panels = [(axes[0, 0], xy[:, 0], xy[:, 1], r, "viridis", 0.0, 1.0, "min", f"redundancy r over the format ({gu})"),
