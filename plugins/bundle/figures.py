@@ -190,7 +190,11 @@ def checkpoint_errors(res):
         a.annotate(str(p), (x, y), fontsize=7, xytext=(3, 3), textcoords="offset points")
     a.set_aspect("equal", adjustable="datalim")
     map_ticks(a, res.state.XYZ[res.point_used, 0])
-    a.set_title(f"check points: plan error vectors × {k:.3g} (adjusted − surveyed)", fontsize=10)
+    if dmax > 0:
+        a.set_title(f"check points: plan error vectors × {k:.3g} (adjusted − surveyed; largest "
+                    f"{fmt_q(dmax, ou, 3)})", fontsize=10)
+    else:
+        a.set_title("check points: adjusted − surveyed is 0 in plan at every point (no vectors to draw)", fontsize=10)
     b.bar(np.arange(len(chk)), d[:, 2], color="#5b7fb5")
     b.set_xticks(np.arange(len(chk)), [str(x) for x in pts.ids[chk]], fontsize=7, rotation=90)
     b.axhline(0, color="k", lw=0.7)
