@@ -377,18 +377,16 @@ def reliability_maps(res):
 
 
 def bundle_figures(res, decision=None) -> dict:
-    """Every figure of a bundle result: name → (figure, caption)."""
+    """Every figure of a bundle result: name → (figure, caption), the most telling first (report.html
+    shows a stage's first figures and folds the rest): residuals, network, reliability maps,
+    distortion, check points; then w, redundancy numbers, convergence."""
     out = {}
     images = res.block_in.photos.images()     # photo id → image file (``Photos.image_path``), where a source found it
     out["residuals"] = (residual_vectors(res, decision, images),
                         "Residual vectors per photo over the format" + (" and the photo" if images else ""))
+    out["network"] = (network(res), "Network: plan and elevation with standard error ellipses")
     snap = res.snapshot
     if snap is not None:
-        ok = stats.controlled(snap)
-        ds = stats.data_snooping(snap)
-        out["w"] = (w_distribution(ds.w[ok], ds.critical), "w against N(0, 1): histogram and QQ plot")
-        out["redundancy"] = (redundancy_numbers(np.asarray(snap.r)[np.asarray(snap.active, bool)]),
-                             "Redundancy numbers of the observation rows")
         maps = reliability_maps(res)
         if maps is not None:
             out["reliability"] = (maps, "Redundancy numbers and MDBs over the image format and over the object (plan)")
@@ -399,12 +397,16 @@ def bundle_figures(res, decision=None) -> dict:
              if res.camera_used[j] and str(cams.ap_model[j]) != "none"
              and (np.any(res.camera_free[j, 3:]) or np.any(res.state.cam_params[j, 3:] != 0))][:MAX_DISTORTION_CAMERAS]
     for j in drawn:
-        if True:
-            fig = distortion(res, j)
-            if fig is not None:
-                out[f"distortion_{cams.ids[j]}"] = (fig, f"Distortion of camera {cams.ids[j]} with ±1σ")
-    out["network"] = (network(res), "Network: plan and elevation with standard error ellipses")
+        fig = distortion(res, j)
+        if fig is not None:
+            out[f"distortion_{cams.ids[j]}"] = (fig, f"Distortion of camera {cams.ids[j]} with ±1σ")
     if res.check:
         out["checkpoints"] = (checkpoint_errors(res), "Check-point error vectors")
+    if snap is not None:
+        ok = stats.controlled(snap)
+        ds = stats.data_snooping(snap)
+        out["w"] = (w_distribution(ds.w[ok], ds.critical), "w against N(0, 1): histogram and QQ plot")
+        out["redundancy"] = (redundancy_numbers(np.asarray(snap.r)[np.asarray(snap.active, bool)]),
+                             "Redundancy numbers of the observation rows")
     out["convergence"] = (convergence(res.history), "Convergence of vᵀPv")
     return out
