@@ -207,6 +207,9 @@ def sigma_dots(ax, names, values, band: float = 1.0, label: str = "", color="#1f
 BIG = 20_000
 """Points above which a figure draws aggregated data (hexbin of means, quantiles, decimation)
 instead of one marker per point, and rasterises what it still draws point by point."""
+MAP_CELLS = 5_000
+"""Points above which :func:`value_map` draws hexbins (a map of 14 000 coloured dots is an 850 kB PNG
+and less readable than the cells' means)."""
 RASTER = 2_000
 """Markers above which a scatter is rasterised (``rasterized=True``: one bitmap, not an artist
 per point, if the figure is ever saved as a vector file)."""
@@ -268,10 +271,10 @@ def plain_ticks(ax, axis: str = "y") -> None:
 
 
 def value_map(ax, x, y, c, *, cmap="viridis", vmin=None, vmax=None, gridsize: int = 40, reduce="mean",
-              s: float = 6, big: int = BIG):
+              s: float = 6, big: int = MAP_CELLS):
     """Values ``c`` at positions (x, y) as a colour map: one marker per position for a small set
     (rasterised above :data:`RASTER`), a hexbin of the ``reduce`` ("mean", "min", "max") of each cell
-    above ``big`` — the figure of a block of millions stays a few hundred kB.  Returns the mappable
+    above ``big`` (:data:`MAP_CELLS`) — the figure of a block of millions stays a few hundred kB.  Returns the mappable
     (for a colour bar)."""
     x, y, c = (np.asarray(a, float).ravel() for a in (x, y, c))
     ok = np.isfinite(x) & np.isfinite(y) & np.isfinite(c)

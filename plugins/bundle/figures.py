@@ -11,7 +11,7 @@ import numpy as np
 from baarda.pipeline.api import stats
 from baarda.pipeline.camera import get_ap_model
 
-from baarda.pipeline.plots import (BIG, integer_ticks, map_ticks, mark_outside, plain_ticks, redundancy_numbers,
+from baarda.pipeline.plots import (BIG, MAP_CELLS, integer_ticks, map_ticks, mark_outside, plain_ticks, redundancy_numbers,
                                    robust_limits, role_points, value_map, w_distribution)
 from baarda.pipeline.units import fmt_q
 
@@ -22,6 +22,8 @@ MAX_DISTORTION_CAMERAS = 2
 MAX_ELLIPSES = 3000
 """Points whose error ellipse is drawn (the first ones; the rest would be ink, not information)."""
 MAX_PHOTOS = 8
+MAX_ARROWS = 600
+"""Residual arrows drawn per photo at most (evenly spaced in the photo's order, plus every flagged one)."""
 """Photos drawn in the residual figure (the largest RMS first)."""
 
 
@@ -74,6 +76,12 @@ def residual_vectors(res, decision=None, images: dict | None = None):
         k = 0.08 * size / (g * vmax or 1.0)      # format units of arrow per format unit of residual
         flag = np.zeros(m.sum(), bool) if decision is None else np.isin(np.asarray(decision)[m], ["flagged", "rejected"])
         vm = v[m] * g
+        n_all = len(xy)
+        if n_all > MAX_ARROWS:      # a dense photo: evenly spaced arrows and every flagged one
+            keep = np.zeros(n_all, bool)
+            keep[np.linspace(0, n_all - 1, MAX_ARROWS).round().astype(int)] = True
+            keep |= flag
+            xy, vm, flag = xy[keep], vm[keep], flag[keep]
         ax.quiver(xy[~flag, 0], xy[~flag, 1], k * vm[~flag, 0], k * vm[~flag, 1], angles="xy", scale_units="xy",
                   scale=1, color="#1f4e9c", width=0.006)
         if flag.any():
@@ -88,7 +96,8 @@ def residual_vectors(res, decision=None, images: dict | None = None):
         if fw > 0:
             ax.add_patch(plt.Rectangle((-fw / 2, -fh / 2), fw, fh, fill=False, ec="#999", lw=0.8))
         rm = np.sqrt(np.mean(v[m] ** 2)) * scale
-        ax.set_title(f"photo {block.photos.ids[p]}: RMS {rm:.3g} {unit}", fontsize=9)
+        ax.set_title(f"photo {block.photos.ids[p]}: RMS {rm:.3g} {unit}"
+                     + (f" ({len(xy)} of {n_all} arrows)" if len(xy) < n_all else ""), fontsize=9)
         ax.set_aspect("equal")
         ax.tick_params(labelsize=7)
     for ax in axes.ravel()[n:]:
@@ -340,7 +349,7 @@ def reliability_maps(res):
     mfin = m_img[np.isfinite(m_img)]
     mtop = float(np.quantile(mfin, 0.98)) if mfin.size else 1.0
     fig, axes = plt.subplots(2, 2, figsize=(11.5, 7.0))
-    big = act.sum() > BIG
+    big = act.sum() > MAP_CELLS
     what = "hexbin: mean r / largest MDB of each cell" if big else "one dot per image point"
     panels = [(axes[0, 0], xy[:, 0], xy[:, 1], r, "viridis", 0.0, 1.0, "min", f"redundancy r over the format ({gu})"),
               (axes[0, 1], xy[:, 0], xy[:, 1], m_img, "magma_r", 0.0, mtop, "max", f"MDB over the format ({gu})"),

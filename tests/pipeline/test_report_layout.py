@@ -116,3 +116,27 @@ def test_bundled_report_has_no_duplicated_section_headings(tmp_path):
     # no figure twice (blunder-rejection does not repeat the bundle's)
     imgs = re.findall(r'src="(data:image/png;base64,[^"]+)"', page)
     assert len(imgs) == len(set(imgs))
+
+
+@pytest.mark.slow
+def test_bundle_figures_of_a_big_synthetic_block():
+    """An aerial block of 60 photos and ~28 000 image points: every bundle figure draws, the maps
+    as hexbins, each PNG below 1 MB."""
+    use_agg()
+    from matplotlib.collections import PolyCollection
+
+    from baarda.pipeline.adjustment import adjust_block
+    from baarda.pipeline.synthetic.aerial import simulate_aerial
+    from baarda.plugins.bundle.figures import bundle_figures
+
+    noisy, _ = simulate_aerial(np.random.default_rng(2), n_strips=6, photos_per_strip=10, points_per_photo=500)
+    assert len(noisy.observations) > 20_000
+    rep = adjust_block(noisy)
+    t0 = time.perf_counter()
+    figs = bundle_figures(rep.result, rep.decision if hasattr(rep, "decision") else None)
+    assert {"residuals", "network", "reliability", "w", "redundancy", "convergence"} <= set(figs)
+    maps = figs["reliability"][0]
+    assert any(isinstance(c, PolyCollection) for ax in maps.axes for c in ax.collections)
+    sizes = {name: len(png_of(fig)) for name, (fig, _) in figs.items()}
+    assert max(sizes.values()) < 1_000_000, sizes
+    assert time.perf_counter() - t0 < 120
