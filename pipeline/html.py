@@ -39,9 +39,10 @@ FIGURE_DPI = 100
 INLINE_ROWS = 10
 """Rows of a stage's table shown in place in report.html; a longer table keeps these rows, says how
 many there are and goes whole into the collapsed appendix."""
-FIGURES_SHOWN = 4
-"""Figures of a stage shown open in report.html (the stage lists its most telling first); the rest of
-the stage's figures are in a closed ``<details>`` under them, with their count and names."""
+FIGURES_SHOWN = (3, 2)
+"""Figures of a stage shown open in report.html (the stage lists its most telling first): 3, or 2
+when four or more stages of the page have figures (a study of many adjustments); the rest of the
+stage's figures are in a closed ``<details>`` under them, with their count and names."""
 PROTOCOL_SECTIONS = ("Protocol summary", "Camera parameters")
 """Markdown sections (``### …``) of a stage report that the page's protocol summary already shows:
 dropped from the stage's section of report.html when the stage has a protocol (report.md keeps them)."""
@@ -223,7 +224,8 @@ def render_report(*, title: str, description: str, project_file: str, started: s
     return _env().get_template("report.html.j2").render(
         title=title, description=description, project_file=project_file, started=started, version=version,
         recording_id=recording_id, stages=stages, protocols=protocols, bodies=bodies, appendix=appendix,
-        inline_rows=INLINE_ROWS, figures_shown=FIGURES_SHOWN)
+        inline_rows=INLINE_ROWS,
+        figures_shown=FIGURES_SHOWN[0] if sum(1 for s in stages if s.figures) < 4 else FIGURES_SHOWN[1])
 
 
 _URL = re.compile(r"""(?:src|href)\s*=\s*["']?\s*(?:https?:|//|file:)""", re.I)
