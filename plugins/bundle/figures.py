@@ -387,18 +387,15 @@ def reliability_maps(res):
 
 def bundle_figures(res, decision=None) -> dict:
     """Every figure of a bundle result: name → (figure, caption), the most telling first (report.html
-    shows a stage's first figures and folds the rest): residuals, network, reliability maps,
-    distortion, check points; then w, redundancy numbers, convergence."""
+    shows a stage's first figures and folds the rest): residuals, network, distortion (where the
+    camera's additional parameters are estimated), reliability maps, check points; then w, redundancy
+    numbers, convergence."""
     out = {}
     images = res.block_in.photos.images()     # photo id → image file (``Photos.image_path``), where a source found it
     out["residuals"] = (residual_vectors(res, decision, images),
                         "Residual vectors per photo over the format" + (" and the photo" if images else ""))
     out["network"] = (network(res), "Network: plan and elevation with standard error ellipses")
     snap = res.snapshot
-    if snap is not None:
-        maps = reliability_maps(res)
-        if maps is not None:
-            out["reliability"] = (maps, "Redundancy numbers and MDBs over the image format and over the object (plan)")
     cams = res.block_in.cameras
     obs = res.block_in.observations
     n_obs = np.bincount(res.block_in.photos.camera[obs.photo[res.obs_active]], minlength=len(cams))
@@ -409,6 +406,10 @@ def bundle_figures(res, decision=None) -> dict:
         fig = distortion(res, j)
         if fig is not None:
             out[f"distortion_{cams.ids[j]}"] = (fig, f"Distortion of camera {cams.ids[j]} with ±1σ")
+    if snap is not None:
+        maps = reliability_maps(res)
+        if maps is not None:
+            out["reliability"] = (maps, "Redundancy numbers and MDBs over the image format and over the object (plan)")
     if res.check:
         out["checkpoints"] = (checkpoint_errors(res), "Check-point error vectors")
     if snap is not None:
