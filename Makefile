@@ -40,6 +40,15 @@ SCALE_ARGS ?= --sizes 500 1000 2000 5000 10000 --bal
 bench-scale: $(STAMP)
 	$(TESTENV) $(PY) benchmarks/scale.py $(SCALE_ARGS)
 
+# Full-page screenshots of every bundled project's report.html (headless Chromium, Debian's package,
+# installed with apt when missing) into docs/images/ (900 px wide PNG); prints each page's height in
+# 1080-px screens before its appendix of tables.  Runs every bundled project first (a few minutes).
+.PHONY: screenshots
+screenshots: $(STAMP)
+	command -v chromium >/dev/null || command -v chromium-browser >/dev/null || \
+	  { if [ "$$(id -u)" = 0 ]; then apt-get install -y chromium; else sudo apt-get install -y chromium; fi; }
+	$(TESTENV) $(PY) tools/screenshots.py --run --out runs/screenshots --images docs/images
+
 clean:
 	rm -rf $(VENV) runs .pytest_cache
 

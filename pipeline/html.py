@@ -5,8 +5,16 @@ The engine writes it beside ``report.md`` (:mod:`baarda.pipeline.runner`): a tem
 
 * the **protocol summary** — the numbers a photogrammetrist reads first, taken from the
   ``protocol`` entry of every stage's summary (the same values ``results.json`` holds);
-* one section per stage: its warnings, its Markdown report rendered to HTML (markdown-it-py,
-  tables kept), its figures embedded as PNG (``data:`` URIs, base64) and links to its files.
+* one section per stage: its warnings, its figures embedded as PNG (``data:`` URIs, base64;
+  three to a row, each a link to its PNG file), its Markdown report rendered to HTML
+  (markdown-it-py) and links to its files;
+* an **appendix of tables**, collapsed (``<details>``): a stage's table longer than
+  :data:`INLINE_ROWS` rows shows its first rows in place, with the count and a link to the whole
+  table in the appendix.
+
+Nothing is printed twice: a stage with a protocol (the summary at the top prints it, cameras
+included) loses the sections of its Markdown report that say the same
+(:data:`PROTOCOL_SECTIONS`).
 
 Figures come from a stage's optional ``plots(result, ctx)`` method (matplotlib figures, drawn
 here with the Agg backend) and from ``StageResult.figures`` (PNG bytes).  Nothing in the page
@@ -25,7 +33,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable
 
+from .report import cap_text
+
 FIGURE_DPI = 100
+INLINE_ROWS = 10
+"""Rows of a stage's table shown in place in report.html; a longer table keeps these rows, says how
+many there are and goes whole into the collapsed appendix."""
+FIGURES_SHOWN = (3, 2)
+"""Figures of a stage shown open in report.html (the stage lists its most telling first): 3, or 2
+when four or more stages of the page have figures (a study of many adjustments); the rest of the
+stage's figures are in a closed ``<details>`` under them, with their count and names."""
+PROTOCOL_SECTIONS = ("Protocol summary", "Camera parameters")
+"""Markdown sections (``### …``) of a stage report that the page's protocol summary already shows:
+dropped from the stage's section of report.html when the stage has a protocol (report.md keeps them)."""
 
 
 def use_agg() -> None:
@@ -79,6 +99,68 @@ class HtmlStage:
     protocol: dict | None = None
 
 
+@dataclass
+class AppendixTable:
+    anchor: str
+    stage: str
+    caption: str
+    rows: int
+    html: str
+
+
+def drop_sections(text: str, titles: Iterable[str]) -> str:
+    """Markdown ``text`` without the sections whose heading is one of ``titles`` (each up to the
+    next heading of the same or a higher level)."""
+    titles = {t.strip().lower() for t in titles}
+    out, skip = [], None
+    for line in (text or "").splitlines():
+        m = re.match(r"^(#{1,6})\s+(.*?)\s*#*\s*$", line)
+        if m:
+            level = len(m.group(1))
+            if skip is not None and level <= skip:
+                skip = None
+            if skip is None and m.group(2).strip().lower() in titles:
+                skip = level
+                continue
+        if skip is None:
+            out.append(line)
+    return "\n".join(out)
+
+
+_TABLE = re.compile(r"<table>.*?</table>", re.S)
+_BODY_ROW = re.compile(r"<tr>(?:(?!</tr>).)*?<td", re.S)
+
+
+def _caption_before(page: str, start: int) -> str:
+    """The text of the paragraph or heading just before a table (its caption), shortened."""
+    head = page[max(0, start - 600):start]
+    m = re.search(r"<(p|h[1-6]|li)>((?:(?!<(?:p|h[1-6]|li)>).)*?)(?:</\1>)?\s*$", head, re.S)
+    text = re.sub(r"<[^>]+>", "", m.group(2)) if m else ""
+    text = _html.unescape(" ".join(text.split())).rstrip(":")
+    return text[:160] + ("…" if len(text) > 160 else "")
+
+
+def split_long_tables(page: str, stage: str, appendix: list[AppendixTable], keep: int = INLINE_ROWS) -> str:
+    """Every table of a stage's HTML longer than ``keep`` body rows: its first ``keep`` rows stay in
+    place with a line saying how many rows there are and where the rest is (the appendix entry
+    added to ``appendix``)."""
+
+    def cut(m: re.Match) -> str:
+        table = m.group(0)
+        rows = list(_BODY_ROW.finditer(table))
+        if len(rows) <= keep:
+            return table
+        anchor = f"appendix-{stage}-{len(appendix) + 1}"
+        cap = _caption_before(page, m.start()) or f"table {len(appendix) + 1} of {stage}"
+        appendix.append(AppendixTable(anchor, stage, cap, len(rows), table))
+        end = rows[keep].start()
+        short = table[:end] + ("</tbody>" if "<tbody>" in table[:end] else "") + "</table>"
+        return (short + f'<p class="meta cap">{_html.escape(cap_text(keep, len(rows)))} — '
+                f'<a href="#{anchor}">the whole table in the appendix</a></p>')
+
+    return _TABLE.sub(cut, page)
+
+
 def markdown_html(text: str) -> str:
     """Markdown → HTML (CommonMark + GFM tables; raw HTML in the text is escaped)."""
     from markdown_it import MarkdownIt
@@ -107,6 +189,17 @@ def fmt(x: Any, nd: int = 4) -> str:
     return f"{f:.{nd}g}"
 
 
+def zero_columns(cameras: list[dict], key: str = "opencv") -> list[str]:
+    """Names of the parameters (``cam[key]``: list of {name, value, sigma}) that are 0 ± 0 in every
+    camera: held fixed at zero, folded into one line instead of a column of "0 ± 0"."""
+    if not cameras:
+        return []
+    names = [q["name"] for q in cameras[0][key]]
+    return [n for n in names
+            if all(float(q.get("value") or 0) == 0 and float(q.get("sigma") or 0) == 0
+                   for c in cameras for q in c[key] if q["name"] == n)]
+
+
 def _env():
     from jinja2 import Environment, PackageLoader, select_autoescape
 
@@ -114,6 +207,7 @@ def _env():
                       autoescape=select_autoescape(["html", "j2"]), trim_blocks=True, lstrip_blocks=True)
     env.filters["num"] = fmt
     env.filters["md"] = markdown_html
+    env.filters["zero_columns"] = zero_columns
     return env
 
 
@@ -122,9 +216,16 @@ def render_report(*, title: str, description: str, project_file: str, started: s
     """The page as a string."""
     stages = list(stages)
     protocols = [(s.id, s.use, s.protocol) for s in stages if s.protocol]
+    appendix: list[AppendixTable] = []
+    bodies = {}
+    for s in stages:
+        text = drop_sections(s.report, PROTOCOL_SECTIONS) if s.protocol else s.report
+        bodies[s.id] = split_long_tables(markdown_html(text), s.id, appendix)
     return _env().get_template("report.html.j2").render(
         title=title, description=description, project_file=project_file, started=started, version=version,
-        recording_id=recording_id, stages=stages, protocols=protocols)
+        recording_id=recording_id, stages=stages, protocols=protocols, bodies=bodies, appendix=appendix,
+        inline_rows=INLINE_ROWS,
+        figures_shown=FIGURES_SHOWN[0] if sum(1 for s in stages if s.figures) < 4 else FIGURES_SHOWN[1])
 
 
 _URL = re.compile(r"""(?:src|href)\s*=\s*["']?\s*(?:https?:|//|file:)""", re.I)

@@ -50,7 +50,7 @@ def w_distribution(w, critical: float, title: str = "w-test statistics"):
     plt = _plt()
     w = np.asarray(w, float)
     w = w[np.isfinite(w)]
-    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 3.8))
+    fig, (a, b) = plt.subplots(1, 2, figsize=(9, 3.6))
     lim = max(4.5, float(np.max(np.abs(w))) if w.size else 4.5)
     bins = np.linspace(-lim, lim, max(15, min(80, int(np.sqrt(max(w.size, 1))) * 2)))
     a.hist(w, bins=bins, density=True, color="#8fb3de", ec="#4a6fa0", lw=0.5, label=f"w ({w.size})")
@@ -202,3 +202,87 @@ def sigma_dots(ax, names, values, band: float = 1.0, label: str = "", color="#1f
     ax.set_xticks(np.arange(len(names)), [str(n) for n in names], fontsize=8)
     ax.set_xlim(-0.6, len(names) - 0.4)
     return ax
+
+
+BIG = 20_000
+"""Points above which a figure draws aggregated data (hexbin of means, quantiles, decimation)
+instead of one marker per point, and rasterises what it still draws point by point."""
+MAP_CELLS = 5_000
+"""Points above which :func:`value_map` draws hexbins (a map of 14 000 coloured dots is an 850 kB PNG
+and less readable than the cells' means)."""
+RASTER = 2_000
+"""Markers above which a scatter is rasterised (``rasterized=True``: one bitmap, not an artist
+per point, if the figure is ever saved as a vector file)."""
+
+
+def robust_limits(values, *, keep=(), q: float = 0.02, pad: float = 0.08, spread: float = 1.0):
+    """Axis limits (lo, hi) that show the bulk of ``values`` and every value of ``keep`` (e.g. the
+    projection centres), not a few far outliers: the ``q`` … ``1 − q`` quantiles widened by
+    ``spread`` × their range where the data reach that far, then padded by ``pad``.  Values outside
+    are for :func:`mark_outside`."""
+    v = np.asarray(values, float).ravel()
+    v = v[np.isfinite(v)]
+    k = np.asarray(keep, float).ravel()
+    k = k[np.isfinite(k)]
+    if not v.size and not k.size:
+        return (-1.0, 1.0)
+    if v.size:
+        a, b = np.quantile(v, [q, 1 - q]) if v.size >= 20 else (v.min(), v.max())
+        w = max(b - a, 1e-12)
+        lo, hi = max(v.min(), a - spread * w), min(v.max(), b + spread * w)
+    else:
+        lo, hi = k.min(), k.max()
+    if k.size:
+        lo, hi = min(lo, k.min()), max(hi, k.max())
+    w = max(hi - lo, 1e-9 * max(abs(lo), abs(hi), 1.0))
+    return (lo - pad * w, hi + pad * w)
+
+
+def mark_outside(ax, x, y, xlim, ylim, *, label: str = "outside the axes, drawn at the edge", color="#c0392b"):
+    """Points beyond the limits drawn on the edge of the axes (clipped position, a red ✕) with a
+    legend entry counting them; returns how many there are.  Sets the limits."""
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    ok = np.isfinite(x) & np.isfinite(y)
+    out = ok & ((x < xlim[0]) | (x > xlim[1]) | (y < ylim[0]) | (y > ylim[1]))
+    n = int(out.sum())
+    if n:
+        ax.plot(np.clip(x[out], *xlim), np.clip(y[out], *ylim), "x", color=color, ms=6, mew=1.5, ls="none",
+                label=f"{n} {label}", clip_on=False, zorder=5)
+    ax.set_xlim(*xlim)
+    ax.set_ylim(*ylim)
+    return n
+
+
+def integer_ticks(ax, axis: str = "x") -> None:
+    """Integer ticks only (iterations, counts): no 0.5 iteration."""
+    from matplotlib.ticker import MaxNLocator
+
+    (ax.xaxis if axis == "x" else ax.yaxis).set_major_locator(MaxNLocator(integer=True))
+
+
+def plain_ticks(ax, axis: str = "y") -> None:
+    """Tick labels as plain numbers with 4 significant digits ("7232", "0.0012", "1e-05"), also on a
+    log axis: no "7.239×10³" and no offset; minor ticks unlabelled."""
+    from matplotlib.ticker import FuncFormatter, NullFormatter
+
+    a = ax.yaxis if axis == "y" else ax.xaxis
+    a.set_major_formatter(FuncFormatter(lambda v, _: f"{v:.4g}"))
+    a.set_minor_formatter(NullFormatter())
+
+
+def value_map(ax, x, y, c, *, cmap="viridis", vmin=None, vmax=None, gridsize: int = 40, reduce="mean",
+              s: float = 6, big: int = MAP_CELLS):
+    """Values ``c`` at positions (x, y) as a colour map: one marker per position for a small set
+    (rasterised above :data:`RASTER`), a hexbin of the ``reduce`` ("mean", "min", "max") of each cell
+    above ``big`` (:data:`MAP_CELLS`) — the figure of a block of millions stays a few hundred kB.  Returns the mappable
+    (for a colour bar)."""
+    x, y, c = (np.asarray(a, float).ravel() for a in (x, y, c))
+    ok = np.isfinite(x) & np.isfinite(y) & np.isfinite(c)
+    x, y, c = x[ok], y[ok], c[ok]
+    if len(c) > big:
+        fn = {"mean": np.mean, "min": np.min, "max": np.max}[reduce]
+        return ax.hexbin(x, y, C=c, gridsize=gridsize, reduce_C_function=fn, cmap=cmap, vmin=vmin, vmax=vmax,
+                         mincnt=1, linewidths=0.1)
+    order = np.argsort(-c if reduce == "min" else c, kind="stable")      # the notable values on top
+    return ax.scatter(x[order], y[order], c=c[order], s=s, cmap=cmap, vmin=vmin, vmax=vmax, lw=0,
+                      rasterized=len(c) > RASTER)

@@ -117,3 +117,35 @@ def markdown_table(header: list[str], rows: list[list[Any]], floatfmt: str = ".4
     out += ["| " + " | ".join(fmt(v) for v in r) + " |" for r in rows]
     return "\n".join(out)
 
+
+def count_text(n: int) -> str:
+    """An integer count with thin spaces between thousands: 3 402, 1 480 000."""
+    return f"{int(n):,}".replace(",", "\u2009")
+
+
+def cap_text(shown: int, total: int, *, what: str = "rows", where: str = "") -> str:
+    """The one wording of a capped list in every report: "12 of 3 402 flagged; all in
+    bundle_observations.csv, column decision" (``where``: where the whole list is), or "all 7
+    flagged" when nothing was left out."""
+    head = (f"all {count_text(total)} {what}" if shown >= total
+            else f"{count_text(shown)} of {count_text(total)} {what}")
+    return head + (f"; all in {where}" if where and shown < total else (f"; in {where}" if where else ""))
+
+
+def capped_rows(rows, most: int = 15, *, order=None) -> tuple[list, int]:
+    """The first ``most`` of ``rows`` (in ``order``, e.g. largest |w| first: indices into ``rows``)
+    and how many there are in all — the cap every report table goes through (issue 22: reports stay
+    readable at any size; the rest is in the tables)."""
+    rows = list(rows) if order is None else [rows[i] for i in order]
+    return rows[:max(int(most), 0)], len(rows)
+
+
+def capped_table(header: list[str], rows, *, most: int = 15, what: str = "rows", where: str = "",
+                 order=None, floatfmt: str = ".4f", indent: str = "") -> list[str]:
+    """A Markdown table of at most ``most`` rows with the line saying how many there are and where
+    the rest is (:func:`cap_text`), as lines (``indent`` before each: a table inside a list item)."""
+    shown, total = capped_rows(rows, most, order=order)
+    lines = [cap_text(len(shown), total, what=what, where=where) + ":", ""] if total else []
+    lines += markdown_table(header, shown, floatfmt).splitlines() if shown else []
+    return [indent + x if x else x for x in lines]
+

@@ -226,13 +226,15 @@ def _write_plots(run_dir, spec, stage, result, ctx, rec) -> None:
 
     use_agg()
     figs = stage.plots(result, ctx) or {}
-    for name, item in figs.items():
-        fig, caption = item if isinstance(item, tuple) else (item, "")
-        png = png_of(fig)
-        fname = f"{spec.id}_{name}.png"
-        (run_dir / fname).write_bytes(png)
-        rec.files.append(fname)
-        rec.html_figures.append(_html_figure(name, fname, png, caption))
+    with ctx.progress.bar(len(figs), "figures", unit="fig") as bar:     # Agg renders in savefig
+        for name, item in figs.items():
+            fig, caption = item if isinstance(item, tuple) else (item, "")
+            png = png_of(fig)
+            fname = f"{spec.id}_{name}.png"
+            (run_dir / fname).write_bytes(png)
+            rec.files.append(fname)
+            rec.html_figures.append(_html_figure(name, fname, png, caption))
+            bar.update(1, last=name)
 
 
 def _moved(text: str, run, final: Path) -> str:

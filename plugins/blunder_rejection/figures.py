@@ -36,8 +36,12 @@ def protocol(report, art, options) -> dict | None:
 
 
 def figures(art, options) -> dict:
+    """w against N(0, 1) and the redundancy numbers of the adjustment tested — none for the bundle,
+    whose own stage draws them from the same snapshot (a report shows each figure once)."""
     from baarda.pipeline.plots import redundancy_numbers, w_distribution
 
+    if art.name == "bundle":
+        return {}
     snap = art.snapshot
     ok = stats.controlled(snap)
     ds = stats.data_snooping(snap, alpha0=options.alpha0, beta0=options.beta0)

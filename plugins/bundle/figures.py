@@ -11,17 +11,20 @@ import numpy as np
 from baarda.pipeline.api import stats
 from baarda.pipeline.camera import get_ap_model
 
-from baarda.pipeline.plots import map_ticks, redundancy_numbers, role_points, w_distribution
-
+from baarda.pipeline.plots import (BIG, MAP_CELLS, integer_ticks, map_ticks, mark_outside, plain_ticks, redundancy_numbers,
+                                   robust_limits, role_points, value_map, w_distribution)
 from baarda.pipeline.units import fmt_q
+
 
 from .protocol import image_units
 
-MAX_DISTORTION_CAMERAS = 4
+MAX_DISTORTION_CAMERAS = 2
 """Cameras whose distortion is drawn (most image points first; a COLMAP block may have dozens)."""
 MAX_ELLIPSES = 3000
 """Points whose error ellipse is drawn (the first ones; the rest would be ink, not information)."""
-MAX_PHOTOS = 12
+MAX_PHOTOS = 8
+MAX_ARROWS = 600
+"""Residual arrows drawn per photo at most (evenly spaced in the photo's order, plus every flagged one)."""
 """Photos drawn in the residual figure (the largest RMS first)."""
 
 
@@ -77,6 +80,12 @@ def residual_vectors(res, decision=None, images: dict | None = None):
         k = 0.08 * size / (g * vmax or 1.0)      # format units of arrow per format unit of residual
         flag = np.zeros(m.sum(), bool) if decision is None else np.isin(np.asarray(decision)[m], ["flagged", "rejected"])
         vm = v[m] * g
+        n_all = len(xy)
+        if n_all > MAX_ARROWS:      # a dense photo: evenly spaced arrows and every flagged one
+            keep = np.zeros(n_all, bool)
+            keep[np.linspace(0, n_all - 1, MAX_ARROWS).round().astype(int)] = True
+            keep |= flag
+            xy, vm, flag = xy[keep], vm[keep], flag[keep]
         ax.quiver(xy[~flag, 0], xy[~flag, 1], k * vm[~flag, 0], k * vm[~flag, 1], angles="xy", scale_units="xy",
                   scale=1, color="#1f4e9c", width=0.006)
         if flag.any():
@@ -92,7 +101,8 @@ def residual_vectors(res, decision=None, images: dict | None = None):
             ax.add_patch(plt.Rectangle((-fw / 2, -fh / 2), fw, fh, fill=False, ec="#999", lw=0.8))
         um = used[obs.photo == p]
         rm = np.sqrt(np.mean(v[obs.photo == p][um] ** 2)) * scale if um.any() else float("nan")
-        ax.set_title(f"photo {block.photos.ids[p]}: RMS {fmt_q(rm, unit)}", fontsize=9)
+        ax.set_title(f"photo {block.photos.ids[p]}: RMS {fmt_q(rm, unit)}"
+                     + (f" ({len(xy)} of {n_all} arrows)" if len(xy) < n_all else ""), fontsize=9)
         ax.set_aspect("equal")
         ax.tick_params(labelsize=7)
     for ax in axes.ravel()[n:]:
@@ -113,7 +123,10 @@ def _ellipse(cov2):
 
 def network(res):
     """Plan (X, Y) and elevation (X, Z) of projection centres and points, with the points'
-    standard error ellipses exaggerated by one common factor."""
+    standard error ellipses exaggerated by one common factor.  The axes show the bulk of the points
+    and every projection centre (:func:`~baarda.pipeline.plots.robust_limits`): a few far,
+    badly determined points are drawn at the edge and counted, they do not shrink the network to
+    a corner.  The ellipse factor makes the 95th percentile of σ a visible size."""
     plt = _plt()
     from matplotlib.collections import LineCollection
 
@@ -122,26 +135,47 @@ def network(res):
     XYZ, X0 = res.state.XYZ, res.state.X0[res.photo_used]
     C = res.cov_points
     sig = res.point_sigmas()
-    ok = used & np.all(np.isfinite(sig), axis=1)
-    span = max(float(np.ptp(np.vstack([XYZ[used], X0]), axis=0)[:2].max()), 1e-9)
+    ou = block.object_unit
+    ok = used & np.all(np.isfinite(sig), axis=1) & (np.max(np.nan_to_num(sig), axis=1) > 0)
+    big = int(used.sum()) > BIG
+    lims = [robust_limits(XYZ[used, t], keep=X0[:, t]) for t in range(3)]
+    span = max(max(h - l for l, h in lims[:2]), 1e-9)
     smax = float(np.max(sig[ok])) if ok.any() else 0.0
-    k = 0.04 * span / smax if smax > 0 else 1.0
+    s95 = float(np.quantile(sig[ok].max(axis=1), 0.95)) if ok.any() else 0.0
+    k = 0.03 * span / s95 if s95 > 0 else 0.0
     fig, axes = plt.subplots(1, 2, figsize=(12, 5))
     for ax, (i, j, name) in zip(axes, [(0, 1, "plan (X, Y)"), (0, 2, "elevation (X, Z)")]):
-        role_points(ax, XYZ, pts.role, used, i, j)
-        ax.plot(X0[:, i], X0[:, j], "s", ms=5, color="k", label=f"projection centres ({len(X0)})")
-        sel = np.flatnonzero(ok)[:MAX_ELLIPSES]
-        segs = [np.column_stack([XYZ[p, i] + e[0], XYZ[p, j] + e[1]])
-                for p in sel for e in [_ellipse(C[p][np.ix_([i, j], [i, j])]) * k]]
-        ax.add_collection(LineCollection(segs, colors="#28a0a0", linewidths=0.6))   # the recordings' ellipsoid colour
-        ax.set_aspect("equal", adjustable="datalim")
+        if big:          # a big block: the points as a density, rasterised
+            ax.hexbin(XYZ[used, i], XYZ[used, j], gridsize=60, bins="log", cmap="Greys", mincnt=1,
+                      extent=(*lims[i], *lims[j]), linewidths=0.1, rasterized=True)
+        else:
+            role_points(ax, XYZ, pts.role, used, i, j)
+        ax.plot(X0[:, i], X0[:, j], "s", ms=5 if len(X0) < 500 else 2, color="k",
+                label=f"projection centres ({len(X0)})", rasterized=len(X0) > 2000)
+        if k > 0 and not big:
+            inside = ((XYZ[:, i] >= lims[i][0]) & (XYZ[:, i] <= lims[i][1]) & (XYZ[:, j] >= lims[j][0])
+                      & (XYZ[:, j] <= lims[j][1]))
+            sel = np.flatnonzero(ok & inside)[:MAX_ELLIPSES]
+            segs = [np.column_stack([XYZ[p, i] + e[0], XYZ[p, j] + e[1]])
+                    for p in sel for e in [_ellipse(C[p][np.ix_([i, j], [i, j])]) * k]]
+            ax.add_collection(LineCollection(segs, colors="#28a0a0", linewidths=0.6))   # the recordings' ellipsoid colour
+        mark_outside(ax, XYZ[used, i], XYZ[used, j], lims[i], lims[j], label="points beyond the axes (at the edge)")
+        ax.set_aspect("equal", adjustable="box")
         ax.set_title(name, fontsize=10)
-        ax.set_xlabel(f"{'XYZ'[i]} ({block.object_unit})")
-        ax.set_ylabel(f"{'XYZ'[j]} ({block.object_unit})")
+        ax.set_xlabel(f"{'XYZ'[i]} ({ou})")
+        ax.set_ylabel(f"{'XYZ'[j]} ({ou})")
         map_ticks(ax, np.r_[XYZ[used, i], X0[:, i]])
         ax.tick_params(labelsize=8)
     axes[0].legend(fontsize=7, loc="best")
-    fig.suptitle(f"Network; standard error ellipses × {k:.3g} (largest σ {smax:.3g} {block.object_unit})", fontsize=10)
+    if k > 0 and not big:
+        head = (f"standard error ellipses × {k:.3g} (σ: 95th percentile {fmt_q(s95, ou, 3)}, "
+                f"largest {fmt_q(smax, ou, 3)})")
+    elif k > 0:
+        head = (f"point density ({int(used.sum())} points); σ: 95th percentile {fmt_q(s95, ou, 3)}, "
+                f"largest {fmt_q(smax, ou, 3)} (every σ in bundle_points.csv)")
+    else:
+        head = "no standard errors of the points (covariance not computed)"
+    fig.suptitle(f"Network; {head}", fontsize=10)
     fig.tight_layout()
     return fig
 
@@ -170,7 +204,11 @@ def checkpoint_errors(res):
         a.annotate(str(p), (x, y), fontsize=7, xytext=(3, 3), textcoords="offset points")
     a.set_aspect("equal", adjustable="datalim")
     map_ticks(a, res.state.XYZ[res.point_used, 0])
-    a.set_title(f"check points: plan error vectors × {k:.3g} (adjusted − surveyed)", fontsize=10)
+    if dmax > 0:
+        a.set_title(f"check points: plan error vectors × {k:.3g} (adjusted − surveyed; largest "
+                    f"{fmt_q(dmax, ou, 3)})", fontsize=10)
+    else:
+        a.set_title("check points: adjusted − surveyed is 0 in plan at every point (no vectors to draw)", fontsize=10)
     b.bar(np.arange(len(chk)), d[:, 2], color="#5b7fb5")
     b.set_xticks(np.arange(len(chk)), [str(x) for x in pts.ids[chk]], fontsize=7, rotation=90)
     b.axhline(0, color="k", lw=0.7)
@@ -184,9 +222,13 @@ def convergence(history):
     plt = _plt()
     it = history.iteration
     fig, a = plt.subplots(figsize=(6.5, 3.4))
-    vtpv = history.vtpv
-    (a.semilogy if np.any(vtpv > 0) else a.plot)(it, np.where(vtpv > 0, vtpv, np.nan) if np.any(vtpv > 0) else vtpv,
-                                                 "o-", color="#1f4e9c", label="vᵀPv")
+    vtpv = np.asarray(history.vtpv, float)
+    pos = vtpv[np.isfinite(vtpv) & (vtpv > 0)]
+    log = pos.size > 1 and pos.max() / pos.min() > 10        # a log axis only where it spans a decade
+    (a.semilogy if log else a.plot)(it, np.where(vtpv > 0, vtpv, np.nan) if log else vtpv, "o-", color="#1f4e9c",
+                                    label="vᵀPv")
+    if not log:
+        a.ticklabel_format(axis="y", useOffset=False, style="plain")
     step = history.max_step_sigma
     shown = np.isfinite(step) & (step > 0)
     if shown.any():
@@ -195,6 +237,11 @@ def convergence(history):
         a2.set_ylabel("largest correction (σ of an observation)", fontsize=8, color="#d35400")
     a.set_xlabel("iteration")
     a.set_ylabel("vᵀPv")
+    integer_ticks(a, "x")
+    if log:
+        plain_ticks(a, "y")
+    if shown.any():
+        plain_ticks(a2, "y")
     a.set_title("Convergence", fontsize=10)
     fig.tight_layout()
     return fig
@@ -229,20 +276,33 @@ def distortion(res, j: int, n: int = 60):
         sy = np.sqrt(np.clip(np.einsum("ni,ij,nj->n", J[:, 1], Cap, J[:, 1]), 0, None))
         return np.asarray(dx) * scale, np.asarray(dy) * scale, sx * scale, sy * scale
 
-    fig, (a, b) = plt.subplots(1, 2, figsize=(12, 4.6))
+    fig, (a, b) = plt.subplots(1, 2, figsize=(10.5, 3.9))
     t = np.linspace(0, fw / 2, n)
     dx, _, sx, _ = delta(t, np.zeros(n))
-    a.plot(g * t, dx, color="#1f4e9c", label="Δx along +x")
-    a.fill_between(g * t, dx - sx, dx + sx, color="#1f4e9c", alpha=0.2)
     t2 = np.linspace(0, fh / 2, n)
     _, dy, _, sy = delta(np.zeros(n), t2)
+    a.plot(g * t, dx, color="#1f4e9c", label="Δx along +x")
     a.plot(g * t2, dy, color="#d35400", label="Δy along +y")
-    a.fill_between(g * t2, dy - sy, dy + sy, color="#d35400", alpha=0.2)
+    for tt, d, sd, col in ((t, dx, sx, "#1f4e9c"), (t2, dy, sy, "#d35400")):
+        a.fill_between(g * tt, d - sd, d + sd, color=col, alpha=0.3, lw=0)
+        a.plot(g * tt, d - sd, color=col, lw=0.6, ls=":")
+        a.plot(g * tt, d + sd, color=col, lw=0.6, ls=":")
     a.axhline(0, color="k", lw=0.6)
     a.set_xlabel(f"distance from the principal point ({gu})")
     a.set_ylabel(f"distortion ({unit})")
-    a.set_title(f"camera {cams.ids[j]} ({cams.ap_model[j]}): profiles, ±1σ bands", fontsize=10)
-    a.legend(fontsize=8)
+    # σ itself on the right axis: a band of a well-determined camera is thinner than the line
+    a2 = a.twinx()
+    a2.plot(g * t, sx, color="#1f4e9c", lw=1, ls="--", label="σ(Δx)")
+    a2.plot(g * t2, sy, color="#d35400", lw=1, ls="--", label="σ(Δy)")
+    a2.set_ylim(0, 1.15 * max(float(np.max(sx)), float(np.max(sy)), 1e-12))
+    a2.set_ylabel(f"σ of the distortion ({unit}, dashed)", fontsize=8)
+    plain_ticks(a2, "y")
+    smax = max(float(np.max(sx)), float(np.max(sy)))
+    a.set_title(f"camera {cams.ids[j]} ({cams.ap_model[j]}): profiles ±1σ (largest σ {fmt_q(smax, unit, 3)})",
+                fontsize=10)
+    h1, l1 = a.get_legend_handles_labels()
+    h2, l2 = a2.get_legend_handles_labels()
+    a.legend(h1 + h2, l1 + l2, fontsize=8)
     ng = 13
     X, Y = np.meshgrid(np.linspace(-fw / 2, fw / 2, ng), np.linspace(-fh / 2, fh / 2, ng))
     dx, dy, sx, sy = delta(X.ravel(), Y.ravel())
@@ -258,19 +318,89 @@ def distortion(res, j: int, n: int = 60):
     return fig
 
 
+def reliability_maps(res):
+    """Redundancy numbers and MDBs where they are: over the image format (every photo's image
+    points, format coordinates) and over the object (plan view, per point).  Per image point the
+    smaller r and the larger MDB of its x and y; per object point the smallest r and the largest
+    MDB of its image coordinates.  A big block is drawn as hexbins of the cell's mean r / largest
+    MDB (:func:`~baarda.pipeline.plots.value_map`).  None without statistics."""
+    snap = res.snapshot
+    if snap is None:
+        return None
+    plt = _plt()
+    block = res.block_in
+    obs, pts = block.observations, block.points
+    unit, scale, _ = image_units(block)
+    g, gu = (scale, "px") if unit == "px" else (1.0, "mm")
+    act = np.asarray(res.obs_active, bool)
+    r = np.where(act, np.nanmin(np.asarray(res.redundancy, float), axis=1), np.nan)
+    mdb = np.asarray(stats.mdb(snap), float).reshape(-1, 2)
+    with np.errstate(invalid="ignore"):
+        m_img = np.where(act, np.nanmax(np.where(np.isfinite(mdb), mdb, -np.inf), axis=1), np.nan) * scale
+    m_img[~np.isfinite(m_img)] = np.nan
+    xy = obs.xy * g
+    # per object point: smallest r, largest MDB of its image coordinates
+    n_pts = len(pts)
+    r_pt = np.full(n_pts, np.inf)
+    m_pt = np.full(n_pts, -np.inf)
+    fin = np.isfinite(r)
+    np.minimum.at(r_pt, obs.point[fin], r[fin])
+    fin = np.isfinite(m_img)
+    np.maximum.at(m_pt, obs.point[fin], m_img[fin])
+    r_pt[~np.isfinite(r_pt)] = np.nan
+    m_pt[~np.isfinite(m_pt)] = np.nan
+    XYZ = res.state.XYZ
+    used = res.point_used & np.isfinite(XYZ).all(axis=1)
+    mfin = m_img[np.isfinite(m_img)]
+    mtop = float(np.quantile(mfin, 0.98)) if mfin.size else 1.0
+    fig, axes = plt.subplots(2, 2, figsize=(11.5, 7.0))
+    big = act.sum() > MAP_CELLS
+    what = "hexbin: mean r / largest MDB of each cell" if big else "one dot per image point"
+    panels = [(axes[0, 0], xy[:, 0], xy[:, 1], r, "viridis", 0.0, 1.0, "min", f"redundancy r over the format ({gu})"),
+              (axes[0, 1], xy[:, 0], xy[:, 1], m_img, "magma_r", 0.0, mtop, "max", f"MDB over the format ({gu})"),
+              (axes[1, 0], XYZ[used, 0], XYZ[used, 1], r_pt[used], "viridis", 0.0, 1.0, "min",
+               f"smallest r of each point, plan ({block.object_unit})"),
+              (axes[1, 1], XYZ[used, 0], XYZ[used, 1], m_pt[used], "magma_r", 0.0, mtop, "max",
+               f"largest MDB of each point's image coordinates, plan ({block.object_unit})")]
+    for n, (ax, x, y, c, cmap, lo, hi, red, title) in enumerate(panels):
+        h = value_map(ax, x, y, c, cmap=cmap, vmin=lo, vmax=hi, reduce="mean" if red == "min" and big else red,
+                      s=4 if n < 2 else 8)
+        cb = fig.colorbar(h, ax=ax, extend="max" if n % 2 else "neither", fraction=0.046, pad=0.03)
+        cb.set_label("r" if n % 2 == 0 else f"MDB ({unit})", fontsize=8)
+        cb.ax.tick_params(labelsize=7)
+        if n < 2:
+            for j in np.unique(block.photos.camera):
+                fw, fh = np.asarray(block.cameras.format_mm[j], float) * g
+                if fw > 0:
+                    ax.add_patch(plt.Rectangle((-fw / 2, -fh / 2), fw, fh, fill=False, ec="#999", lw=0.8))
+            ax.set_aspect("equal", adjustable="datalim")
+        else:
+            xl = robust_limits(x)
+            yl = robust_limits(y)
+            mark_outside(ax, x, y, xl, yl, label="points beyond the axes (at the edge)")
+            if ax.get_legend_handles_labels()[0]:
+                ax.legend(fontsize=7, loc="best")
+            ax.set_aspect("equal", adjustable="box")
+            map_ticks(ax, x)
+        ax.set_title(title, fontsize=9)
+        ax.tick_params(labelsize=7)
+    fig.suptitle(f"Reliability maps ({what}); MDB colours end at the 98th percentile "
+                 f"{fmt_q(mtop, unit, 3)}", fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
 def bundle_figures(res, decision=None) -> dict:
-    """Every figure of a bundle result: name → (figure, caption)."""
+    """Every figure of a bundle result: name → (figure, caption), the most telling first (report.html
+    shows a stage's first figures and folds the rest): residuals, network, distortion (where the
+    camera's additional parameters are estimated), reliability maps, check points; then w, redundancy
+    numbers, convergence."""
     out = {}
     images = res.block_in.photos.images()     # photo id → image file (``Photos.image_path``), where a source found it
     out["residuals"] = (residual_vectors(res, decision, images),
                         "Residual vectors per photo over the format" + (" and the photo" if images else ""))
+    out["network"] = (network(res), "Network: plan and elevation with standard error ellipses")
     snap = res.snapshot
-    if snap is not None:
-        ok = stats.controlled(snap)
-        ds = stats.data_snooping(snap)
-        out["w"] = (w_distribution(ds.w[ok], ds.critical), "w against N(0, 1): histogram and QQ plot")
-        out["redundancy"] = (redundancy_numbers(np.asarray(snap.r)[np.asarray(snap.active, bool)]),
-                             "Redundancy numbers of the observation rows")
     cams = res.block_in.cameras
     obs = res.block_in.observations
     n_obs = np.bincount(res.block_in.photos.camera[obs.photo[res.obs_active]], minlength=len(cams))
@@ -278,12 +408,20 @@ def bundle_figures(res, decision=None) -> dict:
              if res.camera_used[j] and str(cams.ap_model[j]) != "none"
              and (np.any(res.camera_free[j, 3:]) or np.any(res.state.cam_params[j, 3:] != 0))][:MAX_DISTORTION_CAMERAS]
     for j in drawn:
-        if True:
-            fig = distortion(res, j)
-            if fig is not None:
-                out[f"distortion_{cams.ids[j]}"] = (fig, f"Distortion of camera {cams.ids[j]} with ±1σ")
-    out["network"] = (network(res), "Network: plan and elevation with standard error ellipses")
+        fig = distortion(res, j)
+        if fig is not None:
+            out[f"distortion_{cams.ids[j]}"] = (fig, f"Distortion of camera {cams.ids[j]} with ±1σ")
+    if snap is not None:
+        maps = reliability_maps(res)
+        if maps is not None:
+            out["reliability"] = (maps, "Redundancy numbers and MDBs over the image format and over the object (plan)")
     if res.check:
         out["checkpoints"] = (checkpoint_errors(res), "Check-point error vectors")
+    if snap is not None:
+        ok = stats.controlled(snap)
+        ds = stats.data_snooping(snap)
+        out["w"] = (w_distribution(ds.w[ok], ds.critical), "w against N(0, 1): histogram and QQ plot")
+        out["redundancy"] = (redundancy_numbers(np.asarray(snap.r)[np.asarray(snap.active, bool)]),
+                             "Redundancy numbers of the observation rows")
     out["convergence"] = (convergence(res.history), "Convergence of vᵀPv")
     return out

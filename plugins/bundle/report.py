@@ -14,7 +14,7 @@ from baarda.pipeline.api import Block, TableData, stats
 from baarda.pipeline.adjustment import EO_NAMES, BundleResult
 from baarda.pipeline.protocol import MOST_LABELS
 from baarda.pipeline.protocol import global_test_protocol, global_test_text
-from baarda.pipeline.report import markdown_table
+from baarda.pipeline.report import cap_text, markdown_table
 
 from . import external as bundle_external
 from .protocol import bundle_protocol, camera_rows, image_units, protocol_lines
@@ -160,8 +160,7 @@ def report_text(rep, work=None, protocol=None) -> str:
               "y up) in px, the additional parameters scaled to pixel coordinates (a parameter of unit mm⁻ᵏ "
               "times pitchᵏ: K1 px⁻², P1 px⁻¹, B1 dimensionless; docs/report.md); OpenCV's form is in the "
               "protocol summary above.", ""]
-    L.append("| camera | parameter | value | σ | unit | status |")
-    L.append("|---|---|---|---|---|---|")
+    cam_rows = []
     zero_fixed = {}                          # camera -> parameters held fixed at 0 (one line, not rows)
     for j in range(len(block.cameras)):
         if not res.camera_used[j]:
@@ -170,8 +169,13 @@ def report_text(rep, work=None, protocol=None) -> str:
             if r["status"] == "fixed" and r["value"] == 0.0:
                 zero_fixed.setdefault(r["camera"], []).append(r["parameter"])
                 continue
-            L.append(f"| {r['camera']} | {r['parameter']} | {r['value']:.8g} | {_f(r['sigma'], 3)} | {r['unit']} | "
-                     f"{r['status']} |")
+            cam_rows.append(f"| {r['camera']} | {r['parameter']} | {r['value']:.8g} | {_f(r['sigma'], 3)} | "
+                            f"{r['unit']} | {r['status']} |")
+    if len(cam_rows) > MAX_CAMERA_ROWS:
+        L += [cap_text(MAX_CAMERA_ROWS, len(cam_rows), what="parameter rows", where="bundle_cameras.csv") + ":", ""]
+    L.append("| camera | parameter | value | σ | unit | status |")
+    L.append("|---|---|---|---|---|---|")
+    L += cam_rows[:MAX_CAMERA_ROWS]
     L += _zero_fixed_lines(zero_fixed)
     shown = 0
     for j in range(len(block.cameras)):
@@ -299,6 +303,8 @@ def _vc_vs_global(vc, o, gt) -> list[str]:
     return ["", line + (f" — they differ because {why}." if why else ".")]
 
 
+MAX_CAMERA_ROWS = 20
+"""Rows of camera parameters in report.md (a COLMAP block of 23 cameras has 46; all in bundle_cameras.csv)."""
 MAX_CORRELATION_TABLES = 4
 """Cameras whose correlation matrix report.md prints (all are in bundle_correlations.csv)."""
 

@@ -4,15 +4,19 @@ from __future__ import annotations
 
 import numpy as np
 
+from baarda.pipeline.units import fmt_q
+
 
 def _extent(x, y):
     dx, dy = x[1] - x[0], y[0] - y[1]
     return [x[0] - dx / 2, x[-1] + dx / 2, y[-1] - dy / 2, y[0] + dy / 2]
 
 
-def _map(ax, fig, x, y, z, title, unit, lims=None):
+def _map(ax, fig, x, y, z, title, unit, lims=None, g: float = 1.0, gu: str = "mm"):
     """``z`` on a logarithmic colour scale (σ spans orders of magnitude between the centre and
-    corners the board never reached), with contours at 1-2-5 steps."""
+    corners the board never reached), with contours at 1-2-5 steps; the format coordinates
+    ``x``, ``y`` (mm) drawn × ``g`` in ``gu`` (px for a pixel source)."""
+    x, y = np.asarray(x, float) * g, np.asarray(y, float) * g
     from matplotlib.colors import LogNorm
 
     fin = z[np.isfinite(z) & (z > 0)]
@@ -26,8 +30,8 @@ def _map(ax, fig, x, y, z, title, unit, lims=None):
         cs = ax.contour(x, y, z, levels=levels, colors="w", linewidths=0.6)
         ax.clabel(cs, fontsize=7, fmt="%.3g")
     ax.set_title(title, fontsize=9)
-    ax.set_xlabel("x [mm]")
-    ax.set_ylabel("y [mm]")
+    ax.set_xlabel(f"x ({gu})")
+    ax.set_ylabel(f"y ({gu})")
     ax.set_aspect("equal")
     fig.colorbar(im, ax=ax, shrink=0.8, label=unit)
 
@@ -39,27 +43,29 @@ def quality_figures(data: dict) -> dict:
     for cid, d in data.items():
         m, f, unit = d["map"], d["factor"], d["unit"]
         cv = d["cv"]
+        g, gu = (f, "px") if unit == "px" else (1.0, "mm")     # the format in px for a pixel source
+        kw = {"g": g, "gu": gu}
         ncol = 3 if cv is not None else 1
         nrow = 2 if cv is not None and cv.diff_fit is not None else 1
-        fig, axes = plt.subplots(nrow, ncol, figsize=(5.2 * ncol, 3.8 * nrow), squeeze=False)
+        fig, axes = plt.subplots(nrow, ncol, figsize=(4.6 * ncol, 3.4 * nrow), squeeze=False)
         _map(axes[0, 0], fig, m.x, m.y, m.sigma * f,
-             f"σ projection, {m.frame}, at {m.distance:.3g}", unit)
+             f"σ projection, {m.frame}, at {fmt_q(m.distance, d.get('object_unit', ''), 3)}", unit, **kw)
         if cv is not None:
             both = np.r_[(cv.norm * f).ravel(), (cv.sigma_pred * f).ravel()]
             both = both[np.isfinite(both) & (both > 0)]
             lims = (both.min(), both.max()) if both.size else None
-            _map(axes[0, 1], fig, cv.x, cv.y, cv.norm * f, "|Δq| of the two halves", unit, lims)
+            _map(axes[0, 1], fig, cv.x, cv.y, cv.norm * f, "|Δq| of the two halves", unit, lims, **kw)
             _map(axes[0, 2], fig, cv.x, cv.y, cv.sigma_pred * f, "predicted √(σ₁² + σ₂²) (camera frame)", unit,
-                 lims)
+                 lims, **kw)
             if nrow == 2:
                 nf = np.hypot(cv.diff_fit[..., 0], cv.diff_fit[..., 1]) * f
                 both = np.r_[nf.ravel(), (cv.sigma_fit * f).ravel()]
                 both = both[np.isfinite(both) & (both > 0)]
                 lims = (both.min(), both.max()) if both.size else None
-                _map(axes[1, 0], fig, cv.x, cv.y, cv.ratio_fit, "|Δq| / σ after the rotation fit", "ratio")
+                _map(axes[1, 0], fig, cv.x, cv.y, cv.ratio_fit, "|Δq| / σ after the rotation fit", "ratio", **kw)
                 _map(axes[1, 1], fig, cv.x, cv.y, nf,
-                     f"|Δq| after fitting a {np.degrees(np.linalg.norm(cv.rotation)):.2f}° rotation", unit, lims)
-                _map(axes[1, 2], fig, cv.x, cv.y, cv.sigma_fit * f, "predicted σ after the fit", unit, lims)
+                     f"|Δq| after fitting a {np.degrees(np.linalg.norm(cv.rotation)):.2f}° rotation", unit, lims, **kw)
+                _map(axes[1, 2], fig, cv.x, cv.y, cv.sigma_fit * f, "predicted σ after the fit", unit, lims, **kw)
         fig.tight_layout()
         cap = f"Camera {cid}: projection uncertainty over the format"
         out[f"uncertainty_{cid}"] = (fig, cap + (" and the cross-validation" if cv is not None else ""))

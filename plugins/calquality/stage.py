@@ -123,7 +123,8 @@ class CalibrationQuality(Stage):
                                      "mean_mahalanobis2": float(np.nanmean(cv.mahalanobis2_fit))}}
             tables[f"map_{cid}"] = TableData(cols)
             summary["cameras"][cid] = cs
-            out[cid] = {"map": m, "camera_only": mcam, "cv": cv, "unit": unit, "factor": f}
+            out[cid] = {"map": m, "camera_only": mcam, "cv": cv, "unit": unit, "factor": f,
+                        "object_unit": res.block_in.object_unit}
             lines.append(f"- camera **{cid}**: σ of the projection at {dist:.4g} ({options.frame}, {m.n_photos} "
                          f"photos): centre {cs['sigma_centre']:.3f} {unit}, corners "
                          f"{', '.join(f'{v:.3f}' for v in cs['sigma_corners'])} {unit}, worst {cs['sigma_worst']:.3f}"

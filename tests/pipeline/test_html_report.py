@@ -139,14 +139,14 @@ def test_bundle_report_html(tmp_path):
     assert p["point_precision"]["max"][0] == pytest.approx(pts["sX"][ok].max(), rel=1e-12)
     # the MDB's effect on the points is of the order of the MDB projected into object space
     assert 0 < p["reliability"]["effect_max"] < 0.01
-    # the per-photo RMS rows: the heading counts the rows it shows (at most 12) of all photos
+    # the per-photo RMS rows: the heading counts the rows it shows (at most 8) of all photos
     head = re.search(r"RMS per photo \(µm; (?:largest (\d+) of (\d+)|all (\d+))\)", text)
     assert head, "no per-photo RMS heading"
     shown = len(re.findall(r"<tr><td>photo [^<]* \(\d+ points\)</td>", text))
     if head.group(3):
         assert int(head.group(3)) == shown == p["n_photos"]
     else:
-        assert int(head.group(1)) == shown == 12 and int(head.group(2)) == p["n_photos"] > 12
+        assert int(head.group(1)) == shown == 8 and int(head.group(2)) == p["n_photos"] > 8
     _no_machine_paths(out.run_dir)
     md = (out.run_dir / "report.md").read_text(encoding="utf-8")
     assert "### Protocol summary" in md and fmt(p["rms"]["all"]) in md
