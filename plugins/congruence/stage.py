@@ -22,6 +22,7 @@ import numpy as np
 from baarda.pipeline.api import InputError, Stage, StageResult, TableData, option, parameter_covariance
 from baarda.pipeline.report import markdown_table
 from baarda.pipeline.stats.congruence import congruence, variance_ratio_test
+from baarda.pipeline.stats.ellipses import error_ellipsoids
 from baarda.pipeline.units import fmt_num, fmt_q
 
 EPOCH_FILE_VERSION = 1
@@ -222,6 +223,7 @@ def _compare(ref: Epoch, ep: Epoch, o: CongruenceOptions, ctx) -> dict:
     d = np.array([p.d for p in r.points])
     sig = np.array([np.sqrt(np.clip(np.diag(p.Q), 0, None)) * s0 for p in r.points])
     length = np.linalg.norm(d, axis=1)
+    semi, _axes = error_ellipsoids(np.array([p.Q * s0 * s0 for p in r.points]), 0.95)
     datum_set = set(datum) if datum is not None else None
     status = []
     for k, p in enumerate(r.points):
@@ -238,12 +240,15 @@ def _compare(ref: Epoch, ep: Epoch, o: CongruenceOptions, ctx) -> dict:
         f"sigma_dX_{_suffix(u)}": sig[:, 0], f"sigma_dY_{_suffix(u)}": sig[:, 1], f"sigma_dZ_{_suffix(u)}": sig[:, 2],
         "T": [p.T for p in r.points], "p": [p.p for p in r.points],
         f"mdd_{_suffix(u)}": [p.mdd for p in r.points],
+        **{f"ellipsoid95_a{j + 1}_{_suffix(u)}": semi[:, j] for j in range(3)},
         f"X_{_suffix(u)}": ep.XYZ[ib, 0], f"Y_{_suffix(u)}": ep.XYZ[ib, 1], f"Z_{_suffix(u)}": ep.XYZ[ib, 2],
     }, f"displacements {ref.name} → {ep.name} in the datum of the stable points ({u}); T the 3-D test value "
        f"({'F(3, f)' if r.test == 'F' else 'χ²(3)/3'}), p its p-value, mdd the minimal detectable displacement "
-       f"(α = {o.alpha_point:g}, β0 = {o.beta0:g}, worst direction)",
+       f"(α = {o.alpha_point:g}, β0 = {o.beta0:g}, worst direction), ellipsoid95 the semi-axes of the displacement's "
+       f"95 % confidence ellipsoid",
         units={"point": "", "status": "", **{f"{c}_{_suffix(u)}": u for c in (
-            "dX", "dY", "dZ", "length", "sigma_dX", "sigma_dY", "sigma_dZ", "mdd", "X", "Y", "Z")}, "T": "", "p": ""},
+            "dX", "dY", "dZ", "length", "sigma_dX", "sigma_dY", "sigma_dZ", "mdd", "X", "Y", "Z",
+            "ellipsoid95_a1", "ellipsoid95_a2", "ellipsoid95_a3")}, "T": "", "p": ""},
         detail=False)
     moved_ids = [common[i] for i in r.moved] + [common[k] for k, s in enumerate(status)
                                                    if s == "moved" and k not in r.moved]
