@@ -14,8 +14,9 @@ import numpy as np
 
 from baarda.pipeline.adjustment import adjust
 from baarda.pipeline.api import AdjustmentError
-from baarda.pipeline.camera.convert import opencv_rms, opencv_style, pixel_source
+from baarda.pipeline.camera.convert import opencv_rms, opencv_style
 from baarda.pipeline.protocol import MOST_LABELS, rms, snapshot_protocol
+from baarda.pipeline.units import ImageUnits
 
 HIGH_CORRELATION = 0.9
 """|ρ| above which a pair of camera parameters is listed."""
@@ -31,12 +32,10 @@ PER_PHOTO_MOST = 30
 
 
 def image_units(block) -> tuple[str, float, str | None]:
-    """``(unit, scale from mm, pixel source)``: px for a pixel source with one pixel pitch, else µm."""
-    src = pixel_source(block)
-    pitch = np.asarray(block.cameras.pixel_mm, float)
-    if src and pitch.size and np.all(np.isfinite(pitch)) and np.all(pitch == pitch[0]) and pitch[0] > 0:
-        return "px", 1.0 / float(pitch[0]), src
-    return "µm", 1000.0, None
+    """``(unit, scale from mm, pixel source)``: px for a pixel source with one pixel pitch, else µm
+    (the first three fields of :class:`baarda.pipeline.units.ImageUnits`)."""
+    unit, scale, src, _ = ImageUnits.of(block)
+    return unit, scale, src
 
 
 AP_PIXEL_POWER = {

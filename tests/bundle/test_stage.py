@@ -23,7 +23,7 @@ def test_stage_runs_and_logs(tmp_path):
     assert abs(b.sigma0_hat - 1) < 0.15
     t = res.tables["observations"]
     assert len(t) == len(blk.observations)
-    assert {"vx", "wy", "mdb_x", "decision"} <= set(t.columns)
+    assert {"vx_um", "wy", "mdb_x_um", "decision"} <= set(t.columns)
     assert "Camera parameters" in res.report
     path = log_stage(BundleAdjustment, res, tmp_path / "bundle.rrd")
     from baarda.pipeline.recording import read_recording
