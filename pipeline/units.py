@@ -187,3 +187,17 @@ def length_suffix(unit: str) -> str:
     """Column-name suffix of a length unit text ("m" → "_m", "µm" → "_um", model units → "_mu")."""
     inv = {v: k for k, v in UNIT_SUFFIXES.items()}
     return "_" + inv.get(unit, "um" if unit == "um" else unit)
+
+
+def unit_mismatches(table) -> list[str]:
+    """Where a table's ``units`` and its column names disagree (docs/conventions.md, *Column names carry
+    their unit*): a column whose suffix says one unit and ``units`` another, a unit for a column without
+    that suffix, a unit for a column the table lacks.  Empty when they agree."""
+    out = []
+    units = dict(table.units)
+    for c in table.columns:
+        said, given = column_unit(c), units.get(c, "")
+        if said != given:
+            out.append(f"{c}: name says {said or 'no unit'!r}, units says {given or 'no unit'!r}")
+    out += [f"{c}: unit {u!r} for a column the table lacks" for c, u in units.items() if c not in table.columns]
+    return out
