@@ -63,7 +63,14 @@ def best_length_unit(value_in_m: float, *, allowed=("km", "m", "mm", "µm", "nm"
     return ladder[-1][0]
 
 
-def fmt_q(value: Any, unit: str, sig: int = 4, *, rescale: bool = True) -> str:
+def fmt_obj(value: Any, unit: str, sig: int = 4) -> str:
+    """An object-space length (coordinate, σ, check-point error) in ``unit`` as text: in m or mm by
+    size, as a surveyor writes it (``0.03980 mm``, not ``39.80 µm``); model units as given."""
+    return fmt_q(value, unit, sig, allowed=("km", "m", "mm"))
+
+
+def fmt_q(value: Any, unit: str, sig: int = 4, *, rescale: bool = True,
+          allowed=("km", "m", "mm", "µm", "nm")) -> str:
     """``value`` in ``unit`` as text with its unit, e.g. ``fmt_q(3.98e-5, "m") == "39.80 µm"``.
 
     Lengths (m, mm, µm, …) are re-expressed in the unit of :func:`best_length_unit` unless
@@ -78,7 +85,7 @@ def fmt_q(value: Any, unit: str, sig: int = 4, *, rescale: bool = True) -> str:
         return f"{value} {text_unit}".strip()
     if rescale and text_unit in LENGTH_UNITS and math.isfinite(f) and f != 0:
         metres = f * LENGTH_UNITS[text_unit]
-        text_unit = best_length_unit(metres)
+        text_unit = best_length_unit(metres, allowed=allowed)
         f = metres / LENGTH_UNITS[text_unit]
     number = fmt_num(f, sig)
     return f"{number} {text_unit}" if text_unit else number

@@ -16,7 +16,7 @@ from baarda.pipeline.adjustment import adjust
 from baarda.pipeline.api import AdjustmentError
 from baarda.pipeline.camera.convert import opencv_rms, opencv_style
 from baarda.pipeline.protocol import MOST_LABELS, rms, snapshot_protocol
-from baarda.pipeline.units import ImageUnits, fmt_q, object_unit_text
+from baarda.pipeline.units import ImageUnits, fmt_obj, fmt_q, object_unit_text
 
 HIGH_CORRELATION = 0.9
 """|ρ| above which a pair of camera parameters is listed."""
@@ -270,27 +270,27 @@ def protocol_lines(p: dict) -> list[str]:
     if pp:
         ou = pp["unit"]
         L.append(f"- point precision ({pp['n']} points): RMS σX σY σZ = "
-                 + " / ".join(fmt_q(x, ou) for x in pp["rms"]) + "; max " + " / ".join(
-                     f"{fmt_q(x, ou)} ({i})" for x, i in zip(pp["max"], pp["max_ids"])))
+                 + " / ".join(fmt_obj(x, ou) for x in pp["rms"]) + "; max " + " / ".join(
+                     f"{fmt_obj(x, ou)} ({i})" for x, i in zip(pp["max"], pp["max_ids"])))
     sb = p.get("scale_bars")
     if sb:
-        L.append(f"- scale bars ({len(sb['bars'])}): RMS of adjusted − measured {fmt_q(sb['rms'], sb['unit'])}; "
-                 + ", ".join(f"{b['from']}–{b['to']} {fmt_q(b['residual'], sb['unit'], 3)}" for b in sb["bars"][:6]))
+        L.append(f"- scale bars ({len(sb['bars'])}): RMS of adjusted − measured {fmt_obj(sb['rms'], sb['unit'])}; "
+                 + ", ".join(f"{b['from']}–{b['to']} {fmt_obj(b['residual'], sb['unit'], 3)}" for b in sb["bars"][:6]))
     c = p.get("control")
     if c and c.get("n"):
         L.append(f"- control ({c['n']} weighted points, adjusted − given): RMS "
-                 + " / ".join(fmt_q(x, c['unit']) for x in c["rms"]) + f"; largest {fmt_q(c['max_abs'], c['unit'])} at {c['max_id']}")
+                 + " / ".join(fmt_obj(x, c['unit']) for x in c["rms"]) + f"; largest {fmt_obj(c['max_abs'], c['unit'])} at {c['max_id']}")
     if c and c.get("n_fixed"):
         L.append(f"- fixed control points: {c['n_fixed']}")
     ch = p.get("check")
     if ch:
-        L.append(f"- check points ({ch['n']}): RMSE Sx {fmt_q(ch['Sx'], ch['unit'])}, Sy {fmt_q(ch['Sy'], ch['unit'])}, Sz {fmt_q(ch['Sz'], ch['unit'])}")
+        L.append(f"- check points ({ch['n']}): RMSE Sx {fmt_obj(ch['Sx'], ch['unit'])}, Sy {fmt_obj(ch['Sy'], ch['unit'])}, Sz {fmt_obj(ch['Sz'], ch['unit'])}")
     rel = p.get("reliability")
     if rel:
         L.append(f"- reliability: smallest redundancy number {_f(rel['r_min'], 3)} ({rel['r_min_label']}), mean "
                  f"{_f(rel['r_mean'], 3)}; {rel['n_uncontrolled']} uncontrolled coordinate(s); largest MDB "
                  f"{fmt_q(rel['mdb_max'], u)} ({rel['mdb_max_label']})"
-                 + (f", moving point {rel['effect_point']} by {fmt_q(rel['effect_max'], ou or p.get('object_unit', ''))}"
+                 + (f", moving point {rel['effect_point']} by {fmt_obj(rel['effect_max'], ou or p.get('object_unit', ''))}"
                     if rel.get("effect_max") is not None else ""))
     t = p.get("tests")
     if t:
