@@ -15,6 +15,7 @@ import numpy as np
 from baarda.pipeline.adjustment import calquality as cq
 from baarda.pipeline.camera.convert import pixel_source
 from baarda.pipeline.api import Context, Stage, StageResult, TableData, option
+from baarda.pipeline.units import fmt_obj, object_unit_text
 
 
 @dataclass(frozen=True)
@@ -73,6 +74,7 @@ class CalibrationQuality(Stage):
             # pixels for a pixel source (COLMAP, BAL, libmv, OpenCV targets), µm for one measured in mm
             # (a film or test-field camera, even with a nominal pitch): the units of the bundle's report
             unit, f = ("px", 1.0 / pix) if src and np.isfinite(pix) and pix > 0 else ("µm", 1000.0)
+            sfx = "px" if unit == "px" else "um"          # the unit in column names (docs/conventions.md)
             dist = options.distance or _working_distance(res, j)
             m = cq.projection_uncertainty(res, j, dist, nx=options.grid, frame=options.frame)
             mcam = m if options.frame == "camera" else cq.projection_uncertainty(res, j, dist, nx=options.grid,
@@ -87,8 +89,8 @@ class CalibrationQuality(Stage):
             if n_nan:
                 ctx.warn(f"camera {cid}: {n_nan} grid cells could not be unprojected (the distortion model folds "
                          "over or its inversion diverges there)")
-            cols = {"x_mm": m.xy[:, 0], "y_mm": m.xy[:, 1], f"sigma_{unit}": s.ravel(),
-                    f"sigma_camera_{unit}": mcam.sigma.ravel() * f,
+            cols = {"x_mm": m.xy[:, 0], "y_mm": m.xy[:, 1], f"sigma_{sfx}": s.ravel(),
+                    f"sigma_camera_{sfx}": mcam.sigma.ravel() * f,
                     "cov_xx_mm2": m.cov[:, 0, 0], "cov_xy_mm2": m.cov[:, 0, 1], "cov_yy_mm2": m.cov[:, 1, 1]}
             cv = None
             if options.cross_validation:
@@ -103,12 +105,12 @@ class CalibrationQuality(Stage):
                         raise
                     ctx.warn(f"camera {cid}: cross-validation: a half could not be adjusted: {e}")
             if cv is not None:
-                cols.update({f"cv_dx_{unit}": cv.diff[..., 0].ravel() * f, f"cv_dy_{unit}": cv.diff[..., 1].ravel() * f,
-                             f"cv_diff_{unit}": cv.norm.ravel() * f, f"cv_sigma_pred_{unit}": cv.sigma_pred.ravel() * f,
+                cols.update({f"cv_dx_{sfx}": cv.diff[..., 0].ravel() * f, f"cv_dy_{sfx}": cv.diff[..., 1].ravel() * f,
+                             f"cv_diff_{sfx}": cv.norm.ravel() * f, f"cv_sigma_pred_{sfx}": cv.sigma_pred.ravel() * f,
                              "cv_ratio": cv.ratio.ravel(), "cv_mahalanobis2": cv.mahalanobis2.ravel(),
-                             f"cv_fit_dx_{unit}": cv.diff_fit[..., 0].ravel() * f,
-                             f"cv_fit_dy_{unit}": cv.diff_fit[..., 1].ravel() * f,
-                             f"cv_fit_sigma_pred_{unit}": cv.sigma_fit.ravel() * f,
+                             f"cv_fit_dx_{sfx}": cv.diff_fit[..., 0].ravel() * f,
+                             f"cv_fit_dy_{sfx}": cv.diff_fit[..., 1].ravel() * f,
+                             f"cv_fit_sigma_pred_{sfx}": cv.sigma_fit.ravel() * f,
                              "cv_fit_ratio": cv.ratio_fit.ravel(), "cv_fit_mahalanobis2": cv.mahalanobis2_fit.ravel()})
                 cs["cross_validation"] = {
                     "split": options.split, "photos": [len(cv.photos[0]), len(cv.photos[1])],
@@ -124,7 +126,7 @@ class CalibrationQuality(Stage):
             tables[f"map_{cid}"] = TableData(cols)
             summary["cameras"][cid] = cs
             out[cid] = {"map": m, "camera_only": mcam, "cv": cv, "unit": unit, "factor": f}
-            lines.append(f"- camera **{cid}**: σ of the projection at {dist:.4g} ({options.frame}, {m.n_photos} "
+            lines.append(f"- camera **{cid}**: σ of the projection at {fmt_obj(dist, object_unit_text(res.block_in))} ({options.frame}, {m.n_photos} "
                          f"photos): centre {cs['sigma_centre']:.3f} {unit}, corners "
                          f"{', '.join(f'{v:.3f}' for v in cs['sigma_corners'])} {unit}, worst {cs['sigma_worst']:.3f}"
                          f" {unit}; camera parameters alone: centre {cs['sigma_camera_only_centre']:.3f} {unit}.")
