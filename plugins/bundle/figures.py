@@ -14,6 +14,7 @@ from baarda.pipeline.camera import get_ap_model
 from baarda.pipeline.plots import map_ticks, redundancy_numbers, role_points, w_distribution
 
 from .protocol import image_units
+from baarda.pipeline.units import fmt_obj, fmt_q, object_unit_text
 
 MAX_DISTORTION_CAMERAS = 4
 """Cameras whose distortion is drawn (most image points first; a COLMAP block may have dozens)."""
@@ -86,13 +87,13 @@ def residual_vectors(res, decision=None, images: dict | None = None):
         if fw > 0:
             ax.add_patch(plt.Rectangle((-fw / 2, -fh / 2), fw, fh, fill=False, ec="#999", lw=0.8))
         rm = np.sqrt(np.mean(v[m] ** 2)) * scale
-        ax.set_title(f"photo {block.photos.ids[p]}: RMS {rm:.3g} {unit}", fontsize=9)
+        ax.set_title(f"photo {block.photos.ids[p]}: RMS {fmt_q(rm, unit, 3)}", fontsize=9)
         ax.set_aspect("equal")
         ax.tick_params(labelsize=7)
     for ax in axes.ravel()[n:]:
         ax.axis("off")
     fig.suptitle(f"Image residuals (observed − computed) over the format ({'px' if unit == 'px' else 'mm'}, y up); an arrow of "
-                 f"{0.08 * 100:.0f} % of the format is {vmax * scale:.3g} {unit} (95th percentile); red: flagged/rejected",
+                 f"{0.08 * 100:.0f} % of the format is {fmt_q(vmax * scale, unit, 3)} (95th percentile); red: flagged/rejected",
                  fontsize=10)
     fig.tight_layout()
     return fig
@@ -130,12 +131,12 @@ def network(res):
         ax.add_collection(LineCollection(segs, colors="#28a0a0", linewidths=0.6))   # the recordings' ellipsoid colour
         ax.set_aspect("equal", adjustable="datalim")
         ax.set_title(name, fontsize=10)
-        ax.set_xlabel(f"{'XYZ'[i]} ({block.object_unit})")
-        ax.set_ylabel(f"{'XYZ'[j]} ({block.object_unit})")
+        ax.set_xlabel(f"{'XYZ'[i]} ({object_unit_text(block)})")
+        ax.set_ylabel(f"{'XYZ'[j]} ({object_unit_text(block)})")
         map_ticks(ax, np.r_[XYZ[used, i], X0[:, i]])
         ax.tick_params(labelsize=8)
     axes[0].legend(fontsize=7, loc="best")
-    fig.suptitle(f"Network; standard error ellipses × {k:.3g} (largest σ {smax:.3g} {block.object_unit})", fontsize=10)
+    fig.suptitle(f"Network; standard error ellipses × {k:.3g} (largest σ {fmt_obj(smax, object_unit_text(block), 3)})", fontsize=10)
     fig.tight_layout()
     return fig
 
@@ -247,7 +248,7 @@ def distortion(res, j: int, n: int = 60):
     cs = b.contourf(g * X, g * Y, np.hypot(sx, sy).reshape(X.shape), levels=10, cmap="Oranges", alpha=0.5)
     fig.colorbar(cs, ax=b, label=f"σ of the distortion ({unit})")
     b.set_aspect("equal")
-    b.set_title(f"field over the format ({gu}); longest arrow {mag.max():.3g} {unit}", fontsize=10)
+    b.set_title(f"field over the format ({gu}); longest arrow {fmt_q(mag.max(), unit, 3)}", fontsize=10)
     fig.tight_layout()
     return fig
 
