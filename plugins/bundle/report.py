@@ -455,9 +455,9 @@ def tables(rep) -> dict:
     for t, n in enumerate(EO_NAMES):
         val = X0[:, t] if t < 3 else np.degrees(opk[:, t - 3])
         sd = se[:, t] if t < 3 else np.degrees(se[:, t])
-        cols[n + ("" if t < 3 else "_deg")] = val
-        cols["s" + n + ("" if t < 3 else "_deg")] = sd
-    tables["eo"] = TableData(cols, "exterior orientation with a-posteriori σ (angles in degrees)")
+        cols[n + (o if t < 3 else "_deg")] = val
+        cols["s" + n + (o if t < 3 else "_deg")] = sd
+    tables["eo"] = TableData(cols, f"exterior orientation with a-posteriori σ (centres in {ou}, angles in degrees)")
     corr_rows = []
     for j in range(len(block.cameras)):
         R = res.correlation_camera(j)
