@@ -16,7 +16,7 @@ from baarda.pipeline.report import markdown_table
 
 from . import external as bundle_external
 from .protocol import bundle_protocol, camera_rows, image_units, protocol_lines
-from baarda.pipeline.units import ImageUnits, column_unit, length_suffix, object_unit_text
+from baarda.pipeline.units import ImageUnits, column_unit, fmt_obj, length_suffix, object_unit_text
 
 
 def _crs_columns(res: BundleResult, block: Block) -> dict:
@@ -133,9 +133,9 @@ def report_text(rep, work=None, protocol=None) -> str:
     L.extend(_ids_lines(rep))
     L.extend(_robust_lines(rep.robust))
     if res.check:
-        c = res.check
-        L.append(f"- check points ({c.n}, adjusted − surveyed): Sx = {_f(c.Sx)}, Sy = {_f(c.Sy)}, "
-                 f"Sxy = {_f(c.Sxy)}, Sz = {_f(c.Sz)} ({block.object_unit})")
+        c, ou = res.check, object_unit_text(block)
+        L.append(f"- check points ({c.n}, adjusted − surveyed): Sx = {fmt_obj(c.Sx, ou)}, "
+                 f"Sy = {fmt_obj(c.Sy, ou)}, Sxy = {fmt_obj(c.Sxy, ou)}, Sz = {fmt_obj(c.Sz, ou)}")
     t = res.timings
     w = work
     if w is not None and w.adjustments > 1:
