@@ -63,6 +63,8 @@ class TableData:
         lengths = {k: len(v) for k, v in self.columns.items()}
         if len(set(lengths.values())) > 1:
             raise ValueError(f"TableData columns of unequal length: {lengths}")
+        from .units import column_unit        # a column's unit from its name's suffix where not given
+        self.units = {**{c: column_unit(c) for c in self.columns}, **dict(self.units)}
 
     def __len__(self):
         return len(next(iter(self.columns.values()))) if self.columns else 0

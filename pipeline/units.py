@@ -12,7 +12,9 @@ for the size of the value (``39.8 µm`` rather than ``3.98e-05 m``).
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, NamedTuple
+
+import numpy as np
 
 LENGTH_UNITS = {"m": 1.0, "mm": 1e-3, "µm": 1e-6, "um": 1e-6, "nm": 1e-9, "km": 1e3}
 """Length units → metres."""
@@ -61,7 +63,14 @@ def best_length_unit(value_in_m: float, *, allowed=("km", "m", "mm", "µm", "nm"
     return ladder[-1][0]
 
 
-def fmt_q(value: Any, unit: str, sig: int = 4, *, rescale: bool = True) -> str:
+def fmt_obj(value: Any, unit: str, sig: int = 4) -> str:
+    """An object-space length (coordinate, σ, check-point error) in ``unit`` as text: in m or mm by
+    size, as a surveyor writes it (``0.03980 mm``, not ``39.80 µm``); model units as given."""
+    return fmt_q(value, unit, sig, allowed=("km", "m", "mm"))
+
+
+def fmt_q(value: Any, unit: str, sig: int = 4, *, rescale: bool = True,
+          allowed=("km", "m", "mm", "µm", "nm")) -> str:
     """``value`` in ``unit`` as text with its unit, e.g. ``fmt_q(3.98e-5, "m") == "39.80 µm"``.
 
     Lengths (m, mm, µm, …) are re-expressed in the unit of :func:`best_length_unit` unless
@@ -76,7 +85,126 @@ def fmt_q(value: Any, unit: str, sig: int = 4, *, rescale: bool = True) -> str:
         return f"{value} {text_unit}".strip()
     if rescale and text_unit in LENGTH_UNITS and math.isfinite(f) and f != 0:
         metres = f * LENGTH_UNITS[text_unit]
-        text_unit = best_length_unit(metres)
+        text_unit = best_length_unit(metres, allowed=allowed)
         f = metres / LENGTH_UNITS[text_unit]
     number = fmt_num(f, sig)
     return f"{number} {text_unit}" if text_unit else number
+
+
+MODEL_UNITS = "model units"
+"""Unit text of object coordinates of arbitrary scale (a COLMAP or BAL model without control points
+or CRS): the adjustment's own length unit, not metres (docs/conventions.md)."""
+
+_CONVENTION = {"COLMAP": "colmap", "OpenCV": "opencv", "libmv": "opencv", "BAL": "bal"}
+"""Pixel source → pixel convention of its u, v (docs/conventions.md, *Pixels ↔ mm*)."""
+
+
+class ImageUnits(NamedTuple):
+    """How a block's image measurements are shown: ``unit`` "px" for a pixel source (one pixel pitch
+    for all cameras) else "µm"; ``scale`` internal mm → ``unit`` for differences (residuals, σ, MDB,
+    ∇̂: 1/pitch or 1000); ``source`` the pixel source's name (None for a metric source);
+    ``convention`` of its pixel coordinates ("opencv", "colmap", "bal"; None for metric).
+
+    A tuple, so ``unit, scale, source = image_units(block)[:3]`` reads as the old triple did.
+    Note y is up in mm and down in px (opencv/colmap): :meth:`diff` flips the sign of a y difference
+    when ``flip_y`` is asked for (residual v_y in mm → v in px)."""
+
+    unit: str
+    scale: float
+    source: str | None
+    convention: str | None = None
+
+    @classmethod
+    def of(cls, block) -> "ImageUnits":
+        src = block.source.pixel_format
+        pitch = np.asarray(block.cameras.pixel_mm, float)
+        if src and pitch.size and np.all(np.isfinite(pitch)) and np.all(pitch == pitch[0]) and pitch[0] > 0:
+            return cls("px", 1.0 / float(pitch[0]), src, _CONVENTION.get(src, "opencv"))
+        return cls("µm", 1000.0, None, None)
+
+    @property
+    def is_pixels(self) -> bool:
+        return self.unit == "px"
+
+    @property
+    def suffix(self) -> str:
+        """Column-name suffix of the unit: ``_px`` or ``_um``."""
+        return "_px" if self.is_pixels else "_um"
+
+    def diff(self, xy_mm, flip_y: bool = False) -> np.ndarray:
+        """Differences (residuals, σ, MDB, ∇̂) in mm → ``unit`` (array of any shape; with
+        ``flip_y`` the last axis is (x, y) and y changes sign for pixels, whose v points down)."""
+        a = np.asarray(xy_mm, float) * self.scale
+        if flip_y and self.is_pixels and self.convention != "bal":
+            a = a.copy()
+            a[..., 1] *= -1.0
+        return a
+
+    def coordinates(self, block, xy_mm, photo) -> np.ndarray:
+        """Image coordinates ``(n, 2)`` in mm of photos ``photo (n,)`` → pixel coordinates (u, v) in
+        the source's convention; for a metric source the mm values unchanged."""
+        xy = np.asarray(xy_mm, float)
+        if not self.is_pixels:
+            return xy
+        cam = np.asarray(block.photos.camera)[np.asarray(photo, int)]
+        pitch = np.asarray(block.cameras.pixel_mm, float)[cam]
+        if self.convention == "bal":
+            return xy / pitch[:, None]
+        from .geometry.image import pixels_from_mm
+        size = np.asarray(block.cameras.resolution, float)[cam]
+        return pixels_from_mm(xy, size, pitch, self.convention)
+
+
+def image_units(block) -> ImageUnits:
+    """:class:`ImageUnits` of ``block`` (px for a pixel source, else µm)."""
+    return ImageUnits.of(block)
+
+
+def object_unit_text(block) -> str:
+    """Unit text of the block's object coordinates: its ``object_unit`` ("m", "mm"), or
+    :data:`MODEL_UNITS` for a pixel source without control points or CRS (arbitrary scale)."""
+    unit = getattr(block, "object_unit", "m") or "m"
+    if block.source.pixel_format and not _has_datum(block):
+        return MODEL_UNITS
+    return unit
+
+
+def _has_datum(block) -> bool:
+    role = np.asarray(block.points.role)
+    if np.isin(role, ("full", "xy", "z", "check")).any():
+        return True
+    return getattr(block, "crs", None) is not None
+
+
+UNIT_SUFFIXES = {"px": "px", "um": "µm", "mm": "mm", "m": "m", "deg": "deg", "rad": "rad", "gon": "gon",
+                 "s": "s", "mm2": "mm²", "px2": "px²", "mu": MODEL_UNITS}
+"""Column-name suffix → unit text (docs/conventions.md, *Column names carry their unit*): ``x_px``,
+``vx_um``, ``X_m``, ``sX_mm``, ``omega_deg``; ``_mu`` marks model units (arbitrary scale)."""
+
+
+def column_unit(name: str) -> str:
+    """The unit a column name's suffix says (``"vx_um"`` → ``"µm"``); "" for a name without one."""
+    tail = str(name).rsplit("_", 1)
+    if len(tail) == 2 and tail[0] and tail[1] in UNIT_SUFFIXES:
+        return UNIT_SUFFIXES[tail[1]]
+    return ""
+
+
+def length_suffix(unit: str) -> str:
+    """Column-name suffix of a length unit text ("m" → "_m", "µm" → "_um", model units → "_mu")."""
+    inv = {v: k for k, v in UNIT_SUFFIXES.items()}
+    return "_" + inv.get(unit, "um" if unit == "um" else unit)
+
+
+def unit_mismatches(table) -> list[str]:
+    """Where a table's ``units`` and its column names disagree (docs/conventions.md, *Column names carry
+    their unit*): a column whose suffix says one unit and ``units`` another, a unit for a column without
+    that suffix, a unit for a column the table lacks.  Empty when they agree."""
+    out = []
+    units = dict(table.units)
+    for c in table.columns:
+        said, given = column_unit(c), units.get(c, "")
+        if said != given:
+            out.append(f"{c}: name says {said or 'no unit'!r}, units says {given or 'no unit'!r}")
+    out += [f"{c}: unit {u!r} for a column the table lacks" for c, u in units.items() if c not in table.columns]
+    return out

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from baarda.pipeline.api import Context, InputError, SourceStage, Stage, StageResult, TableData, option
+from baarda.pipeline.units import length_suffix
 from baarda.pipeline.report import markdown_table
 
 from .reader import (AP_NAMES, VENDOR_FREE_AP, AiconExported, AiconInfo, aicon_block, perturb_initial_values,
@@ -160,18 +161,19 @@ def _report(block, exported, options) -> str:
 def _tables(block) -> dict:
     ph = block.photos
     obs = block.observations
+    o = length_suffix(block.object_unit)
     photos = TableData({
         "photo": ph.ids.tolist(), "camera": block.cameras.ids[ph.camera].tolist(),
-        "X0": ph.X0[:, 0], "Y0": ph.X0[:, 1], "Z0": ph.X0[:, 2],
+        **{f"{a}0{o}": ph.X0[:, i] for i, a in enumerate("XYZ")},
         "omega_deg": np.rad2deg(ph.opk[:, 0]), "phi_deg": np.rad2deg(ph.opk[:, 1]),
         "kappa_deg": np.rad2deg(ph.opk[:, 2]),
         "measurements": np.bincount(obs.photo, minlength=len(ph)),
         "active": np.bincount(obs.photo, weights=obs.active, minlength=len(ph)).astype(int),
-    }, "images: initial exterior orientation (mm, degrees) and measurement counts")
+    }, f"images: initial exterior orientation ({block.object_unit}, degrees) and measurement counts")
     pts = block.points
     points = TableData({
-        "point": pts.ids.tolist(), "X": pts.XYZ[:, 0], "Y": pts.XYZ[:, 1], "Z": pts.XYZ[:, 2],
+        "point": pts.ids.tolist(), **{f"{a}{o}": pts.XYZ[:, i] for i, a in enumerate("XYZ")},
         "rays": np.bincount(obs.point, minlength=len(pts)),
         "active_rays": np.bincount(obs.point, weights=obs.active, minlength=len(pts)).astype(int),
-    }, "object points: initial coordinates (mm) and measurement counts", detail=True)
+    }, f"object points: initial coordinates ({block.object_unit}) and measurement counts", detail=True)
     return {"photos": photos, "points": points}

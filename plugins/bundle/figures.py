@@ -13,10 +13,10 @@ from baarda.pipeline.camera import get_ap_model
 
 from baarda.pipeline.plots import (BIG, MAP_CELLS, integer_ticks, map_ticks, mark_outside, plain_ticks, redundancy_numbers,
                                    robust_limits, role_points, value_map, w_distribution)
-from baarda.pipeline.units import fmt_q
 
 
 from .protocol import image_units
+from baarda.pipeline.units import fmt_obj, fmt_q, object_unit_text
 
 MAX_DISTORTION_CAMERAS = 2
 """Cameras whose distortion is drawn (most image points first; a COLMAP block may have dozens)."""
@@ -101,14 +101,14 @@ def residual_vectors(res, decision=None, images: dict | None = None):
             ax.add_patch(plt.Rectangle((-fw / 2, -fh / 2), fw, fh, fill=False, ec="#999", lw=0.8))
         um = used[obs.photo == p]
         rm = np.sqrt(np.mean(v[obs.photo == p][um] ** 2)) * scale if um.any() else float("nan")
-        ax.set_title(f"photo {block.photos.ids[p]}: RMS {fmt_q(rm, unit)}"
+        ax.set_title(f"photo {block.photos.ids[p]}: RMS {fmt_q(rm, unit, 3)}"
                      + (f" ({len(xy)} of {n_all} arrows)" if len(xy) < n_all else ""), fontsize=9)
         ax.set_aspect("equal")
         ax.tick_params(labelsize=7)
     for ax in axes.ravel()[n:]:
         ax.axis("off")
     fig.suptitle(f"Image residuals (observed − computed) over the format ({'px' if unit == 'px' else 'mm'}, y up); an arrow of "
-                 f"{0.08 * 100:.0f} % of the format is {vmax * scale:.3g} {unit} (95th percentile); red: flagged/rejected",
+                 f"{0.08 * 100:.0f} % of the format is {fmt_q(vmax * scale, unit, 3)} (95th percentile); red: flagged/rejected",
                  fontsize=10)
     fig.tight_layout()
     return fig
@@ -162,17 +162,17 @@ def network(res):
         mark_outside(ax, XYZ[used, i], XYZ[used, j], lims[i], lims[j], label="points beyond the axes (at the edge)")
         ax.set_aspect("equal", adjustable="box")
         ax.set_title(name, fontsize=10)
-        ax.set_xlabel(f"{'XYZ'[i]} ({ou})")
-        ax.set_ylabel(f"{'XYZ'[j]} ({ou})")
+        ax.set_xlabel(f"{'XYZ'[i]} ({object_unit_text(block)})")
+        ax.set_ylabel(f"{'XYZ'[j]} ({object_unit_text(block)})")
         map_ticks(ax, np.r_[XYZ[used, i], X0[:, i]])
         ax.tick_params(labelsize=8)
     axes[0].legend(fontsize=7, loc="best")
     if k > 0 and not big:
-        head = (f"standard error ellipses × {k:.3g} (σ: 95th percentile {fmt_q(s95, ou, 3)}, "
-                f"largest {fmt_q(smax, ou, 3)})")
+        head = (f"standard error ellipses × {k:.3g} (σ: 95th percentile {fmt_obj(s95, object_unit_text(block), 3)}, "
+                f"largest {fmt_obj(smax, object_unit_text(block), 3)})")
     elif k > 0:
-        head = (f"point density ({int(used.sum())} points); σ: 95th percentile {fmt_q(s95, ou, 3)}, "
-                f"largest {fmt_q(smax, ou, 3)} (every σ in bundle_points.csv)")
+        head = (f"point density ({int(used.sum())} points); σ: 95th percentile {fmt_obj(s95, object_unit_text(block), 3)}, "
+                f"largest {fmt_obj(smax, object_unit_text(block), 3)} (every σ in bundle_points.csv)")
     else:
         head = "no standard errors of the points (covariance not computed)"
     fig.suptitle(f"Network; {head}", fontsize=10)
@@ -313,7 +313,7 @@ def distortion(res, j: int, n: int = 60):
     cs = b.contourf(g * X, g * Y, np.hypot(sx, sy).reshape(X.shape), levels=10, cmap="Oranges", alpha=0.5)
     fig.colorbar(cs, ax=b, label=f"σ of the distortion ({unit})")
     b.set_aspect("equal")
-    b.set_title(f"field over the format ({gu}); longest arrow {mag.max():.3g} {unit}", fontsize=10)
+    b.set_title(f"field over the format ({gu}); longest arrow {fmt_q(mag.max(), unit, 3)}", fontsize=10)
     fig.tight_layout()
     return fig
 

@@ -14,8 +14,9 @@ import numpy as np
 
 from baarda.pipeline.adjustment import adjust
 from baarda.pipeline.api import AdjustmentError
-from baarda.pipeline.camera.convert import opencv_rms, opencv_style, pixel_source
+from baarda.pipeline.camera.convert import opencv_rms, opencv_style
 from baarda.pipeline.protocol import MOST_LABELS, rms, snapshot_protocol
+from baarda.pipeline.units import ImageUnits, fmt_obj, fmt_q, object_unit_text
 
 HIGH_CORRELATION = 0.9
 """|ρ| above which a pair of camera parameters is listed."""
@@ -33,12 +34,10 @@ number of cameras in ``rms_per_camera`` (largest RMS first) and ``cameras`` (in 
 
 
 def image_units(block) -> tuple[str, float, str | None]:
-    """``(unit, scale from mm, pixel source)``: px for a pixel source with one pixel pitch, else µm."""
-    src = pixel_source(block)
-    pitch = np.asarray(block.cameras.pixel_mm, float)
-    if src and pitch.size and np.all(np.isfinite(pitch)) and np.all(pitch == pitch[0]) and pitch[0] > 0:
-        return "px", 1.0 / float(pitch[0]), src
-    return "µm", 1000.0, None
+    """``(unit, scale from mm, pixel source)``: px for a pixel source with one pixel pitch, else µm
+    (the first three fields of :class:`baarda.pipeline.units.ImageUnits`)."""
+    unit, scale, src, _ = ImageUnits.of(block)
+    return unit, scale, src
 
 
 AP_PIXEL_POWER = {
@@ -118,6 +117,7 @@ def bundle_protocol(res, rejections=None, *, alpha0: float, beta0: float,
     else:
         out = {"adjustment": "bundle", "sigma0": float(res.sigma0), "sigma0_hat": float(res.sigma0_hat),
                "dof": int(res.dof), "unit": unit}
+    out["object_unit"] = object_unit_text(block)
     out["kind"] = "bundle"
     out["source_units"] = "px" if src else "mm"
     if src:
@@ -142,7 +142,7 @@ def bundle_protocol(res, rejections=None, *, alpha0: float, beta0: float,
     # object points: a-posteriori precision
     pts = block.points
     sp = res.point_sigmas()
-    ou = block.object_unit
+    ou = object_unit_text(block)
     est = res.point_used & np.all(np.isfinite(sp), axis=1) & (sp.sum(axis=1) > 0)
     if est.any():
         s = sp[est]
@@ -263,8 +263,8 @@ def protocol_lines(p: dict) -> list[str]:
     L = ["", "### Protocol summary", ""]
     r = p.get("rms")
     if r:
-        L.append(f"- RMS image residuals ({r['n']} image points): x {_f(r['x'])} {u}, y {_f(r['y'])} {u}, "
-                 f"all coordinates {_f(r['all'])} {u}"
+        L.append(f"- RMS image residuals ({r['n']} image points): x {fmt_q(r['x'], u)}, y {fmt_q(r['y'], u)}, "
+                 f"all coordinates {fmt_q(r['all'], u)}"
                  + (f"; OpenCV's RMS re-projection error (√(Σ|v|²/points)) {_f(p['opencv_rms_px'])} px"
                     if "opencv_rms_px" in p else ""))
         cams = p.get("rms_per_camera", [])
@@ -272,37 +272,38 @@ def protocol_lines(p: dict) -> list[str]:
         if n_cams > 1:
             worst = sorted(cams, key=lambda c: -c["all"])[:MOST_CAMERA_LINES]
             L.append(f"  - per camera{' (largest ' + str(len(worst)) + ' of ' + str(n_cams) + ')' if n_cams > len(worst) else ''}: "
-                     + ", ".join(f"{c['id']} {_f(c['all'])} {u} ({c['n']})" for c in worst))
+                     + ", ".join(f"{c['id']} {fmt_q(c['all'], u)} ({c['n']})" for c in worst))
         worst = p.get("rms_per_photo", [])[:3]
         if worst:
             L.append(f"  - largest per photo (of {p['n_photos']}): "
-                     + ", ".join(f"{w['id']} {_f(w['all'])} {u}" for w in worst))
+                     + ", ".join(f"{w['id']} {fmt_q(w['all'], u)}" for w in worst))
     pp = p.get("point_precision")
     if pp:
         ou = pp["unit"]
-        L.append(f"- point precision ({pp['n']} points, {ou}): RMS σX σY σZ = "
-                 + " / ".join(_f(x) for x in pp["rms"]) + "; max " + " / ".join(
-                     f"{_f(x)} ({i})" for x, i in zip(pp["max"], pp["max_ids"])))
+        L.append(f"- point precision ({pp['n']} points): RMS σX σY σZ = "
+                 + " / ".join(fmt_obj(x, ou) for x in pp["rms"]) + "; max " + " / ".join(
+                     f"{fmt_obj(x, ou)} ({i})" for x, i in zip(pp["max"], pp["max_ids"])))
     sb = p.get("scale_bars")
     if sb:
-        L.append(f"- scale bars ({len(sb['bars'])}): RMS of adjusted − measured {_f(sb['rms'])} {sb['unit']}; "
-                 + ", ".join(f"{b['from']}–{b['to']} {_f(b['residual'], 3)}" for b in sb["bars"][:6]))
+        L.append(f"- scale bars ({len(sb['bars'])}): RMS of adjusted − measured {fmt_obj(sb['rms'], sb['unit'])}; "
+                 + ", ".join(f"{b['from']}–{b['to']} {fmt_obj(b['residual'], sb['unit'], 3)}" for b in sb["bars"][:6]))
     c = p.get("control")
     if c and c.get("n"):
-        L.append(f"- control ({c['n']} weighted points, adjusted − given, {c['unit']}): RMS "
-                 + " / ".join(_f(x) for x in c["rms"]) + f"; largest coordinate difference {_f(c['max_abs'])} at {c['max_id']}"
-                 + (f" (its 3-D length {_f(c['max_3d'])})" if "max_3d" in c else ""))
+        L.append(f"- control ({c['n']} weighted points, adjusted − given): RMS "
+                 + " / ".join(fmt_obj(x, c['unit']) for x in c["rms"])
+                 + f"; largest coordinate difference {fmt_obj(c['max_abs'], c['unit'])} at {c['max_id']}"
+                 + (f" (its 3-D length {fmt_obj(c['max_3d'], c['unit'])})" if "max_3d" in c else ""))
     if c and c.get("n_fixed"):
         L.append(f"- fixed control points: {c['n_fixed']}")
     ch = p.get("check")
     if ch:
-        L.append(f"- check points ({ch['n']}): RMSE Sx {_f(ch['Sx'])}, Sy {_f(ch['Sy'])}, Sz {_f(ch['Sz'])} {ch['unit']}")
+        L.append(f"- check points ({ch['n']}): RMSE Sx {fmt_obj(ch['Sx'], ch['unit'])}, Sy {fmt_obj(ch['Sy'], ch['unit'])}, Sz {fmt_obj(ch['Sz'], ch['unit'])}")
     rel = p.get("reliability")
     if rel:
         L.append(f"- reliability: smallest redundancy number {_f(rel['r_min'], 3)} ({rel['r_min_label']}), mean "
                  f"{_f(rel['r_mean'], 3)}; {rel['n_uncontrolled']} uncontrolled coordinate(s); largest MDB "
-                 f"{_f(rel['mdb_max'])} {u} ({rel['mdb_max_label']})"
-                 + (f", moving point {rel['effect_point']} by {_f(rel['effect_max'])} {ou or ''}"
+                 f"{fmt_q(rel['mdb_max'], u)} ({rel['mdb_max_label']})"
+                 + (f", moving point {rel['effect_point']} by {fmt_obj(rel['effect_max'], ou or p.get('object_unit', ''))}"
                     if rel.get("effect_max") is not None else ""))
     t = p.get("tests")
     if t:

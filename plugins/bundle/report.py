@@ -18,6 +18,7 @@ from baarda.pipeline.report import cap_text, markdown_table
 
 from . import external as bundle_external
 from .protocol import bundle_protocol, camera_rows, image_units, protocol_lines
+from baarda.pipeline.units import ImageUnits, column_unit, fmt_obj, length_suffix, object_unit_text
 
 
 def _crs_columns(res: BundleResult, block: Block) -> dict:
@@ -134,9 +135,9 @@ def report_text(rep, work=None, protocol=None) -> str:
     L.extend(_ids_lines(rep))
     L.extend(_robust_lines(rep.robust))
     if res.check:
-        c = res.check
-        L.append(f"- check points ({c.n}, adjusted − surveyed): Sx = {_f(c.Sx)}, Sy = {_f(c.Sy)}, "
-                 f"Sxy = {_f(c.Sxy)}, Sz = {_f(c.Sz)} ({block.object_unit})")
+        c, ou = res.check, object_unit_text(block)
+        L.append(f"- check points ({c.n}, adjusted − surveyed): Sx = {fmt_obj(c.Sx, ou)}, "
+                 f"Sy = {fmt_obj(c.Sy, ou)}, Sxy = {fmt_obj(c.Sxy, ou)}, Sz = {fmt_obj(c.Sz, ou)}")
     t = res.timings
     w = work
     if w is not None and w.adjustments > 1:
@@ -404,14 +405,24 @@ def _joint_columns(jt, k: int) -> dict:
     return {"T2d": T, "T2d_critical": crit, "T2d_flagged": flag.tolist()}
 
 
-def _pixel_columns(units, v, nab, mdbs) -> dict:
-    """For a pixel source: residuals, estimated errors and MDBs of each image point in px (the mm
-    columns stay: they are the adjustment's own numbers)."""
-    if units[0] != "px":
-        return {}
-    k = units[1]
-    return {"vx_px": k * v[:, 0], "vy_px": k * v[:, 1], "nabla_x_px": k * nab[:, 0], "nabla_y_px": k * nab[:, 1],
-            "mdb_x_px": k * mdbs[:, 0], "mdb_y_px": k * mdbs[:, 1]}
+def _image_columns(block, iu, v, nab, mdbs) -> tuple[dict, dict]:
+    """Image coordinates (mm; for a pixel source also the pixel coordinates x_px, y_px = u, v in the
+    source's convention) and residuals, estimated errors and MDBs in µm (metric source) or px (pixel
+    source, y along the pixel rows: down, so its sign is that of −y in mm).  ``(columns, units)``."""
+    obs = block.observations
+    s = iu.suffix
+    cols = {"x_mm": obs.xy[:, 0], "y_mm": obs.xy[:, 1]}
+    if iu.is_pixels:
+        uv = iu.coordinates(block, obs.xy, obs.photo)
+        cols.update({"x_px": uv[:, 0], "y_px": uv[:, 1]})
+    dv, dn, dm = iu.diff(v, flip_y=True), iu.diff(nab, flip_y=True), iu.diff(mdbs)
+    cols.update({f"vx{s}": dv[:, 0], f"vy{s}": dv[:, 1]})
+    return cols, {f"nabla_x{s}": dn[:, 0], f"nabla_y{s}": dn[:, 1], f"mdb_x{s}": dm[:, 0], f"mdb_y{s}": dm[:, 1]}
+
+
+def units_from_suffix(columns) -> dict:
+    """Each column's unit from its name's suffix (docs/conventions.md, *Column names*); "" for none."""
+    return {c: column_unit(c) for c in columns}
 
 
 def tables(rep) -> dict:
@@ -431,37 +442,43 @@ def tables(rep) -> dict:
     else:
         w = mdbs = nab = np.full((len(obs), 2), np.nan)
     tables = {}
-    tables["observations"] = TableData({
-        "photo": ph_ids.tolist(), "point": pt_ids.tolist(), "x": obs.xy[:, 0], "y": obs.xy[:, 1],
-        "vx": v[:, 0], "vy": v[:, 1], "rx": r[:, 0], "ry": r[:, 1], "wx": w[:, 0], "wy": w[:, 1],
-        "nabla_x": nab[:, 0], "nabla_y": nab[:, 1], "mdb_x": mdbs[:, 0], "mdb_y": mdbs[:, 1],
-        **_pixel_columns(units, v, nab, mdbs),
-        **_joint_columns(rep.joint, len(obs)),
-        **bundle_external.observation_columns(bundle_external.external_view(rep), len(obs)),
-        **_robust_columns(rep.robust, len(obs)),
-        "decision": decision.tolist()},
-        "every image observation: residual (mm), redundancy, w-test, MDB (mm)"
-        + (f"; the same in pixels ({units[2]} source): *_px" if units[0] == "px" else "")
-        + ", 2-D test of the point (χ²(2)), "
-        "largest effect of each MDB on its own point / photo (ext_*: object units, degrees, in σ), δ̄0")
+    iu = ImageUnits.of(block)
+    img, img_tests = _image_columns(block, iu, v, nab, mdbs)
+    cols = {"photo": ph_ids.tolist(), "point": pt_ids.tolist(), **img,
+            "rx": r[:, 0], "ry": r[:, 1], "wx": w[:, 0], "wy": w[:, 1], **img_tests,
+            **_joint_columns(rep.joint, len(obs)),
+            **bundle_external.observation_columns(bundle_external.external_view(rep), len(obs)),
+            **_robust_columns(rep.robust, len(obs)),
+            "decision": decision.tolist()}
+    tables["observations"] = TableData(
+        cols,
+        f"every image observation: coordinates (mm{'; x_px, y_px: pixel coordinates u, v of the ' + str(iu.source) + ' source, y down' if iu.is_pixels else ''}), "
+        f"residual v = observed − computed ({iu.unit}), redundancy, w-test, estimated error ∇̂ and MDB ({iu.unit}), "
+        "2-D test of the point (χ²(2)), "
+        "largest effect of each MDB on its own point / photo (ext_*: object units, degrees, in σ), δ̄0",
+        units=units_from_suffix(cols))
     pts = block.points
     sp = res.point_sigmas()
     rays = np.bincount(obs.point[res.obs_active], minlength=len(pts))
     XYZ = res.state.XYZ
     dXYZ = np.where((pts.role == "check")[:, None], XYZ - pts.XYZ, np.nan)
-    tables["points"] = TableData({
-        "point": pts.ids.tolist(), "role": pts.role.tolist(), "X": XYZ[:, 0], "Y": XYZ[:, 1], "Z": XYZ[:, 2],
-        "sX": sp[:, 0], "sY": sp[:, 1], "sZ": sp[:, 2], "rays": rays,
-        "dX_check": dXYZ[:, 0], "dY_check": dXYZ[:, 1], "dZ_check": dXYZ[:, 2],
-        **bundle_external.point_columns(res, rep.config.output.confidence), **_crs_columns(res, block)},
+    ou = object_unit_text(block)
+    o = length_suffix(ou)
+    pcols = {
+        "point": pts.ids.tolist(), "role": pts.role.tolist(), f"X{o}": XYZ[:, 0], f"Y{o}": XYZ[:, 1], f"Z{o}": XYZ[:, 2],
+        f"sX{o}": sp[:, 0], f"sY{o}": sp[:, 1], f"sZ{o}": sp[:, 2], "rays": rays,
+        f"dX_check{o}": dXYZ[:, 0], f"dY_check{o}": dXYZ[:, 1], f"dZ_check{o}": dXYZ[:, 2],
+        **bundle_external.point_columns(res, rep.config.output.confidence), **_crs_columns(res, block)}
+    tables["points"] = TableData(
+        pcols,
         f"adjusted object points ({block.object_unit}) with a-posteriori σ; check points: adjusted − surveyed; "
         "error ellipsoid (semi-axes, direction of the largest), plan ellipse (bearing from +X), height interval; "
-        "*_crs: the same points and σ in the CRS the coordinates were given in (docs/crs.md), where there is one")
+        "*_crs: the same points and σ in the CRS the coordinates were given in (docs/crs.md), where there is one", units=units_from_suffix(pcols))
     chk = pts.role == "check"
     if chk.any():
-        tables["check_points"] = TableData({
-            "point": pts.ids[chk].tolist(), "dX": dXYZ[chk, 0], "dY": dXYZ[chk, 1], "dZ": dXYZ[chk, 2]},
-            f"check points: adjusted − surveyed ({block.object_unit})")
+        ccols = {"point": pts.ids[chk].tolist(), f"dX{o}": dXYZ[chk, 0], f"dY{o}": dXYZ[chk, 1], f"dZ{o}": dXYZ[chk, 2]}
+        tables["check_points"] = TableData(ccols, f"check points: adjusted − surveyed ({ou})",
+                                           units=units_from_suffix(ccols))
     rows = [r for j in range(len(block.cameras)) for r in camera_rows(res, j, units)]
     tables["cameras"] = TableData({k: [r[k] for r in rows] for k in
                                    ("camera", "parameter", "value", "sigma", "status", "apriori_sigma", "unit")},
@@ -474,9 +491,9 @@ def tables(rep) -> dict:
     for t, n in enumerate(EO_NAMES):
         val = X0[:, t] if t < 3 else np.degrees(opk[:, t - 3])
         sd = se[:, t] if t < 3 else np.degrees(se[:, t])
-        cols[n + ("" if t < 3 else "_deg")] = val
-        cols["s" + n + ("" if t < 3 else "_deg")] = sd
-    tables["eo"] = TableData(cols, "exterior orientation with a-posteriori σ (angles in degrees)")
+        cols[n + (o if t < 3 else "_deg")] = val
+        cols["s" + n + (o if t < 3 else "_deg")] = sd
+    tables["eo"] = TableData(cols, f"exterior orientation with a-posteriori σ (centres in {ou}, angles in degrees)")
     corr_rows = []
     for j in range(len(block.cameras)):
         R = res.correlation_camera(j)

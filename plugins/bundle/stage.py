@@ -15,6 +15,7 @@ import numpy as np
 from baarda.pipeline.api import (AdjustmentArtefact, AdjustmentError, Block, BundleConfig, Context, InputError,
                                  StageResult, TableData, adjust)
 from baarda.pipeline.adjustment import EO_NAMES
+from baarda.pipeline.units import length_suffix, object_unit_text
 from baarda.pipeline.camera import get_ap_model
 from baarda.pipeline.tables import write_table
 
@@ -108,16 +109,18 @@ def _state_tables(st, block: Block) -> dict:
     """Exterior orientations (angles in degrees), object points and camera parameters of a state."""
     ph, pts, cams = block.photos, block.points, block.cameras
     eo = {"photo": ph.ids.tolist(), "camera": cams.ids[ph.camera].tolist()}
+    ou = object_unit_text(block)
+    o = length_suffix(ou)
     for t, n in enumerate(EO_NAMES):
-        eo[n + ("" if t < 3 else "_deg")] = st.X0[:, t] if t < 3 else np.degrees(st.opk[:, t - 3])
+        eo[n + (o if t < 3 else "_deg")] = st.X0[:, t] if t < 3 else np.degrees(st.opk[:, t - 3])
     rows = [(str(cams.ids[j]), name, float(st.cam_params[j, t]))
             for j in range(len(cams))
             for t, name in enumerate(["c", "xp", "yp"] + list(get_ap_model(cams.ap_model[j]).params))]
     return {
         "eo": TableData(eo, "exterior orientation of the last iterate (angles in degrees)"),
-        "points": TableData({"point": pts.ids.tolist(), "role": pts.role.tolist(), "X": st.XYZ[:, 0],
-                             "Y": st.XYZ[:, 1], "Z": st.XYZ[:, 2]},
-                            f"object points of the last iterate ({block.object_unit})"),
+        "points": TableData({"point": pts.ids.tolist(), "role": pts.role.tolist(), 'X' + o: st.XYZ[:, 0],
+                             "Y" + o: st.XYZ[:, 1], "Z" + o: st.XYZ[:, 2]},
+                            f"object points of the last iterate ({ou})"),
         "cameras": TableData({"camera": [r[0] for r in rows], "parameter": [r[1] for r in rows],
                               "value": [r[2] for r in rows]}, "camera parameters of the last iterate"),
     }

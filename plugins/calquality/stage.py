@@ -15,6 +15,7 @@ import numpy as np
 from baarda.pipeline.adjustment import calquality as cq
 from baarda.pipeline.camera.convert import pixel_source
 from baarda.pipeline.api import Context, Stage, StageResult, TableData, option
+from baarda.pipeline.units import fmt_obj, fmt_q, object_unit_text
 
 
 @dataclass(frozen=True)
@@ -73,6 +74,7 @@ class CalibrationQuality(Stage):
             # pixels for a pixel source (COLMAP, BAL, libmv, OpenCV targets), µm for one measured in mm
             # (a film or test-field camera, even with a nominal pitch): the units of the bundle's report
             unit, f = ("px", 1.0 / pix) if src and np.isfinite(pix) and pix > 0 else ("µm", 1000.0)
+            sfx = "px" if unit == "px" else "um"          # the unit in column names (docs/conventions.md)
             dist = options.distance or _working_distance(res, j)
             m = cq.projection_uncertainty(res, j, dist, nx=options.grid, frame=options.frame)
             mcam = m if options.frame == "camera" else cq.projection_uncertainty(res, j, dist, nx=options.grid,
@@ -87,8 +89,11 @@ class CalibrationQuality(Stage):
             if n_nan:
                 ctx.warn(f"camera {cid}: {n_nan} grid cells could not be unprojected (the distortion model folds "
                          "over or its inversion diverges there)")
-            cols = {"x_mm": m.xy[:, 0], "y_mm": m.xy[:, 1], f"sigma_{unit}": s.ravel(),
-                    f"sigma_camera_{unit}": mcam.sigma.ravel() * f,
+            W, H = np.asarray(res.block_in.cameras.resolution[j], float)
+            axes = (f, (W - 1) / 2, -f, (H - 1) / 2, "px") if unit == "px" and W > 0 and H > 0 else None
+            cols = {"x_mm": m.xy[:, 0], "y_mm": m.xy[:, 1],
+                    **({"x_px": f * m.xy[:, 0] + axes[1], "y_px": -f * m.xy[:, 1] + axes[3]} if axes else {}), f"sigma_{sfx}": s.ravel(),
+                    f"sigma_camera_{sfx}": mcam.sigma.ravel() * f,
                     "cov_xx_mm2": m.cov[:, 0, 0], "cov_xy_mm2": m.cov[:, 0, 1], "cov_yy_mm2": m.cov[:, 1, 1]}
             cv = None
             if options.cross_validation:
@@ -103,12 +108,12 @@ class CalibrationQuality(Stage):
                         raise
                     ctx.warn(f"camera {cid}: cross-validation: a half could not be adjusted: {e}")
             if cv is not None:
-                cols.update({f"cv_dx_{unit}": cv.diff[..., 0].ravel() * f, f"cv_dy_{unit}": cv.diff[..., 1].ravel() * f,
-                             f"cv_diff_{unit}": cv.norm.ravel() * f, f"cv_sigma_pred_{unit}": cv.sigma_pred.ravel() * f,
+                cols.update({f"cv_dx_{sfx}": cv.diff[..., 0].ravel() * f, f"cv_dy_{sfx}": cv.diff[..., 1].ravel() * f,
+                             f"cv_diff_{sfx}": cv.norm.ravel() * f, f"cv_sigma_pred_{sfx}": cv.sigma_pred.ravel() * f,
                              "cv_ratio": cv.ratio.ravel(), "cv_mahalanobis2": cv.mahalanobis2.ravel(),
-                             f"cv_fit_dx_{unit}": cv.diff_fit[..., 0].ravel() * f,
-                             f"cv_fit_dy_{unit}": cv.diff_fit[..., 1].ravel() * f,
-                             f"cv_fit_sigma_pred_{unit}": cv.sigma_fit.ravel() * f,
+                             f"cv_fit_dx_{sfx}": cv.diff_fit[..., 0].ravel() * f,
+                             f"cv_fit_dy_{sfx}": cv.diff_fit[..., 1].ravel() * f,
+                             f"cv_fit_sigma_pred_{sfx}": cv.sigma_fit.ravel() * f,
                              "cv_fit_ratio": cv.ratio_fit.ravel(), "cv_fit_mahalanobis2": cv.mahalanobis2_fit.ravel()})
                 cs["cross_validation"] = {
                     "split": options.split, "photos": [len(cv.photos[0]), len(cv.photos[1])],
@@ -123,28 +128,28 @@ class CalibrationQuality(Stage):
                                      "mean_mahalanobis2": float(np.nanmean(cv.mahalanobis2_fit))}}
             tables[f"map_{cid}"] = TableData(cols)
             summary["cameras"][cid] = cs
-            out[cid] = {"map": m, "camera_only": mcam, "cv": cv, "unit": unit, "factor": f,
-                        "object_unit": res.block_in.object_unit}
-            lines.append(f"- camera **{cid}**: σ of the projection at {dist:.4g} ({options.frame}, {m.n_photos} "
-                         f"photos): centre {cs['sigma_centre']:.3f} {unit}, corners "
-                         f"{', '.join(f'{v:.3f}' for v in cs['sigma_corners'])} {unit}, worst {cs['sigma_worst']:.3f}"
-                         f" {unit}; camera parameters alone: centre {cs['sigma_camera_only_centre']:.3f} {unit}.")
+            out[cid] = {"map": m, "camera_only": mcam, "cv": cv, "unit": unit, "factor": f, "axes": axes,
+                        "object_unit": object_unit_text(res.block_in)}
+            lines.append(f"- camera **{cid}**: σ of the projection at {fmt_obj(dist, object_unit_text(res.block_in))} ({options.frame}, {m.n_photos} "
+                         f"photos): centre {fmt_q(cs['sigma_centre'], unit)}, corners "
+                         f"{', '.join(fmt_q(v, unit) for v in cs['sigma_corners'])}, worst {fmt_q(cs['sigma_worst'], unit)}"
+                         f"; camera parameters alone: centre {fmt_q(cs['sigma_camera_only_centre'], unit)}.")
             if cv is not None:
                 c2 = cs["cross_validation"]
                 lines.append(f"  cross-validation ({options.split}, {c2['photos'][0]} + {c2['photos'][1]} photos): "
-                             f"RMS difference {c2['rms']:.3f} {unit} against a predicted {c2['sigma_pred_rms']:.3f} "
-                             f"{unit}; {100 * c2['fraction_above_2sigma']:.0f} % of the format beyond 2σ; mean "
+                             f"RMS difference {fmt_q(c2['rms'], unit)} against a predicted {fmt_q(c2['sigma_pred_rms'], unit)}"
+                             f"; {100 * c2['fraction_above_2sigma']:.0f} % of the format beyond 2σ; mean "
                              f"Δqᵀ(Σ₁+Σ₂)⁻¹Δq {c2['mean_mahalanobis2']:.2f} (2 expected).")
                 rf = c2["rotation_fit"]
                 lines.append(f"  after fitting the rotation between the two camera frames "
                              f"({np.linalg.norm(rf['rotation_deg']):.3f}°, as mrcal's projection_diff): RMS "
-                             f"{rf['rms']:.3f} {unit} against a predicted {rf['sigma_pred_rms']:.3f} {unit}; "
+                             f"{fmt_q(rf['rms'], unit)} against a predicted {fmt_q(rf['sigma_pred_rms'], unit)}; "
                              f"{100 * rf['fraction_above_2sigma']:.0f} % beyond 2σ; mean Mahalanobis² "
                              f"{rf['mean_mahalanobis2']:.2f}.")
         first = summary["cameras"][ids[todo[0]]]
-        summary["headline"] = (f"projection σ of camera {ids[todo[0]]}: centre {first['sigma_centre']:.3f} "
-                               f"{first['unit']}, worst {first['sigma_worst']:.3f} {first['unit']}"
-                               + (f"; cross-validation RMS {first['cross_validation']['rms']:.3f} {first['unit']}"
+        summary["headline"] = (f"projection σ of camera {ids[todo[0]]}: centre {fmt_q(first['sigma_centre'], first['unit'])}"
+                               f", worst {fmt_q(first['sigma_worst'], first['unit'])}"
+                               + (f"; cross-validation RMS {fmt_q(first['cross_validation']['rms'], first['unit'])}"
                                   if "cross_validation" in first else ""))
         report = ("Projection uncertainty (σ in the worst direction of a point on each pixel's ray, from the "
                   "bundle's covariance) and cross-validation of two calibrations from disjoint photo halves; "

@@ -65,10 +65,22 @@ def collect_methods(findings) -> list[dict]:
                 m[k] = float(v) if v is not None else float("nan")
             if not np.isfinite(m["Sxy"]) and np.isfinite(m["Sx"]) and np.isfinite(m["Sy"]):
                 m["Sxy"] = float(np.sqrt((m["Sx"] ** 2 + m["Sy"] ** 2) / 2))
-            if table is not None and len(variants) == 1 and all(c in table.columns for c in ("dX", "dY", "dZ")):
-                m["errors"] = np.column_stack([np.asarray(table.columns[c], float) for c in ("dX", "dY", "dZ")])
+            dcols = _check_columns(table)
+            if dcols is not None and len(variants) == 1:
+                m["errors"] = np.column_stack([np.asarray(table.columns[c], float) for c in dcols])
             methods.append(m)
     return methods
+
+
+def _check_columns(table):
+    """Names of the dX, dY, dZ columns of a check-point table (with or without a unit suffix), or None."""
+    if table is None:
+        return None
+    for sfx in ("", "_m", "_mm", "_mu"):
+        names = tuple(f"d{a}{sfx}" for a in "XYZ")
+        if all(c in table.columns for c in names):
+            return names
+    return None
 
 
 class Comparison(Stage):

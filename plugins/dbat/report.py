@@ -8,6 +8,7 @@ import numpy as np
 
 from baarda.pipeline.report import markdown_table
 from baarda.pipeline.api import TableData
+from baarda.pipeline.units import length_suffix
 
 from .reader import AP_NAMES, DBAT_SIGN, DbatInfo
 
@@ -77,11 +78,12 @@ def source_tables(block) -> dict:
     pts, obs = block.points, block.observations
     d: DbatInfo = block.meta["dbat"]
     rays = np.bincount(obs.point, minlength=len(pts))
+    o = length_suffix(block.object_unit)
     points = TableData({
         "point": pts.ids.tolist(), "label": [d.labels.get(str(i), "") for i in pts.ids],
-        "role": pts.role.tolist(), "X": pts.XYZ[:, 0], "Y": pts.XYZ[:, 1], "Z": pts.XYZ[:, 2],
-        "sX": pts.sigma[:, 0], "sY": pts.sigma[:, 1], "sZ": pts.sigma[:, 2], "rays": rays,
-    }, "object points as read (prior coordinates and σ; tie points have none)", detail=True)
+        "role": pts.role.tolist(), "X" + o: pts.XYZ[:, 0], "Y" + o: pts.XYZ[:, 1], "Z" + o: pts.XYZ[:, 2],
+        "sX" + o: pts.sigma[:, 0], "sY" + o: pts.sigma[:, 1], "sZ" + o: pts.sigma[:, 2], "rays": rays,
+    }, f"object points as read ({block.object_unit}; prior coordinates and σ; tie points have none)", detail=True)
     ph = block.photos
     photos = TableData({
         "photo": ph.ids.tolist(), "file": ph.image_path.tolist(),
@@ -194,15 +196,16 @@ def quality_tables(q) -> dict:
                         "angle_deg": q["angles_deg"]}, "rays and largest intersection angle of every point",
                        detail=True)
     out = {"points": points}
+    o = length_suffix(q["object_unit"])
     for kind in ("control", "check"):
         c = q[kind]
         if c["ids"]:
             out[kind] = TableData({
-                "point": c["ids"], "X_prior": c["prior"][:, 0], "Y_prior": c["prior"][:, 1], "Z_prior": c["prior"][:, 2],
-                "X": c["adjusted"][:, 0], "Y": c["adjusted"][:, 1], "Z": c["adjusted"][:, 2],
-                "dX": c["diff"][:, 0], "dY": c["diff"][:, 1], "dZ": c["diff"][:, 2],
-                "sX": c["sigma"][:, 0], "sY": c["sigma"][:, 1], "sZ": c["sigma"][:, 2]},
-                f"{kind} points: prior, adjusted, adjusted − prior, a-posteriori σ")
+                "point": c["ids"], **{f"{a}_prior{o}": c["prior"][:, i] for i, a in enumerate("XYZ")},
+                **{f"{a}{o}": c["adjusted"][:, i] for i, a in enumerate("XYZ")},
+                **{f"d{a}{o}": c["diff"][:, i] for i, a in enumerate("XYZ")},
+                **{f"s{a}{o}": c["sigma"][:, i] for i, a in enumerate("XYZ")}},
+                f"{kind} points ({q['object_unit']}): prior, adjusted, adjusted − prior, a-posteriori σ")
     return out
 
 

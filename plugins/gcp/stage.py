@@ -14,6 +14,7 @@ import numpy as np
 
 from baarda.pipeline.crs import LocalFrame, frame_of_block, local_frame
 from baarda.pipeline.api import Context, InputError, SourceStage, StageResult, TableData, option
+from baarda.pipeline.units import length_suffix
 from baarda.pipeline.report import markdown_table
 
 from .block import CameraSpec, apply_gnss, gcp_block
@@ -159,7 +160,7 @@ def _gcp_tables(block, frame: LocalFrame) -> dict:
     names = frame.axis_names()
     cols = {"point": pts.ids.tolist(), "role": pts.role.tolist(),
             names[0]: user[:, 0], names[1]: user[:, 1], names[2]: user[:, 2],
-            "E_local": pts.XYZ[:, 0], "N_local": pts.XYZ[:, 1], "U_local": pts.XYZ[:, 2]}
+            "E_local_m": pts.XYZ[:, 0], "N_local_m": pts.XYZ[:, 1], "U_local_m": pts.XYZ[:, 2]}
     return {"targets": TableData(cols, "targets in the file's CRS and in the local frame (m)")}
 
 
@@ -299,8 +300,10 @@ class GnssCentres:
                             f"σ E/N/h median {med[0]:.0f}/{med[1]:.0f}/{med[2]:.0f} mm, range "
                             f"{np.min(sig) * 1000:.0f}–{np.max(sig) * 1000:.0f} mm; lever arm {arms_txt or 'none'}")
         s3 = gn.sigma
-        table = TableData({"photo": out.photos.ids[gn.photo].tolist(), "X": gn.XYZ[:, 0], "Y": gn.XYZ[:, 1],
-                           "Z": gn.XYZ[:, 2], "sX": s3[:, 0], "sY": s3[:, 1], "sZ": s3[:, 2],
-                           "arm_x": gn.lever_arm[:, 0], "arm_y": gn.lever_arm[:, 1], "arm_z": gn.lever_arm[:, 2]},
+        o = length_suffix(u)
+        table = TableData({"photo": out.photos.ids[gn.photo].tolist(),
+                           **{f"{a}{o}": gn.XYZ[:, i] for i, a in enumerate("XYZ")},
+                           **{f"s{a}{o}": s3[:, i] for i, a in enumerate("XYZ")},
+                           **{f"arm_{a}{o}": gn.lever_arm[:, i] for i, a in enumerate("xyz")}},
                           f"GNSS antenna observations in the block's frame and lever arms in the camera frame ({u})")
         return StageResult(artefacts={"block": out}, summary=info, report=report, tables={"antennas": table})

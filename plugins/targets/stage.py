@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import glob
+import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -284,11 +285,21 @@ class TargetDetection(Stage):
                     continue
                 ref[str(cid)] = {key: v for key, v in cal.items() if key not in ("rvecs", "tvecs")}
             summary["opencv_calibration"] = ref
-        table = TableData({k: [r[k] for r in rows] for k in ("file", "photo", "camera", "points", "status", "message")},
-                          "detections per image")
+        folder = _common_folder(files)
+        per_image = TableData({"file": [_relative(r["file"], folder) for r in rows],
+                               **{k: [r[k] for r in rows] for k in ("photo", "camera", "points", "status", "message")}},
+                              f"detections per image (file: relative to the image folder {folder.name or folder}/)")
+        table = TableData({"photo": [pid for pid, _, _, d in dets for _ in d.ids],
+                           "camera": [cam for _, cam, _, d in dets for _ in d.ids],
+                           "point": [str(i) for _, _, _, d in dets for i in d.ids],
+                           "x_px": np.concatenate([d.uv[:, 0] for *_, d in dets]),
+                           "y_px": np.concatenate([d.uv[:, 1] for *_, d in dets])},
+                          "every detection: its image point in pixels (OpenCV convention: origin at the centre of the "
+                          "top-left pixel, x right, y down), as detected (before any image is dropped)",
+                          detail=True)
         report = detection_report(options, files, rows, block, ref, sigma_px)
         summary["headline"] = headline(options.target, rows, block, ref)
-        return StageResult(artefacts={"block": block}, summary=summary, report=report, tables={"detections": table},
+        return StageResult(artefacts={"block": block}, summary=summary, report=report, tables={"detections": table, "images": per_image},
                            data={"images": logged, "block": block})
 
     # -- per image ------------------------------------------------------------------------------
@@ -333,3 +344,16 @@ class TargetDetection(Stage):
                 rec.log(f"{path}/points", rr.Points2D(uv, labels=list(ids), colors=[[255, 60, 40]],
                                                       radii=rr.Radius.ui_points(3.0)), static=True)
         log_block(rec, result.data["block"], root=f"{ctx.stage_id}/block")
+
+
+def _common_folder(files) -> Path:
+    """The deepest folder holding every image (for file names without the machine's path)."""
+    parents = [str(Path(f).resolve().parent) for f in files]
+    return Path(os.path.commonpath(parents)) if parents else Path(".")
+
+
+def _relative(file, folder: Path) -> str:
+    try:
+        return Path(file).resolve().relative_to(folder).as_posix()
+    except ValueError:
+        return Path(file).name

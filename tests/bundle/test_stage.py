@@ -23,7 +23,7 @@ def test_stage_runs_and_logs(tmp_path):
     assert abs(b.sigma0_hat - 1) < 0.15
     t = res.tables["observations"]
     assert len(t) == len(blk.observations)
-    assert {"vx", "wy", "mdb_x", "decision"} <= set(t.columns)
+    assert {"vx_um", "wy", "mdb_x_um", "decision"} <= set(t.columns)
     assert "Camera parameters" in res.report
     path = log_stage(BundleAdjustment, res, tmp_path / "bundle.rrd")
     from baarda.pipeline.recording import read_recording
@@ -169,10 +169,10 @@ solver.max_iter = 1
     assert [r["parameter"] for r in rows["cameras"]][:4] == ["c", "xp", "yp", "b1"]
     # the last iterate, not the start: one Gauss–Newton step moved the approximate orientations
     block = outcome.artefacts["block"]
-    X0 = np.array([[float(r[k]) for k in ("X0", "Y0", "Z0")] for r in rows["eo"]])
+    X0 = np.array([[float(r[k]) for k in ("X0_m", "Y0_m", "Z0_m")] for r in rows["eo"]])
     moved = np.abs(X0 - block.photos.X0).max()
     assert 1e-4 < moved < 0.1
-    assert np.isfinite([float(r["X"]) for r in rows["points"]]).all()
+    assert np.isfinite([float(r["X_m"]) for r in rows["points"]]).all()
 
 
 def test_sigma_eo_and_image_sigma_scale_options():

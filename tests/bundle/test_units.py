@@ -96,10 +96,19 @@ def test_stage_report_and_tables_in_pixels_for_a_pixel_source(tmp_path):
     assert table["B1"][0] == mm["B1"]["value"] and table["B1"][2] == "1"
     assert f"| cam | c | {table['c'][0]:.8g} |" in text
     assert "cameras" not in res.summary          # the rows are the cameras table's (results.json points to it)
-    # the observations: the mm columns stay, the px columns are them over the pitch
-    obs = res.tables["observations"].columns
-    for k in ("vx", "vy", "nabla_x", "nabla_y", "mdb_x", "mdb_y"):
-        np.testing.assert_allclose(obs[f"{k}_px"], np.asarray(obs[k]) / PITCH, rtol=1e-12)
+    # the observations: coordinates in mm and in pixels (u, v: y down, COLMAP's centre at W/2, H/2),
+    # residuals in px = mm / pitch with y down (sign of −v_y), MDB / pitch; units agree with the names
+    t = res.tables["observations"]
+    obs = t.columns
+    xy = np.column_stack([obs["x_mm"], obs["y_mm"]])
+    np.testing.assert_array_equal(xy, blk.observations.xy)
+    np.testing.assert_allclose(obs["x_px"], xy[:, 0] / PITCH + 4000, rtol=1e-12)
+    np.testing.assert_allclose(obs["y_px"], -xy[:, 1] / PITCH + 5333 / 2, rtol=1e-12)
+    v = res.data["result"].residuals
+    np.testing.assert_allclose(obs["vx_px"], v[:, 0] / PITCH, rtol=1e-12)
+    np.testing.assert_allclose(obs["vy_px"], -v[:, 1] / PITCH, rtol=1e-12)
+    assert (np.asarray(obs["mdb_x_px"]) > 0).all() and "vx" not in obs and "mdb_x" not in obs
+    assert t.units["vy_px"] == "px" and t.units["x_mm"] == "mm" and t.units["wx"] == ""
     # external reliability: the MDB of the largest effect in px
     big = res.summary["external_reliability"]["largest_on_point"]
     assert big["mdb_unit"] == "px" and big["mdb"] == pytest.approx(big["mdb_mm"] / PITCH, rel=1e-12)

@@ -78,8 +78,8 @@ def test_gnss_fixture_against_truth(repo_root, gnss_run):
     frame = LocalFrame(parse_crs("EPSG:32632").to_wkt(), tuple(src["origin_lon_lat_h"]))
     eo = _rows(run / "bundle_eo.csv")
     ids = [r["photo"] for r in eo]
-    X0 = np.array([[float(r[k]) for k in ("X0", "Y0", "Z0")] for r in eo])
-    sX0 = np.array([[float(r[k]) for k in ("sX0", "sY0", "sZ0")] for r in eo])
+    X0 = np.array([[float(r[k]) for k in ("X0_m", "Y0_m", "Z0_m")] for r in eo])
+    sX0 = np.array([[float(r[k]) for k in ("sX0_m", "sY0_m", "sZ0_m")] for r in eo])
     true_c = frame.to_local(np.array([truth[("photo", p)] for p in ids]))
     zc = (X0 - true_c) / sX0
     # the points in UTM with their σ (J C Jᵀ) from the bundle's table

@@ -19,6 +19,8 @@ from baarda.pipeline.plugins import PluginManager
 from baarda.pipeline.project import load_project
 from baarda.pipeline.review import _finding
 from baarda.pipeline.runner import run_project
+from baarda.pipeline.stage import TableData
+from baarda.pipeline.units import unit_mismatches
 
 from conftest import SHARED_BESIDE, needs_shared_beside
 
@@ -118,12 +120,50 @@ def test_bundled_project_validates(path):
     assert project.stages
 
 
+@pytest.fixture
+def tables_made(monkeypatch):
+    """Every :class:`TableData` made while the test runs (the run's tables, checked for their units)."""
+    made = []
+    init = TableData.__post_init__
+
+    def record(self):
+        init(self)
+        made.append(self)
+
+    monkeypatch.setattr(TableData, "__post_init__", record)
+    return made
+
+
+#: names of lengths that must carry their unit in the tables of the stages converted so far
+BARE_LENGTHS = {"x", "y", "vx", "vy", "X", "Y", "Z", "sX", "sY", "sZ", "dX", "dY", "dZ", "mdb_x", "mdb_y",
+                "nabla_x", "nabla_y", "dX_check", "dY_check", "dZ_check"}
+
+
+def check_table_units(tables) -> None:
+    """Column names and ``units`` agree in every table (docs/conventions.md, *Column names carry their
+    unit*); the bundle's observation and point tables name no length without its unit."""
+    bad = {t.description[:60]: unit_mismatches(t) for t in tables if unit_mismatches(t)}
+    assert not bad, bad
+    bundle = [t for t in tables if t.description.startswith(("every image observation", "adjusted object points"))]
+    bare = {t.description[:40]: sorted(BARE_LENGTHS & set(t.columns)) for t in bundle if BARE_LENGTHS & set(t.columns)}
+    assert not bare, bare
+
+
+def test_table_unit_check_finds_a_disagreement():
+    assert unit_mismatches(TableData({"v_px": [1.0], "w": [0.5]})) == []
+    assert unit_mismatches(TableData({"v_px": [1.0]}, units={"v_px": "mm"}))
+    assert unit_mismatches(TableData({"v": [1.0]}, units={"v": "px"}))
+    assert unit_mismatches(TableData({"v_um": [1.0]}, units={"x_um": "µm"}))
+
+
 @pytest.mark.parametrize("rel", _runs())
-def test_bundled_project_runs(rel, tmp_path):
+def test_bundled_project_runs(rel, tmp_path, tables_made):
     project = ROOT / "fixtures" / rel
     if needs_shared_beside(project):
         pytest.skip(f"{rel} reads ../shared/data beside the repository ({SHARED_BESIDE}), absent here")
     out = run_project(project, tmp_path / "run", verbose=False)
+    assert tables_made, "the run made no table in this process"
+    check_table_units(tables_made)
     assert out.ok, out.message
     res = json.loads((tmp_path / "run" / "results.json").read_text())
     stages = load_project(project, PluginManager()).stages

@@ -129,11 +129,12 @@ def test_bundle_report_html(tmp_path):
         assert fmt(value) in text or fmt(value, 3) in text, value
     # independent references for the protocol's numbers: the run's own CSV tables
     obs = _table(out.run_dir / "bundle_observations.csv")
-    um = 1000.0 * np.concatenate([obs["vx"], obs["vy"]])
+    um = np.concatenate([obs["vx_um"], obs["vy_um"]])
     assert p["rms"]["all"] == pytest.approx(np.sqrt(np.mean(um ** 2)), rel=1e-9)
     assert p["reliability"]["r_min"] == pytest.approx(min(obs["rx"].min(), obs["ry"].min()), rel=1e-9)
-    assert p["reliability"]["mdb_max"] == pytest.approx(1000 * max(obs["mdb_x"].max(), obs["mdb_y"].max()), rel=1e-9)
+    assert p["reliability"]["mdb_max"] == pytest.approx(max(obs["mdb_x_um"].max(), obs["mdb_y_um"].max()), rel=1e-9)
     pts = _table(out.run_dir / "bundle_points.csv")
+    pts = {k[:-2] if k.endswith("_m") else k: c for k, c in pts.items()}     # object unit m
     ok = np.isfinite(pts["sX"]) & (pts["sX"] + pts["sY"] + pts["sZ"] > 0)
     assert p["point_precision"]["rms"][2] == pytest.approx(np.sqrt(np.mean(pts["sZ"][ok] ** 2)), rel=1e-9)
     assert p["point_precision"]["max"][0] == pytest.approx(pts["sX"][ok].max(), rel=1e-12)

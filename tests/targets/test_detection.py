@@ -302,8 +302,12 @@ def test_broken_images_are_warnings(tmp_path, shared_data):
     text = "\n".join(ctx.warnings)
     assert "broken.jpg: not a readable image" in text
     assert "blank.png: no 9×6 inner-corner chessboard found" in text
-    table = res.tables["detections"]
+    table = res.tables["images"]
     assert table.columns["status"] == ["skipped", "skipped", "ok"]
+    assert table.columns["file"] == ["broken.jpg", "blank.png", "left01.jpg"]     # no machine path
+    det = res.tables["detections"]
+    assert len(det) == 54 and set(det.columns["photo"]) == {"left01"} and det.units["x_px"] == "px"
+    assert 0 < min(det.columns["x_px"]) and max(det.columns["x_px"]) < 640 and max(det.columns["y_px"]) < 480
     with pytest.raises(InputError, match="image file not found.*gone.jpg"):   # an explicit list is not a glob
         _run(tmp_path, images=["left01.jpg", "gone.jpg"], target="chessboard", squares=[10, 7], square_size=25.0)
     with pytest.raises(InputError, match="no usable detection"):
