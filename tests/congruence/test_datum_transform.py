@@ -40,6 +40,6 @@ def test_s_transformation_equals_adjusting_in_that_datum(tmp_path):
     for p in a:
         xa, xb = col(a[p], ("X_m", "Y_m", "Z_m")), col(b[p], [k for k in ("X_m", "Y_m", "Z_m", "X", "Y", "Z") if k in b[p]][:3])
         sa = col(a[p], ("sigma_X_m", "sigma_Y_m", "sigma_Z_m"))
-        sb = col(b[p], [k for k in ("sigma_X_m", "sigma_Y_m", "sigma_Z_m", "sX", "sY", "sZ") if k in b[p]][:3])
+        sb = col(b[p], [k for k in ("sigma_X_m", "sigma_Y_m", "sigma_Z_m", "sX_m", "sY_m", "sZ_m", "sX", "sY", "sZ") if k in b[p]][:3])
         assert np.abs(xa - xb).max() < 1e-7, p          # σ of a coordinate ≈ 40 µm
         assert np.abs(sa / sb - 1).max() < 1e-3, p      # first order: datum directions at the approximations
