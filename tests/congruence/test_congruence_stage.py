@@ -88,3 +88,22 @@ def test_batch_summary_row_carries_the_congruence(run):
     assert q["congruence"] == "moved" and q["congruence.n_moved"] == len(summ["moved"])
     assert q["congruence.T"] == summ["global_test"]["T"] and q["congruence.moved"].split() == summ["moved"]
     assert q["congruence.reference"] == "E1" and q["congruence.epoch"] == "E2"
+
+
+@pytest.mark.slow
+def test_a_batch_of_epochs_is_one_congruence_summary(tmp_path):
+    """A monitoring job through `baarda batch`: the panel project swept over epoch 2's targets (nothing
+    moved / three targets moved); summary.csv holds each run's congruence verdict and moved points."""
+    from baarda.pipeline.cli import main
+
+    sweep = tmp_path / "epochs.csv"
+    sweep.write_text("name,source-2.targets\n"
+                     f"unchanged,\"{ROOT}/fixtures/monitoring/panel-targets-1.csv\"\n"
+                     f"moved,\"{ROOT}/fixtures/monitoring/panel-targets-2.csv\"\n")
+    out = tmp_path / "batch"
+    assert main(["batch", str(FIXTURE), "--sweep", str(sweep), "--out", str(out), "--scheduler", "sync",
+                 "--quiet"]) == 0
+    with open(out / "summary.csv", encoding="utf-8") as fh:
+        rows = {r["name"]: r for r in csv.DictReader(fh)}
+    assert rows["unchanged"]["congruence"] == "congruent" and rows["unchanged"]["congruence.n_moved"] == "0"
+    assert rows["moved"]["congruence"] == "moved" and set(rows["moved"]["congruence.moved"].split()) == {"T08", "T17"}
