@@ -174,16 +174,11 @@ def fmt(x: Any, nd: int = 4) -> str:
 
     Tests format the values of ``results.json`` with this very function and look for the string
     in the page."""
-    if x is None:
-        return "–"
-    if isinstance(x, bool):
-        return "yes" if x else "no"
-    if isinstance(x, int):
-        return str(x)
-    try:
-        f = float(x)
-    except (TypeError, ValueError):
-        return str(x)
+    from .units import as_number
+
+    text, f = as_number(x)
+    if text is not None:
+        return text
     if not math.isfinite(f):
         return "–"
     return f"{f:.{nd}g}"

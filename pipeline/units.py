@@ -22,19 +22,28 @@ LENGTH_UNITS = {"m": 1.0, "mm": 1e-3, "µm": 1e-6, "um": 1e-6, "nm": 1e-9, "km":
 _LADDER = (("km", 1e3), ("m", 1.0), ("mm", 1e-3), ("µm", 1e-6), ("nm", 1e-9))
 
 
+def as_number(x: Any) -> tuple[str | None, float]:
+    """``(text, value)``: the text of what is not a float to format (``–`` for None, yes/no, an
+    integer as it is, a non-number as given) and None with the float otherwise — the start of every
+    number formatter (:func:`fmt_num`, ``baarda.pipeline.html.fmt``)."""
+    if x is None:
+        return "–", math.nan
+    if isinstance(x, bool):
+        return ("yes" if x else "no"), math.nan
+    if isinstance(x, int):
+        return str(x), math.nan
+    try:
+        return None, float(x)
+    except (TypeError, ValueError):
+        return str(x), math.nan
+
+
 def fmt_num(x: Any, sig: int = 4) -> str:
     """A plain number with ``sig`` significant digits, no exponent for ordinary magnitudes;
     ``–`` for none/nan; integers as they are."""
-    if x is None:
-        return "–"
-    if isinstance(x, bool):
-        return "yes" if x else "no"
-    if isinstance(x, int):
-        return str(x)
-    try:
-        f = float(x)
-    except (TypeError, ValueError):
-        return str(x)
+    text, f = as_number(x)
+    if text is not None:
+        return text
     if math.isnan(f):
         return "–"
     if math.isinf(f):
