@@ -178,6 +178,14 @@ def read_metashape(path: str | Path, *, pixel_mm: float = 0.001, sigma_px: float
     # chunk → world
     s_w, R_w, t_w = 1.0, np.eye(3), np.zeros(3)
     ct = chunk.find("transform")
+    if ct is None:                                  # Metashape 2: the active component's transform
+        comps = chunk.find("components")
+        if comps is not None:
+            active = comps.get("active_id")
+            for comp in comps.findall("component"):
+                if comp.find("transform") is not None and (active is None or comp.get("id") == active):
+                    ct = comp.find("transform")
+                    break
     if ct is not None:
         if ct.find("rotation") is not None:
             R_w = _floats(ct.find("rotation").text, 9, path, "chunk/transform", "rotation").reshape(3, 3)

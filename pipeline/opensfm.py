@@ -175,6 +175,7 @@ def read_opensfm(path: str | Path, *, tracks: str | Path | None = None, pixel_mm
     rec = doc[which]
     if not isinstance(rec, dict):
         raise InputError(f"reconstructions[{which}] is not an object", path=path, field=f"reconstructions[{which}]")
+    rec = {"shots": {}, "points": {}, **rec}                  # ODM writes camera-only files without them
     for key in ("cameras", "shots", "points"):
         if not isinstance(rec.get(key), dict):
             raise InputError(f"reconstructions[{which}]: missing or not an object: '{key}'", path=path, field=key)

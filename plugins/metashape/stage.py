@@ -6,6 +6,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
+import numpy as np
+
 from baarda.pipeline.api import Context, InputError, SourceStage, Stage, StageResult, log_block, option
 from baarda.pipeline.metashape import read_metashape, write_metashape
 
@@ -79,6 +81,10 @@ class MetashapeExport(Stage):
         bundle = inputs.get("bundle")
         if bundle is not None and bundle.block_in is block:
             block, which = bundle.block, "adjusted"
+        elif bundle is not None and (bundle.block is block or (
+                np.array_equal(bundle.block.points.XYZ, block.points.XYZ, equal_nan=True)
+                and np.array_equal(bundle.block.photos.X0, block.photos.X0, equal_nan=True))):
+            which = "adjusted"            # the bundle hands the adjusted block on
         try:
             info = write_metashape(block, out)
         except ValueError as e:

@@ -8,6 +8,8 @@ from pathlib import Path
 from typing import Literal
 
 from baarda.pipeline.adjustment import reprojection_summary
+import numpy as np
+
 from baarda.pipeline.api import Context, InputError, SourceStage, Stage, StageResult, log_block, option
 from baarda.pipeline.opensfm import read_opensfm, write_opensfm
 
@@ -91,6 +93,10 @@ class OpensfmExport(Stage):
         which = "as given"
         if bundle is not None and bundle.block_in is block:
             block, which = bundle.block, "adjusted"
+        elif bundle is not None and (bundle.block is block or (
+                np.array_equal(bundle.block.points.XYZ, block.points.XYZ, equal_nan=True)
+                and np.array_equal(bundle.block.photos.X0, block.photos.X0, equal_nan=True))):
+            which = "adjusted"            # the bundle hands the adjusted block on
         try:
             info = write_opensfm(block, out)
         except ValueError as e:

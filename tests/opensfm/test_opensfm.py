@@ -115,3 +115,21 @@ def test_broken_tracks_names_the_line(tmp_path):
     with pytest.raises(InputError) as e:
         read_opensfm(tmp_path / "reconstruction.json")
     assert e.value.line == 2
+
+
+# OpenDroneMap/ODM tests/assets/reconstruction.json (AGPL-3.0), a real camera-only file, verbatim
+ODM_ASSET = """[{"reference_lla": {"latitude": 46.84265666666667, "altitude": 0, "longitude": -91.99400802469134},
+ "cameras": {"v2 dji fc300s 4000 2250 perspective 0.5555": {"focal_prior": 0.5555555555555556, "width": 4000,
+  "k1": 0.0052219633739416784, "k2": 0.015202301516716735, "k1_prior": 0.0, "k2_prior": 0.0,
+  "projection_type": "perspective", "focal": 0.5614307793062748, "height": 2250}}, "shots": {}}]"""
+
+
+def test_real_odm_camera_file(tmp_path):
+    p = tmp_path / "reconstruction.json"
+    p.write_text(ODM_ASSET)
+    blk, info = read_opensfm(p, pixel_mm=0.00156)
+    assert info["tracks"] is None and len(blk.photos) == 0 and len(blk.points) == 0
+    c = 0.5614307793062748 * 4000 * 0.00156
+    np.testing.assert_allclose(blk.cameras.c, [c])
+    np.testing.assert_allclose(blk.cameras.ap[0, :2], [0.0052219633739416784 / c**2, 0.015202301516716735 / c**4])
+    np.testing.assert_allclose([blk.cameras.xp[0], blk.cameras.yp[0]], [0, 0], atol=1e-15)
