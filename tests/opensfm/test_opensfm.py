@@ -87,7 +87,8 @@ def test_perspective_camera_maps_exactly(tmp_path):
     (lambda r: r["shots"]["IMG_0.JPG"].update(rotation=[0, 1]), "rotation"),
     (lambda r: r["shots"]["IMG_0.JPG"].update(camera="nope"), "camera"),
     (lambda r: r["points"]["t3"].update(coordinates=[0, None, 1]), "coordinates"),
-    (lambda r: r.pop("shots"), "shots"),
+    (lambda r: r.pop("cameras"), "cameras"),
+    (lambda r: r.update(shots=[1]), "shots"),
 ])
 def test_broken_json_names_the_field(tmp_path, edit, field):
     write_opensfm(_block(np.random.default_rng(1)), tmp_path)
