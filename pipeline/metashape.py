@@ -295,7 +295,7 @@ def _fmt(x) -> str:
 
 def write_metashape(block: Block, path: str | Path) -> dict:
     """Write ``block`` as a Metashape camera XML (chunk frame = the block's frame, no chunk transform)."""
-    from xml.etree.ElementTree import Element, ElementTree, SubElement
+    from xml.etree.ElementTree import Element, ElementTree, SubElement, indent
 
     path = Path(path)
     cm = block.cameras
@@ -354,6 +354,7 @@ def write_metashape(block: Block, path: str | Path) -> dict:
             SubElement(m, "location", camera_id=str(ob.photo[r]), pinned="true", x=_fmt(uv[r, 0]), y=_fmt(uv[r, 1]))
             n_obs += 1
     path.parent.mkdir(parents=True, exist_ok=True)
+    indent(doc)
     ElementTree(doc).write(path, encoding="UTF-8", xml_declaration=True)
     return {"sensors": len(cm), "cameras": int(ok.sum()), "markers": len(pts), "observations": n_obs,
             "skipped_photos": ph.ids[~ok].tolist()}
