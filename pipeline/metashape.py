@@ -19,8 +19,9 @@ b1 or b2 together with distortion, and k4, p3, p4, are refused by name (no exact
 Poses: a camera's ``<transform>`` is the 4×4 camera → chunk matrix; the chunk's ``<transform>``
 (``rotation`` R, ``translation`` t, ``scale`` s) maps chunk → world: ``X = s R x + t``.  The block is
 in the world frame (the chunk frame when the chunk has no transform).  Markers: reference
-coordinates (``<reference x y z enabled>``) become control points when the chunk's CRS is local (or
-not given); their projections (``<frames><frame><markers><marker marker_id><location camera_id x y>``)
+coordinates (``<reference x y z enabled>``) become control points (in a georeferenced chunk the
+chunk transform maps to geocentric coordinates, and block and references go to a local east-north-up
+frame, ``docs/crs.md``); their projections (``<frames><frame><markers><marker marker_id><location camera_id x y>``)
 the observations.
 """
 
@@ -230,7 +231,7 @@ def read_metashape(path: str | Path, *, pixel_mm: float = 0.001, sigma_px: float
     crs_el = chunk.find("reference")
     crs = (crs_el.text or "").strip() if crs_el is not None else ""
     local_crs = not crs or crs.startswith("LOCAL_CS") or crs.lower() == "local"
-    m_ids, m_xyz, m_role, m_key, refs_ignored = [], [], [], {}, 0
+    m_ids, m_xyz, m_role, m_key = [], [], [], {}
     markers_el = chunk.find("markers")
     for m in (markers_el.iter("marker") if markers_el is not None else []):
         mid = m.get("id")
@@ -241,22 +242,43 @@ def read_metashape(path: str | Path, *, pixel_mm: float = 0.001, sigma_px: float
         xyz, role = [np.nan] * 3, "tie"
         if ref is not None and ref.get("x") is not None:
             xyz = [_float(ref.get(a), path, where, f"reference/@{a}") for a in "xyz"]
-            if not local_crs:
-                refs_ignored += 1
-                xyz = [np.nan] * 3
-            elif ref.get("enabled", "true") not in ("false", "0"):
-                role = "full"
-            else:
-                role = "check"
+            role = "full" if ref.get("enabled", "true") not in ("false", "0") else "check"
         m_key[mid] = len(m_ids)
         m_ids.append(m.get("label") or mid)
         m_xyz.append(xyz)
         m_role.append(role)
     if len(set(m_ids)) != len(m_ids):
         m_ids = list(m_key)
+    m_xyz = np.array(m_xyz, float).reshape(-1, 3)
+    frame_info = None
+    if not local_crs:
+        # georeferenced chunk: the chunk transform maps to geocentric (ECEF) coordinates of the CRS's
+        # datum; the block is in a local east-north-up frame (docs/crs.md) at the references' centroid
+        from baarda.pipeline.crs import LocalFrame, R_enu_from_ecef, ecef_from_geodetic, local_frame
+
+        has_ref = np.isfinite(m_xyz).all(axis=1)
+        if has_ref.any():
+            frame = local_frame(crs, m_xyz[has_ref], path=path, field="chunk/reference")
+        else:
+            frame = local_frame("EPSG:4978", np.array(X0).reshape(-1, 3), path=path, field="chunk/reference")
+            frame = LocalFrame(crs, frame.origin, frame.a, frame.f)
+        if has_ref.any():
+            m_xyz[has_ref] = frame.to_local(m_xyz[has_ref])
+        Re = R_enu_from_ecef(frame.origin[0], frame.origin[1])
+        o = ecef_from_geodetic(*frame.origin, frame.a, frame.f)
+        from baarda.pipeline.geometry import rotation_from_opk_many, opk_from_rotation
+
+        if len(X0):
+            X0a = np.array(X0).reshape(-1, 3)
+            Rs = rotation_from_opk_many(np.array(opk).reshape(-1, 3))       # camera ← ECEF (baarda axes)
+            X0 = list((X0a - o) @ Re.T)
+            opk = [opk_from_rotation(R @ Re.T) for R in Rs]
+            photos = Photos.make(photos.ids, camera=photos.camera, X0=np.array(X0).reshape(-1, 3),
+                                 opk=np.array(opk).reshape(-1, 3))
+        frame_info = frame.info()
     sig = np.full((len(m_ids), 3), FREE)
     sig[np.array(m_role) == "full"] = np.asarray(sigma_control_mm, float) / 1000.0
-    points = Points.make(m_ids, XYZ=np.array(m_xyz, float).reshape(-1, 3), role=m_role, sigma=sig)
+    points = Points.make(m_ids, XYZ=m_xyz, role=m_role, sigma=sig)
 
     o_ph, o_pt, o_uv = [], [], []
     for fr in chunk.findall("frames/frame"):
@@ -280,11 +302,11 @@ def read_metashape(path: str | Path, *, pixel_mm: float = 0.001, sigma_px: float
     xy = mm_from_pixels(np.array(o_uv, float).reshape(-1, 2), cameras.resolution[cam_o], cameras.pixel_mm[cam_o],
                         "colmap")
     obs = Observations.make(o_ph, np.array(o_pt, int), xy.reshape(-1, 2), sigma=sigma_px * cameras.pixel_mm[cam_o])
-    block = Block(cameras, photos, points, obs, object_unit="m",
+    block = Block(cameras, photos, points, obs, object_unit="m", crs=frame_info,
                   meta={"metashape": {"path": str(path), "crs": crs, "sensor_labels": [x[4] for x in cams],
                                       "chunk_transform": {"scale": s_w, "rotation": R_w, "translation": t_w}}},
                   source=SourceInfo(path=str(path), format="Metashape", pixel_format="Metashape"))
-    info = {"crs": crs, "local_crs": local_crs, "references_not_used": refs_ignored,
+    info = {"crs": crs, "local_crs": local_crs,
             "unaligned_cameras": len(list(cameras_el.iter("camera"))) - len(photo_ids) if cameras_el is not None else 0}
     return block, info
 

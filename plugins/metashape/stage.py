@@ -44,9 +44,6 @@ class MetashapeSource(SourceStage):
         path = ctx.resolve(options.path)
         block, info = read_metashape(path, pixel_mm=options.pixel_mm, sigma_px=options.sigma_px,
                                      sigma_control_mm=options.sigma_control_mm, intrinsics=options.intrinsics)
-        if info["references_not_used"]:
-            ctx.warn(f"{info['references_not_used']} marker reference(s) in the CRS {info['crs'][:40]!r}… not used "
-                     "(only a local chunk CRS is read as control so far)")
         if info["unaligned_cameras"]:
             ctx.warn(f"{info['unaligned_cameras']} camera(s) without a transform (not aligned) left out")
         summary = {**block.summary(), "crs": info["crs"], "local_crs": info["local_crs"]}

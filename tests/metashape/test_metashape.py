@@ -120,3 +120,42 @@ def test_broken_xml_names_element_and_field(tmp_path, old, new, field):
     with pytest.raises(InputError) as e:
         read_metashape(p)
     assert e.value.field.endswith(field) and e.value.path == str(p)
+
+
+def test_georeferenced_chunk_goes_to_a_local_frame(tmp_path):
+    """A chunk in WGS 84 (lon, lat, h): the chunk transform maps to ECEF; the block comes out in a local
+    east-north-up frame with the same image geometry (residuals of the control markers unchanged)."""
+    from xml.etree import ElementTree as ET
+
+    from baarda.pipeline.adjustment import reprojection_px
+    from baarda.pipeline.crs import R_enu_from_ecef, ecef_from_geodetic, geodetic_from_ecef
+
+    blk = _block(np.random.default_rng(8))
+    write_metashape(blk, tmp_path / "local.xml")
+    lon, lat, h = 8.5, 47.4, 400.0
+    Re, o = R_enu_from_ecef(lon, lat), ecef_from_geodetic(lon, lat, h)
+    tree = ET.parse(tmp_path / "local.xml")
+    chunk = tree.getroot().find("chunk")
+    tr = ET.SubElement(chunk, "transform")
+    ET.SubElement(tr, "rotation").text = " ".join(map(repr, Re.T.ravel().tolist()))
+    ET.SubElement(tr, "translation").text = " ".join(map(repr, o.tolist()))
+    ET.SubElement(tr, "scale").text = "1"
+    chunk.find("reference").text = "EPSG:4979"
+    for m in chunk.find("markers"):
+        ref = m.find("reference")
+        if ref is not None:
+            X = blk.points.XYZ[int(m.get("id"))] @ Re + o
+            g = geodetic_from_ecef(X)
+            ref.set("x", repr(float(g[0]))), ref.set("y", repr(float(g[1]))), ref.set("z", repr(float(g[2])))
+    tree.write(tmp_path / "geo.xml")
+    back, info = read_metashape(tmp_path / "geo.xml")
+    assert not info["local_crs"] and back.crs is not None
+    ctrl = np.flatnonzero(blk.points.role != "tie")
+    a, b = back.observations, blk.observations
+    ia, ib = np.lexsort((a.point, a.photo)), np.lexsort((b.point, b.photo))
+    va = reprojection_px(back)[ia][np.isin(a.point[ia], ctrl)]
+    vb = reprojection_px(blk)[ib][np.isin(b.point[ib], ctrl)]
+    np.testing.assert_allclose(va, vb, atol=1e-6)
+    d = lambda X: np.linalg.norm(X[:, None] - X[None], axis=-1)
+    np.testing.assert_allclose(d(back.photos.X0), d(blk.photos.X0), atol=1e-6)
+    assert np.abs(back.photos.X0).max() < 100          # local, not geocentric
