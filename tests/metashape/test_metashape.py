@@ -159,3 +159,58 @@ def test_georeferenced_chunk_goes_to_a_local_frame(tmp_path):
     d = lambda X: np.linalg.norm(X[:, None] - X[None], axis=-1)
     np.testing.assert_allclose(d(back.photos.X0), d(blk.photos.X0), atol=1e-6)
     assert np.abs(back.photos.X0).max() < 100          # local, not geocentric
+
+
+# The layout of a Metashape 2.0 camera export (component transform, cameras in a <group>, a camera
+# <reference>, k4 and b1/b2 calibrated), as public tools' tests quote it; numbers made up here.
+V2_XML = """<?xml version="1.0" encoding="UTF-8"?>
+<document version="2.0.0">
+  <chunk label="Chunk 1" enabled="true">
+    <sensors next_id="1">
+      <sensor id="0" label="M3M (12.29mm)" type="frame">
+        <resolution width="5280" height="3956"/>
+        <property name="pixel_width" value="0.0033582"/>
+        <property name="focal_length" value="12.29"/>
+        <calibration type="frame" class="adjusted">
+          <resolution width="5280" height="3956"/>
+          <f>3705.47</f><cx>11.67</cx><cy>-27.75</cy>{extra}
+        </calibration>
+        <covariance><params>f cx cy k1</params><coeffs>1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1</coeffs></covariance>
+      </sensor>
+    </sensors>
+    <components next_id="1" active_id="0">
+      <component id="0" label="Component 1">
+        <transform>
+          <rotation locked="true">0 -1 0 1 0 0 0 0 1</rotation>
+          <translation locked="true">1000 2000 300</translation>
+          <scale locked="true">2</scale>
+        </transform>
+      </component>
+    </components>
+    <cameras next_id="1" next_group_id="1">
+      <group id="0" label="Group 1" type="folder">
+        <camera id="0" sensor_id="0" component_id="0" label="a.JPG">
+          <transform>1 0 0 7 0 -1 0 5 0 0 -1 0.5 0 0 0 1</transform>
+          <orientation>1</orientation>
+          <reference x="-120.4" y="39.4" z="2420.1" yaw="179.9" pitch="0.1" roll="-0" enabled="true"/>
+        </camera>
+      </group>
+    </cameras>
+  </chunk>
+</document>
+"""
+
+
+def test_metashape2_layout(tmp_path):
+    p = tmp_path / "v2.xml"
+    p.write_text(V2_XML.format(extra="<b1>0.526</b1><b2>-0.306</b2><k1>-0.0919</k1><k4>-0.076</k4>"))
+    with pytest.raises(InputError) as e:
+        read_metashape(p)
+    assert e.value.field == "sensor[@id='0']/calibration/k4"
+    p.write_text(V2_XML.format(extra="<k1>-0.0919</k1><k2>0.05</k2>"))
+    blk, _ = read_metashape(p)
+    assert blk.photos.ids.tolist() == ["a.JPG"]
+    np.testing.assert_allclose(blk.cameras.pixel_mm, [0.0033582])
+    np.testing.assert_allclose(blk.cameras.c, [3705.47 * 0.0033582])
+    # centre = s R tc + t with R a quarter turn about z
+    np.testing.assert_allclose(blk.photos.X0[0], [1000 - 2 * 5, 2000 + 2 * 7, 300 + 2 * 0.5], atol=1e-9)
