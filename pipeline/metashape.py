@@ -97,6 +97,29 @@ def brown_from_metashape(cal: dict, pixel_mm: float) -> dict:
     return {"c": c, "xp": v["cx"] * pixel_mm, "yp": -v["cy"] * pixel_mm, "ap": ap}
 
 
+METASHAPE_AP = ("K1", "K2", "K3", "K4", "P1", "P2", "P3", "P4", "B1", "B2")
+"""Columns of ``Cameras.ap`` for the ``metashape`` AP model (:mod:`baarda.pipeline.camera.metashape_model`)."""
+
+
+def metashape_ap_from_terms(cal: dict, pixel_mm: float) -> dict:
+    """``{c, xp, yp, ap (10,)}`` of the ``metashape`` AP model: every Metashape term, exactly."""
+    v = {k: float(cal.get(k, 0.0)) for k in CALIB_TERMS}
+    f = v["f"]
+    c = f * pixel_mm
+    ap = np.array([v["k1"] / c**2, v["k2"] / c**4, v["k3"] / c**6, v["k4"] / c**8, v["p1"] / c, -v["p2"] / c,
+                   v["p3"] / c**2, v["p4"] / c**4, v["b1"] / f, -v["b2"] / f], float)
+    return {"c": c, "xp": v["cx"] * pixel_mm, "yp": -v["cy"] * pixel_mm, "ap": ap}
+
+
+def terms_from_metashape_ap(c, xp, yp, ap, pixel_mm) -> dict:
+    """Inverse of :func:`metashape_ap_from_terms`."""
+    K1, K2, K3, K4, P1, P2, P3, P4, B1, B2 = np.asarray(ap, float)
+    f = c / pixel_mm
+    return {"f": f, "cx": xp / pixel_mm, "cy": -yp / pixel_mm, "b1": B1 * f, "b2": -B2 * f,
+            "k1": K1 * c**2, "k2": K2 * c**4, "k3": K3 * c**6, "k4": K4 * c**8, "p1": P1 * c, "p2": -P2 * c,
+            "p3": P3 * c**2, "p4": P4 * c**4}
+
+
 def metashape_from_brown(c, xp, yp, ap, pixel_mm) -> dict:
     """Metashape calibration terms (pixels) of a brown camera (inverse of :func:`brown_from_metashape`)."""
     ap = np.concatenate([np.asarray(ap if ap is not None else [], float), np.zeros(7)])[:7]
@@ -109,13 +132,17 @@ def metashape_from_brown(c, xp, yp, ap, pixel_mm) -> dict:
 
 
 def read_metashape(path: str | Path, *, pixel_mm: float = 0.001, sigma_px: float = 1.0,
-                   sigma_control_mm=(10.0, 10.0, 10.0), intrinsics: str = "metashape") -> tuple[Block, dict]:
+                   sigma_control_mm=(10.0, 10.0, 10.0), intrinsics: str = "metashape",
+                   ap_model: str = "brown") -> tuple[Block, dict]:
     """Read a Metashape camera export (``<document><chunk>…``) as a block (see the module docstring).
 
     ``pixel_mm`` is used when a sensor has no ``<property name="pixel_width">``.  ``intrinsics``:
     ``"metashape"`` frees the terms the file calibrates (non-zero) and f, ``"fixed"`` none, ``"free"``
-    all brown terms and the principal point.
+    all terms and the principal point.  ``ap_model``: ``"brown"`` (k4, p3, p4 and b1/b2 with
+    distortion refused by name) or ``"metashape"`` (every term, :mod:`~baarda.pipeline.camera.metashape_model`).
     """
+    if ap_model not in ("brown", "metashape"):
+        raise ValueError(f"ap_model must be 'brown' or 'metashape', got {ap_model!r}")
     path = Path(path)
     if intrinsics not in ("metashape", "fixed", "free"):
         raise ValueError(f"intrinsics must be 'metashape', 'fixed' or 'free', got {intrinsics!r}")
@@ -158,20 +185,26 @@ def read_metashape(path: str | Path, *, pixel_mm: float = 0.001, sigma_px: float
         try:
             b = brown_from_metashape(terms, pitch)
         except ValueError as e:
-            bad = str(e).split(" ")[0]
-            raise InputError(f"{where}: {e}", path=path, field=f"{where}/calibration/{bad}") from None
+            if ap_model == "brown":
+                bad = str(e).split(" ")[0]
+                raise InputError(f"{where}: {e}; read it with ap_model = 'metashape'", path=path,
+                                 field=f"{where}/calibration/{bad}") from None
+            b = None
+        if ap_model == "metashape":
+            b = metashape_ap_from_terms(terms, pitch)
         cam_ids.append(sid)
         cams.append((b, (int(W), int(H)), pitch, terms, s.get("label", sid)))
     n = len(cams)
-    sig_ap = np.full((n, 7), FIXED)
+    names = METASHAPE_AP if ap_model == "metashape" else BROWN
+    sig_ap = np.full((n, len(names)), FIXED)
     for k, (b, _, _, terms, _) in enumerate(cams):
-        for j, name in enumerate(BROWN):
+        for j, name in enumerate(names):
             if intrinsics == "free" or (intrinsics == "metashape" and b["ap"][j] != 0.0):
                 sig_ap[k, j] = FREE
     sig_iop = np.array([[0.0 if intrinsics == "fixed" else FREE] + [FREE if intrinsics == "free" else FIXED] * 2] * n)
     cameras = Cameras(ids=np.array(cam_ids, dtype=str), c=[x[0]["c"] for x in cams], xp=[x[0]["xp"] for x in cams],
-                      yp=[x[0]["yp"] for x in cams], ap_model=np.array(["brown"] * n, dtype=str),
-                      ap=np.array([x[0]["ap"] for x in cams]).reshape(n, 7), sigma_iop=sig_iop.reshape(n, 3),
+                      yp=[x[0]["yp"] for x in cams], ap_model=np.array([ap_model] * n, dtype=str),
+                      ap=np.array([x[0]["ap"] for x in cams]).reshape(n, len(names)), sigma_iop=sig_iop.reshape(n, 3),
                       sigma_ap=sig_ap, format_mm=np.array([[x[1][0] * x[2], x[1][1] * x[2]] for x in cams]),
                       pixel_mm=[x[2] for x in cams], resolution=np.array([x[1] for x in cams], int).reshape(n, 2))
     cam_index = {c: k for k, c in enumerate(cam_ids)}
@@ -325,10 +358,13 @@ def write_metashape(block: Block, path: str | Path) -> dict:
     chunk = SubElement(doc, "chunk", label="baarda", enabled="true")
     sensors = SubElement(chunk, "sensors", next_id=str(len(cm)))
     for k, cid in enumerate(cm.ids.tolist()):
-        if cm.ap_model[k] not in ("none", "brown"):
+        if cm.ap_model[k] not in ("none", "brown", "metashape"):
             raise ValueError(f"camera {cid}: AP model {cm.ap_model[k]!r} has no Metashape counterpart")
-        ap = cm.ap[k] if cm.ap_model[k] == "brown" else np.zeros(7)
-        terms = metashape_from_brown(cm.c[k], cm.xp[k], cm.yp[k], ap, cm.pixel_mm[k])
+        if cm.ap_model[k] == "metashape":
+            terms = terms_from_metashape_ap(cm.c[k], cm.xp[k], cm.yp[k], cm.ap[k], cm.pixel_mm[k])
+        else:
+            ap = cm.ap[k] if cm.ap_model[k] == "brown" else np.zeros(7)
+            terms = metashape_from_brown(cm.c[k], cm.xp[k], cm.yp[k], ap, cm.pixel_mm[k])
         W, H = (int(v) for v in cm.resolution[k])
         s = SubElement(sensors, "sensor", id=str(k), label=cid, type="frame")
         SubElement(s, "resolution", width=str(W), height=str(H))
@@ -336,8 +372,8 @@ def write_metashape(block: Block, path: str | Path) -> dict:
         SubElement(s, "property", name="pixel_height", value=_fmt(cm.pixel_mm[k]))
         cal = SubElement(s, "calibration", type="frame", **{"class": "adjusted"})
         SubElement(cal, "resolution", width=str(W), height=str(H))
-        for name in ("f", "cx", "cy", "b1", "b2", "k1", "k2", "k3", "p1", "p2"):
-            if name in ("f", "cx", "cy") or terms[name] != 0.0:
+        for name in CALIB_TERMS:
+            if name in ("f", "cx", "cy") or terms.get(name, 0.0) != 0.0:
                 SubElement(cal, name).text = _fmt(terms[name])
     ph = block.photos
     ok = np.isfinite(ph.X0).all(axis=1) & np.isfinite(ph.opk).all(axis=1)

@@ -22,6 +22,10 @@ class MetashapeSourceOptions:
         "metashape", "unknown interior parameters: 'metashape' f and the terms the file calibrates, 'fixed' none, "
                      "'free' all brown terms and the principal point")
 
+    ap_model: Literal["brown", "metashape"] = option(
+        "brown", "'brown' (k4, p3, p4, and b1/b2 with distortion refused by name) or 'metashape' (every "
+                 "term of Metashape's model, AP model 'metashape')")
+
     def __post_init__(self):
         if self.pixel_mm <= 0 or self.sigma_px <= 0:
             raise ValueError("pixel_mm and sigma_px must be > 0")
@@ -43,7 +47,8 @@ class MetashapeSource(SourceStage):
             raise InputError("option 'path' (the Metashape XML) is required", field="path", path=ctx.project_file)
         path = ctx.resolve(options.path)
         block, info = read_metashape(path, pixel_mm=options.pixel_mm, sigma_px=options.sigma_px,
-                                     sigma_control_mm=options.sigma_control_mm, intrinsics=options.intrinsics)
+                                     sigma_control_mm=options.sigma_control_mm, intrinsics=options.intrinsics,
+                                     ap_model=options.ap_model)
         if info["unaligned_cameras"]:
             ctx.warn(f"{info['unaligned_cameras']} camera(s) without a transform (not aligned) left out")
         summary = {**block.summary(), "crs": info["crs"], "local_crs": info["local_crs"]}

@@ -214,3 +214,38 @@ def test_metashape2_layout(tmp_path):
     np.testing.assert_allclose(blk.cameras.c, [3705.47 * 0.0033582])
     # centre = s R tc + t with R a quarter turn about z
     np.testing.assert_allclose(blk.photos.X0[0], [1000 - 2 * 5, 2000 + 2 * 7, 300 + 2 * 0.5], atol=1e-9)
+
+
+@pytest.mark.parametrize("terms", [
+    {"f": 3705.47, "cx": 11.67, "cy": -27.75, "b1": 0.526, "b2": -0.306, "k1": -0.0919, "k2": -0.0763, "k3": 0.116,
+     "k4": -0.0761, "p1": -3.1e-4, "p2": 1.2e-4, "p3": 0.5, "p4": -0.2},
+])
+def test_metashape_ap_model_maps_every_term_exactly(tmp_path, terms):
+    from baarda.pipeline.metashape import metashape_ap_from_terms, terms_from_metashape_ap
+
+    rng = np.random.default_rng(6)
+    p, W, H = 0.0033582, 5280, 3956
+    b = metashape_ap_from_terms(terms, p)
+    back = terms_from_metashape_ap(b["c"], b["xp"], b["yp"], b["ap"], p)
+    for k, v in terms.items():
+        assert back[k] == pytest.approx(v, rel=1e-12)
+    cams = Cameras.make(["s"], b["c"], xp=b["xp"], yp=b["yp"], ap_model="metashape", ap=b["ap"][None], pixel_mm=p,
+                        resolution=(W, H), format_mm=(W * p, H * p))
+    Xc = np.column_stack([rng.uniform(-0.6, 0.6, 20), rng.uniform(-0.4, 0.4, 20), np.ones(20)]) * 10.0
+    blk = Block(cams, Photos.make(["a"], X0=[0, 0, 0], opk=[np.pi, 0, 0]),
+                Points.make([str(i) for i in range(20)], XYZ=Xc), Observations.make(np.zeros(20), np.arange(20),
+                                                                                      np.zeros((20, 2))))
+    mine = project_block(blk, np.zeros(20, int), np.arange(20))
+    for k in range(20):
+        uv = _metashape_project(terms, W, H, Xc[k])
+        np.testing.assert_allclose(mine[k], [(uv[0] - W / 2) * p, -(uv[1] - H / 2) * p], atol=1e-11)
+    # the reader takes them with ap_model = "metashape", and the writer gives them back
+    (tmp_path / "v2.xml").write_text(V2_XML.format(extra="".join(f"<{k}>{v!r}</{k}>" for k, v in terms.items()
+                                                                  if k not in ("f", "cx", "cy"))))
+    with pytest.raises(InputError):
+        read_metashape(tmp_path / "v2.xml")
+    rb, _ = read_metashape(tmp_path / "v2.xml", ap_model="metashape")
+    np.testing.assert_allclose(rb.cameras.ap[0][:8], b["ap"][:8], rtol=1e-12)
+    write_metashape(rb, tmp_path / "out.xml")
+    again, _ = read_metashape(tmp_path / "out.xml", ap_model="metashape")
+    np.testing.assert_allclose(again.cameras.ap, rb.cameras.ap, rtol=1e-12)
