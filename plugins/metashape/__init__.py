@@ -1,0 +1,1 @@
+"""Agisoft Metashape camera XML source and writer (docs/metashape-opensfm.md)."""

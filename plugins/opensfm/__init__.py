@@ -1,0 +1,1 @@
+"""OpenSfM / OpenDroneMap reconstruction.json source and writer (docs/metashape-opensfm.md)."""
