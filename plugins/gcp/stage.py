@@ -108,7 +108,8 @@ class GcpListSource(SourceStage):
             frame = local_frame(gcp.crs, gcp.geo, path=gcp.path, line=gcp.crs_line, field="crs")
         block, info = gcp_block(gcp, camera, frame, sigma_px=options.sigma_px,
                                 sigma_control=np.asarray(options.sigma_control_mm) / 1000.0, check=options.check,
-                                min_points=options.min_points)
+                                min_points=options.min_points,
+                                check_where={"path": ctx.project_file, "line": ctx.option_lines.get("check")})
         for img, n in info["dropped_photos"].items():
             ctx.warn(f"photo {img} left out: it measures {n} control target(s), resection needs {options.min_points}")
         summary = {**block.summary(), **{k: v for k, v in info.items() if k != "dropped_photos"},
