@@ -208,3 +208,16 @@ def test_marks_outside_the_image_count_on_either_side(project, u):
     _edit(marks, " 1,    2, 1429.1871", f" 1,    2, {u}")
     out = _read(project).meta["dbat"].marks_outside
     assert out == (1, f"markpts.txt:{line}")
+
+
+def test_the_stage_warns_of_a_mark_left_of_the_image(project, tmp_path):
+    """u = −100 px is reported as u = W + 100 px is: a warning naming the file and line."""
+    from baarda.pipeline.testing import run_stage
+    from baarda.plugins.dbat.stage import DbatSource
+
+    marks = project / "measurements" / "markpts.txt"
+    line = _line_of(marks, " 1,    2, 1429.1871")
+    _edit(marks, " 1,    2, 1429.1871", " 1,    2, -100.0")
+    res = run_stage(DbatSource, {}, {"path": str(project / "camcaldemo.xml")}, tmp_path=tmp_path)
+    assert any("1 mark(s) outside the 2272 × 1704 px image" in w and f"markpts.txt:{line}" in w for w in res.warnings), \
+        res.warnings
