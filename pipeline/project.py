@@ -522,10 +522,14 @@ def validate_inputs(project: Project) -> list[str]:
     and field for a mistake inside it).  A stage that reads the block may have a
     ``validate_block(options, block, ctx)`` hook: it gets the block the sources before it read (as
     read, before any adjustment) and checks the options that must fit it (point ids of a datum,
-    camera names).  Returns the warnings of the hooks as ``"[id] text"``.
+    camera names).  A stage with ``validate_rows(options, block, adjuster, ctx)`` gets the last
+    source's block and the :class:`StageSpec` of the stage that writes the adjustment it reads, when
+    no other stage changed the block in between (blunder-rejection bounds RRR's ``rho`` by n − u).
+    Returns the warnings of the hooks as ``"[id] text"``.
     """
     warnings = []
     latest = None                   # the block the sources read so far (for ``validate_block`` hooks)
+    source, since, adjuster = None, [], None   # the last source's block, stages that changed it since, the adjuster
     for spec in project.stages:
         for name, role in path_roles(spec.cls).items():
             if role == "output":
@@ -537,13 +541,20 @@ def validate_inputs(project: Project) -> list[str]:
         block_hook = getattr(spec.cls, "validate_block", None)
         if block_hook is not None and latest is not None and "block" in [r.rstrip("?") for r in spec.cls.reads]:
             spec.cls().validate_block(spec.options, latest, ctx)      # options that must fit the block
+        if (getattr(spec.cls, "validate_rows", None) is not None and source is not None
+                and all(s is adjuster for s in since)):
+            spec.cls().validate_rows(spec.options, source, adjuster, ctx)   # counts the adjustment's rows bound
         hook = getattr(spec.cls, "validate", None)
         block = spec.cls().validate(spec.options, ctx) if hook is not None else None
         if block is not None and hasattr(block, "observations"):      # a source's block: the runner's checks
             for w in check_block(block):
                 ctx.warn(w)
-            latest = block
+            latest = source = block
+            since = []
         elif "block" in [w.rstrip("?") for w in spec.cls.writes]:
             latest = None           # a stage changes the block in ways validate cannot know: no guesses
+            since.append(spec)
+        if "adjustment" in [w.rstrip("?") for w in spec.cls.writes]:
+            adjuster = spec
         warnings += [f"[{spec.id}] {w}" for w in ctx.warnings]
     return warnings

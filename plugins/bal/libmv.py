@@ -100,6 +100,25 @@ def _unique(keys: np.ndarray, path, what: str, key: str, offset: int, size: int)
                          f"{int(order[twice[0]])}", path=path, field=what)
 
 
+ROTATION_TOL = 1e-4
+"""Largest |R Rᵀ − I| element of a stored camera rotation (float32 in the file: ~1e-7 for a real one);
+beyond it, or with det R < 0, the rotation is refused rather than replaced by the nearest rotation."""
+
+
+def _rotations(R: np.ndarray, path, offset: int, size: int) -> None:
+    """Every camera rotation orthonormal within :data:`ROTATION_TOL` and proper (det +1)."""
+    if not len(R):
+        return
+    err = np.abs(np.einsum("kij,klj->kil", R, R) - np.eye(3)).max(axis=(1, 2))
+    bad = (err > ROTATION_TOL) | (np.linalg.det(R) < 0)
+    if bad.any():
+        k = int(np.argmax(bad))
+        what = (f"is not orthonormal (largest |R Rᵀ − I| element {err[k]:.3g} > {ROTATION_TOL:g})" if err[k] > ROTATION_TOL
+                else "is a reflection (det R < 0)")
+        raise InputError(f"cameras record {k} (byte offset {offset + k * size}): the rotation R {what}", path=path,
+                         field="cameras.R")
+
+
 def read_libmv(path: str | Path) -> LibmvProblem:
     """Parse a libmv problem file (InputError naming the section on any format error)."""
     path = Path(path)
@@ -119,7 +138,7 @@ def read_libmv(path: str | Path) -> LibmvProblem:
     if not intr[0] > 0:
         raise InputError(f"focal length f = {intr[0]:g} must be positive (byte offset 2)", path=path,
                          field="intrinsics")
-    at = cur.pos + 4
+    at = at_cams = cur.pos + 4
     cams = cur.records([("image", "i4", 1), ("R", "f4", 9), ("t", "f4", 3)], "cameras")
     _finite(np.hstack([cams["R"].reshape(-1, 9), cams["t"].reshape(-1, 3)]), path, "cameras", at, 52)
     _unique(cams["image"], path, "cameras", "image", at, 52)
@@ -135,6 +154,7 @@ def read_libmv(path: str | Path) -> LibmvProblem:
     if cur.pos != len(data):
         raise InputError(f"{len(data) - cur.pos} unexpected bytes after the markers", path=path, field="markers")
     R = cams["R"].astype(float).reshape(-1, 3, 3).transpose(0, 2, 1)   # column-major in the file
+    _rotations(R, path, at_cams, 52)
     return LibmvProblem(intrinsics=intr, image=cams["image"].astype(int), R=R, t=cams["t"].astype(float),
                         track=pts["track"].astype(int), X=pts["X"].astype(float),
                         marker_image=mk["image"].astype(int), marker_track=mk["track"].astype(int),

@@ -29,11 +29,54 @@ class BlunderReport:
     acted_observations: np.ndarray  # block observation indices marked inactive (or flagged)
 
 
+def redundancy_bound(block, adjuster=None) -> tuple[int, int]:
+    """``(n_max, u_min)``: at most n observation rows and at least u unknowns an adjustment of ``block``
+    can have, for ``baarda validate`` (n − u ≥ the adjustment's redundancy is not guaranteed the
+    other way: validate refuses only what no run can accept).
+
+    n counts every row the block can give: two per active image observation, three per GNSS
+    antenna, one per weighted (0 < σ < ∞) point coordinate, orientation element and camera
+    parameter, and the ``distances`` of the adjusting stage's options.  u is only bounded for a
+    ``bundle``: three per tie point with an active observation and no a-priori σ; otherwise 0."""
+    def weighted(s):
+        s = np.asarray(s, float)
+        return int(((s > 0) & np.isfinite(s)).sum()) if s.size else 0
+
+    obs = block.observations
+    active = np.asarray(obs.active, bool)
+    n = 2 * int(active.sum())
+    gnss = getattr(block, "gnss", None)
+    n += 3 * (len(gnss) if gnss is not None else 0)
+    n += weighted(block.points.sigma) + weighted(block.photos.sigma_eo)
+    n += weighted(block.cameras.sigma_iop) + weighted(block.cameras.sigma_ap)
+    u = 0
+    if adjuster is not None:
+        n += len(getattr(adjuster.options, "distances", None) or ())
+        if adjuster.use == "bundle":
+            seen = np.zeros(len(block.points), bool)
+            seen[np.asarray(obs.point)[active]] = True
+            free = np.isinf(np.asarray(block.points.sigma, float).reshape(len(block.points), -1)).all(axis=1)
+            u = 3 * int((seen & (np.asarray(block.points.role) == "tie") & free).sum())
+    return n, u
+
+
 class BlunderRejection:
     summary = "Reject gross errors in any adjustment: data snooping, IDS, Pope τ, RRR (side by side)"
     reads = ("adjustment", "block")
     writes = ("blunders", "block")
     Options = BlunderOptions
+
+    def validate_rows(self, options: BlunderOptions, block, adjuster, ctx: Context) -> None:
+        """``baarda validate``: RRR's ``rho`` below an upper bound of n − u, from the source's block and
+        the adjusting stage (``adjuster``, a StageSpec or None) — :func:`redundancy_bound`."""
+        methods = list(METHODS) if options.method == "all" else [options.method]
+        if "rrr" not in methods or not options.rho:
+            return
+        n, u = redundancy_bound(block, adjuster)
+        if options.rho >= n - u:
+            raise ctx.option_error(f"rho = {options.rho} suspects leave no redundant clean observation: RRR needs "
+                                   f"rho < n − u, and this block gives at most n = {n} observation rows and at "
+                                   f"least u = {u} unknowns (n − u ≤ {n - u})", "rho")
 
     def run(self, inputs, options: BlunderOptions, ctx: Context) -> StageResult:
         art = inputs["adjustment"]

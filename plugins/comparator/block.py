@@ -14,7 +14,7 @@ import numpy as np
 from baarda.pipeline.api import Block, InputError
 from baarda.pipeline.model import Cameras, Observations, Pairs, Photos, Points, SourceInfo
 
-from .interior import MIN_FIDUCIALS, InteriorFit, fit_interior
+from .interior import FIDUCIAL_COND_MAX, MIN_FIDUCIALS, InteriorFit, fiducial_spread_ratio, fit_interior
 from .parser import ComparatorFile
 
 DEFAULT_SIGMA_MM = 0.005
@@ -77,6 +77,12 @@ def interior_orientation(parsed: ComparatorFile, transform: str | None = None) -
                              f"orientation needs at least {need}", parsed.path, ph.line, "fid")
         XY = np.array([[ph.fids[f].x, ph.fids[f].y] for f in ids]) * parsed.unit_mm
         xy = np.array([[cam.fiducials[f].x, cam.fiducials[f].y] for f in ids])
+        if kind == "affine" and (ratio := fiducial_spread_ratio(XY)) > FIDUCIAL_COND_MAX:
+            lines = ", ".join(str(ph.fids[f].line) for f in ids)
+            raise InputError(f"photo {ph.id!r}: the fiducials {', '.join(ids)} (lines {lines}) lie nearly on one line "
+                             f"(principal spreads in the ratio {ratio:.3g} : 1, more than {FIDUCIAL_COND_MAX:g}): "
+                             "they cannot determine the affine interior orientation", parsed.path,
+                             ph.fids[ids[0]].line, "fid")
         try:
             fit = fit_interior(XY, xy, kind)
         except ValueError as e:

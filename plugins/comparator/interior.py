@@ -32,6 +32,11 @@ from baarda.pipeline.geometry.transforms import affine_design, helmert_design
 KINDS = {"affine": 6, "similarity": 4}
 """Transformation name → number of parameters."""
 
+FIDUCIAL_COND_MAX = 100.0
+"""Largest accepted ratio of the two principal spreads (singular values of the centred machine
+coordinates) of the fiducials of an affine interior orientation: beyond it the fiducials lie so close
+to one line that the affine transformation across that line is not determined (an InputError)."""
+
 MIN_FIDUCIALS = {"affine": 3, "similarity": 2}
 """Fewest fiducial marks each transformation can be computed from."""
 
@@ -72,6 +77,14 @@ class InteriorFit:
     def apply(self, XY_mm: np.ndarray) -> np.ndarray:
         """Transform machine coordinates (already in mm), shape (k, 2), into the image system."""
         return np.asarray(XY_mm, float).reshape(-1, 2) @ self.M.T + self.t
+
+
+def fiducial_spread_ratio(XY_machine_mm: np.ndarray) -> float:
+    """Ratio of the larger to the smaller principal spread of the fiducials (inf when collinear):
+    the condition of the affine interior orientation's linear part (:data:`FIDUCIAL_COND_MAX`)."""
+    XY = np.asarray(XY_machine_mm, float).reshape(-1, 2)
+    s = np.linalg.svd(XY - XY.mean(axis=0), compute_uv=False)
+    return float(s[0] / s[1]) if len(s) > 1 and s[1] > 0 else float("inf")
 
 
 def design_rows(kind: str, XY: np.ndarray) -> np.ndarray:

@@ -22,6 +22,9 @@ UNITS = {"mm": 1.0, "um": 1e-3, "µm": 1e-3, "μm": 1e-3}
 """Comparator units accepted by the ``unit`` line and their size in mm."""
 
 MODES = ("fiducial", "photo")
+MAX_COORD_MM = 1.0e4
+"""A measured coordinate (fiducial or point, converted to mm) beyond ±10 m is an input error: no
+comparator stage or image is that large."""
 OBJECT_UNITS = ("m", "mm")
 HEADER_KEYS = ("unit", "mode", "transform", "sigma", "object_unit")
 KEYWORDS = HEADER_KEYS + ("camera", "fiducial", "photo", "fid", "pt", "pair", "point")
@@ -309,6 +312,12 @@ class _Reader:
                         known = ", ".join(cam.fiducials) or "(none)"
                         raise self.error(f"fiducial {quote(m.id)} of photo {quote(ph.id)} is not calibrated for "
                                          f"camera {quote(cam.id)} (calibrated: {known})", m.line, "fid")
+            for m in (*ph.fids.values(), *ph.pts.values()):
+                for fld, val in (("x", m.x), ("y", m.y)):
+                    if abs(val) * out.unit_mm > MAX_COORD_MM:
+                        raise self.error(f"{fld} = {val:g} {out.unit} of {quote(m.id)} in photo {quote(ph.id)} lies "
+                                         f"beyond {MAX_COORD_MM:g} mm from the origin: no comparator or image reaches "
+                                         "that far (a unit or decimal-point mistake?)", m.line, fld)
         for p in out.pairs:
             for side, pid in (("left", p.left), ("right", p.right)):
                 if pid not in out.photos:

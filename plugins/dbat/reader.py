@@ -54,6 +54,10 @@ DBAT_SIGN = np.ones(7)
 """baarda value = DBAT value × sign: DBAT's image y axis points down, so its P2 and skew flip."""
 
 SUPPORTED_LENS_MODELS = {3: "brown-backward"}
+SWAP_FRACTION = 0.05
+"""A marks file with at least this fraction (and at least 3) of its marks outside the camera's W × H px
+image, of which fewer than a tenth lie outside H × W, is refused: x and y swapped in its ``format`` (or in
+``<image>``)."""
 KNOWN_OPERATIONS = {"check_ray_count", "set_initial_values", "set_bundle_estimate_params",
                     "spatial_resection", "forward_intersection", "bundle_adjustment", "set_datum"}
 """Every operation DBAT's script runner knows (``parseops.m``); any other is refused by name."""
@@ -228,6 +232,7 @@ class DbatInfo:
     unmeasured_control: tuple[str, ...]
     control_files: tuple[str, ...]
     check_files: tuple[str, ...]
+    marks_outside: tuple = ()          # (count, "file:line" of the first) of marks outside the W × H px image
 
     def __post_init__(self):
         for name in ("estimate_io", "labels", "images", "image_paths", "image_numbers"):
@@ -266,6 +271,7 @@ class MarkFile:
     sigma_px: np.ndarray       # (k,)
     lines: list[int]
     sigma_source: str          # "column" | "attribute"
+    format_line: int = 0       # the script's line of this file's <file format=...> (0: unknown)
 
 
 @dataclass(frozen=True)
@@ -561,7 +567,8 @@ def _marks(section: Node, path, base, here, dbat_dir) -> list[MarkFile]:
         file = _resolve(base, fn.value, here, dbat_dir, path, fn.line, "file")
         bulk = _marks_bulk(file, cols, s_attr if attr is not None else None)
         if bulk is not None:
-            out.append(MarkFile(file=file, **bulk, sigma_source="attribute" if attr is not None else "column"))
+            out.append(MarkFile(file=file, **bulk, sigma_source="attribute" if attr is not None else "column",
+                                format_line=fn.line or 0))
             continue
         # line by line: names the line and field of the first mistake
         im, pt, uv, sg, lines = [], [], [], [], []
@@ -581,7 +588,7 @@ def _marks(section: Node, path, base, here, dbat_dir) -> list[MarkFile]:
             lines.append(line)
         out.append(MarkFile(file=file, image=im, point=pt, uv=np.asarray(uv, float).reshape(-1, 2),
                             sigma_px=np.asarray(sg, float), lines=lines,
-                            sigma_source="attribute" if attr is not None else "column"))
+                            sigma_source="attribute" if attr is not None else "column", format_line=fn.line or 0))
     return out
 
 
@@ -1013,6 +1020,22 @@ def dbat_block(script: DbatScript, datum: str = "script") -> Block:
         k = int(np.flatnonzero(out)[0])
         u, v = m_uv[k]
         raise InputError(f"mark ({u:g}, {v:g}) px lies far outside the {W} × {H} image", field="x", **where_(k))
+    # outside the image on any side alike (u < 0 as u > W); most of a file's marks outside the W × H image
+    # but inside H × W: x and y swapped in the file's format (or the camera's image size)
+    inside = (m_uv[:, 0] >= 0) & (m_uv[:, 0] <= W) & (m_uv[:, 1] >= 0) & (m_uv[:, 1] <= H)
+    inside_t = (m_uv[:, 0] >= 0) & (m_uv[:, 0] <= H) & (m_uv[:, 1] >= 0) & (m_uv[:, 1] <= W)
+    if W != H:
+        for f, mf in enumerate(script.marks):
+            sel = m_file == f
+            n_f, n_out, n_out_t = int(sel.sum()), int((~inside[sel]).sum()), int((~inside_t[sel]).sum())
+            if n_out >= max(3, SWAP_FRACTION * n_f) and 10 * n_out_t < n_out:
+                raise InputError(f"{n_out} of {n_f} marks of {mf.file.name} lie outside the {W} × {H} px image but "
+                                 f"{n_f - n_out_t} inside {H} × {W}: x and y are swapped in the format (or in the "
+                                 f"camera's <image>)", path=script.path, line=mf.format_line or None, field="format")
+    marks_outside = ()
+    if not inside.all():
+        k = int(np.flatnonzero(~inside)[0])
+        marks_outside = (int((~inside).sum()), f"{script.marks[m_file[k]].file.name}:{int(m_line[k])}")
     u_list = u_pt.tolist()
     new = [u_list[q] for q in np.argsort(first_pt, kind="stable").tolist() if u_list[q] not in where]
     for pid in new:                                  # new tie points in order of first appearance
@@ -1080,7 +1103,8 @@ def dbat_block(script: DbatScript, datum: str = "script") -> Block:
         marks=[DbatMarksInfo(file=str(m.file), count=len(m.point), sigma_px=sorted(set(m.sigma_px.tolist())),
                              sigma_source=m.sigma_source) for m in script.marks],
         dropped_points=dropped, dropped_marks=int((~keep_obs).sum()), unmeasured_control=unused_ctrl,
-        control_files=[str(s.file) for s in script.control], check_files=[str(s.file) for s in script.check])
+        control_files=[str(s.file) for s in script.control], check_files=[str(s.file) for s in script.check],
+        marks_outside=marks_outside)
     meta = {"dbat": info}
     if datum == "script" and script.datum is not None:
         meta["dbat_datum"] = {"ref_photo": str(photos.ids[ref]), "fixed_photo": str(photos.ids[j]),

@@ -54,6 +54,9 @@ class DbatSource(SourceStage):
         if options.crs is not None:
             block = _in_crs(block, options.crs, ctx)
         d: DbatInfo = block.meta["dbat"]
+        if d_out := block.meta["dbat"].marks_outside:
+            ctx.warn(f"{d_out[0]} mark(s) outside the {script.camera.image[0]} × {script.camera.image[1]} px image "
+                     f"(u < 0 or u > W, v < 0 or v > H; first: {d_out[1]})")
         pts = block.points
         summary = {**block.summary(), "script": d.script, "name": d.name,
                    "control": int((pts.role == "full").sum()), "check": int((pts.role == "check").sum()),

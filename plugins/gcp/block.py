@@ -50,13 +50,15 @@ class CameraSpec:
 
 
 def gcp_block(gcp, camera: CameraSpec, frame, *, sigma_px: float = 1.0, sigma_control=(0.02, 0.02, 0.03),
-              check=(), min_points: int = 4) -> tuple[Block, dict]:
+              check=(), min_points: int = 4, check_where: dict | None = None) -> tuple[Block, dict]:
     """The block of a parsed GCP list (:class:`~.reader.GcpList`) in ``frame`` (a
     :class:`~baarda.pipeline.crs.LocalFrame`; object unit m).
 
     Targets become control points (role ``full``, a-priori σ ``sigma_control`` (E, N, h) metres) or,
     when named in ``check``, check points.  Photos with fewer than ``min_points`` measured control
-    targets cannot be resected and are left out with their measurements (``info["dropped_photos"]``).
+    targets cannot be resected and are left out with their measurements (``info["dropped_photos"]``);
+    none left is an InputError saying so (before a check-list mistake).  ``check_where`` (``path``,
+    ``line``): where the check list is written, named when it names a target the list lacks.
     Pixels: ODM's column/row with the origin at the centre of the top-left pixel, y down (OpenCV's
     convention); outside the image is an error naming the line.
     """
@@ -71,8 +73,22 @@ def gcp_block(gcp, camera: CameraSpec, frame, *, sigma_px: float = 1.0, sigma_co
                          line=int(gcp.line[k]), field=fld)
     names = list(dict.fromkeys(gcp.name))
     unknown = sorted(set(check) - set(names))
+    n_control = {i: 0 for i in dict.fromkeys(gcp.image)}
+    for i, n in zip(gcp.image, gcp.name):
+        n_control[i] += int(n not in set(check))
+    if n_control and max(n_control.values()) < min_points:     # the real reason first, then a check-list mistake
+        most = max(n_control.values())
+        n_chk = len(set(check) & set(names))
+        raise InputError(f"no photo can be resected: a photo needs {min_points} measured control targets (min_points) "
+                         f"and the best of the {len(n_control)} photo(s) measures {most}"
+                         + (f" ({n_chk} of the list's {len(names)} targets are check points, which do not count)"
+                            if n_chk else "")
+                         + (f"; the check list also names {', '.join(map(repr, unknown))}, not in this list"
+                            if unknown else ""), path=gcp.path, field="image_name")
     if unknown:
-        raise InputError(f"check point(s) {', '.join(map(repr, unknown))} not in the GCP list", field="check")
+        raise InputError(f"check point(s) {', '.join(map(repr, unknown))} not in the GCP list {gcp.path} (its targets: "
+                         f"{', '.join(names[:10])}{' …' if len(names) > 10 else ''})", field="check",
+                         **(check_where or {}))
     first = {n: k for k, n in reversed(list(enumerate(gcp.name)))}
     geo = np.array([gcp.geo[first[n]] for n in names])
     XYZ = frame.to_local(geo)

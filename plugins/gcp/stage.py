@@ -108,7 +108,8 @@ class GcpListSource(SourceStage):
             frame = local_frame(gcp.crs, gcp.geo, path=gcp.path, line=gcp.crs_line, field="crs")
         block, info = gcp_block(gcp, camera, frame, sigma_px=options.sigma_px,
                                 sigma_control=np.asarray(options.sigma_control_mm) / 1000.0, check=options.check,
-                                min_points=options.min_points)
+                                min_points=options.min_points,
+                                check_where={"path": ctx.project_file, "line": ctx.option_lines.get("check")})
         for img, n in info["dropped_photos"].items():
             ctx.warn(f"photo {img} left out: it measures {n} control target(s), resection needs {options.min_points}")
         summary = {**block.summary(), **{k: v for k, v in info.items() if k != "dropped_photos"},
@@ -195,6 +196,37 @@ LEVER_ARM_MAX_M = 30.0
 """Largest antenna offset from the camera (metres) accepted: larger ones are lever arms in mm."""
 
 
+def _check_heights(g, crs) -> None:
+    """Every GNSS row on the Earth in its CRS: the ellipsoidal height between −1 km and +100 km (as
+    :func:`~baarda.pipeline.crs.local_frame` checks a source's points); else heights in mm, or
+    coordinates not in this CRS — an InputError naming the CSV line and the column."""
+    from baarda.pipeline.crs import WGS84_A, WGS84_F, LocalFrame
+
+    ell = crs.ellipsoid
+    a = float(ell.semi_major_metre) if ell is not None else WGS84_A
+    inv_f = float(ell.inverse_flattening) if ell is not None else 1.0 / WGS84_F
+    frame = LocalFrame(crs.to_wkt(), (0.0, 0.0, 0.0), a, 1.0 / inv_f if inv_f else 0.0)
+    ok = np.isfinite(g.xyz).all(axis=1)
+    try:
+        h = np.full(len(g.xyz), np.nan)
+        h[ok] = frame.geodetic(g.xyz[ok])[:, 2]
+    except InputError as e:
+        raise InputError(f"the GNSS coordinates cannot be placed in their CRS: {e.message}", path=g.path,
+                         line=g.crs_line, field="crs") from None
+    bad = ok & ~((h > HEIGHT_MIN_M) & (h < HEIGHT_MAX_M))
+    if bad.any():
+        k = int(np.flatnonzero(bad)[0])
+        kind = "geocentric" if crs.is_geocentric else ("geographic" if crs.is_geographic else "projected")
+        fld = "X, Y, Z" if crs.is_geocentric else g.columns[2]
+        raise InputError(f"in the {kind} CRS of the file this row lies {h[k] / 1000:.4g} km from the ellipsoid "
+                         f"({int(bad.sum())} of {len(h)} rows outside {HEIGHT_MIN_M / 1000:g} … {HEIGHT_MAX_M / 1000:g} km): "
+                         "heights in mm, or coordinates not in this CRS?", path=g.path, line=int(g.line[k]), field=fld)
+
+
+HEIGHT_MIN_M, HEIGHT_MAX_M = -1_000.0, 100_000.0
+"""A GNSS antenna's ellipsoidal height lies between these (m), as a source's points in ``local_frame``."""
+
+
 class GnssCentres:
     summary = "GNSS antenna positions per photo (CSV, any CRS, lever arm per camera) as observations of the bundle"
     reads = ("block",)
@@ -229,10 +261,14 @@ class GnssCentres:
             raise InputError("the gnss-centres stage needs the option 'path' (the GNSS CSV)", path=ctx.project_file,
                              field="path")
         g = read_gnss_csv(ctx.resolve(options.path))
+        crs_src = None
         if g.crs and str(g.crs).strip().lower() not in ("local", "none"):
-            parse_crs(g.crs, path=g.path, line=g.crs_line, field="crs")
+            crs_src = parse_crs(g.crs, path=g.path, line=g.crs_line, field="crs")
         if options.crs and str(options.crs).strip().lower() not in ("local", "none"):
-            parse_crs(options.crs, path=ctx.project_file, field="crs")
+            crs_opt = parse_crs(options.crs, path=ctx.project_file, field="crs")
+            crs_src = crs_src if g.crs else crs_opt
+        if crs_src is not None and len(g.xyz):
+            _check_heights(g, crs_src)
         for cid, arm in options.lever_arm.items():
             if max(abs(float(x)) for x in arm) > LEVER_ARM_MAX_M:
                 raise ctx.option_error(f"lever_arm.{cid}: an antenna offset of {max(abs(float(x)) for x in arm):g} m "

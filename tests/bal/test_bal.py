@@ -254,3 +254,16 @@ def test_points_behind_their_camera(bal_dir, tmp_path):
             assert np.array_equal(active, ~behind) and not ctx.warnings
         else:
             assert active.all() and "31 observation(s) of points behind their camera" in ctx.warnings[0]
+
+
+def test_libmv_rotation_not_orthonormal_is_refused(libmv_dir, tmp_path):
+    """A camera rotation with a zero diagonal is an InputError naming the record, its byte offset and
+    the field (was: silently replaced by the nearest rotation)."""
+    data = bytearray((libmv_dir / "problem_03.bin").read_bytes())
+    rec = 38 + 2 * 52                                    # camera record 2: image i4, R 9 × f4, t 3 × f4
+    for d in (0, 4, 8):
+        data[rec + 4 + 4 * d:rec + 8 + 4 * d] = np.float32(0).tobytes()
+    (tmp_path / "zero.bin").write_bytes(bytes(data))
+    with pytest.raises(InputError, match="record 2 .*not orthonormal") as e:
+        read_libmv(tmp_path / "zero.bin")
+    assert e.value.field == "cameras.R" and f"byte offset {rec}" in str(e.value)

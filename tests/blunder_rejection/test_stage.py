@@ -171,3 +171,37 @@ def test_ids_stop_w_test_reaches_the_library(tmp_path):
     assert wt.rejected_labels[:len(kok.rejected_labels)] == kok.rejected_labels
     with pytest.raises(InputError, match="ids_stop"):
         run_stage(BlunderRejection, inputs, {"method": "ids", "ids_stop": "never"}, tmp_path=tmp_path)
+
+
+def test_validate_refuses_rho_beyond_the_blocks_redundancy(tmp_path):
+    """``baarda validate`` bounds RRR's rho by n − u of the source's block (was: rho = n passed
+    validate and failed the run); the paper's rho = 4 still passes."""
+    import contextlib
+    import io
+    from pathlib import Path
+    from types import SimpleNamespace
+
+    from baarda.pipeline.cli import main
+    from baarda.plugins.blunder_rejection.stage import redundancy_bound
+    from baarda.plugins.comparator.block import build_block, interior_orientation
+    from baarda.plugins.comparator.parser import parse_comparator
+
+    toml = Path(__file__).resolve().parents[2] / "fixtures" / "paper000" / "data1.toml"
+
+    def validate(rho):
+        err = io.StringIO()
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
+            code = main(["validate", str(toml), "--set", f"blunders.rho={rho}"])
+        return code, err.getvalue()
+
+    assert validate(4)[0] == 0
+    code, err = validate(36)                                       # = n: no clean redundancy left
+    assert code == 2 and "field 'rho'" in err and "n = 36" in err, err
+    # a bundle: three unknowns per observed tie point, distances count as rows
+    parsed = parse_comparator(toml.parent / "data1.cmp")
+    block = build_block(parsed, interior_orientation(parsed))
+    n0, u0 = redundancy_bound(block, None)
+    assert (n0, u0) == (2 * len(block.observations), 0)          # no weighted priors in this file
+    n, u = redundancy_bound(block, SimpleNamespace(use="bundle", options=SimpleNamespace(distances=[1, 2])))
+    tie = (block.points.role == "tie") & np.isin(np.arange(len(block.points)), block.observations.point)
+    assert (n, u) == (n0 + 2, 3 * int(tie.sum())) and u > 0

@@ -189,3 +189,27 @@ def test_recording(tmp_path):
     summary = read_recording(log_stage(ComparatorSource, res, tmp_path / "c.rrd"))
     paths = {e.path for e in summary.entities}
     assert {"/c/photos/L/points", "/c/photos/R/points", "/c/photos/L/fiducials", "/c/photos/L/format"} <= paths
+
+
+def test_nearly_collinear_fiducials_are_refused_by_line(tmp_path):
+    """Three of four fiducials on one line and the fourth 2 µm off it: the affine interior orientation
+    is not determined across the line — an InputError naming the fiducial lines (was: a warning, then
+    Pope flagged a point in error-free data)."""
+    text = (GOOD.replace("transform similarity", "transform affine")
+            .replace("fid B 260000  40000", "fid B 150000  40000")
+            .replace("fid C 260000 260000", "fid C 260000  40000")
+            .replace("fid D  40000 260000", "fid D 370000  40002"))
+    e = error_of(tmp_path, text)
+    assert e.field == "fid" and e.line == 10 and "lines 10, 11, 12, 13" in str(e) and "affine" in str(e)
+    run_text(tmp_path, GOOD.replace("transform similarity", "transform affine"))      # a real layout passes
+
+
+@pytest.mark.parametrize("old, new, line, field", [
+    ("pt 10 140000 150000", "pt 10 1e200 150000", 21, "x"),
+    ("fid B 261000  40000", "fid B 261000 -2e10", 18, "y"),
+])
+def test_coordinates_beyond_a_physical_bound_are_refused(tmp_path, old, new, line, field):
+    """x = 1e200 µm on a right photo (or a fiducial 20 km off) is an InputError naming line and field
+    (was: accepted)."""
+    e = error_of(tmp_path, GOOD.replace(old, new))
+    assert (e.line, e.field) == (line, field) and "mm" in str(e)

@@ -709,17 +709,24 @@ BAD_OUTPUTS = ["", ".", "./", "a/..", "../x", "/tmp/x", "~/x", "results.json", "
                "source.rrd", "report.md", "under_test.error.txt"]
 
 
+def writer_stages() -> list[str]:
+    """WRITERS and every other installed stage whose option ``path`` is an output (by its
+    declaration, whatever the stage is named: a new writer joins the corpus by itself)."""
+    from baarda.pipeline.plugins import PluginManager
+    from baarda.pipeline.project import path_roles
+
+    pm = PluginManager()
+    found = [n for n in pm.names() if path_roles(pm.get(n).cls).get("path") == "output"]
+    return WRITERS + sorted(set(found) - set(WRITERS))
+
+
 def writer_cases() -> list[Case]:
     """Every writer with every kind of output path that must not be written (validate and run)."""
     from baarda.pipeline.plugins import PluginManager
 
-    pm = PluginManager()
     c = []
-    for use in WRITERS:
-        try:
-            cls = pm.get(use).cls
-        except Exception:       # noqa: BLE001 - a writer not installed under this name
-            continue
+    for use in writer_stages():
+        cls = PluginManager().get(use).cls         # every writer is installed: a missing one fails here
         adds = getattr(cls, "output_adds", {}).get("path", ("",))
         prefix = adds != ("",)
         for k, bad in enumerate(BAD_OUTPUTS):
@@ -750,6 +757,8 @@ def batch_cases() -> list[Case]:
         "empty": "",
         "no-rows": "screening.alpha0\n",
         "cells-missing": "name,screening.alpha0\nx\n",
+        "cells-missing-of-two": "name,screening.alpha0,screening.threshold_mm\na,0.01,5\nb,0.02\n",
+        "cells-too-many": "name,screening.alpha0\na,0.01,7\n",
         "unknown-stage": "bundle.max_iter\n3\n",
     }
     return [Case(f"batch/{n}", {"data.cmp": DATA1, "sweep.csv": t}, base, command="batch", names="sweep.csv",
@@ -832,10 +841,77 @@ def hardening_cases() -> list[Case]:
     return c
 
 
+FIDUCIAL_CMP = """\
+unit um
+mode fiducial
+transform affine
+camera C c 152.0 format 230 230
+fiducial A -110 -110
+fiducial B  110 -110
+fiducial C  110  110
+fiducial D -110  110
+photo 1
+fid A  40000  40000
+fid B 150000  40000
+fid C 260000  40000
+fid D 370000  40002
+pt 10 150000 150000
+"""
+
+
+def round_two_cases() -> list[Case]:
+    """Issue 27, second round: the inputs that were accepted or misreported (swapped DBAT format, a
+    libmv rotation that is not one, collinear fiducials, coordinates beyond any comparator, gcp lists
+    no photo of which can be resected, GNSS heights in mm, RRR's rho beyond the redundancy)."""
+    c = []
+    right = DATA1.splitlines()
+    k0 = next(i for i, ln in enumerate(right) if ln.startswith("photo R"))
+    for i in range(k0 + 1, len(right)):
+        if right[i].startswith("pt"):
+            t = right[i].split()
+            right[i] = " ".join(t[:2] + ["1e200"] + t[3:])
+    c.append(Case("comparator/right-x-1e200", {"data.cmp": "\n".join(right) + "\n"},
+                  source_project("comparator", "data.cmp"), names=f"data.cmp:{k0 + 2}, field 'x'"))
+    c.append(Case("comparator/collinear-fiducials", {"data.cmp": FIDUCIAL_CMP}, source_project("comparator", "data.cmp"),
+                  names="data.cmp:10, field 'fid'"))
+    c.append(Case("comparator/collinear-fiducials-validate", {"data.cmp": FIDUCIAL_CMP},
+                  source_project("comparator", "data.cmp"), command="validate", names="data.cmp:10, field 'fid'"))
+    data = bytearray(LIBMV_FILE.read_bytes())
+    for d in (0, 4, 8):                               # camera record 0: image i4, R 9 × f4 (column-major), t
+        data[38 + 4 + 4 * d:38 + 8 + 4 * d] = struct.pack("<f" if data[:1] == b"v" else ">f", 0.0)
+    c.append(Case("libmv/zero-diagonal-rotation", {"problem.bin": bytes(data)}, source_project("libmv", "problem.bin"),
+                  names="problem.bin, field 'cameras.R'"))
+    names = {"p.xml": "camcaldemo.xml", "reference/camcal-fixed.txt": "reference/camcal-fixed.txt",
+             "images/images.txt": "images/images.txt", "measurements/markpts.txt": "measurements/markpts.txt"}
+    files = {k: (DBAT_CAMCAL / v).read_text(encoding="utf-8") for k, v in names.items()}
+    line = next(i for i, ln in enumerate(files["p.xml"].splitlines(), 1) if 'format="im,id,x,y,sxy"' in ln)
+    files["p.xml"] = files["p.xml"].replace('format="im,id,x,y,sxy"', 'format="im,id,y,x,sxy"')
+    for cmd in ("run", "validate"):
+        c.append(Case(f"dbat/format-x-y-swapped-{cmd}", files, source_project("dbat", "p.xml"), command=cmd,
+                      names=f"p.xml:{line}, field 'format'"))
+    text = (ODM_GCP / "gcp_list_floatxy_raw.txt").read_text(encoding="utf-8")
+    camera = ('camera = { width = 4000, height = 3000, focal_px = 2904.0, sensor_width_mm = 6.17 }\n'
+              'skip_lines = [19, 51, 52, 55, 70]\n')
+    c.append(Case("gcp/no-photo-resectable", {"gcp_list.txt": text},
+                  source_project("gcp-list", "gcp_list.txt", camera + 'min_points = 500\ncheck = ["NOPE"]\n'),
+                  names="no photo can be resected"))
+    gnss_stage = '[[stage]]\nuse = "gnss-centres"\nid = "gnss"\n[stage.options]\npath = "gnss.csv"\n'
+    mm = "# crs: EPSG:32722\nphoto,E,N,h,sigma\nIMG_5350.JPG,658530.0,7167000.0,965000.0,0.05\n"
+    for cmd in ("run", "validate"):
+        c.append(Case(f"gcp/gnss-heights-in-mm-{cmd}", {"gcp_list.txt": text, "gnss.csv": mm},
+                      source_project("gcp-list", "gcp_list.txt", camera) + gnss_stage, command=cmd,
+                      names="gnss.csv:3, field 'h'", earlier=["source_targets.csv"] if cmd == "run" else []))
+    c.append(Case("options/rrr-rho-beyond-redundancy", {"data.cmp": DATA1},
+                  comparator_project(SCREENING + '[[stage]]\nuse = "blunder-rejection"\nid = "blunders"\n'
+                                     '[stage.options]\nmethod = "rrr"\nrho = 36\n'),
+                  command="validate", names="field 'rho'"))
+    return c
+
+
 def all_cases() -> list[Case]:
     return (comparator_cases() + bal_cases() + aicon_cases() + colmap_cases() + targets_cases()
             + dbat_cases() + gcp_cases() + option_cases() + project_cases() + run_cases()
-            + generated_option_cases() + writer_cases() + batch_cases() + hardening_cases())
+            + generated_option_cases() + writer_cases() + batch_cases() + hardening_cases() + round_two_cases())
 
 
 # -- running a case -------------------------------------------------------------------------------

@@ -186,3 +186,38 @@ def test_source_table_names_each_photos_image_file(shared_data):
     b = dbat_block(read_dbat(shared_data / "dbat-camcal" / "camcaldemo.xml"))
     files = source_tables(b)["photos"].columns["file"]
     assert len(files) == 21 and all(Path(f).stem == pid for f, pid in zip(files, b.photos.ids))
+
+
+def test_swapped_format_is_refused_by_name(project):
+    """x and y swapped in the marks' format: most marks outside W × H but inside H × W — an InputError
+    naming the script, the line of the format attribute and the field (was: a warning, then a result)."""
+    xml = project / "camcaldemo.xml"
+    line = _line_of(xml, 'format="im,id,x,y,sxy"')
+    _edit(xml, 'format="im,id,x,y,sxy"', 'format="im,id,y,x,sxy"')
+    with pytest.raises(InputError, match="swapped") as e:
+        _read(project)
+    assert Path(e.value.path).name == "camcaldemo.xml" and e.value.line == line and e.value.field == "format"
+
+
+@pytest.mark.parametrize("u", ["-100.0", "2372.0"])
+def test_marks_outside_the_image_count_on_either_side(project, u):
+    """u = −100 px counts as outside as u = W + 100 does (was: only the right side warned)."""
+    marks = project / "measurements" / "markpts.txt"
+    assert _read(project).meta["dbat"].marks_outside == ()
+    line = _line_of(marks, " 1,    2, 1429.1871")
+    _edit(marks, " 1,    2, 1429.1871", f" 1,    2, {u}")
+    out = _read(project).meta["dbat"].marks_outside
+    assert out == (1, f"markpts.txt:{line}")
+
+
+def test_the_stage_warns_of_a_mark_left_of_the_image(project, tmp_path):
+    """u = −100 px is reported as u = W + 100 px is: a warning naming the file and line."""
+    from baarda.pipeline.testing import run_stage
+    from baarda.plugins.dbat.stage import DbatSource
+
+    marks = project / "measurements" / "markpts.txt"
+    line = _line_of(marks, " 1,    2, 1429.1871")
+    _edit(marks, " 1,    2, 1429.1871", " 1,    2, -100.0")
+    res = run_stage(DbatSource, {}, {"path": str(project / "camcaldemo.xml")}, tmp_path=tmp_path)
+    assert any("1 mark(s) outside the 2272 × 1704 px image" in w and f"markpts.txt:{line}" in w for w in res.warnings), \
+        res.warnings

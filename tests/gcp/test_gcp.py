@@ -120,3 +120,21 @@ def test_stage_protocol():
 
     for cls in (GcpListSource, GnssCentres, PointExport, AiconExportStage):
         check_stage(cls)
+
+
+def test_no_resectable_photo_gives_the_real_reason(shared_data):
+    """A list where no photo measures min_points control targets: the message says so (and only then
+    that the check list names a target the list lacks) — was: "check point(s) … not in the GCP list"."""
+    from baarda.pipeline.crs import local_frame
+    from baarda.plugins.gcp.block import CameraSpec, gcp_block
+    from baarda.plugins.gcp.reader import read_gcp_list
+
+    gcp = read_gcp_list(shared_data / "odm-br-gcp" / "gcp_list_floatxy_raw.txt", skip_lines=[19, 51, 52, 55, 70])
+    frame = local_frame(gcp.crs, gcp.geo)
+    cam = CameraSpec("sx260", 4000, 3000, 2904.0, 6.17 / 4000)
+    with pytest.raises(InputError, match="no photo can be resected.*min_points.*also names 'NOPE'") as e:
+        gcp_block(gcp, cam, frame, check=("NOPE",), min_points=1000)
+    assert e.value.field == "image_name" and "not in the GCP list" not in str(e.value)
+    with pytest.raises(InputError, match="'NOPE' not in the GCP list") as e:    # resectable: the check list is wrong
+        gcp_block(gcp, cam, frame, check=("NOPE",), min_points=4, check_where={"path": "p.toml", "line": 7})
+    assert (str(e.value.path), e.value.line, e.value.field) == ("p.toml", 7, "check")

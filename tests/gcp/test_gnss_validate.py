@@ -79,3 +79,15 @@ def test_validate_checks_the_csv_photos_and_lever_arm_cameras_against_the_block(
     t.write_text(t.read_text().replace('lever_arm = { "1" =', 'lever_arm = { "nocam" ='))
     code, err = validate(project)
     assert code == 2 and "field 'lever_arm'" in err and "nocam" in err, err
+
+
+def test_heights_in_mm_are_an_input_error_naming_the_row(project):
+    """A GNSS height in mm under a projected CRS (h × 1000: thousands of km above the ellipsoid) is an
+    InputError naming the CSV line and the height column, in validate (was: not caught)."""
+    def mm(ln):
+        c = ln.split(",")
+        c[3] = f"{float(c[3]) * 1000:.1f}"
+        return ",".join(c)
+    line = edit_csv(project, mm)
+    code, err = validate(project)
+    assert code == 2 and f"gnss.csv:{line}, field 'h'" in err and "km from the ellipsoid" in err, err
