@@ -259,6 +259,8 @@ def _table(report: BlunderReport, art: AdjustmentArtefact, block, stats) -> Tabl
             "active": [bool(a) for a in snap.active]}
     for k in ("v", "r", "w", "tau", "nabla_hat", "mdb"):          # full precision; NaN: an empty cell
         cols[k] = np.asarray(stats[k], dtype=float)
+        if k == "mdb":      # v, ∇̂ and MDB are in the row's own unit: say it per row
+            cols["unit"] = _row_units(art, block)
     # one verdict per row, the decisive method's (the summary's): rejected = taken out of the block
     # (action = remove), flagged = its test exceeded the critical value and the row is kept (action = flag);
     # every method's own decision is in its column
@@ -278,4 +280,26 @@ def _table(report: BlunderReport, art: AdjustmentArtefact, block, stats) -> Tabl
         if m in ROBUST_METHODS and not r.skipped:
             cols[f"{key}_weight"] = np.asarray(r.raw.weights, dtype=float)
     return TableData(cols, "every scalar observation of the adjustment with v, r, w, τ, ∇̂, MDB and the "
-                           "decision of each method (statistic > critical @ step)", detail=True)
+                           "decision of each method (statistic > critical @ step); v, nabla_hat and mdb are "
+                           "in the unit of the row's observation, given per row in column unit (image "
+                           "coordinates in mm, control in the object unit, model coordinates in model units)",
+                     detail=True)
+
+
+def _row_units(art: AdjustmentArtefact, block) -> list[str]:
+    """Each scalar row's unit: image coordinates are mm (the adjustment's internal image unit, also for a
+    pixel source at its pitch); an independent-model block's control rows are in the object unit and its
+    model-coordinate rows in model units; other constraint rows have no known unit ("")."""
+    obs = np.asarray(art.obs_rows, int)[:, 0]
+    out = []
+    for o, lab in zip(obs, art.snapshot.labels):
+        lab = str(lab)
+        if o >= 0:
+            out.append("mm")
+        elif lab.startswith("control "):
+            out.append(str(getattr(block, "object_unit", "") or ""))
+        elif lab.startswith("model "):
+            out.append("model units")
+        else:
+            out.append("")
+    return out
