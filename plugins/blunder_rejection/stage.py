@@ -13,6 +13,7 @@ import dataclasses
 import numpy as np
 
 from baarda.pipeline.api import AdjustmentArtefact, Context, InputError, StageResult, TableData
+from baarda.pipeline.report import cap_text
 
 from .decide import METHODS, ROBUST_METHODS, BlunderOptions, MethodResult, row_statistics, run_methods
 
@@ -73,7 +74,7 @@ class BlunderRejection:
             artefacts={"blunders": report, "block": out_block},
             summary=_summary(report, block, art) | {"rrr_note": _rho_note(report, options, art.snapshot.dof)}
             | _protocol_entry(report, art, options),
-            report=_report(report, block, art, options),
+            report=_report(report, block, art, options, f"{ctx.stage_id}_observations.csv"),
             tables={"observations": _table(report, art, block, stats)},
             data={"report": report, "artefact": art, "block": block, "options": options},
         )
@@ -161,6 +162,11 @@ def _summary(report: BlunderReport, block, art) -> dict:
     }
 
 
+TEXT_MOST = 10
+"""Rows named per list in the report's text (rejected rows, decisive statistics, points acted on); the
+count and the table beside them (every row is in the stage's observations table)."""
+
+
 def _capped(x):
     """``x`` with every list longer than :data:`SUMMARY_MOST` cut to its first ones; a dict's
     ``key`` cut so gets ``n_key``, its length."""
@@ -188,7 +194,8 @@ def _plain(x):
     return x
 
 
-def _report(report: BlunderReport, block, art: AdjustmentArtefact, options) -> str:
+def _report(report: BlunderReport, block, art: AdjustmentArtefact, options,
+            where: str = "blunders_observations.csv") -> str:
     snap = art.snapshot
     out = [f"Adjustment **{art.name}**: {int(snap.active.sum())} active rows, dof {snap.dof}, "
            f"σ0 = {snap.sigma0:g}, σ̂0 = {snap.sigma0_hat:.4g}.", "",
@@ -197,8 +204,14 @@ def _report(report: BlunderReport, block, art: AdjustmentArtefact, options) -> s
         if r.skipped:
             out.append(f"| {m} | — | skipped: {r.skipped} |")
             continue
-        stats = "; ".join(f"{d.label}: {d.statistic} = {d.value:+.4g} vs {d.critical:.4g}" for d in r.decisions)
-        out.append(f"| {m} | {', '.join(r.rejected_labels) or 'nothing'} | {stats or '—'} |")
+        stats = "; ".join(f"{d.label}: {d.statistic} = {d.value:+.4g} vs {d.critical:.4g}"
+                          for d in r.decisions[:TEXT_MOST])
+        if len(r.decisions) > TEXT_MOST:
+            stats += f" … ({cap_text(TEXT_MOST, len(r.decisions), what='decisions', where=where)})"
+        labels = ", ".join(r.rejected_labels[:TEXT_MOST]) or "nothing"
+        if len(r.rejected_labels) > TEXT_MOST:
+            labels += f" … ({cap_text(TEXT_MOST, len(r.rejected_labels), what='rows', where=where)})"
+        out.append(f"| {m} | {labels} | {stats or '—'} |")
     out.append("")
     for m, r in report.methods.items():
         if r.skipped:
@@ -230,7 +243,10 @@ def _report(report: BlunderReport, block, art: AdjustmentArtefact, options) -> s
             if note:
                 out.append(f"- **{note}**")
     ids = block.observation_ids()
-    acted = ", ".join(f"{ph}/{pt}" for ph, pt in (ids[i] for i in report.acted_observations)) or "none"
+    acted = ", ".join(f"{ph}/{pt}" for ph, pt in (ids[i] for i in report.acted_observations[:TEXT_MOST])) or "none"
+    if len(report.acted_observations) > TEXT_MOST:
+        n_acted = len(report.acted_observations)
+        acted += f" … ({cap_text(TEXT_MOST, n_acted, what='image points', where=where + ', column decision')})"
     verb = "marked inactive" if report.action == "remove" else "flagged (action = flag; the block is unchanged)"
     out += ["", f"Decisions of **{report.decide_by}** act on the block: {acted} — {verb}. "
                 "A rejected x or y takes the whole image point out (the block's active flag is per point)."]
