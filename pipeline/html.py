@@ -43,9 +43,10 @@ FIGURES_SHOWN = (3, 2)
 """Figures of a stage shown open in report.html (the stage lists its most telling first): 3, or 2
 when four or more stages of the page have figures (a study of many adjustments); the rest of the
 stage's figures are in a closed ``<details>`` under them, with their count and names."""
-SECONDARY_FIGURES_SHOWN = 1
-"""Figures shown open for a *secondary* stage (:func:`secondary_stages`); its text is folded after its
-first paragraph (:func:`fold_after_lead`)."""
+SECONDARY_FIGURES_SHOWN = (1, 0)
+"""Figures shown open for a *secondary* stage (:func:`secondary_stages`): 1, or 0 for a repeat of a stage
+kind already on the page (its first figure is like the one above); its text is folded after its first
+paragraph (:func:`fold_after_lead`)."""
 PROTOCOL_SECTIONS = ("Protocol summary", "Camera parameters")
 """Markdown sections (``### …``) of a stage report that the page's protocol summary already shows:
 dropped from the stage's section of report.html when the stage has a protocol (report.md keeps them)."""
@@ -248,6 +249,8 @@ def render_report(*, title: str, description: str, project_file: str, started: s
     appendix: list[AppendixTable] = []
     bodies = {}
     secondary = secondary_stages(stages)
+    uses = [s.use for s in stages]
+    repeat = {s.id for k, s in enumerate(stages) if s.use in uses[:k]}
     for s in stages:
         text = drop_sections(s.report, PROTOCOL_SECTIONS) if s.protocol else s.report
         bodies[s.id] = split_long_tables(markdown_html(text), s.id, appendix)
@@ -258,7 +261,8 @@ def render_report(*, title: str, description: str, project_file: str, started: s
         title=title, description=description, project_file=project_file, started=started, version=version,
         recording_id=recording_id, stages=stages, protocols=protocols, bodies=bodies, appendix=appendix,
         inline_rows=INLINE_ROWS,
-        figures_shown={s.id: SECONDARY_FIGURES_SHOWN if s.id in secondary else shown for s in stages})
+        figures_shown={s.id: (SECONDARY_FIGURES_SHOWN[s.id in repeat] if s.id in secondary else shown)
+                       for s in stages})
 
 
 _URL = re.compile(r"""(?:src|href)\s*=\s*["']?\s*(?:https?:|//|file:)""", re.I)
