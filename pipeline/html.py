@@ -196,6 +196,21 @@ def fold_after_lead(page: str, stage: str) -> str:
             + rest + "</details>\n")
 
 
+_H3 = re.compile(r"<h3>(.*?)</h3>\s*", re.S)
+
+
+def fold_sections(page: str) -> str:
+    """A stage's HTML with each ``<h3>`` section (up to the next one) in a closed ``<details>`` titled
+    by its heading; the text before the first heading stays open."""
+    parts = _H3.split(page)
+    if len(parts) < 3:
+        return page
+    out = [parts[0]]
+    for title, body in zip(parts[1::2], parts[2::2]):
+        out.append(f'<details class="section"><summary>{title}</summary>\n{body}</details>\n')
+    return "".join(out)
+
+
 def markdown_html(text: str) -> str:
     """Markdown → HTML (CommonMark + GFM tables; raw HTML in the text is escaped)."""
     from markdown_it import MarkdownIt
@@ -254,13 +269,17 @@ def render_report(*, title: str, description: str, project_file: str, started: s
     for s in stages:
         text = drop_sections(s.report, PROTOCOL_SECTIONS) if s.protocol else s.report
         bodies[s.id] = split_long_tables(markdown_html(text), s.id, appendix)
+    busy = sum(1 for s in stages if s.figures) >= 4     # a study of many adjustments
+    for s in stages:
         if s.id in secondary:
             bodies[s.id] = fold_after_lead(bodies[s.id], s.id)
-    shown = FIGURES_SHOWN[0] if sum(1 for s in stages if s.figures) < 4 else FIGURES_SHOWN[1]
+        elif busy:
+            bodies[s.id] = fold_sections(bodies[s.id])
+    shown = FIGURES_SHOWN[1] if busy else FIGURES_SHOWN[0]
     return _env().get_template("report.html.j2").render(
         title=title, description=description, project_file=project_file, started=started, version=version,
         recording_id=recording_id, stages=stages, protocols=protocols, bodies=bodies, appendix=appendix,
-        inline_rows=INLINE_ROWS,
+        inline_rows=INLINE_ROWS, secondary=secondary,
         figures_shown={s.id: (SECONDARY_FIGURES_SHOWN[s.id in repeat] if s.id in secondary else shown)
                        for s in stages})
 
