@@ -39,8 +39,8 @@ FIGURE_DPI = 100
 INLINE_ROWS = 10
 """Rows of a stage's table shown in place in report.html; a longer table keeps these rows, says how
 many there are and goes whole into the collapsed appendix."""
-FIGURES_SHOWN = (3, 2)
-"""Figures of a stage shown open in report.html (the stage lists its most telling first): 3, or 2
+FIGURES_SHOWN = (3, 1)
+"""Figures of a stage shown open in report.html (the stage lists its most telling first): 3, or 1
 when four or more stages of the page have figures (a study of many adjustments); the rest of the
 stage's figures are in a closed ``<details>`` under them, with their count and names."""
 SECONDARY_FIGURES_SHOWN = (1, 0)
