@@ -39,10 +39,14 @@ FIGURE_DPI = 100
 INLINE_ROWS = 10
 """Rows of a stage's table shown in place in report.html; a longer table keeps these rows, says how
 many there are and goes whole into the collapsed appendix."""
-FIGURES_SHOWN = (3, 2)
-"""Figures of a stage shown open in report.html (the stage lists its most telling first): 3, or 2
+FIGURES_SHOWN = (3, 1)
+"""Figures of a stage shown open in report.html (the stage lists its most telling first): 3, or 1
 when four or more stages of the page have figures (a study of many adjustments); the rest of the
 stage's figures are in a closed ``<details>`` under them, with their count and names."""
+SECONDARY_FIGURES_SHOWN = (1, 0)
+"""Figures shown open for a *secondary* stage (:func:`secondary_stages`): 1, or 0 for a repeat of a stage
+kind already on the page (its first figure is like the one above); its text is folded after its first
+paragraph (:func:`fold_after_lead`)."""
 PROTOCOL_SECTIONS = ("Protocol summary", "Camera parameters")
 """Markdown sections (``### …``) of a stage report that the page's protocol summary already shows:
 dropped from the stage's section of report.html when the stage has a protocol (report.md keeps them)."""
@@ -161,6 +165,52 @@ def split_long_tables(page: str, stage: str, appendix: list[AppendixTable], keep
     return _TABLE.sub(cut, page)
 
 
+def secondary_stages(stages) -> set[str]:
+    """Ids of the stages whose section the page shortens (issue 23: a report fits in six screen heights
+    before its appendix).  With an adjustment's protocol on the page, the stages without one (sources,
+    comparisons, exports) and every repeat of a stage kind already on the page are secondary; without
+    one, the repeats are (a study run three times shows the first in full)."""
+    stages = list(stages)
+    seen, out = set(), set()
+    has_protocol = any(s.protocol for s in stages)
+    for s in stages:
+        if s.use in seen or (has_protocol and not s.protocol):
+            out.add(s.id)
+        seen.add(s.use)
+    return out
+
+
+_LEAD_END = re.compile(r"</p>\s*")
+
+
+def fold_after_lead(page: str, stage: str) -> str:
+    """A stage's HTML with everything after its first paragraph in a closed ``<details>`` saying what
+    it holds (how many tables); the page unchanged when there is nothing after it."""
+    m = _LEAD_END.search(page)
+    if not m or m.end() >= len(page.rstrip()):
+        return page
+    rest = page[m.end():]
+    n = rest.count("<table")
+    what = f"{n} table{'s' if n != 1 else ''} and the rest of the text" if n else "the rest of the text"
+    return (page[:m.end()] + f'<details class="more-text"><summary>{stage}: {what}</summary>\n'
+            + rest + "</details>\n")
+
+
+_H3 = re.compile(r"<h3>(.*?)</h3>\s*", re.S)
+
+
+def fold_sections(page: str) -> str:
+    """A stage's HTML with each ``<h3>`` section (up to the next one) in a closed ``<details>`` titled
+    by its heading; the text before the first heading stays open."""
+    parts = _H3.split(page)
+    if len(parts) < 3:
+        return page
+    out = [parts[0]]
+    for title, body in zip(parts[1::2], parts[2::2]):
+        out.append(f'<details class="section"><summary>{title}</summary>\n{body}</details>\n')
+    return "".join(out)
+
+
 def markdown_html(text: str) -> str:
     """Markdown → HTML (CommonMark + GFM tables; raw HTML in the text is escaped)."""
     from markdown_it import MarkdownIt
@@ -213,14 +263,25 @@ def render_report(*, title: str, description: str, project_file: str, started: s
     protocols = [(s.id, s.use, s.protocol) for s in stages if s.protocol]
     appendix: list[AppendixTable] = []
     bodies = {}
+    secondary = secondary_stages(stages)
+    uses = [s.use for s in stages]
+    repeat = {s.id for k, s in enumerate(stages) if s.use in uses[:k]}
     for s in stages:
         text = drop_sections(s.report, PROTOCOL_SECTIONS) if s.protocol else s.report
         bodies[s.id] = split_long_tables(markdown_html(text), s.id, appendix)
+    busy = sum(1 for s in stages if s.figures) >= 4     # a study of many adjustments
+    for s in stages:
+        if s.id in secondary:
+            bodies[s.id] = fold_after_lead(bodies[s.id], s.id)
+        elif busy:
+            bodies[s.id] = fold_sections(bodies[s.id])
+    shown = FIGURES_SHOWN[1] if busy else FIGURES_SHOWN[0]
     return _env().get_template("report.html.j2").render(
         title=title, description=description, project_file=project_file, started=started, version=version,
         recording_id=recording_id, stages=stages, protocols=protocols, bodies=bodies, appendix=appendix,
-        inline_rows=INLINE_ROWS,
-        figures_shown=FIGURES_SHOWN[0] if sum(1 for s in stages if s.figures) < 4 else FIGURES_SHOWN[1])
+        inline_rows=INLINE_ROWS, secondary=secondary,
+        figures_shown={s.id: (SECONDARY_FIGURES_SHOWN[s.id in repeat] if s.id in secondary else shown)
+                       for s in stages})
 
 
 _URL = re.compile(r"""(?:src|href)\s*=\s*["']?\s*(?:https?:|//|file:)""", re.I)

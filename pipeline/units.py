@@ -186,7 +186,7 @@ def _has_datum(block) -> bool:
 
 
 UNIT_SUFFIXES = {"px": "px", "um": "µm", "mm": "mm", "m": "m", "deg": "deg", "rad": "rad", "gon": "gon",
-                 "s": "s", "mm2": "mm²", "px2": "px²", "mu": MODEL_UNITS}
+                 "s": "s", "cm": "cm", "mm2": "mm²", "px2": "px²", "mu": MODEL_UNITS}
 """Column-name suffix → unit text (docs/conventions.md, *Column names carry their unit*): ``x_px``,
 ``vx_um``, ``X_m``, ``sX_mm``, ``omega_deg``; ``_mu`` marks model units (arbitrary scale)."""
 

@@ -13,6 +13,7 @@ import dataclasses
 import numpy as np
 
 from baarda.pipeline.api import AdjustmentArtefact, Context, InputError, StageResult, TableData
+from baarda.pipeline.report import cap_text
 
 from .decide import METHODS, ROBUST_METHODS, BlunderOptions, MethodResult, row_statistics, run_methods
 
@@ -116,7 +117,7 @@ class BlunderRejection:
             artefacts={"blunders": report, "block": out_block},
             summary=_summary(report, block, art) | {"rrr_note": _rho_note(report, options, art.snapshot.dof)}
             | _protocol_entry(report, art, options),
-            report=_report(report, block, art, options),
+            report=_report(report, block, art, options, f"{ctx.stage_id}_observations.csv"),
             tables={"observations": _table(report, art, block, stats)},
             data={"report": report, "artefact": art, "block": block, "options": options},
         )
@@ -204,6 +205,11 @@ def _summary(report: BlunderReport, block, art) -> dict:
     }
 
 
+TEXT_MOST = 10
+"""Rows named per list in the report's text (rejected rows, decisive statistics, points acted on); the
+count and the table beside them (every row is in the stage's observations table)."""
+
+
 def _capped(x):
     """``x`` with every list longer than :data:`SUMMARY_MOST` cut to its first ones; a dict's
     ``key`` cut so gets ``n_key``, its length."""
@@ -231,7 +237,8 @@ def _plain(x):
     return x
 
 
-def _report(report: BlunderReport, block, art: AdjustmentArtefact, options) -> str:
+def _report(report: BlunderReport, block, art: AdjustmentArtefact, options,
+            where: str = "blunders_observations.csv") -> str:
     snap = art.snapshot
     out = [f"Adjustment **{art.name}**: {int(snap.active.sum())} active rows, dof {snap.dof}, "
            f"σ0 = {snap.sigma0:g}, σ̂0 = {snap.sigma0_hat:.4g}.", "",
@@ -240,8 +247,14 @@ def _report(report: BlunderReport, block, art: AdjustmentArtefact, options) -> s
         if r.skipped:
             out.append(f"| {m} | — | skipped: {r.skipped} |")
             continue
-        stats = "; ".join(f"{d.label}: {d.statistic} = {d.value:+.4g} vs {d.critical:.4g}" for d in r.decisions)
-        out.append(f"| {m} | {', '.join(r.rejected_labels) or 'nothing'} | {stats or '—'} |")
+        stats = "; ".join(f"{d.label}: {d.statistic} = {d.value:+.4g} vs {d.critical:.4g}"
+                          for d in r.decisions[:TEXT_MOST])
+        if len(r.decisions) > TEXT_MOST:
+            stats += f" … ({cap_text(TEXT_MOST, len(r.decisions), what='decisions', where=where)})"
+        labels = ", ".join(r.rejected_labels[:TEXT_MOST]) or "nothing"
+        if len(r.rejected_labels) > TEXT_MOST:
+            labels += f" … ({cap_text(TEXT_MOST, len(r.rejected_labels), what='rows', where=where)})"
+        out.append(f"| {m} | {labels} | {stats or '—'} |")
     out.append("")
     for m, r in report.methods.items():
         if r.skipped:
@@ -273,7 +286,10 @@ def _report(report: BlunderReport, block, art: AdjustmentArtefact, options) -> s
             if note:
                 out.append(f"- **{note}**")
     ids = block.observation_ids()
-    acted = ", ".join(f"{ph}/{pt}" for ph, pt in (ids[i] for i in report.acted_observations)) or "none"
+    acted = ", ".join(f"{ph}/{pt}" for ph, pt in (ids[i] for i in report.acted_observations[:TEXT_MOST])) or "none"
+    if len(report.acted_observations) > TEXT_MOST:
+        n_acted = len(report.acted_observations)
+        acted += f" … ({cap_text(TEXT_MOST, n_acted, what='image points', where=where + ', column decision')})"
     verb = "marked inactive" if report.action == "remove" else "flagged (action = flag; the block is unchanged)"
     out += ["", f"Decisions of **{report.decide_by}** act on the block: {acted} — {verb}. "
                 "A rejected x or y takes the whole image point out (the block's active flag is per point)."]
@@ -302,6 +318,8 @@ def _table(report: BlunderReport, art: AdjustmentArtefact, block, stats) -> Tabl
             "active": [bool(a) for a in snap.active]}
     for k in ("v", "r", "w", "tau", "nabla_hat", "mdb"):          # full precision; NaN: an empty cell
         cols[k] = np.asarray(stats[k], dtype=float)
+        if k == "mdb":      # v, ∇̂ and MDB are in the row's own unit: say it per row
+            cols["unit"] = _row_units(art, block)
     # one verdict per row, the decisive method's (the summary's): rejected = taken out of the block
     # (action = remove), flagged = its test exceeded the critical value and the row is kept (action = flag);
     # every method's own decision is in its column
@@ -321,4 +339,26 @@ def _table(report: BlunderReport, art: AdjustmentArtefact, block, stats) -> Tabl
         if m in ROBUST_METHODS and not r.skipped:
             cols[f"{key}_weight"] = np.asarray(r.raw.weights, dtype=float)
     return TableData(cols, "every scalar observation of the adjustment with v, r, w, τ, ∇̂, MDB and the "
-                           "decision of each method (statistic > critical @ step)", detail=True)
+                           "decision of each method (statistic > critical @ step); v, nabla_hat and mdb are "
+                           "in the unit of the row's observation, given per row in column unit (image "
+                           "coordinates in mm, control in the object unit, model coordinates in model units)",
+                     detail=True)
+
+
+def _row_units(art: AdjustmentArtefact, block) -> list[str]:
+    """Each scalar row's unit: image coordinates are mm (the adjustment's internal image unit, also for a
+    pixel source at its pitch); an independent-model block's control rows are in the object unit and its
+    model-coordinate rows in model units; other constraint rows have no known unit ("")."""
+    obs = np.asarray(art.obs_rows, int)[:, 0]
+    out = []
+    for o, lab in zip(obs, art.snapshot.labels):
+        lab = str(lab)
+        if o >= 0:
+            out.append("mm")
+        elif lab.startswith("control "):
+            out.append(str(getattr(block, "object_unit", "") or ""))
+        elif lab.startswith("model "):
+            out.append("model units")
+        else:
+            out.append("")
+    return out

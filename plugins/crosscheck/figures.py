@@ -15,7 +15,10 @@ def _plt():
 
 
 def _columns(table, *names):
-    return [np.asarray(table.columns[n], float) for n in names]
+    """The named columns, found by name or by name + unit suffix (``dX`` → ``dX_m`` / ``dX_mu``)."""
+    def find(n):
+        return n if n in table.columns else next(c for c in table.columns if c.rsplit("_", 1)[0] == n)
+    return [np.asarray(table.columns[find(n)], float) for n in names]
 
 
 def normalised_differences(d, sigma):

@@ -18,6 +18,7 @@ import numpy as np
 from baarda.pipeline.adjustment import BundleResult
 from baarda.pipeline.api import Context, InputError, Stage, StageResult, TableData, option
 from baarda.pipeline.report import markdown_table
+from baarda.pipeline.units import length_suffix, object_unit_text
 
 from .compare import CrossCheck, CrossCheckError, Tolerances, crosscheck, exceeded
 from .pycolmap_ba import SolverSettings
@@ -203,16 +204,18 @@ def _tables(cc: CrossCheck, result) -> dict:
     pts = result.block_in.points
     j = np.flatnonzero(plan.point_variable)
     d = sol.XYZ[j] - st.XYZ[j]
-    points = TableData({"id": pts.ids[j].tolist(), "X_baarda": st.XYZ[j, 0], "Y_baarda": st.XYZ[j, 1],
-                        "Z_baarda": st.XYZ[j, 2], "dX": d[:, 0], "dY": d[:, 1], "dZ": d[:, 2]},
-                       "object points: baarda's adjusted coordinates and pycolmap − baarda", detail=True)
+    ou = object_unit_text(result.block_in)
+    o = length_suffix(ou)
+    points = TableData({"id": pts.ids[j].tolist(), f"X_baarda{o}": st.XYZ[j, 0], f"Y_baarda{o}": st.XYZ[j, 1],
+                        f"Z_baarda{o}": st.XYZ[j, 2], f"dX{o}": d[:, 0], f"dY{o}": d[:, 1], f"dZ{o}": d[:, 2]},
+                       f"object points: baarda's adjusted coordinates and pycolmap − baarda ({ou})", detail=True)
     ph = result.block_in.photos
     k = np.flatnonzero(plan.photo_variable)
     dX = sol.X0[k] - st.X0[k]
     dA = (sol.opk[k] - st.opk[k] + np.pi) % (2 * np.pi) - np.pi
-    photos = TableData({"id": ph.ids[k].tolist(), "dX0": dX[:, 0], "dY0": dX[:, 1], "dZ0": dX[:, 2],
+    photos = TableData({"id": ph.ids[k].tolist(), f"dX0{o}": dX[:, 0], f"dY0{o}": dX[:, 1], f"dZ0{o}": dX[:, 2],
                         "domega_rad": dA[:, 0], "dphi_rad": dA[:, 1], "dkappa_rad": dA[:, 2]},
-                       "exterior orientation: pycolmap − baarda")
+                       f"exterior orientation: pycolmap − baarda (centres in {ou}, angles in rad)")
     q = TableData({"quantity": list(cc.quantities), "n": [v["n"] for v in cc.quantities.values()],
                    "max": [v["max"] for v in cc.quantities.values()],
                    "rms": [v["rms"] for v in cc.quantities.values()],

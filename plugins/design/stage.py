@@ -24,6 +24,7 @@ from baarda.pipeline.errors import quote
 from baarda.pipeline.geometry import opk_from_rotation
 from baarda.pipeline.options import REQUIRED
 from baarda.pipeline.synthetic.closerange import look_at
+from baarda.pipeline.units import length_suffix, object_unit_text
 
 from . import report as design_report
 from .network import PlannedCamera, joint_test, plan_block, ratio_test, realisation_errors
@@ -336,12 +337,13 @@ class DesignMonteCarlo(Stage):
                                     if k != "per_realisation"}
             out["montecarlo"] = mc
             r = t_pts.ratio.reshape(-1, 3)
+            o = length_suffix(object_unit_text(block))      # σ columns carry the object unit (_m, _mm)
             tables["points"] = TableData({
                 "point": block.points.ids[free_pt].tolist(), "role": block.points.role[free_pt].tolist(),
-                **{f"sigma_{a}_pred": sig_pts[free_pt, k].tolist() for k, a in enumerate("XYZ")},
+                **{f"sigma_{a}_pred{o}": sig_pts[free_pt, k].tolist() for k, a in enumerate("XYZ")},
                 **{f"ratio_{a}": r[:, k].tolist() for k, a in enumerate("XYZ")},
                 "rejected": t_pts.rejected.reshape(-1, 3).any(axis=1).tolist()},
-                f"predicted σ (object units) and realised/predicted ratio from {options.n_sim} realisations")
+                f"predicted σ ({object_unit_text(block)}) and realised/predicted ratio from {options.n_sim} realisations")
             tables["cameras"] = TableData({
                 "parameter": [nm for *_, nm in cam_rows], "sigma_pred": sig_cam.tolist(),
                 "ratio": t_cam.ratio.tolist(), "rejected": t_cam.rejected.tolist()},

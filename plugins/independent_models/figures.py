@@ -98,7 +98,9 @@ def model_residual_rms(table, projection_centres: bool = False) -> tuple[list, n
     has none."""
     model = np.asarray(table.columns["model"]).astype(str)
     pc = np.asarray(table.columns["role"]).astype(str) == "pc"
-    v = np.column_stack([np.asarray(table.columns[c], float) for c in ("vx", "vy", "vz")])
+    names = [next(n for n in table.columns if n == c or (n.startswith(c + "_") and not n.startswith(c + "_model")))
+             for c in ("vx", "vy", "vz")]      # vx_m / vx_mm (object frame), not vx_model_mu
+    v = np.column_stack([np.asarray(table.columns[c], float) for c in names])
     ids = list(dict.fromkeys(model.tolist()))
     sel = pc if projection_centres else ~pc
     rms = [np.sqrt(np.mean(v[(model == m) & sel] ** 2, axis=0)) if np.any((model == m) & sel) else np.full(3, np.nan)

@@ -9,6 +9,7 @@ from baarda.pipeline.api import TableData
 from baarda.pipeline.imodels import IndependentModelResult
 from baarda.pipeline.protocol import global_test_text
 from baarda.pipeline.report import markdown_table
+from baarda.pipeline.units import length_suffix
 
 from . import reliability as im_reliability
 
@@ -85,7 +86,7 @@ def tables(result: IndependentModelResult, stats: dict, block) -> dict:
     # statistics rows of each relative orientation
     t = {k: [] for k in ("model", "row", "active", "v_um", "r", "w", "nabla_um", "mdb_um", "flagged")}
     pts = {k: [] for k in ("model", "point", "used", "vx_left_um", "vy_left_um", "vx_right_um",
-                           "vy_right_um", "py_um", "x_model", "y_model", "z_model")}
+                           "vy_right_um", "py_um", "x_model_mu", "y_model_mu", "z_model_mu")}
     for (mid, *_), ro, st in zip(result.pairs, result.relative, stats["models"]):
         ds = st["snooping"]
         s = ro.snapshot
@@ -105,28 +106,29 @@ def tables(result: IndependentModelResult, stats: dict, block) -> dict:
         for k, c in enumerate(("vx_left_um", "vy_left_um", "vx_right_um", "vy_right_um")):
             pts[c] += (ro.v[:, k] * 1e3).tolist()
         pts["py_um"] += (ro.py * 1e3).tolist()
-        for k, c in enumerate(("x_model", "y_model", "z_model")):
+        for k, c in enumerate(("x_model_mu", "y_model_mu", "z_model_mu")):
             pts[c] += ro.XYZ[:, k].tolist()
     ro_tests = TableData(t, "relative orientation: statistics rows (y-parallax per point for coplanarity, "
                             "image coordinates for collinearity), µm; w-test, estimated error, MDB")
     ro_points = TableData(pts, "relative orientation: image residuals (observed − computed, µm), residual "
-                               "y-parallax, model coordinates")
+                               "y-parallax, model coordinates (model units)")
     # transformations
+    o = length_suffix(unit)          # object-unit suffix of the length columns (_m, _mm)
     sd = np.sqrt(np.einsum("mii->mi", blk.Qparams)) * (blk.sigma0_hat if np.isfinite(blk.sigma0_hat) else 1.0)
     tr = {"model": blk.model_ids.tolist(), "scale": blk.params[:, 0],
           "omega_deg": np.degrees(blk.params[:, 1]), "phi_deg": np.degrees(blk.params[:, 2]),
-          "kappa_deg": np.degrees(blk.params[:, 3]), "tx": blk.params[:, 4], "ty": blk.params[:, 5],
-          "tz": blk.params[:, 6], "s_scale": sd[:, 0], "s_omega_deg": np.degrees(sd[:, 1]),
-          "s_phi_deg": np.degrees(sd[:, 2]), "s_kappa_deg": np.degrees(sd[:, 3]), "s_tx": sd[:, 4],
-          "s_ty": sd[:, 5], "s_tz": sd[:, 6]}
+          "kappa_deg": np.degrees(blk.params[:, 3]), f"tx{o}": blk.params[:, 4], f"ty{o}": blk.params[:, 5],
+          f"tz{o}": blk.params[:, 6], "s_scale": sd[:, 0], "s_omega_deg": np.degrees(sd[:, 1]),
+          "s_phi_deg": np.degrees(sd[:, 2]), "s_kappa_deg": np.degrees(sd[:, 3]), f"s_tx{o}": sd[:, 4],
+          f"s_ty{o}": sd[:, 5], f"s_tz{o}": sd[:, 6]}
     transformations = TableData(tr, f"7-parameter similarity of each model into the object system "
                                     f"(X = s Mᵀ x + T, {unit}); standard deviations a posteriori")
     s0 = blk.sigma0_hat if np.isfinite(blk.sigma0_hat) else 1.0
     sx = np.sqrt(np.maximum(np.einsum("pii->pi", blk.cov_XYZ), 0)) * s0 / result.options.sigma0
     points = TableData({"point": blk.point_ids.tolist(), "role": blk.role.tolist(),
                         "models": blk.n_models, "in_adjustment": blk.in_adjustment,
-                        "X": blk.XYZ[:, 0], "Y": blk.XYZ[:, 1], "Z": blk.XYZ[:, 2],
-                        "sX": sx[:, 0], "sY": sx[:, 1], "sZ": sx[:, 2],
+                        f"X{o}": blk.XYZ[:, 0], f"Y{o}": blk.XYZ[:, 1], f"Z{o}": blk.XYZ[:, 2],
+                        f"sX{o}": sx[:, 0], f"sY{o}": sx[:, 1], f"sZ{o}": sx[:, 2],
                         **im_reliability.point_columns(blk.cov_XYZ, (s0 / result.options.sigma0) ** 2)},
                        f"adjusted object points ({unit}); σ a posteriori; projection centres 'pc:<photo>'; "
                        "1-σ error ellipsoid (semi-axes, direction of the largest), plan ellipse, height σ")
@@ -138,9 +140,9 @@ def tables(result: IndependentModelResult, stats: dict, block) -> dict:
     res = {"model": blk.model_ids[blk.obs_model].tolist(), "point": blk.point_ids[blk.obs_point].tolist(),
            "role": blk.role[blk.obs_point].tolist()}
     for k, c in enumerate("xyz"):
-        res[f"v{c}"] = blk.v_object[:, k]
+        res[f"v{c}{o}"] = blk.v_object[:, k]
     for k, c in enumerate("xyz"):
-        res[f"v{c}_model"] = blk.v_model[:, k]
+        res[f"v{c}_model_mu"] = blk.v_model[:, k]
     for k, c in enumerate("xyz"):
         res[f"r_{c}"] = r[:, k]
     for k, c in enumerate("xyz"):
@@ -150,11 +152,11 @@ def tables(result: IndependentModelResult, stats: dict, block) -> dict:
     C = blk.control_point.size
     control = TableData({"point": blk.point_ids[blk.control_point].tolist(),
                          "axis": ["XYZ"[a] for a in blk.control_axis],
-                         "v": blk.v_control, "r": s.r[3 * G:3 * G + C], "w": ds.w[3 * G:3 * G + C]},
+                         f"v{o}": blk.v_control, "r": s.r[3 * G:3 * G + C], "w": ds.w[3 * G:3 * G + C]},
                         f"weighted control coordinates: residual surveyed − adjusted ({unit}), redundancy, w")
     chk = blk.check
-    check = TableData({"point": list(chk.ids), "dX": chk.errors[:, 0], "dY": chk.errors[:, 1],
-                       "dZ": chk.errors[:, 2]}, f"check points: adjusted − surveyed ({unit})")
+    check = TableData({"point": list(chk.ids), f"dX{o}": chk.errors[:, 0], f"dY{o}": chk.errors[:, 1],
+                       f"dZ{o}": chk.errors[:, 2]}, f"check points: adjusted − surveyed ({unit})")
     for t in (ro_tests, ro_points, points, residuals):       # per point / per observation: outputs = "summary" skips them
         t.detail = True
     return {"models": models, "ro_tests": ro_tests, "ro_points": ro_points,

@@ -173,8 +173,8 @@ def _swap_finding(p: PairResult) -> str:
 def tables(art: ScreeningArtefact, action: str = "flag") -> dict:
     """The observations table; its ``decision`` is ``rejected`` for flagged rows that ``action = "remove"``
     took out of the block, ``flagged`` for those kept, else ``ok`` (``flagged`` keeps the boolean)."""
-    cols = {k: [] for k in ("pair", "point", "coord", "label", "left", "right_observed", "v", "r", "w",
-                            "tau", "nabla_hat", "mdb", "data_snooping", "pope", "threshold", "format",
+    cols = {k: [] for k in ("pair", "point", "coord", "label", "left_mm", "right_observed_mm", "v_mm", "r",
+                            "w", "tau", "nabla_hat_mm", "mdb_mm", "data_snooping", "pope", "threshold", "format",
                             "swap_with", "flagged", "decision")}
     for p in art.pairs:
         s = p.screening
@@ -186,10 +186,11 @@ def tables(art: ScreeningArtefact, action: str = "flag") -> dict:
             cols["point"].append(s.point_ids[q])
             cols["coord"].append("xy"[c])
             cols["label"].append(str(lab))
-            cols["left"].append(float(s.xy_left[q, c]))
-            cols["right_observed"].append(float(s.xy_right[q, c]))
-            for name, value in (("v", s.adjustment.v), ("r", s.snooping.r), ("w", s.snooping.w),
-                                ("tau", s.pope.tau), ("nabla_hat", s.snooping.nabla_hat), ("mdb", s.snooping.mdb)):
+            cols["left_mm"].append(float(s.xy_left[q, c]))
+            cols["right_observed_mm"].append(float(s.xy_right[q, c]))
+            for name, value in (("v_mm", s.adjustment.v), ("r", s.snooping.r), ("w", s.snooping.w),
+                                ("tau", s.pope.tau), ("nabla_hat_mm", s.snooping.nabla_hat),
+                                ("mdb_mm", s.snooping.mdb)):
                 cols[name].append(float(value[k]))
             for m, col in (("data-snooping", "data_snooping"), ("pope", "pope"), ("threshold", "threshold"),
                            ("format", "format")):

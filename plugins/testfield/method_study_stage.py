@@ -134,7 +134,9 @@ def _tables(study: dict) -> dict:
     names = [v for v in VARIANTS if var.get(v, {}).get("realisations")]
     fields = ["realisations", "failed", "n", "Sx", "Sy", "Sxy", "Sz", "Sxy_sd", "Sz_sd", "Sxy_q10", "Sxy_q90",
               "Sz_q10", "Sz_q90", "pred_Sx", "pred_Sy", "pred_Sxy", "pred_Sz", "sigma0_hat", "dof", "kept"]
-    out["variants"] = TableData({"method": names, **{f: [var[v][f] for v in names] for f in fields}},
+    in_cm = set(fields) - {"realisations", "failed", "n", "sigma0_hat", "dof", "kept"}     # RMSE columns, cm
+    out["variants"] = TableData({"method": names, **{f + ("_cm" if f in in_cm else ""): [var[v][f] for v in names]
+                                                     for f in fields}},
                                 "every method: pooled check-point RMSE (cm), spread over the realisations "
                                 "(standard deviation, 10 / 90 % quantiles), RMSE predicted by the adjustment's "
                                 "covariance (cm), mean σ̂0, median dof, APs kept (in how many realisations)")
@@ -167,7 +169,7 @@ def _tables(study: dict) -> dict:
         "selection": [r["selection"] for r in R], "error": [r["error"] for r in R]}, "every adjustment of the study")
     pts = [(r["variant"], r["repetition"], p, e) for r in R if not r["error"] for p, e in zip(r["ids"], r["errors"])]
     out["check_points"] = TableData({
-        "point": [p[2] for p in pts], "dX": [float(p[3][0]) for p in pts], "dY": [float(p[3][1]) for p in pts],
-        "dZ": [float(p[3][2]) for p in pts], "method": [p[0] for p in pts], "repetition": [p[1] for p in pts]},
+        "point": [p[2] for p in pts], "dX_m": [float(p[3][0]) for p in pts], "dY_m": [float(p[3][1]) for p in pts],
+        "dZ_m": [float(p[3][2]) for p in pts], "method": [p[0] for p in pts], "repetition": [p[1] for p in pts]},
         "check points of every method and realisation: adjusted − surveyed (m)")
     return out

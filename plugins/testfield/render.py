@@ -273,7 +273,7 @@ def _contact_sheet(shown, photo_ids, targets, size, block, cols: int = 5, width:
 def _targets_table(rows, pixel_mm, size) -> TableData:
     uv = np.array([r[2] for r in rows], float).reshape(-1, 2)
     xy = mm_from_pixels(uv, size, pixel_mm, "opencv")
-    return TableData({"photo": [r[0] for r in rows], "point": [r[1] for r in rows], "u": uv[:, 0], "v": uv[:, 1],
+    return TableData({"photo": [r[0] for r in rows], "point": [r[1] for r in rows], "u_px": uv[:, 0], "v_px": uv[:, 1],
                       "x_mm": xy[:, 0], "y_mm": xy[:, 1], "radius_px": [r[3] for r in rows],
                       "partial": [r[4] for r in rows]},
                      "true image position of every rendered target centre (pixels, OpenCV convention; mm); "
@@ -293,9 +293,11 @@ def _points_table(block, truth) -> TableData:
     pts = block.points
     k = [list(truth.point_ids).index(q) for q in pts.ids]
     XYZ = truth.XYZ[k]
+    from baarda.pipeline.units import length_suffix
+    o = length_suffix(block.object_unit)
     return TableData({"point": pts.ids.tolist(), "role": pts.role.tolist(),
-                      "X": pts.XYZ[:, 0], "Y": pts.XYZ[:, 1], "Z": pts.XYZ[:, 2],
-                      "X_true": XYZ[:, 0], "Y_true": XYZ[:, 1], "Z_true": XYZ[:, 2]},
+                      f"X{o}": pts.XYZ[:, 0], f"Y{o}": pts.XYZ[:, 1], f"Z{o}": pts.XYZ[:, 2],
+                      f"X_true{o}": XYZ[:, 0], f"Y_true{o}": XYZ[:, 1], f"Z_true{o}": XYZ[:, 2]},
                      f"targets: surveyed (X, Y, Z, as in the block) and true coordinates ({block.object_unit}), role")
 
 

@@ -97,23 +97,23 @@ def _tables(block, truth) -> dict:
     rays = np.bincount(block.observations.point, minlength=len(pts))
     points = TableData({
         "point": pts.ids.tolist(), "role": pts.role.tolist(),
-        "X": pts.XYZ[:, 0], "Y": pts.XYZ[:, 1], "Z": pts.XYZ[:, 2],
-        "X_true": truth.XYZ[:, 0], "Y_true": truth.XYZ[:, 1], "Z_true": truth.XYZ[:, 2],
+        "X_m": pts.XYZ[:, 0], "Y_m": pts.XYZ[:, 1], "Z_m": pts.XYZ[:, 2],
+        "X_true_m": truth.XYZ[:, 0], "Y_true_m": truth.XYZ[:, 1], "Z_true_m": truth.XYZ[:, 2],
         "rays": rays,
     }, "targets: surveyed (X, Y, Z) and true coordinates (m), role, number of photos", detail=True)
     ph = block.photos
     photos = TableData({
         "photo": ph.ids.tolist(),
-        "X0_approx": ph.X0[:, 0], "Y0_approx": ph.X0[:, 1], "Z0_approx": ph.X0[:, 2],
-        "X0_true": truth.X0[:, 0], "Y0_true": truth.X0[:, 1], "Z0_true": truth.X0[:, 2],
+        "X0_approx_m": ph.X0[:, 0], "Y0_approx_m": ph.X0[:, 1], "Z0_approx_m": ph.X0[:, 2],
+        "X0_true_m": truth.X0[:, 0], "Y0_true_m": truth.X0[:, 1], "Z0_true_m": truth.X0[:, 2],
         "omega_true_deg": np.rad2deg(truth.opk[:, 0]), "phi_true_deg": np.rad2deg(truth.opk[:, 1]),
         "kappa_true_deg": np.rad2deg(truth.opk[:, 2]),
         "targets": np.bincount(block.observations.photo, minlength=len(ph)),
-    }, "photos: approximate (paper's Table 1) and true exterior orientation")
+    }, "photos: approximate (paper's Table 1) and true exterior orientation (m, deg)")
     obs = block.observations
     observations = TableData({
         "photo": ph.ids[obs.photo].tolist(), "point": pts.ids[obs.point].tolist(),
-        "x": obs.xy[:, 0], "y": obs.xy[:, 1],
+        "x_mm": obs.xy[:, 0], "y_mm": obs.xy[:, 1],
         "sys_x_um": truth.systematic[:, 0] * 1e3, "sys_y_um": truth.systematic[:, 1] * 1e3,
         "noise_x_um": truth.noise[:, 0] * 1e3, "noise_y_um": truth.noise[:, 1] * 1e3,
         "blunder_x_um": truth.blunder[:, 0] * 1e3, "blunder_y_um": truth.blunder[:, 1] * 1e3,

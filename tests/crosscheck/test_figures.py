@@ -14,7 +14,7 @@ import pytest  # noqa: E402
 from baarda.pipeline.adjustment import BundleSettings, adjust  # noqa: E402
 from baarda.pipeline.synthetic.aerial import perturb_start, simulate_convergent  # noqa: E402
 from baarda.pipeline.testing import run_stage  # noqa: E402
-from baarda.plugins.crosscheck.figures import normalised_differences, residual_data  # noqa: E402
+from baarda.plugins.crosscheck.figures import _columns, normalised_differences, residual_data  # noqa: E402
 from baarda.plugins.crosscheck.stage import PycolmapCrossCheck  # noqa: E402
 
 
@@ -44,7 +44,8 @@ def test_keys_and_the_numbers_drawn(run):
     # object points: every coordinate of every adjusted point, in baarda's σ
     pv = cc.plan.point_variable
     t = out.tables["points"].columns
-    d = np.column_stack([t["dX"], t["dY"], t["dZ"]])
+    assert "dX" not in t and any(c.startswith("dX_") for c in t)             # the column carries its unit
+    d = np.column_stack(_columns(out.tables["points"], "dX", "dY", "dZ"))
     assert np.allclose(d, cc.solution.XYZ[pv] - res.state.XYZ[pv])
     v, in_sigma = normalised_differences(d, res.point_sigmas()[pv])
     assert in_sigma and np.allclose(v, (np.abs(d) / res.point_sigmas()[pv]).ravel())
@@ -52,7 +53,7 @@ def test_keys_and_the_numbers_drawn(run):
     assert "/ σ" in pts.get_xlabel() and np.max(v) < 1e-3               # equivalent problems: rounding only
     ph = cc.plan.photo_variable
     assert _counts(ctr) + int((normalised_differences(
-        np.column_stack([out.tables["photos"].columns[k] for k in ("dX0", "dY0", "dZ0")]),
+        np.column_stack(_columns(out.tables["photos"], "dX0", "dY0", "dZ0")),
         res.eo_sigmas()[ph][:, :3])[0] == 0).sum()) == 3 * int(ph.sum())
     # camera parameters: difference / σ of each refined parameter, as the stage's rows
     ys = np.concatenate([ln.get_ydata() for ln in cam.get_lines() if ln.get_marker() == "o"])

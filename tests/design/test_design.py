@@ -153,7 +153,7 @@ def test_bundled_project_runs(tmp_path):
     pts = {r["point"]: r for r in csv.DictReader((tmp_path / "run" / "bundle_points.csv").open())}
     mc_rows = {r["point"]: r for r in csv.DictReader((tmp_path / "run" / "design-montecarlo_points.csv").open())}
     for pid in ("T01", "T17"):
-        assert float(pts[pid]["sX_m"]) == pytest.approx(float(mc_rows[pid]["sigma_X_pred"]), rel=1e-9)
+        assert float(pts[pid]["sX_m"]) == pytest.approx(float(mc_rows[pid]["sigma_X_pred_m"]), rel=1e-9)
         assert 5e-5 < float(pts[pid]["sZ_m"]) < 5e-4
 
 

@@ -108,7 +108,7 @@ def test_montecarlo_figures_draw_the_results_numbers(bundle):
     ax = figs["precision"][0].axes[0]
     s = 1000 * np.sqrt(np.einsum("nii->ni", C[free]))
     np.testing.assert_allclose(np.sort(_bars(ax)), np.sort(s.ravel()), rtol=1e-9)
-    np.testing.assert_allclose(res.tables["points"].columns["sigma_X_pred"], s[:, 0] / 1000, rtol=1e-12)
+    np.testing.assert_allclose(res.tables["points"].columns["sigma_X_pred_m"], s[:, 0] / 1000, rtol=1e-12)
     E = res.data["montecarlo"]["errors_points"]
     assert E.shape == (6, len(free), 3)
     real = 1000 * np.sqrt(np.mean(E ** 2, axis=0))

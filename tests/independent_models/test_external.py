@@ -45,11 +45,11 @@ def test_point_ellipsoids_match_the_sigmas(im_run):
     """Σ semi-axes² = σX² + σY² + σZ² (trace); plan a² + b² = σX² + σY²; height = σZ (1-σ)."""
     _, res = im_run
     p = res.tables["points"].columns
-    s2 = np.asarray(p["sX"]) ** 2 + np.asarray(p["sY"]) ** 2
+    s2 = np.asarray(p["sX_m"]) ** 2 + np.asarray(p["sY_m"]) ** 2
     e2 = sum(np.asarray(p[f"ellipsoid_a{j}"]) ** 2 for j in (1, 2, 3))
-    assert np.allclose(e2, s2 + np.asarray(p["sZ"]) ** 2, rtol=1e-9)
+    assert np.allclose(e2, s2 + np.asarray(p["sZ_m"]) ** 2, rtol=1e-9)
     assert np.allclose(np.asarray(p["plan_a"]) ** 2 + np.asarray(p["plan_b"]) ** 2, s2, rtol=1e-9)
-    assert np.allclose(p["height_half"], p["sZ"], rtol=1e-9)
+    assert np.allclose(p["height_half"], p["sZ_m"], rtol=1e-9)
 
 
 @pytest.mark.slow  # 25-55 s: 500 RRR simulations of the block

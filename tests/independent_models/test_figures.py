@@ -55,7 +55,7 @@ def test_keys_and_check_points_alone(run):
     q = plan.collections[0]                           # the vectors at the surveyed positions
     t = out.tables["check_points"].columns
     assert np.allclose(np.hypot(q.U, q.V) / np.hypot(q.U, q.V).max(),
-                       np.hypot(t["dX"], t["dY"]) / np.hypot(t["dX"], t["dY"]).max())
+                       np.hypot(t["dX_m"], t["dY_m"]) / np.hypot(t["dX_m"], t["dY_m"]).max())
 
 
 def test_beside_an_earlier_bundle(run, tmp_path):
@@ -99,5 +99,5 @@ def test_y_parallaxes_and_residuals_are_the_stage_numbers(run):
     for ax, pc in zip(axes, (False, True)):
         ids, rms = model_residual_rms(out.tables["residuals"], pc)
         m0 = (np.asarray(r["model"]).astype(str) == ids[0]) & ((np.asarray(r["role"]) == "pc") == pc)
-        assert m0.any() and rms[0, 2] == pytest.approx(np.sqrt(np.mean(np.asarray(r["vz"], float)[m0] ** 2)))
+        assert m0.any() and rms[0, 2] == pytest.approx(np.sqrt(np.mean(np.asarray(r["vz_m"], float)[m0] ** 2)))
         assert np.allclose([p.get_height() for p in ax.patches], 1000 * rms.T.ravel())    # m → mm, x bars first

@@ -53,11 +53,11 @@ def test_run_and_log(tmp_path):
     # the comparison convention (docs/plugins.md): headline, check_points dict and table
     cp, tab = s["check_points"], res.tables["check_points"]
     assert cp["unit"] == "m" and cp["n"] == len(tab) == 22 and "22" in s["headline"]
-    d = np.column_stack([np.asarray(tab.columns[c], float) for c in ("dX", "dY", "dZ")])
+    d = np.column_stack([np.asarray(tab.columns[c], float) for c in ("dX_m", "dY_m", "dZ_m")])
     S = np.sqrt(np.mean(d ** 2, axis=0))   # recomputed from the table's errors
     assert [cp["Sx"], cp["Sy"], cp["Sz"]] == pytest.approx(S, rel=1e-12)
     assert cp["Sxy"] == pytest.approx(np.sqrt((S[0] ** 2 + S[1] ** 2) / 2), rel=1e-12)
-    assert list(tab.columns)[:4] == ["point", "dX", "dY", "dZ"]
+    assert list(tab.columns)[:4] == ["point", "dX_m", "dY_m", "dZ_m"]
 
     rec = read_recording(log_stage(IndependentModels, res, tmp_path / "im.rrd"))
     paths = {e.path for e in rec.entities}

@@ -243,3 +243,21 @@ def test_reports_name_paths_relative_to_the_project(tmp_path):
     scrub = _scrubber(SimpleNamespace(path=tmp_path / "project" / "p.toml"), tmp_path / "run", tmp_path / "run")
     text = scrub(f"read {tmp_path}/data/deep/model; wrote {tmp_path}/run/bundle_points.csv; 3 km/h")
     assert text == "read ../data/deep/model; wrote bundle_points.csv; 3 km/h"
+
+
+def test_secondary_stages_are_folded_after_their_first_paragraph():
+    from baarda.pipeline.html import HtmlStage, fold_after_lead, secondary_stages
+
+    def st(i, use, protocol=None):
+        return HtmlStage(i, use, "ok", 0.0, "", protocol=protocol)
+
+    # with a protocol on the page: stages without one and repeats of a kind are secondary
+    assert secondary_stages([st("source", "dbat"), st("bundle", "bundle", {"dof": 1}),
+                             st("b2", "bundle", {"dof": 1}), st("dbat", "dbat-report")]) == {"source", "b2", "dbat"}
+    # without one: only the repeats (the first study of three is shown in full)
+    assert secondary_stages([st("a", "study"), st("b", "study"), st("c", "other")]) == {"b"}
+    page = "<p>lead</p>\n<table><tr><td>1</td></tr></table><p>more</p>"
+    folded = fold_after_lead(page, "src")
+    assert folded.startswith("<p>lead</p>") and "<details" in folded and "src: 1 table and the rest" in folded
+    assert folded.count("<table") == 1 and folded.rstrip().endswith("</details>")
+    assert fold_after_lead("<p>only</p>\n", "src") == "<p>only</p>\n"

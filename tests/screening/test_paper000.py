@@ -81,7 +81,7 @@ def test_the_misprint_is_left_x_of_point_9():
 @pytest.mark.parametrize("k", [2, 3])
 def test_data2_data3_residuals_match_table3(tmp_path, k):
     res = screen(f"data{k}", tmp_path)
-    v = np.array(res.tables["observations"].columns["v"]).reshape(-1, 2)
+    v = np.array(res.tables["observations"].columns["v_mm"]).reshape(-1, 2)
     diff = np.abs(v - np.array(V_PAPER[k]))
     print(f"Data {k}: max |v − Table 3| = {diff.max():.5f} mm")
     assert diff.max() < HALF_UNIT
@@ -91,7 +91,7 @@ def test_data1_residuals_match_table3_except_a_sign(tmp_path):
     # 17 of 18 match to 0.001 mm; Vx of point 1 is printed −0.053, the adjustment gives +0.053:
     # a sign lost in printing (no single coordinate change explains it, see docs/screening.md).
     res = screen("data1", tmp_path)
-    v = np.array(res.tables["observations"].columns["v"]).reshape(-1, 2)
+    v = np.array(res.tables["observations"].columns["v_mm"]).reshape(-1, 2)
     paper = np.array(V_PAPER[1])
     diff = np.abs(v - paper)
     diff[0, 0] = 0.0
@@ -125,10 +125,10 @@ def test_sign_of_estimated_error_is_the_added_error(tmp_path):
     res = screen("data1", tmp_path)
     cols = res.tables["observations"].columns
     i = cols["label"].index("X9")
-    assert cols["v"][i] > 0 and 3.5 < cols["nabla_hat"][i] < 4.5
+    assert cols["v_mm"][i] > 0 and 3.5 < cols["nabla_hat_mm"][i] < 4.5
 
 
 def test_fiducial_mode_gives_the_same_residuals(tmp_path):
-    a = np.array(screen("fiducial", tmp_path).tables["observations"].columns["v"])
-    b = np.array(screen("base", tmp_path).tables["observations"].columns["v"])
+    a = np.array(screen("fiducial", tmp_path).tables["observations"].columns["v_mm"])
+    b = np.array(screen("base", tmp_path).tables["observations"].columns["v_mm"])
     assert np.abs(a - b).max() < 2e-4  # 0.1 µm rounding of the machine coordinates

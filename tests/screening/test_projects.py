@@ -33,7 +33,7 @@ def test_fixture_project_runs(tmp_path, name, rrr):
     with open(tmp_path / "run" / "screening_observations.csv", newline="") as f:
         rows = list(csv.DictReader(f))
     assert len(rows) == 18
-    assert {"v", "r", "w", "tau", "nabla_hat", "mdb", "data_snooping", "pope", "threshold", "format",
+    assert {"v_mm", "r", "w", "tau", "nabla_hat_mm", "mdb_mm", "data_snooping", "pope", "threshold", "format",
             "swap_with", "flagged"} <= set(rows[0])
     with open(tmp_path / "run" / "blunders_observations.csv", newline="") as f:
         rows = list(csv.DictReader(f))

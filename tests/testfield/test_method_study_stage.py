@@ -57,11 +57,11 @@ def test_run_report_tables_and_comparison_convention(tmp_path):
         assert d["Sxy"] == pytest.approx(np.sqrt((d["Sx"] ** 2 + d["Sy"] ** 2) / 2))
     # the check_points table holds every error; the summary's RMSE is recomputed from it
     tab = res.tables["check_points"]
-    assert list(tab.columns)[:4] == ["point", "dX", "dY", "dZ"]
+    assert list(tab.columns)[:4] == ["point", "dX_m", "dY_m", "dZ_m"]
     for v in (BUNDLE, IM, SINGLE_AP):
         m = np.array(tab.columns["method"]) == v
         reps = np.array(tab.columns["repetition"])[m]
-        dz = np.asarray(tab.columns["dZ"], float)[m]
+        dz = np.asarray(tab.columns["dZ_m"], float)[m]
         per_rep = [np.sqrt(np.mean(dz[reps == r] ** 2)) for r in (0, 1)]
         assert cp[v]["Sz"] == pytest.approx(np.sqrt(np.mean(np.square(per_rep))), rel=1e-12)
     # Tables 4 and 5 in the paper's shape, with the paper's numbers beside ours
