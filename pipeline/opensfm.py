@@ -253,7 +253,7 @@ def read_opensfm(path: str | Path, *, tracks: str | Path | None = None, pixel_mm
                   meta=meta, source=source)
     info = {"inexact_cameras": [cid for cid, cm in zip(cam_ids, cams) if not cm["exact"]],
             "tracks": str(tracks_path) if used_tracks else None, "duplicate_observations": int((~first).sum()),
-            "reconstructions": len(doc)}
+            "reconstructions": len(doc), "projection_types": sorted({cm["projection_type"] for cm in cams})}
     return block, info
 
 

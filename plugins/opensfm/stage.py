@@ -57,7 +57,7 @@ class OpensfmSource(SourceStage):
             ctx.warn(f"{info['duplicate_observations']} repeated observation(s) of a point in one shot switched off")
         rep = reprojection_summary(block) if len(block.observations) else None
         summary = {**block.summary(), "tracks": info["tracks"], "reconstructions": info["reconstructions"],
-                   "projection_types": sorted(set(block.meta["opensfm"]["projection_types"])), "reprojection": rep}
+                   "projection_types": info["projection_types"], "reprojection": rep}
         report = (f"Read the OpenSfM reconstruction `{path}`: {len(block.cameras)} camera(s), {len(block.photos)} "
                   f"shots, {len(block.points)} points, {len(block.observations)} observations"
                   + (f" from `{info['tracks']}`" if info["tracks"] else " (no tracks.csv)") + "."
