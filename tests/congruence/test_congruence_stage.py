@@ -69,6 +69,7 @@ def test_an_earlier_runs_epoch_file_is_the_reference(run, tmp_path):
         assert float(a[pid]["T"]) == pytest.approx(float(b[pid]["T"]), rel=1e-9)
 
 
+@pytest.mark.slow
 def test_unknown_datum_point_is_an_input_error(run, tmp_path):
     project = tmp_path / "bad.toml"
     project.write_text(FIXTURE.read_text().replace('datum = "similarity"', 'datum = "similarity"\ndatum_points = ["T01", "T99"]')

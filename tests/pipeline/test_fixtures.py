@@ -81,6 +81,7 @@ COVERED = {
     "dbat/camcal.toml": "tests/pipeline/test_recordings.py",
     "calibration/charuco.toml": "tests/pipeline/test_recordings.py",
     "monitoring/panel-epochs.toml": "tests/congruence/test_congruence_stage.py",
+    "dbat/camcal-corrected.toml": "tests/dbat/test_corrected.py",
     "monitoring/vdi2634.toml": "tests/acceptance/test_length_test.py",
 }
 

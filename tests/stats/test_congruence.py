@@ -120,7 +120,7 @@ def test_mdd_power_and_false_alarms_by_monte_carlo():
     p6 = base.points[6]
     w, V = np.linalg.eigh(np.linalg.inv(p6.Q))
     worst = V[:, 0] * p6.mdd
-    n_sim = 800
+    n_sim = 500
     false_alarm = detected = 0
     for _ in range(n_sim):
         x1 = (Lq @ rng.normal(size=14)) * sigma

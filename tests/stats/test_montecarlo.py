@@ -45,7 +45,7 @@ def w_rates(model, alpha0, beta0, N, seed):
 
 
 @pytest.mark.parametrize("design", ["helmert", "poly"])
-@pytest.mark.parametrize("alpha0, N", [(0.01, 50_000), (0.001, 200_000)])
+@pytest.mark.parametrize("alpha0, N", [(0.01, 50_000), pytest.param(0.001, 200_000, marks=pytest.mark.slow)])
 def test_w_test_false_alarm_and_power_at_mdb(design, alpha0, N, request):
     model = request.getfixturevalue(design)
     fa, pw, naive_pw, shift = w_rates(model, alpha0, 0.80, N, seed=11)
