@@ -36,7 +36,7 @@ bench: $(STAMP)
 # The adjustment at scale (docs/benchmarks.md, "Scale"): aerial blocks of 500 … 10 000 photos and
 # BAL problem-49, baarda beside pycolmap, each solver in its own process; up to an hour or more.
 SCALE_ARGS ?= --sizes 500 1000 2000 5000 10000 --bal
-# Monte Carlo of the congruence test on the panel network's precision (docs/monitoring.md)
+# Monte Carlo of the congruence test on the test field's precision (--network panel: the panel) (docs/monitoring.md)
 .PHONY: bench-congruence
 bench-congruence: $(STAMP)
 	$(TESTENV) $(PY) benchmarks/congruence_mc.py --n 3000
