@@ -24,11 +24,16 @@ demo: $(STAMP)
 	@echo
 	@echo "Run directory: $(RUN)   (inspect with: $(BAARDA) review $(RUN))"
 
+# pytest-xdist: one worker per core (TEST_WORKERS=0 runs in one process); each test file stays on
+# one worker (--dist loadfile), so a module's fixtures (whole project runs) are computed once.
+TEST_WORKERS ?= auto
+XDIST = -n $(TEST_WORKERS) --dist loadfile
+
 test: $(STAMP)
-	$(TESTENV) $(PY) -m pytest -q
+	$(TESTENV) $(PY) -m pytest -q $(XDIST)
 
 test-slow: $(STAMP)
-	$(TESTENV) $(PY) -m pytest -q -m slow
+	$(TESTENV) $(PY) -m pytest -q -m slow $(XDIST)
 
 bench: $(STAMP)
 	$(TESTENV) $(PY) -m pytest -q -s -m benchmark

@@ -33,9 +33,16 @@ def _read(path):
         return {r["point"]: r for r in csv.DictReader(fh)}
 
 
-def test_s_transformation_equals_adjusting_in_that_datum(tmp_path):
-    a = _read(_project(tmp_path, transform=True) / "datum-transform_points.csv")
-    b = _read(_project(tmp_path, datum_points=True) / "bundle-1_points.csv")
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """(the free network + datum-transform, the network adjusted in the datum points' datum)."""
+    tmp = tmp_path_factory.mktemp("dt")
+    return _project(tmp, transform=True), _project(tmp, datum_points=True)
+
+
+def test_s_transformation_equals_adjusting_in_that_datum(runs):
+    a = _read(runs[0] / "datum-transform_points.csv")
+    b = _read(runs[1] / "bundle-1_points.csv")
     col = lambda r, names: np.array([float(r[n]) for n in names])  # noqa: E731
     for p in a:
         xa, xb = col(a[p], ("X_m", "Y_m", "Z_m")), col(b[p], [k for k in ("X_m", "Y_m", "Z_m", "X", "Y", "Z") if k in b[p]][:3])
@@ -50,12 +57,12 @@ def _rows(path):
         return list(csv.DictReader(fh))
 
 
-def test_external_reliability_in_the_new_datum_equals_adjusting_in_it(tmp_path):
+def test_external_reliability_in_the_new_datum_equals_adjusting_in_it(runs):
     """The effect of each MDB on its own point after the S-transformation equals the bundle's own
     figure when the bundle holds that datum itself (and differs from the free network's)."""
-    ta = _project(tmp_path, transform=True)
+    ta = runs[0]
     a = _rows(ta / "datum-transform_reliability.csv")
-    b = _rows(_project(tmp_path, datum_points=True) / "bundle-1_observations.csv")
+    b = _rows(runs[1] / "bundle-1_observations.csv")
     free = _rows(ta / "bundle-1_observations.csv")
     assert len(a) == len(b) == len(free) > 100
     f = lambda rows, k: np.array([float(r[k]) if r[k] not in ("", "nan") else np.nan for r in rows])  # noqa: E731

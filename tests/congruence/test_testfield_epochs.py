@@ -6,13 +6,12 @@ displacement (MDD) — and 16 by 0.02 mm in Z, far below its MDD.  The congruenc
 
 import csv
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from baarda.pipeline.cli import main
 from baarda.pipeline.runner import run_project
 from baarda.pipeline.synthetic.testfield import Displacement, TestFieldConfig, simulate_testfield
 
@@ -61,13 +60,13 @@ def test_the_simulator_moves_the_true_targets_only():
     ('{ point = "99", dZ = 1.0 }', "no target '99'"),
     ('{ point = "8", dZ = 1.0 }, { point = "8", dX = 1.0 }', "moved twice"),
 ])
-def test_a_bad_displacement_names_the_field(tmp_path, moves, text):
+def test_a_bad_displacement_names_the_field(tmp_path, capsys, moves, text):
     p = tmp_path / "p.toml"
     p.write_text('[project]\nname = "x"\nseed = 1\n[[stage]]\nuse = "testfield"\n[stage.options]\n'
                  f"displacements = [{moves}]\n")
     for cmd in (["validate", str(p)], ["run", str(p), "--out", str(tmp_path / "run")]):
-        r = subprocess.run([sys.executable, "-m", "baarda.pipeline.cli", *cmd], capture_output=True, text=True)
-        err = r.stderr + r.stdout
-        assert r.returncode == 2, err
+        assert main(cmd) == 2
+        out = capsys.readouterr()
+        err = out.err + out.out
         assert text in err and "field 'displacements'" in err and "p.toml:7" in err, err
         assert "Traceback" not in err
