@@ -24,11 +24,16 @@ demo: $(STAMP)
 	@echo
 	@echo "Run directory: $(RUN)   (inspect with: $(BAARDA) review $(RUN))"
 
+# pytest-xdist: one worker per core (TEST_WORKERS=0 runs in one process); each test file stays on
+# one worker (--dist loadfile), so a module's fixtures (whole project runs) are computed once.
+TEST_WORKERS ?= auto
+XDIST = -n $(TEST_WORKERS) --dist loadfile
+
 test: $(STAMP)
-	$(TESTENV) $(PY) -m pytest -q
+	$(TESTENV) $(PY) -m pytest -q $(XDIST)
 
 test-slow: $(STAMP)
-	$(TESTENV) $(PY) -m pytest -q -m slow
+	$(TESTENV) $(PY) -m pytest -q -m slow $(XDIST)
 
 bench: $(STAMP)
 	$(TESTENV) $(PY) -m pytest -q -s -m benchmark
@@ -36,7 +41,7 @@ bench: $(STAMP)
 # The adjustment at scale (docs/benchmarks.md, "Scale"): aerial blocks of 500 … 10 000 photos and
 # BAL problem-49, baarda beside pycolmap, each solver in its own process; up to an hour or more.
 SCALE_ARGS ?= --sizes 500 1000 2000 5000 10000 --bal
-# Monte Carlo of the congruence test on the panel network's precision (docs/monitoring.md)
+# Monte Carlo of the congruence test on the test field's precision (--network panel: the panel) (docs/monitoring.md)
 .PHONY: bench-congruence
 bench-congruence: $(STAMP)
 	$(TESTENV) $(PY) benchmarks/congruence_mc.py --n 3000

@@ -29,6 +29,7 @@ uses that class as its ``Options``.
 from __future__ import annotations
 
 import dataclasses
+import re
 import difflib
 import types
 import typing
@@ -466,7 +467,12 @@ def _parse(options_cls: type, raw: dict | None, where, sub: str, base: Any = Non
     try:
         return options_cls(**values)
     except (ValueError, TypeError) as e:  # __post_init__ checks of the options class
-        raise InputError(str(e), **at(None)[1]) from None
+        msg = str(e)
+        head = re.split(r"[\s:]", msg, maxsplit=1)[0]
+        if head in raw:                   # "displacements: …", "case must be …": that option's line
+            name, loc = at(head)
+            raise InputError(msg, field=name, **loc) from None
+        raise InputError(msg, **at(None)[1]) from None
 
 
 def _default(f: dataclasses.Field) -> Any:

@@ -33,6 +33,7 @@ from .phases import PHASE_CALLBACK, PhaseEvent
 from .problem import BundleProblem
 from .records import Convergence, Iteration, IterationEvent, Timings
 from .reliability import (GlobalRowStats, OwnEffects, ParameterVectors, effect_vectors, global_rows, linearised_model,
+                          own_point_effects_in_datum,
                           own_effects, parameter_covariance, row_mdb)
 from .reproject import project_block, reprojection_px, reprojection_summary
 from .settings import BundleSettings, BundleState, Distance, camera_meta
@@ -50,7 +51,8 @@ __all__ = [
     "project_block", "reprojection_px", "reprojection_summary",
     "estimate_components", "VarianceComponents", "VarianceGroup", "linear_components", "LinearComponents",
     "group_parts", "GroupPart", "image_group_labels",
-    "own_effects", "OwnEffects", "effect_vectors", "ParameterVectors", "parameter_covariance", "linearised_model", "row_mdb",
+    "own_effects", "OwnEffects", "own_point_effects_in_datum", "effect_vectors", "ParameterVectors", "parameter_covariance",
+    "linearised_model", "row_mdb",
     "global_rows", "GlobalRowStats",
     "adjust_block", "BundleConfig", "BundleReport", "configure_block", "bundle_settings", "ScaleBar",
     "SolverConfig", "StatTestsConfig", "RobustConfig", "VarianceComponentsConfig", "APSelectionConfig",

@@ -45,7 +45,7 @@ from .collinearity import EO_NAMES
 from .phases import phase_step
 from .lm import final_system
 
-__all__ = ["OwnEffects", "own_effects", "effect_vectors", "ParameterVectors", "parameter_covariance", "parameter_names_of",
+__all__ = ["OwnEffects", "own_effects", "own_point_effects_in_datum", "effect_vectors", "ParameterVectors", "parameter_covariance", "parameter_names_of",
            "row_mdb", "bar_delta0", "linearised_model", "GlobalRowStats", "global_rows"]
 
 
@@ -387,6 +387,45 @@ def effect_vectors(res, rows, delta0: float = 4.13, bias=None) -> ParameterVecto
     xg = xg * b[None, :]
     y = y * b[None, None, :]
     return _scatter(res, xg, y)
+
+
+def own_point_effects_in_datum(res, points, S, delta0: float = 4.13, chunk: int = 256, progress=None):
+    """Effect of every active image row's MDB on its own point's coordinates **after** the
+    S-transformation ``S`` (3 n × 3 n over the points ``points``, indices into the block's points,
+    e.g. :func:`baarda.pipeline.stats.congruence.s_transform`'s third result).
+
+    The effect of row i's bias on all parameters, ``∇x = Q Aᵀ P c_i ∇_i``, is a vector in the
+    adjustment's datum; in another datum it is ``S ∇x`` over the points (the same linear map the
+    coordinates and their cofactors undergo).  Each row's full effect vector is needed (the shift of
+    the new datum's points moves every point): one solve per row, ``chunk`` rows at a time.
+
+    Returns ``(effect (k_all, 2, 3), bias (k_all, 2))``: the shift of the row's own point's X, Y, Z
+    (object units) in the new datum, nan for inactive rows and rows whose point is not in
+    ``points``; ``bias`` the rows' MDBs (mm).  ``progress(done, total)`` is called per chunk."""
+    points = np.asarray(points, int)
+    n = len(points)
+    S = np.asarray(S, float)
+    if S.shape != (3 * n, 3 * n):
+        raise ValueError(f"S must be {3 * n}×{3 * n} for {n} points, got {S.shape}")
+    k_all = len(res.residuals)
+    bias = row_mdb(res, delta0)
+    obs = res.block_in.observations
+    where = np.full(len(res.block_in.points), -1)
+    where[points] = np.arange(n)
+    own = where[np.asarray(obs.point)]
+    act = np.asarray(res.row_active, bool) & (own >= 0)[:, None] & np.isfinite(bias)
+    rows = np.flatnonzero(act.reshape(-1))
+    out = np.full((k_all, 2, 3), np.nan)
+    flat = out.reshape(-1, 3)
+    for a in range(0, len(rows), chunk):
+        r = rows[a:a + chunk]
+        vec = effect_vectors(res, r, bias=bias).points[:, points, :]          # (r, n, 3), this datum
+        vec = np.nan_to_num(vec).reshape(len(r), 3 * n) @ S.T                 # the new datum
+        o = own[r // 2]
+        flat[r] = vec.reshape(len(r), n, 3)[np.arange(len(r)), o]
+        if progress is not None:
+            progress(min(a + chunk, len(rows)), len(rows))
+    return out, bias
 
 
 def _scatter(res, xg, y) -> ParameterVectors:

@@ -138,6 +138,17 @@ class Blunder:
 
 
 @dataclass(frozen=True)
+class Displacement:
+    """A known movement of one target between the surveyed field and this simulation (mm): the
+    epoch-2 field of a monitoring simulation (``fixtures/monitoring/testfield-epochs.toml``)."""
+
+    point: str | int = option(REQUIRED, "target id (1–21)")
+    dX: float = option(0.0, "movement along X (mm)")
+    dY: float = option(0.0, "movement along Y (mm)")
+    dZ: float = option(0.0, "movement along Z (mm)")
+
+
+@dataclass(frozen=True)
 class TestFieldConfig(SimulatedErrors):
     """What to simulate — also the option table of the ``testfield`` stage (one definition).
 
@@ -161,6 +172,9 @@ class TestFieldConfig(SimulatedErrors):
     blunders: tuple[Blunder, ...] = option((), "gross errors added to image observations: a list of tables "
                                                "{photo, point, dx, dy} (mm)")
     margin_mm: float = option(2.0, "a target is measured when its true image lies this far inside the format")
+    displacements: tuple[Displacement, ...] = option(
+        (), "known target movements (an epoch of a monitoring simulation): a list of tables "
+            "{point, dX, dY, dZ} (mm); the moved targets are imaged, surveyed and reported where they moved to")
 
     def __post_init__(self):
         super().__post_init__()
@@ -168,6 +182,14 @@ class TestFieldConfig(SimulatedErrors):
             raise ValueError(f"case must be one of {sorted(CASES)}, got {self.case}")
         if self.block not in ("block", "single-model"):
             raise ValueError(f"block must be 'block' or 'single-model', got {self.block!r}")
+        n = sum(ROW_COUNTS)
+        moved = [str(getattr(d, "point", "")) for d in self.displacements]
+        bad = [p for p in moved if p not in {str(i + 1) for i in range(n)}]
+        if bad:
+            raise ValueError(f"displacements: the test field has no target {bad[0]!r} (targets 1–{n})")
+        twice = sorted({p for p in moved if moved.count(p) > 1})
+        if twice:
+            raise ValueError(f"displacements: target {twice[0]} is moved twice")
 
 
 @dataclass(frozen=True, eq=False)
@@ -391,6 +413,26 @@ def _ap_columns(ap_model: str) -> int:
         raise ValueError(f"ap_model must be one of {sorted(AP_PARAMETER_COUNT)}, got {ap_model!r}") from None
 
 
+def displaced(point_ids: np.ndarray, XYZ: np.ndarray, displacements) -> tuple[np.ndarray, np.ndarray]:
+    """``XYZ`` (m) with each :class:`Displacement` (mm) added to its target (a new array).
+
+    Raises ``ValueError`` for a target that does not exist or one named twice."""
+    out = np.array(XYZ, float, copy=True)
+    index = {str(p): k for k, p in enumerate(point_ids)}
+    seen = set()
+    for d in displacements:
+        if not isinstance(d, Displacement):
+            raise ValueError(f"a displacement is a Displacement(point, dX, dY, dZ) (mm); got {d!r}")
+        p = str(d.point)
+        if p not in index:
+            raise ValueError(f"displacements: the test field has no target {p!r} (targets 1–{len(point_ids)})")
+        if p in seen:
+            raise ValueError(f"displacements: target {p} is moved twice")
+        seen.add(p)
+        out[index[p]] += np.array([d.dX, d.dY, d.dZ], float) * 1e-3
+    return point_ids, out
+
+
 def simulate_testfield(config: TestFieldConfig, rng: np.random.Generator) -> tuple[Block, Truth]:
     """Simulate the paper's test field: a :class:`~baarda.pipeline.model.Block` and its :class:`Truth`.
 
@@ -404,7 +446,7 @@ def simulate_testfield(config: TestFieldConfig, rng: np.random.Generator) -> tup
     Raises ``ValueError`` for a blunder naming an observation that does not exist.
     """
     photo_ids = _photo_ids(config)
-    point_ids, XYZ = target_field()
+    point_ids, XYZ = displaced(*target_field(), config.displacements)
     X0, opk = true_orientation(photo_ids)
     sys_params = ({k: v * config.systematic_scale for k, v in SYSTEMATIC_ERRORS.items()}
                   if config.with_ap_errors else {})
@@ -472,6 +514,7 @@ def _config_dict(config: TestFieldConfig) -> dict:
     """What was simulated, as plain values (the seed is the generator's business, not the field's)."""
     d = {f.name: getattr(config, f.name) for f in dataclasses.fields(config) if f.name != "seed"}
     d["blunders"] = [dataclasses.asdict(b) for b in config.blunders]
+    d["displacements"] = [dataclasses.asdict(m) for m in config.displacements]
     return d
 
 

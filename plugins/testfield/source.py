@@ -25,7 +25,8 @@ def simulate_field(config: TestFieldConfig, rng: np.random.Generator, project_fi
     try:
         return simulate_testfield(config, rng)
     except ValueError as e:
-        raise InputError(str(e), path=project_file, field="blunders") from None
+        field = "displacements" if str(e).startswith("displacement") else "blunders"
+        raise InputError(str(e), path=project_file, field=field) from None
 
 
 class TestFieldSource(SourceStage):
@@ -53,6 +54,7 @@ class TestFieldSource(SourceStage):
             "with_ap_errors": options.with_ap_errors,
             "systematic_rms_um": float(np.sqrt(np.mean(truth.systematic ** 2)) * 1e3),
             "blunders": len(options.blunders),
+            "displacements": {str(d.point): [d.dX, d.dY, d.dZ] for d in options.displacements},
         }
         return StageResult(artefacts={"block": block}, summary=summary,
                            report=_report(block, truth, geo, summary),
@@ -89,6 +91,9 @@ def _report(block, truth, geo, s) -> str:
     lines += [f"Rays per target: {', '.join(f'{k}: {v}' for k, v in rays.items())} (min {geo['min_rays']})."]
     if s["blunders"]:
         lines += ["", f"{s['blunders']} gross error(s) injected (see `truth.blunder`)."]
+    if s["displacements"]:
+        moved = ", ".join(f"{p} by ({', '.join(f'{v:g}' for v in d)}) mm" for p, d in s["displacements"].items())
+        lines += ["", f"Targets moved before imaging and survey (dX, dY, dZ): {moved}."]
     return "\n".join(lines)
 
 

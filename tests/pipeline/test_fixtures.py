@@ -49,6 +49,7 @@ SECONDS = {
     "metashape/metashape.toml": 4.9,
     "monitoring/aicon-epochs.toml": 20.7,
     "monitoring/panel-epochs.toml": 9.0,
+    "monitoring/testfield-epochs.toml": 7.5,
     "monitoring/vdi2634.toml": 3.0,
     "odm/odm-br-gcp.toml": 5.6,
     "pmexport/camcal-1ray.toml": 1.0,
@@ -81,6 +82,7 @@ COVERED = {
     "dbat/camcal.toml": "tests/pipeline/test_recordings.py",
     "calibration/charuco.toml": "tests/pipeline/test_recordings.py",
     "monitoring/panel-epochs.toml": "tests/congruence/test_congruence_stage.py",
+    "monitoring/testfield-epochs.toml": "tests/congruence/test_testfield_epochs.py",
     "dbat/camcal-corrected.toml": "tests/dbat/test_corrected.py",
     "monitoring/vdi2634.toml": "tests/acceptance/test_length_test.py",
 }
