@@ -77,6 +77,8 @@ class RayModel(APModel):
 
     ray = True
     uses_c = True
+    pixel_power: tuple | None = None
+    """Per parameter, the power k of its unit mm⁻ᵏ (0: dimensionless; the reports' unit column)."""
     domain: str = "every ray but the zero vector"
     """What the model can project (the text of :class:`RayOutsideModel`)."""
 
@@ -217,6 +219,7 @@ class _CVModel(RayModel):
         if cls.colmap:
             cls.params = (("B1",) if cls.focal2 else ()) + tuple(cls.extra)
             cls.default_sigma = (np.inf,) * len(cls.params)
+            cls.pixel_power = (0,) * len(cls.params)
 
     def _normalized(self, a, b, z, E, jac):  # pragma: no cover - abstract
         """``(ud, vd, valid, Jn (n, 2, 3) w.r.t. (a, b, z), JE (n, 2, e))``."""
@@ -468,6 +471,7 @@ class Equirectangular(RayModel):
 
     name, colmap = "equirectangular", "EQUIRECTANGULAR"
     params = ("B1",)
+    pixel_power = (0,)
     default_sigma = (np.inf,)
     domain = "every ray but those along the poles' axis (U = W = 0)"
 
@@ -517,6 +521,7 @@ class _ProjectionFisheye(RayModel):
 
     kind = "equidistant"
     params = Brown.params
+    pixel_power = (2, 4, 6, 1, 1, 0, 0)
     default_sigma = Brown.default_sigma
     _brown = Brown()
 
