@@ -264,3 +264,18 @@ def test_projector_jacobians_beyond_90_degrees(name):
         b[:, j] -= hj
         num = (xy(cam_params=a) - xy(cam_params=b)) / (2 * hj)
         np.testing.assert_allclose(pr.J_cam[:, :, j], num, rtol=1e-5, atol=1e-6 * max(1, np.abs(num).max()))
+
+
+def test_fov_small_omega_branch_of_colmap_has_the_undistortion_series():
+    """COLMAP's FOV distortion for ω² < 10⁻⁴ uses 1 − ω²/12 + ω² r²/3 (its undistortion's series); the
+    distortion's own series is 1 + ω²/12 − ω² r²/3, which baarda's exact formula follows."""
+    w, r = 0.005, np.hypot(0.8, 0.3)
+    cam = pycolmap.Camera.create_from_model_name(1, "FOV", 500.0, 640, 480)
+    cam.params = [500, 500, 320, 240, w]
+    colmap = (cam.img_from_cam(np.array([[0.8, 0.3, 1.0]]))[0, 0] - 320) / 500 / 0.8
+    xy, _ = get_ap_model("fov").project_ray(np.array([[0.8, -0.3, -1.0]]), np.array([[0.0, w]]), 1.0, {})
+    ours = xy[0, 0] / 0.8
+    assert ours == pytest.approx(np.arctan(2 * np.tan(w / 2) * r) / (r * w), rel=1e-14)
+    assert ours == pytest.approx(1 + w * w / 12 - w * w * r * r / 3, abs=1e-9)          # O(ω⁴) apart
+    assert colmap == pytest.approx(1 - w * w / 12 + w * w * r * r / 3, abs=1e-12)
+    assert abs(colmap - ours) > 7e-6                                      # ≈ ω² (r²·⅔ − ⅙)
