@@ -225,6 +225,17 @@ def colmap_from_ray(ap_model: str, c, xp, yp, ap, size, pixel_mm) -> tuple[str, 
     return model, np.array(head + [float(cx), float(cy)] + list(extra), float)
 
 
+def camera_from_colmap(model: str, params, size, pixel_mm) -> dict:
+    """baarda camera of any supported COLMAP camera: ``{"c", "xp", "yp", "ap_model", "ap", "names"}``
+    (brown for the pinhole models, the ray model of the same name for the others)."""
+    if model in _ray_models():
+        b = ray_from_colmap(model, params, size, pixel_mm)
+        from .registry import get_ap_model
+        return {**b, "names": tuple(get_ap_model(b["ap_model"]).params)}
+    b = brown_from_colmap(model, params, size, pixel_mm)
+    return {**b, "ap_model": "brown", "names": BROWN}
+
+
 # --------------------------------------------------------------------------------------------
 # Reporting a camera in the units of its source (pixels, OpenCV's coefficients)
 # --------------------------------------------------------------------------------------------

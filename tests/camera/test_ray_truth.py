@@ -61,3 +61,19 @@ def test_outside_the_domain_stops_the_bundle_with_a_clear_error():
     # ω = 0 is the pinhole: the rays beyond 90° of this block have no image
     with pytest.raises(RayOutsideModel, match=r"'fov' cannot project \d+ observed ray\(s\).*field angle 9\d\.\d°"):
         adjust(block.replace(cameras=cams.replace(ap=cams.ap * [1, 0])), BundleSettings(covariance=False))
+
+
+def test_a_trial_step_out_of_the_domain_is_damped_not_fatal():
+    """The bundle's trial step that turns rays beyond an orthographic fisheye's 90° has cost ∞ (the
+    step is damped); the start itself outside the domain is a clear error (above)."""
+    from baarda.pipeline.adjustment.lm import _trial
+    from baarda.pipeline.adjustment.problem import BundleProblem
+
+    block, _ = make_fisheye_block("fisheye-orthographic", max_angle_deg=80.0)
+    prob = BundleProblem(block, BundleSettings(covariance=False))
+    st = prob.initial_state()
+    assert np.isfinite(_trial(prob, st)[2])
+    bad = st.copy()
+    bad.opk = bad.opk + [0.0, 0.3, 0.0]                 # 17°: rays at 80° now beyond 90°
+    new, parts, cost = _trial(prob, bad)
+    assert cost == np.inf and parts is None

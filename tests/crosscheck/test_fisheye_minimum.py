@@ -67,3 +67,22 @@ def test_same_minimum_as_pycolmap(model):
     rel = abs(out["final_cost"] - baarda) / baarda
     print(f"{model}: ½vᵀPv baarda {baarda:.10g}, pycolmap {out['final_cost']:.10g}, relative difference {rel:.1e}")
     assert rel <= 1e-6
+
+
+def test_crosscheck_stage_compares_a_fisheye_camera(tmp_path):
+    """The pycolmap-crosscheck stage maps a ray-model camera onto its COLMAP model (refine switches,
+    intrinsics, covariance) and finds both solutions equal."""
+    from baarda.pipeline.testing import run_stage
+    from baarda.plugins.crosscheck.stage import PycolmapCrossCheck
+
+    rng = np.random.default_rng(4)
+    block, _ = make_fisheye_block("opencv-fisheye", noise_mm=SIGMA, sigma_mm=SIGMA, rng=rng, max_angle_deg=85.0)
+    start = _start(block, rng)
+    res = adjust(start, BundleSettings())
+    out = run_stage(PycolmapCrossCheck, {"block": start, "bundle": res}, {"num_threads": 1}, tmp_path=tmp_path)
+    s, q = out.summary, out.summary["quantities"]
+    assert s["equivalent"] and s["passed"], s.get("notes")
+    assert q["cost"]["pycolmap"] == pytest.approx(res.vtpv / 2, rel=1e-9)
+    assert q["intrinsics"]["n"] == 8 and q["intrinsics"]["max"] < 1e-4          # c, xp, yp, B1, k1 … k4 in σ
+    assert q["points"]["max"] < 1e-6 * s["object_size"]
+    assert q["covariance_intrinsics"]["n"] == 8 and q["covariance_intrinsics"]["max"] < 1e-3
