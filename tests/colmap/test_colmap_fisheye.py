@@ -111,3 +111,21 @@ def test_precheck_knows_every_pycolmap_model():
             continue
         n = len(pycolmap.Camera.create_from_model_name(1, name, 1.0, 10, 10).params)
         assert MODEL_PARAMS[int(mid)] == n and MODEL_NAMES[name] == n
+
+
+def test_fisheye_and_pinhole_cameras_in_one_model(tmp_path):
+    rec = _synthetic("RAD_TAN_THIN_PRISM_FISHEYE")
+    ids = sorted(rec.cameras)
+    assert len(ids) == 2
+    cam = rec.cameras[ids[1]]
+    cam.model = pycolmap.CameraModelId.SIMPLE_RADIAL
+    cam.params = [500.0, 512.0, 384.0, -0.02]
+    block, _ = block_from_reconstruction(rec, pixel_mm=0.005)
+    cams = block.cameras
+    assert cams.ap_model.tolist() == ["rad-tan-thin-prism-fisheye", "brown"] and cams.ap.shape == (2, 13)
+    assert (cams.sigma_ap[1, 7:] == 0).all()
+    write_colmap(block, tmp_path / "m", fmt="text")
+    rec2 = pycolmap.Reconstruction(str(tmp_path / "m"))
+    for cid in ids:
+        assert rec2.cameras[cid].model == rec.cameras[cid].model
+        np.testing.assert_allclose(rec2.cameras[cid].params, rec.cameras[cid].params, rtol=1e-12)
