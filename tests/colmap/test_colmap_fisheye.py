@@ -129,3 +129,38 @@ def test_fisheye_and_pinhole_cameras_in_one_model(tmp_path):
     for cid in ids:
         assert rec2.cameras[cid].model == rec.cameras[cid].model
         np.testing.assert_allclose(rec2.cameras[cid].params, rec.cameras[cid].params, rtol=1e-12)
+
+
+def test_bundled_fisheye_model_recovers_its_truth():
+    """fixtures/fisheye: the model made by make.py (131 rays beyond 90°) adjusted as the project does;
+    the true camera (truth.json) within 3 σ (the README says 2 σ for the values it quotes)."""
+    import json
+    from pathlib import Path
+
+    from baarda.pipeline.adjustment import BundleSettings, adjust
+    from baarda.pipeline.camera.convert import colmap_from_ray
+    from baarda.pipeline.camera.ray_models import field_angle
+    from baarda.pipeline.geometry import rotation_from_opk_many
+
+    here = Path(__file__).resolve().parents[2] / "fixtures" / "fisheye"
+    truth = json.loads((here / "truth.json").read_text())
+    block, _ = read_colmap(here / "model", pixel_mm=0.003, sigma_px=0.4, intrinsics="free")
+    ph, obs = block.photos, block.observations
+    d = np.einsum("kij,kj->ki", rotation_from_opk_many(ph.opk)[obs.photo], block.points.XYZ[obs.point] - ph.X0[obs.photo])
+    assert abs(int((field_angle(d) > 90).sum()) - truth["beyond_90_deg"]) <= 3     # the start geometry is disturbed
+    res = adjust(block, BundleSettings(datum="free"))
+    assert 0.9 < res.sigma0 < 1.1
+    cams = res.block.cameras
+    name, params = colmap_from_ray("opencv-fisheye", cams.c[0], cams.xp[0], cams.yp[0], cams.ap[0], (1800, 1800), 0.003)
+    assert name == "OPENCV_FISHEYE"
+    true = np.array([truth["params_px"][k] for k in ("fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4")])
+    # σ of the COLMAP parameters from baarda's covariance of (c, xp, yp, B1, k1 … k4), linearised
+    C = res.cov_cameras[0]
+    c, B1 = cams.c[0], cams.ap[0, 0]
+    J = np.zeros((8, 8))
+    J[0, 0], J[0, 3] = (1 + B1) / 0.003, c / 0.003        # fx
+    J[1, 0] = 1 / 0.003                                   # fy
+    J[2, 1], J[3, 2] = 1 / 0.003, -1 / 0.003              # cx, cy (y down)
+    J[4:, 4:] = np.eye(4)
+    sig = np.sqrt(np.diag(J @ C[:8, :8] @ J.T))
+    assert (np.abs(params - true) < 3 * sig).all(), (params - true) / sig
