@@ -6,6 +6,10 @@ Conventions (``docs/conventions.md``)::
     x̄ = −c U/W,  ȳ = −c V/W
     x = xp + x̄ + Δx(x̄, ȳ; ap),   y = yp + ȳ + Δy(x̄, ȳ; ap)
 
+A camera whose model is a *ray model* (``pipeline/camera/ray_models.py``: fisheye, omnidirectional)
+is projected from ``[U, V, W]`` itself, ``x = xp + f(U, V, W; c, ap)``, and so are its Jacobians
+(the model's ``∂(x, y)/∂(U, V, W)`` chained into pose and point).
+
 Camera parameter vector per camera: ``[c, xp, yp, ap_1 … ap_p]``.  Exterior orientation per
 photo: ``[X0, Y0, Z0, ω, φ, κ]``.
 """
@@ -20,6 +24,7 @@ import numpy as np
 from baarda.pipeline.geometry.rotations import rotation_and_derivatives, rotation_from_opk_many
 
 from ..camera import get_ap_model
+from ..camera.ray_models import is_ray_model, ray_eo_point_jacobians, ray_projection
 from . import kernels
 
 __all__ = ["Projection", "Projector", "project_observations", "IOP_NAMES", "EO_NAMES"]
@@ -52,7 +57,7 @@ def bmv(A, x):
 class Projection:
     """Projected image coordinates and (optionally) their Jacobians, one row per observation.
 
-    xy (k, 2); xbar (k, 2) ideal reduced coordinates; W (k,) depth (negative in front);
+    xy (k, 2); xbar (k, 2) ideal reduced coordinates (of a ray model: ``xy − (xp, yp)``); W (k,) depth (negative in front);
     J_eo (k, 2, 6) w.r.t. X0 Y0 Z0 ω φ κ; J_point (k, 2, 3) w.r.t. X Y Z;
     J_cam (k, 2, 3 + p) w.r.t. c, xp, yp, ap_1 … ap_p (p = width of ``cam_params`` − 3), or only
     the columns a :class:`Projector` was asked for (``cam_cols``).
@@ -100,7 +105,7 @@ class Projector:
         self.groups = []
         for name in (np.unique(models[self.cam]) if k else []):
             model = get_ap_model(name)
-            if model.n_params == 0:
+            if model.n_params == 0 and not is_ray_model(model):
                 continue
             cams_m = np.flatnonzero(models == name)
             grps = [cams_m] if _same_meta([metas[j] for j in cams_m]) else [[j] for j in cams_m]
@@ -110,6 +115,10 @@ class Projector:
                     continue
                 sel = None if mask.all() else np.flatnonzero(mask)
                 self.groups.append((model, sel, metas[grp[0]]))
+
+    def _rows(self, sel):
+        """(photo, point) index of the observations of a group (for error messages)."""
+        return (self.obs_photo, self.obs_point) if sel is None else (self.obs_photo[sel], self.obs_point[sel])
 
     # ------------------------------------------------------------------------------------------
     def project(self, XYZ, X0, opk, cam_params, *, R=None) -> Projection:
@@ -124,7 +133,12 @@ class Projector:
         c = cp[:, 0]
         for model, sel, meta in self.groups:
             p = model.n_params
-            if sel is None:
+            if is_ray_model(model):                   # projects from the ray (U, V, W) itself
+                s = slice(None) if sel is None else sel
+                rxy = ray_projection(model, d[s], cp[s, 3:3 + p], c[s], meta, self._rows(sel))
+                xbar[s] = rxy
+                xy[s] = cp[s, 1:3] + rxy
+            elif sel is None:
                 dx, dy = model.distortion(xbar[:, 0], xbar[:, 1], cp[:, 3:3 + p], c, meta)
                 xy[:, 0] += dx
                 xy[:, 1] += dy
@@ -149,12 +163,25 @@ class Projector:
         J_cam = np.zeros((k, 2, len(cols)))
         Jxy = None
         Jc_model = None
+        rays = []
         for model, sel, meta in self.groups:
             p = model.n_params
             want = ap_cols[ap_cols < p]
             s = slice(None) if sel is None else sel
             prm = cam_params[self.cam[s], 3:3 + p]
-            Jp, Dxy, Jcm = model.jacobians(xb[s], yb[s], prm, c[s], meta, want)
+            if is_ray_model(model):
+                _, _, Jd, Jp, Jcr = model.ray_jacobians(d[s], prm, c[s], meta, want)
+                rays.append((s, Jd, Jcr))
+            else:
+                Jp, Dxy, Jcm = model.jacobians(xb[s], yb[s], prm, c[s], meta, want)
+            if len(want):
+                pos = np.flatnonzero((cols >= 3) & (cols - 3 < p))
+                if sel is None:
+                    J_cam[:, :, pos] = Jp
+                else:
+                    J_cam[np.ix_(sel, [0, 1], pos)] = Jp
+            if is_ray_model(model):
+                continue
             if Jxy is None:
                 Jxy = np.zeros((k, 2, 2))
             Jxy[s] = Dxy
@@ -162,18 +189,15 @@ class Projector:
                 if Jc_model is None:
                     Jc_model = np.zeros((k, 2))
                 Jc_model[s] = Jcm
-            if len(want):
-                pos = np.flatnonzero((cols >= 3) & (cols - 3 < p))
-                if sel is None:
-                    J_cam[:, :, pos] = Jp
-                else:
-                    J_cam[np.ix_(sel, [0, 1], pos)] = Jp
         # ∂(x̄, ȳ)/∂d = f [[1, 0, −U/W], [0, 1, −V/W]], f = −c/W; JG = (I + D) ∂(x̄, ȳ)/∂d;
         # ∂/∂X = JG R; ∂d/∂angle = ∂R/∂angle (X − X0) = S_a d with S_a = ∂R/∂angle Rᵀ skew (axial
         # vector s_a): J_angle[:, i, a] = JG_i · (s_a × d) = s_a · (d × JG_i)
         S = np.einsum("maij,mkj->maik", dR, pr._R)        # (m, 3, 3, 3)
         sv = np.stack([S[:, :, 2, 1], S[:, :, 0, 2], S[:, :, 1, 0]], axis=2)   # (m, 3 angles, 3)
         J_point, J_eo, J_c = kernels.eo_point_jacobians(d, pr.xbar, c, Jxy, pr._R, sv, self.obs_photo)
+        for s, Jd, Jcr in rays:                       # ray models: ∂(x, y)/∂d is the model's own
+            J_point[s], J_eo[s] = ray_eo_point_jacobians(Jd, d[s], pr._R, sv, self.obs_photo[s])
+            J_c[s] = Jcr
         # camera: ∂/∂c = (I + D)(x̄, ȳ)/c + the model's own ∂Δ/∂c; ∂/∂xp = (1, 0), ∂/∂yp = (0, 1)
         for j, t in enumerate(cols.tolist()):
             if t == 0:

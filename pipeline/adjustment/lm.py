@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from baarda.pipeline.camera.ray_models import RayOutsideModel
 from baarda.pipeline.errors import AdjustmentError
 from baarda.pipeline.geometry import (opk_from_rotation_many, rotation_and_derivatives, rotation_from_rotvec,
                                       similarity_motions)
@@ -256,8 +257,14 @@ class SimilarityGauge:
 
 
 def _trial(prob: BundleProblem, new: BundleState):
-    """``(state, residual parts, vᵀPv)`` of a trial state (vᵀPv = inf when not finite)."""
-    parts = prob.residual_parts(new)
+    """``(state, residual parts, vᵀPv)`` of a trial state (vᵀPv = inf when not finite, or when the
+    step takes a ray out of its camera model's domain: the step is then damped, never accepted)."""
+    try:
+        parts = prob.residual_parts(new)
+    except RayOutsideModel:
+        if not prob.settings.damping:
+            raise
+        return new, None, np.inf
     cost = prob.cost(new, parts)
     return new, parts, (cost if np.isfinite(cost) else np.inf)
 

@@ -150,6 +150,93 @@ def colmap_from_brown(c, xp, yp, ap, size, pixel_mm, model: str = "auto") -> tup
 
 
 # --------------------------------------------------------------------------------------------
+# COLMAP's fisheye, omnidirectional and division models ↔ baarda's ray models
+# --------------------------------------------------------------------------------------------
+
+def _ray_models():
+    from .ray_models import COLMAP_RAY_MODELS
+    return COLMAP_RAY_MODELS
+
+
+def colmap_ray_model_names() -> dict:
+    """COLMAP model name → baarda ray-model name (``OPENCV_FISHEYE`` → ``opencv-fisheye`` …)."""
+    return {k: v.name for k, v in _ray_models().items()}
+
+
+def ray_from_colmap(model: str, params, size, pixel_mm) -> dict:
+    """baarda camera of a COLMAP camera whose model is one of :data:`.ray_models.COLMAP_RAY_MODELS`.
+
+    ``{"c", "xp", "yp" (mm), "ap_model", "ap" (the ray model's parameters), "free" (names of the
+    parameters COLMAP's bundle refines: focal lengths and extra parameters)}``.  With ``fx, fy``:
+    ``c = fy · pixel``, ``B1 = fx/fy − 1``; one focal length ``f``: ``c = f · pixel``; the extra
+    parameters are COLMAP's own (dimensionless, OpenCV's camera frame).  ``EQUIRECTANGULAR``
+    (parameters: image width and height) becomes ``c = h · pixel/π``, ``B1 = w/(2h) − 1``, principal
+    point at the image centre, all held fixed (COLMAP has nothing to refine).
+    """
+    cls = _ray_models()[model]
+    params = np.asarray(params, float).reshape(-1)
+    p = float(pixel_mm)
+    if model == "EQUIRECTANGULAR":
+        w, h = params
+        if not (w > 0 and h > 0):
+            raise UnsupportedCamera(f"EQUIRECTANGULAR needs a positive width and height, got {w:g}, {h:g}")
+        xp, yp = mm_from_pixels([w / 2, h / 2], size, p, "colmap")
+        return {"c": h * p / np.pi, "xp": float(xp), "yp": float(yp), "ap_model": cls.name,
+                "ap": np.array([w / (2 * h) - 1.0]), "free": ()}
+    nf = 2 if cls.focal2 else 1
+    need = nf + 2 + len(cls.extra)
+    if params.size != need:
+        raise UnsupportedCamera(f"{model} needs {need} parameters, got {params.size}")
+    fx, fy = (params[0], params[1]) if nf == 2 else (params[0], params[0])
+    if not (fx > 0 and fy > 0):
+        raise UnsupportedCamera(f"{model}: focal length must be positive, got {fx:g}, {fy:g}")
+    cx, cy = params[nf], params[nf + 1]
+    xp, yp = mm_from_pixels([cx, cy], size, p, "colmap")
+    ap = np.concatenate([[fx / fy - 1.0] if nf == 2 else [], params[nf + 2:]])
+    return {"c": fy * p, "xp": float(xp), "yp": float(yp), "ap_model": cls.name, "ap": ap,
+            "free": tuple(cls.params)}
+
+
+def colmap_from_ray(ap_model: str, c, xp, yp, ap, size, pixel_mm) -> tuple[str, np.ndarray]:
+    """``(COLMAP model, params)`` of a camera with one of baarda's COLMAP ray models (the inverse of
+    :func:`ray_from_colmap`).  :class:`UnsupportedCamera` for another model, and for an
+    equirectangular camera whose ``c``, ``B1`` and principal point are not those COLMAP's image size
+    implies."""
+    by_name = {v.name: (k, v) for k, v in _ray_models().items()}
+    if ap_model not in by_name:
+        raise UnsupportedCamera(f"AP model {ap_model!r} has no COLMAP equivalent")
+    model, cls = by_name[ap_model]
+    p = float(pixel_mm)
+    ap = np.concatenate([np.asarray(ap if ap is not None else [], float).reshape(-1), np.zeros(len(cls.params))])
+    ap = ap[:len(cls.params)]
+    cx, cy = pixels_from_mm([xp, yp], size, p, "colmap")
+    if model == "EQUIRECTANGULAR":
+        w, h = float(size[0]), float(size[1])
+        ok = (np.isclose(c, h * p / np.pi, rtol=1e-9) and np.isclose(c * (1 + ap[0]), w * p / (2 * np.pi), rtol=1e-9)
+              and np.isclose(cx, w / 2, atol=1e-6) and np.isclose(cy, h / 2, atol=1e-6))
+        if not ok:
+            raise UnsupportedCamera("COLMAP's EQUIRECTANGULAR camera is fixed by its image size (c = height·pixel/π, "
+                                    "c (1 + B1) = width·pixel/2π, principal point at the centre): this camera's "
+                                    "c, B1 or principal point differ")
+        return model, np.array([w, h])
+    fy = float(c) / p
+    head = [fy * (1.0 + ap[0]), fy] if cls.focal2 else [fy]
+    extra = ap[1:] if cls.focal2 else ap
+    return model, np.array(head + [float(cx), float(cy)] + list(extra), float)
+
+
+def camera_from_colmap(model: str, params, size, pixel_mm) -> dict:
+    """baarda camera of any supported COLMAP camera: ``{"c", "xp", "yp", "ap_model", "ap", "names"}``
+    (brown for the pinhole models, the ray model of the same name for the others)."""
+    if model in _ray_models():
+        b = ray_from_colmap(model, params, size, pixel_mm)
+        from .registry import get_ap_model
+        return {**b, "names": tuple(get_ap_model(b["ap_model"]).params)}
+    b = brown_from_colmap(model, params, size, pixel_mm)
+    return {**b, "ap_model": "brown", "names": BROWN}
+
+
+# --------------------------------------------------------------------------------------------
 # Reporting a camera in the units of its source (pixels, OpenCV's coefficients)
 # --------------------------------------------------------------------------------------------
 

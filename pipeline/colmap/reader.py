@@ -18,7 +18,8 @@ from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Pho
 
 from baarda.pipeline.geometry.image import mm_from_pixels
 from baarda.pipeline.geometry.pose import pose_from_cv
-from baarda.pipeline.camera.convert import BROWN, FREE_BROWN, UnsupportedCamera, brown_from_colmap
+from baarda.pipeline.camera.convert import (BROWN, COLMAP_PARAMS, FREE_BROWN, UnsupportedCamera, brown_from_colmap,
+                                            colmap_ray_model_names, ray_from_colmap)
 
 from .precheck import check_binary, check_text, check_values
 
@@ -90,23 +91,36 @@ def block_from_reconstruction(rec, *, pixel_mm: float = 0.001, sensor_width_mm: 
         size = (int(cam.width), int(cam.height))
         pitch = sensor_width_mm / size[0] if sensor_width_mm > 0 else pixel_mm
         model = cam.model.name
+        ray_names = colmap_ray_model_names()
         try:
-            b = brown_from_colmap(model, np.asarray(cam.params), size, pitch)
+            if model in ray_names:                  # fisheye, omnidirectional, division: a ray model
+                b = ray_from_colmap(model, np.asarray(cam.params), size, pitch)
+                names, free = ray_names_params(b["ap_model"]), set(b["free"])
+            elif model in COLMAP_PARAMS:
+                b = brown_from_colmap(model, np.asarray(cam.params), size, pitch)
+                b["ap_model"] = "brown"
+                names, free = BROWN, set(FREE_BROWN[model])
+            else:
+                raise UnsupportedCamera(f"COLMAP camera model {model} is not supported (supported: "
+                                        f"{', '.join(list(COLMAP_PARAMS) + list(ray_names))})")
         except UnsupportedCamera as e:
             raise InputError(f"camera {cid}: {e}", path=source or None, field="model") from None
-        if not b["exact"]:
+        if not b.get("exact", True):
             inexact.append(cid)
-        sig_iop = [0.0 if intrinsics == "fixed" else FREE,
-                   FREE if intrinsics == "free" else FIXED, FREE if intrinsics == "free" else FIXED]
-        sig_ap = [FREE if (name in FREE_BROWN[model] and intrinsics != "fixed") else FIXED for name in BROWN]
+        focal = model != "EQUIRECTANGULAR"        # COLMAP's equirectangular camera has nothing to refine
+        sig_iop = [0.0 if (intrinsics == "fixed" or not focal) else FREE,
+                   FREE if (intrinsics == "free" and focal) else FIXED, FREE if (intrinsics == "free" and focal) else FIXED]
+        sig_ap = [FREE if (name in free and intrinsics != "fixed") else FIXED for name in names]
         cams.append((str(cid), b, size, pitch, model, sig_iop, sig_ap))
+    width = max([len(c[1]["ap"]) for c in cams] + [0])
+    pad = lambda v: np.concatenate([np.asarray(v, float), np.zeros(width - len(v))])
     cameras = Cameras(
         ids=np.array([c[0] for c in cams], dtype=str),
         c=[c[1]["c"] for c in cams], xp=[c[1]["xp"] for c in cams], yp=[c[1]["yp"] for c in cams],
-        ap_model=np.array(["brown"] * len(cams), dtype=str),
-        ap=np.array([c[1]["ap"] for c in cams]).reshape(len(cams), len(BROWN)),
+        ap_model=np.array([c[1]["ap_model"] for c in cams], dtype=str),
+        ap=np.array([pad(c[1]["ap"]) for c in cams]).reshape(len(cams), width),
         sigma_iop=np.array([c[5] for c in cams], float).reshape(-1, 3),
-        sigma_ap=np.array([c[6] for c in cams], float).reshape(len(cams), len(BROWN)),
+        sigma_ap=np.array([pad(c[6]) for c in cams], float).reshape(len(cams), width),
         format_mm=np.array([[c[2][0] * c[3], c[2][1] * c[3]] for c in cams], float).reshape(-1, 2),
         pixel_mm=[c[3] for c in cams], resolution=np.array([c[2] for c in cams], int).reshape(-1, 2),
     )
@@ -178,6 +192,11 @@ def block_from_reconstruction(rec, *, pixel_mm: float = 0.001, sensor_width_mm: 
     info = {"inexact_cameras": inexact, "unregistered_images": skipped_images,
             "duplicate_observations": int((~first).sum())}
     return block, info
+
+
+def ray_names_params(ap_model: str) -> tuple[str, ...]:
+    from baarda.pipeline.camera import get_ap_model
+    return tuple(get_ap_model(ap_model).params)
 
 
 def read_colmap(path: str | Path, **kw) -> tuple[Block, dict]:

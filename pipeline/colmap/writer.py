@@ -17,7 +17,7 @@ from baarda.pipeline.errors import InputError
 
 from baarda.pipeline.geometry.image import pixels_from_mm
 from baarda.pipeline.geometry.pose import cv_from_pose
-from baarda.pipeline.camera.convert import UnsupportedCamera, colmap_from_brown
+from baarda.pipeline.camera.convert import UnsupportedCamera, colmap_from_brown, colmap_from_ray, colmap_ray_model_names
 
 
 def _pitch_and_size(cameras, k) -> tuple[float, tuple[int, int]]:
@@ -38,9 +38,18 @@ def colmap_cameras(cameras, models=None) -> list[tuple[str, np.ndarray]]:
     for k in range(len(cameras)):
         pitch, size = _pitch_and_size(cameras, k)
         ap_model = str(cameras.ap_model[k])
+        ray = set(colmap_ray_model_names().values())
+        if ap_model in ray:                           # a COLMAP fisheye / omnidirectional / division model
+            try:
+                out.append(colmap_from_ray(ap_model, cameras.c[k], cameras.xp[k], cameras.yp[k], cameras.ap[k],
+                                           size, pitch))
+            except (UnsupportedCamera, ValueError) as e:
+                raise InputError(f"camera {cameras.ids[k]}: {e}", field="ap") from None
+            continue
         if ap_model not in ("brown", "none"):
             raise InputError(f"camera {cameras.ids[k]}: AP model '{ap_model}' has no COLMAP equivalent "
-                             "(only 'brown' and 'none' can be written)", field="ap_model")
+                             f"(only 'brown', 'none' and {', '.join(sorted(ray))} can be written)",
+                             field="ap_model")
         ap = cameras.ap[k] if ap_model == "brown" else None
         want = "auto" if models is None else models[k]
         try:

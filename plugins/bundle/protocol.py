@@ -53,6 +53,15 @@ dimensionless).  In pixel coordinates the same term needs ``a_px = a_mm · pᵏ`
 mm; ebner12's image base b and AICON's r0 then in px too), so the distortion in px is the model's own
 formula on px.  A model not listed (a third-party one) keeps its parameters in its own units."""
 
+def _model_power(name) -> tuple | None:
+    """A registered model's own ``pixel_power`` (the ray models declare theirs), else None."""
+    from baarda.pipeline.camera import get_ap_model
+    try:
+        return getattr(get_ap_model(str(name)), "pixel_power", None)
+    except KeyError:
+        return None
+
+
 _SUPERSCRIPT = str.maketrans("-0123456789", "⁻⁰¹²³⁴⁵⁶⁷⁸⁹")
 
 
@@ -70,7 +79,7 @@ def camera_rows(res, j: int, units: tuple | None = None) -> list[dict]:
     base = "px" if unit == "px" else "mm"
     pitch = 1.0 / scale if unit == "px" else 1.0
     rows = res.camera_table(j)
-    powers = AP_PIXEL_POWER.get(str(res.block_in.cameras.ap_model[j]))
+    powers = AP_PIXEL_POWER.get(str(res.block_in.cameras.ap_model[j]), _model_power(res.block_in.cameras.ap_model[j]))
     if powers is not None and len(powers) != len(rows) - 3:
         powers = None
     out = []

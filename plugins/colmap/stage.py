@@ -34,7 +34,8 @@ class ColmapSourceOptions:
 
 
 class ColmapSource(SourceStage):
-    """Read a COLMAP model (binary or text) as a block: cameras in mm with the brown AP model."""
+    """Read a COLMAP model (binary or text) as a block: cameras in mm with the brown AP model (pinhole models) or
+    the ray model of the same name (fisheye, FOV, EUCM, division, equirectangular)."""
 
     summary = "COLMAP model (binary or text) → block (cameras in mm, brown distortion, tie points)"
     reads = ()

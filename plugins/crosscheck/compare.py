@@ -191,8 +191,8 @@ def _compare(result, plan: CrossCheckPlan, sol: PycolmapSolution, summary: dict,
         j = p.index
         names = result.cam_param_names[j]
         pc = sol.cam[j]
-        vals = {"c": pc["c"], "xp": pc["xp"], "yp": pc["yp"], **dict(zip(("K1", "K2", "K3", "P1", "P2", "B1", "B2"),
-                                                                          pc["ap"]))}
+        vals = {"c": pc["c"], "xp": pc["xp"], "yp": pc["yp"],
+                **dict(zip(pc.get("names", ("K1", "K2", "K3", "P1", "P2", "B1", "B2")), pc["ap"]))}
         for t, name in enumerate(names):
             if not np.isinf(result.camera_sigma[j, t]):
                 continue

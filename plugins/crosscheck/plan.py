@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from baarda.pipeline.camera.convert import BROWN, FREE_BROWN, UnsupportedCamera, colmap_from_brown
+from baarda.pipeline.camera.ray_models import COLMAP_RAY_MODELS
 
 __all__ = ["CameraPlan", "CrossCheckPlan", "plan_crosscheck", "behind_camera", "MODEL_ORDER", "brown_vector"]
 
@@ -112,7 +113,18 @@ def _status(sigma: float) -> str:
     return "fixed" if sigma == 0 else ("free" if np.isinf(sigma) else "weighted")
 
 
+def _ray_classes() -> dict:
+    """baarda ray-model name → its class (COLMAP's fisheye, FOV, EUCM, division, equirectangular models)."""
+    return {cls.name: cls for cls in COLMAP_RAY_MODELS.values()}
+
+
 def _groups(model: str) -> dict:
+    if model in COLMAP_RAY_MODELS:                 # a ray model: COLMAP's own parameters (docs/camera-models.md)
+        cls = COLMAP_RAY_MODELS[model]
+        if model == "EQUIRECTANGULAR":
+            return {"focal": (), "principal_point": (), "extra": ()}
+        return {"focal": ("c", "B1") if cls.focal2 else ("c",), "principal_point": ("xp", "yp"),
+                "extra": tuple(cls.extra)}
     focal = ("c", "B1") if "B1" in FREE_BROWN[model] else ("c",)
     extra = tuple(n for n in BROWN if n in FREE_BROWN[model] and n != "B1")
     return {"focal": focal, "principal_point": ("xp", "yp"), "extra": extra}
@@ -145,6 +157,8 @@ def _camera_plan(j, cams, result, names, ap_start, ap_adj, used) -> CameraPlan:
     if not used:
         return CameraPlan(j, cid, "unused", "SIMPLE_PINHOLE", note="no observation in the adjustment")
     model = str(cams.ap_model[j])
+    if model in _ray_classes():
+        return _ray_camera_plan(j, cid, result, names, _ray_classes()[model].colmap)
     if ap_start is None or ap_adj is None:
         return CameraPlan(j, cid, "corrected", "SIMPLE_PINHOLE",
                           note=f"AP model '{model}' has no COLMAP counterpart: observations corrected by baarda's "
@@ -168,6 +182,27 @@ def _camera_plan(j, cams, result, names, ap_start, ap_adj, used) -> CameraPlan:
                           note=f"{why}, and the adjusted camera has no exact COLMAP model ({e}): observations "
                                "corrected by baarda's adjusted distortion, c, xp, yp held (first-order comparison)")
     return CameraPlan(j, cid, "constant", cmodel, note=f"{why}: intrinsics held at baarda's adjusted values")
+
+
+def _ray_camera_plan(j, cid, result, names, colmap_model) -> CameraPlan:
+    """A camera with a COLMAP ray model: refined when each of COLMAP's parameter groups (focal
+    length(s), principal point, extra parameters) is wholly free or wholly fixed in baarda, else held."""
+    status = {n: _status(result.camera_sigma[j, t]) for t, n in enumerate(names)}
+    flags, ok = {}, True
+    for g, members in _groups(colmap_model).items():
+        st = {status.get(n, "fixed") for n in members}
+        if len(st) > 1 or "weighted" in st:
+            ok = False
+            break
+        flags[g] = (st == {"free"}) if members else None
+    if colmap_model == "EQUIRECTANGULAR" and any(s != "fixed" for s in status.values()):
+        ok = False
+    if ok:
+        return CameraPlan(j, cid, "refine", colmap_model, groups=flags)
+    free = [n for n in names if status.get(n) != "fixed"]
+    return CameraPlan(j, cid, "constant", colmap_model,
+                      note=f"free parameters {', '.join(free) or 'none'} cannot be reproduced by COLMAP's refine "
+                           "switches: intrinsics held at baarda's adjusted values")
 
 
 def _merge_global(plans: list) -> dict:

@@ -27,7 +27,8 @@ from baarda.pipeline.geometry.rotations import rotation_from_rotvec
 
 from baarda.pipeline.geometry.image import mm_from_pixels
 from baarda.pipeline.geometry.pose import pose_from_cv
-from baarda.pipeline.camera.convert import brown_from_colmap, colmap_from_brown
+from baarda.pipeline.camera.convert import camera_from_colmap, colmap_from_brown
+from baarda.pipeline.camera.ray_models import COLMAP_RAY_MODELS
 from baarda.pipeline.api import reconstruction_from_block
 
 from .plan import CrossCheckPlan, brown_vector
@@ -124,14 +125,17 @@ def start_block(result, plan: CrossCheckPlan, start, *, xy=None):
     K = len(cams0)
     c = np.array(cams0.c, float)
     xp, yp = np.array(cams0.xp, float), np.array(cams0.yp, float)
-    ap = np.zeros((K, 7))
+    ap = np.zeros((K, max(7, cams0.ap.shape[1])))
     models = []
     for p in plan.cameras:
         j = p.index
         src = cams0 if p.mode == "refine" else adj.cameras
         c[j], xp[j], yp[j] = src.c[j], src.xp[j], src.yp[j]
         bv = brown_vector(src, j)
-        if p.mode == "corrected" or bv is None:
+        if p.colmap_model in COLMAP_RAY_MODELS and p.mode != "unused":      # a ray model: its own parameters
+            ap[j, :src.ap.shape[1]] = src.ap[j]
+            models.append(str(src.ap_model[j]))
+        elif p.mode == "corrected" or bv is None:
             models.append("none")
         else:
             ap[j] = bv
@@ -212,7 +216,7 @@ def block_to_reconstruction(blk, models, size=None):
     camera_id = np.arange(1, len(cams) + 1)
     image_id = np.where(photos.has_orientation, np.arange(1, len(photos) + 1), 0)
     for j, want in enumerate(models):
-        if want is None:
+        if want is None or want in COLMAP_RAY_MODELS:      # the writer wrote a ray model's own COLMAP model
             continue
         model, params = colmap_from_brown(cams.c[j], cams.xp[j], cams.yp[j], cams.ap[j], tuple(size[j]),
                                           cams.pixel_mm[j], want)
@@ -329,9 +333,9 @@ def read_solution(rec, recmap: RecMap, sigma_mm, block) -> dict:
             cam.append(None)
             continue
         cc = rec.cameras[int(recmap.camera_id[j])]
-        b = brown_from_colmap(cc.model.name, np.asarray(cc.params), tuple(recmap.size[j]), sigma_mm[j])
+        b = camera_from_colmap(cc.model.name, np.asarray(cc.params), tuple(recmap.size[j]), sigma_mm[j])
         cam.append({"c": b["c"], "xp": b["xp"], "yp": b["yp"], "ap": b["ap"], "model": cc.model.name,
-                    "params": np.array(cc.params, float)})
+                    "names": b["names"], "ap_model": b["ap_model"], "params": np.array(cc.params, float)})
     res = np.full((k, 2), np.nan)
     obs = block.observations
     for i in np.flatnonzero(recmap.image_id > 0):
@@ -360,8 +364,8 @@ def block_with_solution(block, sol: dict):
         if cj is None:
             continue
         c[j], xp[j], yp[j] = cj["c"], cj["xp"], cj["yp"]
-        if str(cams.ap_model[j]) == "brown":
-            p = min(ap.shape[1], 7)
+        if str(cams.ap_model[j]) in ("brown", cj.get("ap_model")):
+            p = min(ap.shape[1], len(cj["ap"]))
             ap[j, :p] = cj["ap"][:p]
     ph, pts = block.photos, block.points
     ok_ph = np.isfinite(sol["X0"]).all(axis=1)
@@ -405,14 +409,12 @@ def pose_covariance_baarda(cov_tangent: np.ndarray, R_cv: np.ndarray, t: np.ndar
 def camera_covariance_baarda(cov_params: np.ndarray, model: str, params: np.ndarray, free_idx: np.ndarray,
                              size, pitch: float, names: list, h: float = 1e-7) -> np.ndarray:
     """Covariance of baarda's ``names`` (from c, xp, yp, K1 … B2) from pycolmap's covariance of the
-    free COLMAP parameters ``params[free_idx]`` (central differences through brown_from_colmap)."""
-    from baarda.pipeline.camera.convert import BROWN
-
-    order = ["c", "xp", "yp", *BROWN]
+    free COLMAP parameters ``params[free_idx]`` (central differences through camera_from_colmap)."""
+    order = ["c", "xp", "yp", *camera_from_colmap(model, params, size, pitch)["names"]]
     pick = [order.index(n) for n in names]
 
     def f(p):
-        b = brown_from_colmap(model, p, size, pitch)
+        b = camera_from_colmap(model, p, size, pitch)
         return np.concatenate([[b["c"], b["xp"], b["yp"]], b["ap"]])[pick]
 
     J = np.zeros((len(names), len(free_idx)))

@@ -23,7 +23,11 @@ ROOT = Path(__file__).resolve().parents[2]
 
 def test_builtin_models_come_from_the_entry_point_group():
     declared = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["entry-points"][GROUP]
-    assert set(declared) == {"none", "ebner12", "brown", "aicon", "brown-backward", "metashape"}
+    ray = {"simple-fisheye", "fisheye", "simple-radial-fisheye", "radial-fisheye", "opencv-fisheye",
+           "thin-prism-fisheye", "rad-tan-thin-prism-fisheye", "fov", "eucm", "division", "simple-division",
+           "equirectangular", "fisheye-equidistant", "fisheye-equisolid", "fisheye-stereographic",
+           "fisheye-orthographic"}
+    assert set(declared) == {"none", "ebner12", "brown", "aicon", "brown-backward", "metashape"} | ray
     installed = {ep.name: ep.value for ep in entry_points(group=GROUP) if ep.value.startswith("baarda.")}
     assert installed == declared, "reinstall (pip install -e .) after changing entry points"
     reg = CameraModelRegistry()

@@ -210,9 +210,10 @@ def test_broken_input(tmp_path, model_dir):
     import pycolmap
 
     rec = pycolmap.Reconstruction()
-    cam = pycolmap.Camera.create_from_model_name(7, "OPENCV_FISHEYE", 500.0, 640, 480)
+    cam = pycolmap.Camera.create_from_model_name(7, "FULL_OPENCV", 500.0, 640, 480)
+    cam.params = [500, 500, 320, 240, 0.1, 0, 0, 0, 0, 0.01, 0, 0]
     rec.add_camera_with_trivial_rig(cam)
-    with pytest.raises(InputError, match="camera 7: COLMAP camera model OPENCV_FISHEYE is not supported"):
+    with pytest.raises(InputError, match="camera 7: FULL_OPENCV with k4, k5, k6"):
         block_from_reconstruction(rec)
 
 

@@ -45,6 +45,7 @@ SECONDS = {
     "dbat/camcal.toml": 0.4,
     "dbat/sxb.toml": 0.3,
     "design/design.toml": 4.2,
+    "fisheye/fisheye.toml": 1.2,
     "gnss/gnss.toml": 3.8,
     "metashape/metashape.toml": 4.9,
     "monitoring/aicon-epochs.toml": 20.7,
