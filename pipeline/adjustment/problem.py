@@ -40,6 +40,7 @@ from baarda.pipeline.model import Block
 
 from ..camera import get_ap_model
 from .collinearity import Projector, bmv
+from .corrected import has_correction
 from .layout import ColumnLayout
 from .normal import NormalEquations
 from .settings import BundleSettings, BundleState, block_distances, camera_meta, check_unique
@@ -119,6 +120,10 @@ class BundleProblem:
         self.pmax = max([mdl.n_params for mdl in self.models] + [0])
         self.meta = camera_meta(self.block, self.settings)
         for j, mdl in enumerate(self.models):
+            if self.settings.residual == "corrected" and mdl.n_params and not has_correction(mdl):
+                raise InputError(f"camera {str(cams.ids[j])!r}: residual = \"corrected\" (DBAT's definition) needs a "
+                                 f"model that corrects the measured marks (brown-backward), not {mdl.name!r}",
+                                 field="residual")
             if mdl.name == "ebner12" and self.meta[j].get("b") is None:
                 raise InputError(f"camera {str(cams.ids[j])!r}: ebner12 needs the image base b (mm): set option "
                                  "'ebner_b' or give the camera's format", field="ebner_b")
@@ -305,8 +310,15 @@ class BundleProblem:
         the camera Jacobian's columns that feed the layout)."""
         photos = self.block.photos
         self.projector = Projector(self.obs_photo, self.obs_point, photos.camera, self.block.cameras.ap_model,
-                                   self.meta, cam_cols=self.layout.jac_cols[0])
+                                   self.meta, cam_cols=self.layout.jac_cols[0], marks=self.marks_of(self.oi))
         self.datum_on_elim = bool(self.n_c and len(self.datum_elim))
+
+    def marks_of(self, obs_idx):
+        """The measured marks of block observations ``obs_idx`` when the residual is DBAT's
+        (``settings.residual == "corrected"``, :mod:`.corrected`), else None."""
+        if self.settings.residual != "corrected":
+            return None
+        return self.block.observations.xy[obs_idx]
 
     # ------------------------------------------------------------------------------------------
     def _check_weak(self, act):

@@ -197,6 +197,9 @@ class BundleConfig:
              "σ̂0 of an earlier run on the same weights)", gt=0.0)
     on_weak: Literal["error", "drop"] = option(
         "error", "photos with < 3 points, points in < 2 photos: stop with an error, or drop them with a warning")
+    residual: Literal["measured", "corrected"] = option(
+        "measured", "image residuals of backward-model cameras (brown-backward): of the measured marks (baarda's), or "
+                    "DBAT's — the corrected mark minus the ideal projection, weighted with the mark's σ (docs/dbat.md)")
     solver: SolverConfig = option(SolverConfig(), "the iteration and the linear algebra")
     tests: StatTestsConfig = option(StatTestsConfig(), "tests of the observations, blunder handling")
     robust: RobustConfig = option(
@@ -310,7 +313,8 @@ def bundle_settings(config: BundleConfig, block: Block, threads: int = 1) -> Bun
         sigma0=o.sigma0, variance=o.variance,
         max_iter=s.max_iter, tol_obs=s.tol_obs, tol_rel=s.tol_rel, damping=s.damping,
         distances=tuple(Distance(str(d.from_), str(d.to), d.distance, d.sigma) for d in o.distances),
-        on_weak=o.on_weak, ap_meta=ap_meta, covariance=s.covariance, solver=s.solver, threads=threads)
+        on_weak=o.on_weak, ap_meta=ap_meta, covariance=s.covariance, solver=s.solver, threads=threads,
+        residual=o.residual)
 
 
 def check_requests(block: Block, specs, field: str = "output.covariance_of") -> None:
