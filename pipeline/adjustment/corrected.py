@@ -24,12 +24,23 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["has_correction", "split_groups", "add_correction", "add_correction_jacobians"]
+__all__ = ["has_correction", "check_models", "split_groups", "add_correction", "add_correction_jacobians"]
 
 
 def has_correction(model) -> bool:
     """Whether ``model`` corrects measured marks (a backward model) and so has DBAT's residual."""
     return callable(getattr(model, "correct_jacobians", None))
+
+
+def check_models(camera_ids, models) -> None:
+    """``residual = "corrected"``: every camera's model corrects the measured marks (or has no
+    parameters, where both definitions are the same); else an :class:`InputError` naming the camera."""
+    from baarda.pipeline.errors import InputError
+
+    for cid, mdl in zip(camera_ids, models):
+        if mdl.n_params and not has_correction(mdl):
+            raise InputError(f"camera {str(cid)!r}: residual = \"corrected\" (DBAT's definition) needs a model that "
+                             f"corrects the measured marks (brown-backward), not {mdl.name!r}", field="residual")
 
 
 def split_groups(groups, marks):

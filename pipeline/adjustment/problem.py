@@ -40,7 +40,7 @@ from baarda.pipeline.model import Block
 
 from ..camera import get_ap_model
 from .collinearity import Projector, bmv
-from .corrected import has_correction
+from .corrected import check_models
 from .layout import ColumnLayout
 from .normal import NormalEquations
 from .settings import BundleSettings, BundleState, block_distances, camera_meta, check_unique
@@ -119,11 +119,9 @@ class BundleProblem:
             raise InputError(str(e.args[0]), field="ap_model") from None
         self.pmax = max([mdl.n_params for mdl in self.models] + [0])
         self.meta = camera_meta(self.block, self.settings)
+        if self.settings.residual == "corrected":
+            check_models(cams.ids.tolist(), self.models)
         for j, mdl in enumerate(self.models):
-            if self.settings.residual == "corrected" and mdl.n_params and not has_correction(mdl):
-                raise InputError(f"camera {str(cams.ids[j])!r}: residual = \"corrected\" (DBAT's definition) needs a "
-                                 f"model that corrects the measured marks (brown-backward), not {mdl.name!r}",
-                                 field="residual")
             if mdl.name == "ebner12" and self.meta[j].get("b") is None:
                 raise InputError(f"camera {str(cams.ids[j])!r}: ebner12 needs the image base b (mm): set option "
                                  "'ebner_b' or give the camera's format", field="ebner_b")

@@ -37,6 +37,7 @@ from baarda.pipeline.stats.critical import delta0 as _delta0
 
 from .adjust import BundleResult, adjust, padded_ap, result_of
 from .apselect import APSelection, select_aps
+from .corrected import check_models
 from .reliability import GlobalRowStats, OwnEffects, global_rows, own_effects, parameter_covariance
 from .settings import BundleSettings, Distance
 from ..threads import single_blas
@@ -308,6 +309,8 @@ def bundle_settings(config: BundleConfig, block: Block, threads: int = 1) -> Bun
             if str(end) not in known:
                 raise InputError(f"distances[{k}]: no point {str(end)!r} in the block", field="distances")
     ap_meta = {cid: {"b": o.ebner_b} for cid in block.cameras.ids.tolist()} if o.ebner_b > 0 else {}
+    if o.residual == "corrected":
+        check_models(block.cameras.ids.tolist(), [get_ap_model(m) for m in block.cameras.ap_model.tolist()])
     return BundleSettings(
         datum=o.datum, datum_points=tuple(o.datum_points) or None, datum_centres=o.datum_on == "centres",
         sigma0=o.sigma0, variance=o.variance,
