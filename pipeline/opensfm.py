@@ -147,13 +147,19 @@ def read_tracks(path: Path) -> tuple[list[str], list[str], np.ndarray, np.ndarra
 
 
 def read_opensfm(path: str | Path, *, tracks: str | Path | None = None, pixel_mm: float = 0.001,
-                 sigma_px: float = 1.0, intrinsics: str = "opensfm", which: int = 0) -> tuple[Block, dict]:
+                 sigma_px: float = 1.0, intrinsics: str = "opensfm", which: int = 0,
+                 gcp: str | Path | None = None, gcp_crs: str | None = None,
+                 gcp_sigma=(0.02, 0.02, 0.03), gcp_check=(), gcp_sigma_px: float | None = None,
+                 gcp_where: dict | None = None) -> tuple[Block, dict]:
     """Read reconstruction ``which`` of an OpenSfM ``reconstruction.json`` as a block.
 
     ``tracks``: the ``tracks.csv`` with the observations (default: ``tracks.csv`` beside the json,
     when present; without it the block has points but no observations).  ``intrinsics``:
     ``"opensfm"`` frees what OpenSfM's bundle refines (focal and distortion, principal point fixed),
-    ``"fixed"`` none, ``"free"`` all.
+    ``"fixed"`` none, ``"free"`` all.  ``gcp``: an ODM/OpenSfM ``gcp_list.txt`` whose targets are
+    added as control points (``gcp_sigma`` E, N, U metres) or check points (``gcp_check``) with
+    their pixel measurements (σ ``gcp_sigma_px``, default ``sigma_px``): :func:`_with_gcps`.
+    ``gcp_where``: path and line of the options, for errors about ``gcp_crs`` and ``gcp_check``.
     """
     path = Path(path)
     if intrinsics not in ("opensfm", "fixed", "free"):
@@ -254,7 +260,146 @@ def read_opensfm(path: str | Path, *, tracks: str | Path | None = None, pixel_mm
     info = {"inexact_cameras": [cid for cid, cm in zip(cam_ids, cams) if not cm["exact"]],
             "tracks": str(tracks_path) if used_tracks else None, "duplicate_observations": int((~first).sum()),
             "reconstructions": len(doc), "projection_types": sorted({cm["projection_type"] for cm in cams})}
+    if gcp is not None:
+        block, info["gcp"] = _with_gcps(block, Path(gcp), path, rec, crs=gcp_crs, sigma=gcp_sigma, check=gcp_check,
+                                        sigma_px=sigma_px if gcp_sigma_px is None else gcp_sigma_px,
+                                        where=gcp_where or {})
     return block, info
+
+
+def _reference_lla(rec: dict, path: Path):
+    """(lon°, lat°, alt m, where it came from) of the reconstruction's topocentric origin: its
+    ``reference_lla`` or ``reference_lla.json`` beside the file (OpenSfM's dataset folder); None
+    when neither exists."""
+    ref, src = rec.get("reference_lla"), path
+    if ref is None and path.with_name("reference_lla.json").is_file():
+        src = path.with_name("reference_lla.json")
+        try:
+            ref = json.loads(src.read_text(encoding="utf-8"))
+        except (json.JSONDecodeError, UnicodeDecodeError) as e:
+            raise InputError(f"not valid JSON: {getattr(e, 'msg', e)}", path=src, line=getattr(e, "lineno", None),
+                             field="reference_lla") from None
+    if ref is None:
+        return None
+    if not isinstance(ref, dict):
+        raise InputError(f"reference_lla: expected an object, got {ref!r}", path=src, field="reference_lla")
+    lat = _num(ref, "latitude", src, "reference_lla")
+    lon = _num(ref, "longitude", src, "reference_lla")
+    alt = _num(ref, "altitude", src, "reference_lla")
+    if not (-90 <= lat <= 90 and -180 <= lon <= 360):
+        raise InputError(f"reference_lla: latitude {lat:g}, longitude {lon:g} are not a place on the Earth", path=src,
+                         field="reference_lla.latitude")
+    return lon, lat, alt, src
+
+
+GCP_MAX_KM = 50.0
+"""Targets farther than this from the reconstruction's topocentric origin are refused: the
+coordinates are not in the CRS the gcp list names (or the reference_lla is another place)."""
+
+
+def _with_gcps(block: Block, gcp_path: Path, path: Path, rec: dict, *, crs, sigma, check, sigma_px, where):
+    """``block`` with the targets of an ODM/OpenSfM ``gcp_list.txt`` (:func:`~baarda.pipeline.gcplist.read_gcp_list`)
+    as control points (role ``full``, a-priori σ ``sigma`` E, N, U m) or check points (``check``)
+    and their pixel measurements in the shots of the reconstruction (OpenCV pixels as OpenSfM's
+    ``normalized_image_coordinates``; measurements in images that are not shots are left out, as
+    OpenSfM does, and counted).
+
+    Coordinates: the gcp list's CRS (or ``crs``; ``"local"``: already the reconstruction's frame)
+    goes to the reconstruction's topocentric frame — east, north, up at ``reference_lla``, the frame
+    of OpenSfM's ``topocentric_from_lla`` — through :class:`~baarda.pipeline.crs.LocalFrame` with
+    that origin; the block then carries the frame (``block.crs``), so results are also reported in
+    the CRS (``docs/crs.md``).  The CRS's geodetic datum is taken as the one of ``reference_lla``
+    (WGS 84): a CRS on another ellipsoid is refused."""
+    from baarda.pipeline.crs import WGS84_A, WGS84_F, LocalFrame, parse_crs
+    from baarda.pipeline.gcplist import read_gcp_list
+
+    g = read_gcp_list(gcp_path)
+    opt_path, crs_line = where.get("path"), where.get("crs_line")
+    crs_text, c_path, c_line, c_field = ((crs, opt_path, crs_line, "gcp_crs") if crs is not None
+                                         else (g.crs, g.path, g.crs_line, "crs"))
+    local = str(crs_text).strip().lower() in ("local", "none", "")
+    if local:
+        frame = LocalFrame(None)
+    else:
+        ref = _reference_lla(rec, path)
+        if ref is None:
+            raise InputError("the gcp list's coordinates are in a CRS, but the reconstruction has no reference_lla "
+                             "(and there is no reference_lla.json beside it): its frame is unknown. Give gcp_crs = "
+                             "\"local\" when the targets are in the reconstruction's own frame", path=path,
+                             field="reference_lla")
+        pc = parse_crs(crs_text, path=c_path, line=c_line, field=c_field)
+        ell = pc.ellipsoid
+        if ell is not None and (abs(float(ell.semi_major_metre) - WGS84_A) > 1.0
+                                or abs(1.0 / float(ell.inverse_flattening or np.inf) - WGS84_F) > 1e-8):
+            raise InputError(f"the CRS {str(crs_text).strip()[:60]!r} is on the ellipsoid {ell.name!r}; OpenSfM's "
+                             "reference_lla is WGS 84: give the targets in a WGS 84 (or GRS 80) based CRS",
+                             path=c_path, line=c_line, field=c_field)
+        frame = LocalFrame(pc.to_wkt(), (ref[0], ref[1], ref[2]))
+    try:
+        XYZ = frame.to_local(g.geo)
+    except InputError as e:
+        raise InputError(e.message, path=c_path, line=c_line, field=c_field) from None
+    far = np.linalg.norm(XYZ, axis=1) > GCP_MAX_KM * 1000
+    if far.any():
+        k = int(np.flatnonzero(far)[0])
+        raise InputError(f"target {g.name[k]!r} lies {np.linalg.norm(XYZ[k]) / 1000:.0f} km from the reconstruction's "
+                         f"reference_lla: its coordinates are not in {str(crs_text).strip()[:60]!r} (or the "
+                         "reference is another place)", path=g.path, line=int(g.line[k]), field="geo_x")
+    names = list(dict.fromkeys(g.name))
+    unknown = [c for c in check if c not in names]
+    if unknown:
+        raise InputError(f"gcp_check: {unknown[0]!r} is not a target of {g.path.name} (targets: "
+                         f"{', '.join(names[:12])}{' …' if len(names) > 12 else ''})", path=where.get("path"),
+                         line=where.get("check_line"), field="gcp_check")
+    pts = block.points
+    clash = set(names) & set(pts.ids.tolist())
+    if clash:
+        name = sorted(clash)[0]
+        k = g.name.index(name)
+        raise InputError(f"target {name!r} has the id of a point of the reconstruction: rename the target",
+                         path=g.path, line=int(g.line[k]), field="gcp_name")
+    first = [g.name.index(n) for n in names]
+    role = ["check" if n in check else "full" for n in names]
+    sig = np.array([np.full(3, FREE) if r == "check" else np.asarray(sigma, float) for r in role]).reshape(-1, 3)
+    new_pts = Points.make(names, XYZ=XYZ[first], role=role, sigma=sig)
+    points = Points.make(pts.ids.tolist() + names, XYZ=np.vstack([pts.XYZ, new_pts.XYZ]),
+                         role=pts.role.tolist() + role, sigma=np.vstack([pts.sigma, sig]))
+    ph = block.photos
+    shot_index = {str(s): k for k, s in enumerate(ph.ids.tolist())}
+    rows = np.array([i for i, im in enumerate(g.image) if im in shot_index], int)
+    missing = sorted({im for im in g.image if im not in shot_index})
+    cams = block.cameras
+    o_ph = np.array([shot_index[g.image[i]] for i in rows], int)
+    o_pt = np.array([len(pts) + names.index(g.name[i]) for i in rows], int)
+    cam = ph.camera[o_ph]
+    res = cams.resolution[cam].astype(float)
+    uv = g.pixel[rows]
+    out = ~((uv >= -0.5) & (uv <= res - 0.5)).all(axis=1)
+    if out.any():
+        k = int(rows[np.flatnonzero(out)[0]])
+        W, H = res[np.flatnonzero(out)[0]].astype(int)
+        raise InputError(f"pixel ({g.pixel[k, 0]:g}, {g.pixel[k, 1]:g}) lies outside the {W} × {H} image "
+                         f"{g.image[k]!r}", path=g.path, line=int(g.line[k]), field="im_x")
+    xy = mm_from_pixels(uv, res, cams.pixel_mm[cam], "opencv").reshape(-1, 2)
+    ob = block.observations
+    observations = Observations.make(np.concatenate([ob.photo, o_ph]), np.concatenate([ob.point, o_pt]),
+                                     np.vstack([ob.xy, xy]),
+                                     cov=np.concatenate([ob.cov, (sigma_px * cams.pixel_mm[cam])[:, None, None] ** 2
+                                                         * np.eye(2)]),
+                                     active=np.concatenate([ob.active, np.ones(len(rows), bool)]))
+    lines = dict(block.source.lines or {})
+    lines.update({(int(a), int(b)): (str(g.path), int(c)) for a, b, c in zip(o_ph, o_pt, g.line[rows])})
+    source = SourceInfo(path=block.source.path, format=block.source.format, pixel_format=block.source.pixel_format,
+                        lines=lines)
+    info = {"path": str(g.path), "crs": str(crs_text).strip(), "targets": len(names),
+            "control": role.count("full"), "check": role.count("check"), "measurements": len(g.name),
+            "used_measurements": int(len(rows)), "images_not_shots": missing,
+            "origin_lon_lat_h": None if frame.is_identity else list(frame.origin)}
+    meta = dict(block.meta)
+    meta["opensfm"] = {**meta["opensfm"], "gcp": info}
+    out_block = block.replace(points=points, observations=observations, source=source, meta=meta,
+                              crs=frame.info())
+    return out_block, info
 
 
 def write_opensfm(block: Block, folder: str | Path) -> dict:

@@ -77,6 +77,9 @@ class PluginManager:
         for info in self._stages.values():
             if name in tuple(getattr(info.cls, "formerly", ()) or ()):
                 raise BaardaError(f"stage '{name}' is now '{info.name}': write use = \"{info.name}\"")
+            retired = (getattr(info.cls, "retired", None) or {}).get(name)     # a stage replaced by something else
+            if retired:
+                raise BaardaError(f"stage '{name}' was retired: {retired}")
         hint = f" ({self.load_errors[name]})" if name in self.load_errors else ""
         close = difflib.get_close_matches(name, list(self._stages), n=3, cutoff=0.6)
         did = f"; did you mean {' or '.join(repr(c) for c in close)}?" if close else ""

@@ -374,7 +374,8 @@ def _project_all(prob: BundleProblem, st: BundleState) -> np.ndarray:
     out = np.full((len(obs), 2), np.nan)
     if ok.any():
         pr = project_observations(obs.photo[ok], obs.point[ok], st.XYZ, st.X0, st.opk, prob.block.photos.camera,
-                                  st.cam_params, prob.block.cameras.ap_model, prob.meta, jacobians=False)
+                                  st.cam_params, prob.block.cameras.ap_model, prob.meta, jacobians=False,
+                                  marks=prob.marks_of(ok))
         out[ok] = pr.xy
     return out
 

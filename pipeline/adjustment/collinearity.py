@@ -25,7 +25,7 @@ from baarda.pipeline.geometry.rotations import rotation_and_derivatives, rotatio
 
 from ..camera import get_ap_model
 from ..camera.ray_models import is_ray_model, ray_eo_point_jacobians, ray_projection
-from . import kernels
+from . import corrected, kernels
 
 __all__ = ["Projection", "Projector", "project_observations", "IOP_NAMES", "EO_NAMES"]
 
@@ -87,11 +87,12 @@ class Projector:
     derivatives per photo: ``∂d/∂angle = s × d`` with the axial vector ``s`` of ``∂R/∂angle Rᵀ``).
 
     ``cam_cols`` (optional) restricts ``J_cam`` to those camera-parameter columns
-    (indices into ``[c, xp, yp, ap_1 …]``).
+    (indices into ``[c, xp, yp, ap_1 …]``).  ``marks`` (optional, (k, 2) the measured image
+    coordinates): cameras with a backward model use DBAT's residual definition (:mod:`.corrected`).
     """
 
     def __init__(self, obs_photo, obs_point, photo_camera, cam_models: Sequence[str],
-                 cam_meta: Sequence[Mapping] | None = None, *, cam_cols=None):
+                 cam_meta: Sequence[Mapping] | None = None, *, cam_cols=None, marks=None):
         self.obs_photo = np.asarray(obs_photo, np.intp)
         self.obs_point = np.asarray(obs_point, np.intp)
         self.photo_camera = np.asarray(photo_camera, np.intp)
@@ -115,6 +116,8 @@ class Projector:
                     continue
                 sel = None if mask.all() else np.flatnonzero(mask)
                 self.groups.append((model, sel, metas[grp[0]]))
+        self.marks = None if marks is None else np.asarray(marks, float)
+        self.groups, self.mark_groups = corrected.split_groups(self.groups, self.marks)
 
     def _rows(self, sel):
         """(photo, point) index of the observations of a group (for error messages)."""
@@ -146,6 +149,7 @@ class Projector:
                 dx, dy = model.distortion(xbar[sel, 0], xbar[sel, 1], cp[sel, 3:3 + p], c[sel], meta)
                 xy[sel, 0] += dx
                 xy[sel, 1] += dy
+        corrected.add_correction(self.mark_groups, self.marks, cp, xy)
         return Projection(xy=xy, xbar=xbar, W=W, _d=d, _c=c, _R=R, _opk=opk, _cam_params=cam_params)
 
     def jacobians(self, pr: Projection, *, dR=None) -> Projection:
@@ -208,6 +212,7 @@ class Projector:
                 J_cam[:, 0, j] = 1.0
             elif t == 2:
                 J_cam[:, 1, j] = 1.0
+        corrected.add_correction_jacobians(self.mark_groups, self.marks, cam_params[self.cam], cols, J_cam)
         pr.J_eo, pr.J_point, pr.J_cam = J_eo, J_point, J_cam
         return pr
 
@@ -216,7 +221,7 @@ def project_observations(obs_photo: np.ndarray, obs_point: np.ndarray, XYZ: np.n
                          X0: np.ndarray, opk: np.ndarray, photo_camera: np.ndarray,
                          cam_params: np.ndarray, cam_models: Sequence[str],
                          cam_meta: Sequence[Mapping] | None = None, *, jacobians: bool = True,
-                         R_dR=None) -> Projection:
+                         R_dR=None, marks=None) -> Projection:
     """Project the observed points and (optionally) differentiate.
 
     Parameters
@@ -227,8 +232,10 @@ def project_observations(obs_photo: np.ndarray, obs_point: np.ndarray, XYZ: np.n
     cam_params : (K, 3 + p) ``[c, xp, yp, ap…]`` per camera (unused AP columns ignored).
     cam_models : (K,) registered AP model names; cam_meta : (K,) dicts (``b``, ``r0`` …).
     R_dR : optional precomputed ``rotation_and_derivatives(opk)``.
+    marks : optional (k, 2) measured image coordinates: DBAT's residual definition for backward
+        models (``xy`` is then the mark minus DBAT's residual, :mod:`.corrected`).
     """
-    pj = Projector(obs_photo, obs_point, photo_camera, cam_models, cam_meta)
+    pj = Projector(obs_photo, obs_point, photo_camera, cam_models, cam_meta, marks=marks)
     R, dR = R_dR if R_dR is not None else (None, None)
     pr = pj.project(np.asarray(XYZ, float), np.asarray(X0, float), opk, cam_params, R=R)
     return pj.jacobians(pr, dR=dR) if jacobians else pr

@@ -475,7 +475,7 @@ def predicted_variance_dense(prob: BundleProblem, st, red, Qx: np.ndarray, Qpp: 
     sel = np.flatnonzero(ok)
     ph, pt = ph[sel], pt[sel]
     pr = project_observations(ph, pt, st.XYZ, st.X0, st.opk, prob.block.photos.camera, st.cam_params,
-                              prob.block.cameras.ap_model, prob.meta)
+                              prob.block.cameras.ap_model, prob.meta, marks=prob.marks_of(idx[sel]))
     cam = prob.block.photos.camera[ph]
     n_g = prob.n_g
     C = np.concatenate([prob.g_cam[cam], prob.g_eo[ph], prob.g_pt[pt]], axis=1)
@@ -511,7 +511,7 @@ def _prediction_rows(prob, st, obs_idx):
     sel = np.flatnonzero(prob.photo_used[ph] & prob.point_used[pt])
     ph, pt = ph[sel], pt[sel]
     pr = project_observations(ph, pt, st.XYZ, st.X0, st.opk, prob.block.photos.camera, st.cam_params,
-                              prob.block.cameras.ap_model, prob.meta)
+                              prob.block.cameras.ap_model, prob.meta, marks=prob.marks_of(idx[sel]))
     cam = prob.block.photos.camera[ph]
     C = np.concatenate([prob.g_cam[cam], prob.g_eo[ph], prob.g_pt[pt]], axis=1)
     J = np.concatenate([pr.J_cam, pr.J_eo, pr.J_point], axis=2) * (C >= 0)[:, None, :]

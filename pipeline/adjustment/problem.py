@@ -40,6 +40,7 @@ from baarda.pipeline.model import Block
 
 from ..camera import get_ap_model
 from .collinearity import Projector, bmv
+from .corrected import check_models
 from .layout import ColumnLayout
 from .normal import NormalEquations
 from .settings import BundleSettings, BundleState, block_distances, camera_meta, check_unique
@@ -118,6 +119,8 @@ class BundleProblem:
             raise InputError(str(e.args[0]), field="ap_model") from None
         self.pmax = max([mdl.n_params for mdl in self.models] + [0])
         self.meta = camera_meta(self.block, self.settings)
+        if self.settings.residual == "corrected":
+            check_models(cams.ids.tolist(), self.models)
         for j, mdl in enumerate(self.models):
             if mdl.name == "ebner12" and self.meta[j].get("b") is None:
                 raise InputError(f"camera {str(cams.ids[j])!r}: ebner12 needs the image base b (mm): set option "
@@ -305,8 +308,15 @@ class BundleProblem:
         the camera Jacobian's columns that feed the layout)."""
         photos = self.block.photos
         self.projector = Projector(self.obs_photo, self.obs_point, photos.camera, self.block.cameras.ap_model,
-                                   self.meta, cam_cols=self.layout.jac_cols[0])
+                                   self.meta, cam_cols=self.layout.jac_cols[0], marks=self.marks_of(self.oi))
         self.datum_on_elim = bool(self.n_c and len(self.datum_elim))
+
+    def marks_of(self, obs_idx):
+        """The measured marks of block observations ``obs_idx`` when the residual is DBAT's
+        (``settings.residual == "corrected"``, :mod:`.corrected`), else None."""
+        if self.settings.residual != "corrected":
+            return None
+        return self.block.observations.xy[obs_idx]
 
     # ------------------------------------------------------------------------------------------
     def _check_weak(self, act):

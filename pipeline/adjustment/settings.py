@@ -60,6 +60,9 @@ class BundleSettings:
     solver: Literal["auto", "dense", "sparse"] = "auto"
     """reduced camera system: dense Cholesky, or the sparse supernodal factorisation with selected
     inversion (``docs/bundle.md``, "Sparse route"); ``auto`` chooses by size and fill."""
+    residual: Literal["measured", "corrected"] = "measured"
+    """image residuals of backward-model cameras (``brown-backward``): of the measured marks
+    (baarda's) or DBAT's, the corrected mark minus the ideal projection (:mod:`.corrected`)."""
 
 
 @dataclass

@@ -37,6 +37,7 @@ from baarda.pipeline.stats.critical import delta0 as _delta0
 
 from .adjust import BundleResult, adjust, padded_ap, result_of
 from .apselect import APSelection, select_aps
+from .corrected import check_models
 from .reliability import GlobalRowStats, OwnEffects, global_rows, own_effects, parameter_covariance
 from .settings import BundleSettings, Distance
 from ..threads import single_blas
@@ -197,6 +198,9 @@ class BundleConfig:
              "σ̂0 of an earlier run on the same weights)", gt=0.0)
     on_weak: Literal["error", "drop"] = option(
         "error", "photos with < 3 points, points in < 2 photos: stop with an error, or drop them with a warning")
+    residual: Literal["measured", "corrected"] = option(
+        "measured", "image residuals of backward-model cameras (brown-backward): of the measured marks (baarda's), or "
+                    "DBAT's — the corrected mark minus the ideal projection, weighted with the mark's σ (docs/dbat.md)")
     solver: SolverConfig = option(SolverConfig(), "the iteration and the linear algebra")
     tests: StatTestsConfig = option(StatTestsConfig(), "tests of the observations, blunder handling")
     robust: RobustConfig = option(
@@ -305,12 +309,15 @@ def bundle_settings(config: BundleConfig, block: Block, threads: int = 1) -> Bun
             if str(end) not in known:
                 raise InputError(f"distances[{k}]: no point {str(end)!r} in the block", field="distances")
     ap_meta = {cid: {"b": o.ebner_b} for cid in block.cameras.ids.tolist()} if o.ebner_b > 0 else {}
+    if o.residual == "corrected":
+        check_models(block.cameras.ids.tolist(), [get_ap_model(m) for m in block.cameras.ap_model.tolist()])
     return BundleSettings(
         datum=o.datum, datum_points=tuple(o.datum_points) or None, datum_centres=o.datum_on == "centres",
         sigma0=o.sigma0, variance=o.variance,
         max_iter=s.max_iter, tol_obs=s.tol_obs, tol_rel=s.tol_rel, damping=s.damping,
         distances=tuple(Distance(str(d.from_), str(d.to), d.distance, d.sigma) for d in o.distances),
-        on_weak=o.on_weak, ap_meta=ap_meta, covariance=s.covariance, solver=s.solver, threads=threads)
+        on_weak=o.on_weak, ap_meta=ap_meta, covariance=s.covariance, solver=s.solver, threads=threads,
+        residual=o.residual)
 
 
 def check_requests(block: Block, specs, field: str = "output.covariance_of") -> None:

@@ -559,6 +559,13 @@ class BrownBackward(APModel):
         gx, gy, _, _ = self._correction(mx, my, self._params(params, mx.shape[0]), False)
         return gx, gy
 
+    def correct_jacobians(self, mx, my, params, c=None, meta=None):
+        """``g(m)`` with its derivatives at measured reduced coordinates: ``(gx, gy, G = ∂g/∂m
+        (n, 2, 2), ∂g/∂θ (n, 2, 7))`` — DBAT's residual in the bundle (``pipeline/adjustment/corrected.py``)."""
+        mx = np.asarray(mx, float)
+        my = np.asarray(my, float)
+        return self._correction(mx, my, self._params(params, mx.shape[0]), True)
+
     def _invert(self, xbar, ybar, P):
         """``m = g⁻¹(x̄)`` by Newton's method; returns m (n, 2), G and ∂g/∂θ at m."""
         xb = np.asarray(xbar, float)

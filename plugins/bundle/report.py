@@ -75,6 +75,8 @@ def summary(rep) -> dict:
     if rep.selection is not None:
         out["ap_selection"] = rep.selection.summary()
     out["sigma0_um_equivalent"] = _sigma0_um(res)
+    if o.residual == "corrected":                     # the default ("measured") adds no key
+        out["residual"] = "corrected"
     out["protocol"] = bundle_protocol(res, rep.ids, alpha0=o.tests.alpha0, beta0=o.tests.beta0,
                                       alpha_global=o.tests.alpha_global)
     if isinstance(out.get("check_points"), dict) and out["check_points"].get("n"):
@@ -112,7 +114,9 @@ def report_text(rep, work=None, protocol=None) -> str:
              f"{res.n_unknowns} unknowns, {res.n_weighted_constraints} weighted constraints, "
              f"{len(res.distances)} distance(s); datum: {o.datum}"
              + (f" (inner constraints on {'projection centres' if o.datum_on == 'centres' else 'points'}, "
-                f"{res.n_datum_constraints} constraints)" if o.datum == "free" else "") + ".")
+                f"{res.n_datum_constraints} constraints)" if o.datum == "free" else "") + "."
+             + (" Image residuals in DBAT's definition (option residual = \"corrected\"): the corrected mark minus "
+                "the ideal projection, weighted with the mark's σ." if o.residual == "corrected" else ""))
     L.append("")
     L.append(f"- iterations: {res.iterations}; vᵀPv = {res.vtpv:.6g}; dof = {res.dof}; "
              f"σ̂0 = {_f(res.sigma0_hat)} (≈ {_sigma0_equivalent(res, protocol)})")

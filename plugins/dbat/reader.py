@@ -527,26 +527,64 @@ def _marks_bulk(file: Path, cols: list[str], s_attr: float | None) -> dict | Non
         text = file.read_bytes().decode("utf-8")
     except (OSError, UnicodeDecodeError):
         return None
-    lines = text.splitlines()
-    stripped = (map(str.strip, lines) if "#" not in text
-                else (raw.split("#", 1)[0].strip() for raw in lines))
-    numbered = [(i, s) for i, s in enumerate(stripped, start=1) if s]
-    if not numbered:
-        return None
     dtype = np.dtype([(c, np.int64 if c in ("im", "id") else np.float64) for c in cols])
-    try:
-        rows = np.loadtxt(io.StringIO("\n".join(s for _, s in numbered)), dtype=dtype, delimiter=",",
-                          comments=None, ndmin=1)
-    except (ValueError, OverflowError):
-        return None
-    if len(rows) != len(numbered):
-        return None
+    rows, line_no = _plain_rows(text, dtype), None
+    if rows is not None:
+        rows, line_no = rows
+    else:                                        # comments, other line ends, blank lines of spaces: strip each line
+        lines = text.splitlines()
+        stripped = (map(str.strip, lines) if "#" not in text
+                    else (raw.split("#", 1)[0].strip() for raw in lines))
+        numbered = [(i, s) for i, s in enumerate(stripped, start=1) if s]
+        if not numbered:
+            return None
+        try:
+            rows = np.loadtxt(io.StringIO("\n".join(s for _, s in numbered)), dtype=dtype, delimiter=",",
+                              comments=None, ndmin=1)
+        except (ValueError, OverflowError):
+            return None
+        if len(rows) != len(numbered):
+            return None
+        line_no = [i for i, _ in numbered]
     uv = np.column_stack([rows["x"], rows["y"]])
     sg = np.full(len(rows), s_attr, float) if s_attr is not None else np.asarray(rows["sxy"], float)
     if not (np.isfinite(uv).all() and np.isfinite(sg).all() and (sg > 0).all()):
         return None
     return {"image": rows["im"].astype(str).tolist(), "point": rows["id"].astype(str).tolist(), "uv": uv,
-            "sigma_px": sg, "lines": [i for i, _ in numbered]}
+            "sigma_px": sg, "lines": line_no}
+
+
+_NOT_PLAIN = re.compile(rb"[\r\x0b\x0c\x1c-\x1e]")
+_COMMENT = re.compile(r"#[^\n]*")
+_SPACES_ONLY = re.compile(r"(?m)^[ \t]+$")
+
+
+def _plain_rows(text: str, dtype):
+    """``(rows, line numbers)`` of a marks file in ASCII with ``\\n`` line ends: comments and lines of
+    only spaces blanked (regular expressions), then parsed by ``loadtxt`` as it is (empty lines
+    skipped) and the line numbers found with numpy — no Python loop over the lines.  ``None`` for
+    any other file (or when ``loadtxt`` refuses a line), for the line-by-line stripping of
+    :func:`_marks_bulk`."""
+    import io
+
+    if not text.isascii() or _NOT_PLAIN.search(text.encode("ascii")):
+        return None
+    if "#" in text:
+        text = _COMMENT.sub("", text)
+    text = _SPACES_ONLY.sub("", text)
+    b = np.frombuffer(text.encode("ascii"), np.uint8)
+    nl = np.flatnonzero(b == 10)
+    filled = np.diff(np.concatenate([[-1], nl, [len(b)]])) > 1               # lines with a character
+    if not filled.any():
+        return None
+    try:
+        rows = np.loadtxt(io.StringIO(text), dtype=dtype, delimiter=",", comments=None, ndmin=1)
+    except (ValueError, OverflowError):
+        return None
+    line_no = np.flatnonzero(filled) + 1
+    if len(rows) != len(line_no):
+        return None
+    return rows, line_no.tolist()
 
 
 def _marks(section: Node, path, base, here, dbat_dir) -> list[MarkFile]:

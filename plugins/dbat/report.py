@@ -95,9 +95,13 @@ def source_tables(block) -> dict:
 def quality_report(q, options) -> str:
     u = q["object_unit"]
     rms = f"RMS {q['rms_px']:.3f} px" if np.isfinite(q["rms_px"]) else f"RMS {q['rms_mm'] * 1000:.3f} µm"
-    lines = [f"σ̂0 = {q['sigma0']:.4f} from the residuals of the measured image points ({rms}), "
-             f"redundancy {q['dof']}."]
-    if np.isfinite(q["sigma0_corrected"]):
+    if q.get("residual") == "corrected":
+        lines = [f"σ̂0 = {q['sigma0']:.4f} in DBAT's residual definition ({rms}), redundancy {q['dof']}: the bundle "
+                 "adjusted the *corrected* marks (option residual = \"corrected\"), as DBAT does (docs/dbat.md)."]
+    else:
+        lines = [f"σ̂0 = {q['sigma0']:.4f} from the residuals of the measured image points ({rms}), "
+                 f"redundancy {q['dof']}."]
+    if np.isfinite(q["sigma0_corrected"]) and q.get("residual") != "corrected":
         lines[-1] += (f" DBAT forms the residuals of the *corrected* marks (backward model): at this solution they "
                       f"give σ̂0 = {q['sigma0_corrected']:.4f}, RMS {q['rms_px_corrected']:.3f} px (docs/dbat.md).")
     lines += ["", "Camera, in DBAT's conventions (mm; principal point from the image corner, y down):" if q["dbat_camera"]

@@ -136,21 +136,15 @@ class DbatReport(Stage):
     reads = ("bundle", "dbat_report?")
     writes = ("dbat_report",)
     Options = DbatReportOptions
+    retired = {"dbat-residuals": "DBAT's residual definition is the bundle's option residual = \"corrected\" "
+                                 "(one bundle, exact; docs/dbat.md, \"Residual definition\")"}
 
     def run(self, inputs, options: DbatReportOptions, ctx: Context) -> StageResult:
         res = inputs["bundle"]
         if res is None:
             raise InputError("dbat-report needs the result of a bundle stage before it", path=ctx.project_file,
                              field="use")
-        minimum = None
-        marks_cov = (res.block_in.meta.get("dbat_residuals") or {}).get("marks_cov")
-        if marks_cov is not None:                    # after dbat-residuals: the camera at DBAT's own minimum
-            from .corrected import camera_at_dbat_minimum
-
-            minimum = camera_at_dbat_minimum(res.block_in, res, marks_cov)
-            minimum["sigma0"] = (float(np.sqrt(max(res.vtpv - minimum["F_before"] + minimum["F_after"], 0.0) / res.dof))
-                                 if res.dof > 0 else float("nan"))
-        q = _quality(res, minimum)
+        q = _quality(res)
         summary = {"sigma0_hat": q["sigma0"], "sigma0_hat_corrected": q["sigma0_corrected"], "dof": q["dof"],
                    "rms_px": q["rms_px"], "rms_px_corrected": q["rms_px_corrected"],
                    "camera": {k: {"value": v[0], "sigma": v[1]} for k, v in q["camera"].items()},
@@ -159,15 +153,9 @@ class DbatReport(Stage):
                    "check": {i: {"error": d.tolist(), "sigma": s.tolist()} for i, d, s in
                              zip(q["check"]["ids"], q["check"]["diff"], q["check"]["sigma"])},
                    "angles_deg": q["angle_stats"], "rays": q["ray_stats"]}
+        if q["residual"] == "corrected":
+            summary["residual"] = "corrected"
         report = quality_report(q, options)
-        if minimum is not None:
-            C = [np.sqrt(np.clip(np.diag(np.asarray(c, float)), 0, None)) for c in res.cov_cameras]
-            steps = [abs(minimum["step"][j, k]) / C[j][k] for j in range(len(C)) for k in range(len(C[j])) if C[j][k] > 0]
-            summary["dbat_minimum"] = {"sigma0_hat": minimum["sigma0"], "largest_camera_step_sigma": max(steps, default=0.0)}
-            report = (f"Adjusted in DBAT's residual definition (dbat-residuals before the bundle). The camera below is "
-                      f"at DBAT's own minimum: one Newton step of DBAT's objective in the camera from the bundle's "
-                      f"solution (largest move {max(steps, default=0.0):.2f} σ; σ̂0 there {minimum['sigma0']:.6g}); "
-                      "its σ, the orientations and the points are the bundle's (docs/dbat.md).\n\n" + report)
         earlier = inputs.get("dbat_report")
         if earlier is not None:
             report += "\n\n" + camera_comparison(earlier, q)
@@ -190,9 +178,8 @@ class DbatReport(Stage):
         return report_figures(d["quality"], d["script"], d["marks"], d["earlier"], d["rho_high"])
 
 
-def _quality(res, minimum: dict | None = None) -> dict:
-    """DBAT's quality figures of a bundle result; ``minimum`` (:func:`.corrected.camera_at_dbat_minimum`):
-    the camera values and σ̂0 at DBAT's own minimum replace the bundle's (σ stay the bundle's)."""
+def _quality(res) -> dict:
+    """DBAT's quality figures of a bundle result (in either residual definition of the bundle)."""
     from .quality import corrected_space_residuals, intersection_angles, point_comparison
     from .reader import dbat_from_baarda
 
@@ -203,13 +190,11 @@ def _quality(res, minimum: dict | None = None) -> dict:
     pix = float(block.cameras.pixel_mm[0]) if np.isfinite(block.cameras.pixel_mm[0]) else float("nan")
     rc = corrected_space_residuals(block, st, act)
     ok = act & np.isfinite(rc).all(axis=1)
-    # vᵀPv with the image residuals replaced by the corrected-space ones (weighted constraints kept),
-    # these weighted with the marks' own σ (after dbat-residuals the bundle adjusted with reweighted covariances)
+    # vᵀPv with the image residuals replaced by the corrected-space ones (weighted constraints kept), these
+    # weighted with the marks' σ as DBAT does (after a bundle with residual = "corrected": its own vᵀPv)
     P = np.linalg.inv(obs.cov[ok])
-    marks_cov = (block.meta.get("dbat_residuals") or {}).get("marks_cov")
-    P0 = np.linalg.inv(np.asarray(marks_cov)[ok]) if marks_cov is not None else P
-    qf = lambda r, W=P: float(np.einsum("ki,kij,kj->", r, W, r))
-    s0c = (float(np.sqrt(max(res.vtpv - qf(res.residuals[ok]) + qf(rc[ok], P0), 0.0) / res.dof))
+    qf = lambda r: float(np.einsum("ki,kij,kj->", r, P, r))
+    s0c = (float(np.sqrt(max(res.vtpv - qf(res.residuals[ok]) + qf(rc[ok]), 0.0) / res.dof))
            if ok.any() and res.dof > 0 else float("nan"))
     v = res.residuals[act]
     rays = np.bincount(obs.point[act], minlength=len(pts))
@@ -220,7 +205,7 @@ def _quality(res, minimum: dict | None = None) -> dict:
     table = res.camera_table(0)
     if dbat is not None:
         cam = dbat.camera
-        cp = np.asarray(minimum["cam_params"] if minimum is not None else st.cam_params, float)
+        cp = np.asarray(st.cam_params, float)
         vals = dbat_from_baarda(cp[0, 0], cp[0, 1], cp[0, 2], cp[0, 3:], cam)
         for key, bn in zip(("cc", "px", "py", "K1", "K2", "K3", "P1", "P2", "as", "sk"), names):
             row = next(r for r in table if r["parameter"] == bn)
@@ -242,10 +227,8 @@ def _quality(res, minimum: dict | None = None) -> dict:
                 "rays_min": int(r.min()), "rays_max": int(r.max()), "rays_mean": float(r.mean()),
                 "rays_hist": {int(k): int((r == k).sum()) for k in np.unique(r)}}
 
-    if minimum is not None and np.isfinite(minimum.get("sigma0", np.nan)):
-        s0c = float(minimum["sigma0"])
     return {
-        "sigma0": res.sigma0_hat, "sigma0_corrected": s0c, "dof": int(res.dof), "pixel_mm": pix,
+        "sigma0": res.sigma0_hat, "residual": getattr(res.settings, "residual", "measured"), "sigma0_corrected": s0c, "dof": int(res.dof), "pixel_mm": pix,
         "rms_px": float(np.sqrt(np.mean(np.sum(v ** 2, axis=1)))) / pix,
         "rms_mm": float(np.sqrt(np.mean(np.sum(v ** 2, axis=1)))),
         "rms_px_corrected": float(np.sqrt(np.mean(np.sum(rc[ok] ** 2, axis=1)))) / pix if ok.any() else float("nan"),

@@ -1,101 +1,112 @@
-"""DBAT's residual definition (corrected marks): :mod:`baarda.plugins.dbat.corrected` and the
-``dbat-residuals`` stage against DBAT's published camcal report (numbers: ``test_projects.py``)."""
+"""DBAT's residual definition (corrected marks) — the bundle option ``residual = "corrected"`` —
+against DBAT's published camcal results (numbers: ``test_projects.py``; docs/dbat.md,
+"Residual definition").
+
+DBAT writes the adjusted camera with all its digits to ``data/script/camcaldemo/result/c4040z.xml``
+(niclasborlin/dbat b8d1b15, DBAT 0.9.2.0); converted to baarda's conventions below."""
 
 from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from baarda.pipeline.adjustment import BundleSettings, adjust
-from baarda.pipeline.camera import get_ap_model
 from baarda.plugins.dbat import dbat_block, read_dbat
-from baarda.plugins.dbat.corrected import (adjust_corrected, camera_at_dbat_minimum, corrected_cov,
-                                          correction_jacobian)
 from baarda.plugins.dbat.stage import _quality
 
 from .test_projects import CAMCAL, CAMCAL_REDUNDANCY, CAMCAL_SIGMA0
 
-
-def test_jacobian_against_the_closed_form():
-    """∂g/∂m of the backward model by central differences against the model's own G."""
-    model = get_ap_model("brown-backward")
-    rng = np.random.default_rng(3)
-    lb = rng.uniform(-4, 4, (50, 2))
-    prm = np.array([4.6e-3, -4.6e-5, -2e-6, -6e-5, -4.4e-5, 3.9e-4, 1e-4])
-    J = correction_jacobian(model, lb, prm, 7.45)
-    _, _, G, _ = model._correction(lb[:, 0], lb[:, 1], model._params(np.tile(prm, (50, 1)), 50), True)
-    np.testing.assert_allclose(J, G, rtol=1e-7, atol=1e-10)
+# c4040z.xml (DBAT's result): cc, pp, K, P, aspect (sensor 7.25301132255482273 × 5.43764 mm, 2272 × 1704 px)
+CAMCAL_FULL = {"cc": 7.45699532273933752, "px": 3.61546239970888994, "py": 2.61329279848268081,
+               "K1": 0.00458860662755811253, "K2": -4.51350997187018702e-05, "K3": -2.05253370760761127e-06,
+               "P1": -6.12803065099492536e-05, "P2": -4.41170561685059337e-05, "as": 1 - 0.999610402322309577}   # DBAT prints as = 1 − aspect
 
 
-def test_reweighting_makes_the_residuals_dbats(shared_data):
-    """At a fixed solution, baarda's residuals weighted with J⁻¹ΣJ⁻ᵀ give DBAT's vᵀPv to first order."""
+@pytest.fixture(scope="module")
+def camcal_corrected(shared_data):
     block = dbat_block(read_dbat(shared_data / "dbat-camcal" / "camcaldemo.xml"))
-    res = adjust(block, BundleSettings(datum="control"))
-    cov = corrected_cov(block, res.state.cam_params, block.observations.cov)
-    r = res.residuals
-    ours = float(np.einsum("ki,kij,kj->", r, np.linalg.inv(cov), r))
-    q = _quality(res)
-    dbat = q["sigma0_corrected"] ** 2 * res.dof - (res.vtpv - float(np.einsum(
-        "ki,kij,kj->", r, np.linalg.inv(block.observations.cov), r)))
-    assert ours == pytest.approx(dbat, rel=1e-4)
-    assert not np.shares_memory(cov, block.observations.cov)
+    return block, adjust(block, BundleSettings(datum="control", residual="corrected"))
 
 
-def test_camcal_in_dbats_definition(shared_data):
-    block = dbat_block(read_dbat(shared_data / "dbat-camcal" / "camcaldemo.xml"))
-
-    def run(b):
-        r = adjust(b, BundleSettings(datum="control"))
-        return r, r.block
-
-    res, used, rounds, move = adjust_corrected(block, run)
-    assert rounds <= 4 and move < 0.01
+def test_camcal_in_dbats_definition(camcal_corrected):
+    """σ̂0 DBAT's to its printed digits, the camera DBAT's to 10⁻³ σ (its full digits) and its σ
+    as DBAT's printed ones."""
+    block, res = camcal_corrected
     assert res.dof == CAMCAL_REDUNDANCY
-    assert f"{res.sigma0_hat:.5g}" == f"{CAMCAL_SIGMA0:.5g}"             # 1.6148, DBAT's own σ0
-    used = used.replace(meta={**dict(used.meta), "dbat_residuals": {"marks_cov": block.observations.cov}})
-    res = adjust(used, BundleSettings(datum="control"))
+    assert f"{res.sigma0_hat:.5g}" == f"{CAMCAL_SIGMA0:.5g}"              # 1.6148
     q = _quality(res)
-    assert f"{q['sigma0_corrected']:.5g}" == f"{CAMCAL_SIGMA0:.5g}"
+    assert q["residual"] == "corrected"
+    assert q["sigma0_corrected"] == pytest.approx(res.sigma0_hat, rel=1e-12)   # the bundle's own residuals are DBAT's
     for k, (v, s) in CAMCAL.items():
-        assert abs(q["camera"][k][0] - v) / s < 0.3, k
-        assert q["camera"][k][1] == pytest.approx(s, rel=0.02), k            # σ as DBAT's to 2 %
+        value, sigma = q["camera"][k]
+        assert abs(value - CAMCAL_FULL[k]) / s < 1e-3, (k, (value - CAMCAL_FULL[k]) / s)
+        assert abs(value - v) / s < 0.06, k                                # the printed digits (c: 4 decimals)
+        assert sigma == pytest.approx(s, rel=0.01), k                     # σ as DBAT's printed ones
+    assert not np.shares_memory(res.state.cam_params, block.cameras.ap)
 
 
-def test_camera_at_dbats_minimum(shared_data):
-    """The Newton step of DBAT's own objective from the reweighted solution lands on DBAT's camera:
-    every parameter within 0.05 σ of DBAT's report (the reweighted camera alone: within 0.3 σ), σ̂0
-    DBAT's to 5 digits."""
-    block = dbat_block(read_dbat(shared_data / "dbat-camcal" / "camcaldemo.xml"))
-
-    def run(b):
-        r = adjust(b, BundleSettings(datum="control"))
-        return r, r.block
-
-    res, used, _, _ = adjust_corrected(block, run)
-    mini = camera_at_dbat_minimum(used, res, block.observations.cov)
-    assert mini["F_after"] < mini["F_before"]
-    s0 = np.sqrt((res.vtpv - mini["F_before"] + mini["F_after"]) / res.dof)
-    assert f"{s0:.5g}" == f"{CAMCAL_SIGMA0:.5g}"
-    q = _quality(res, {**mini, "sigma0": s0})
-    for k, (v, s) in CAMCAL.items():
-        tol = 0.06 if k == "cc" else 0.05           # DBAT prints c to 4 decimals (0.05 σ)
-        assert abs(q["camera"][k][0] - v) / s < tol, (k, (q["camera"][k][0] - v) / s)
-    assert np.abs(mini["step"]).max() > 0 and not np.shares_memory(mini["cam_params"], res.state.cam_params)
-
-
-def test_fixture_bundle_residuals_bundle(repo_root, tmp_path):
-    """fixtures/dbat/camcal-corrected.toml through the runner: bundle, dbat-residuals, bundle,
-    dbat-report — σ̂0 DBAT's, the reported camera within 0.06 σ of DBAT's report."""
-    import json
-
+def test_fixture(repo_root, tmp_path):
+    """fixtures/dbat/camcal-corrected.toml through the runner: dbat, bundle (residual = "corrected"),
+    dbat-report."""
     from baarda.pipeline.runner import run_project
 
     out = tmp_path / "run"
     run_project(repo_root / "fixtures" / "dbat" / "camcal-corrected.toml", out)
     stages = {s["id"]: s for s in json.loads((out / "results.json").read_text())["stages"]}
     assert f"{stages['bundle']['summary']['sigma0_hat']:.5g}" == f"{CAMCAL_SIGMA0:.5g}"
-    assert stages["dbat-residuals"]["summary"]["sigma_ratio_min"] < 0.95
+    assert stages["dbat"]["summary"]["residual"] == "corrected"
     cam = stages["dbat"]["summary"]["camera"]
     for k, (v, s) in CAMCAL.items():
-        assert abs(cam[k]["value"] - v) / s < 0.06, k
-    assert f"{stages['dbat']['summary']['dbat_minimum']['sigma0_hat']:.5g}" == f"{CAMCAL_SIGMA0:.5g}"
+        assert abs(cam[k]["value"] - CAMCAL_FULL[k]) / s < 1e-3, k
+    assert "DBAT's residual definition" in (out / "report.md").read_text()
+
+
+ROMA_DIR = os.environ.get("DBAT_REPO")
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not ROMA_DIR or not (Path(ROMA_DIR or ".") / "data/script/romabundledemo").is_dir(),
+                    reason="set DBAT_REPO to a checkout of niclasborlin/dbat (romabundledemo: 2.6 MB, not bundled)")
+def test_roma_in_dbats_definition():
+    """romabundledemo (60 photos, 181 122 coordinates, set_datum depend): σ̂0 0.582769 and the camera of
+    DBAT's result/EOS5DMarkII.xml (b8d1b15) to 10⁻³ σ."""
+    d = Path(ROMA_DIR) / "data/script/romabundledemo"
+    block = dbat_block(read_dbat(d / "romabundledemo.xml"))
+    res = adjust(block, BundleSettings(datum="control", residual="corrected"))
+    assert res.dof == 101801
+    assert f"{res.sigma0_hat:.6f}" == "0.582769"
+    q = _quality(res)
+    full = {"cc": (24.5425002994450807, 0.00254), "px": (18.0816295411089882, 0.00195),
+            "py": (12.0164475994770967, 0.00189), "K1": (0.000221523347553201198, 2.54e-07),
+            "K2": (-1.86984852928280264e-07, 5.85e-10)}
+    for k, (v, s) in full.items():
+        assert abs(q["camera"][k][0] - v) / s < 1e-3, k
+        assert q["camera"][k][1] == pytest.approx(s, rel=0.01), k
+
+
+def test_validate_refuses_corrected_for_a_forward_model(shared_data, tmp_path, capsys):
+    """``baarda validate``: residual = "corrected" with a camera model that has no correction of the
+    marks is one error naming the project file, the option's line and the field."""
+    from baarda.pipeline.cli import main
+
+    p = tmp_path / "p.toml"
+    p.write_text(f'[project]\nname = "t"\n\n[[stage]]\nuse = "dbat"\n[stage.options]\n'
+                 f'path = "{(shared_data / "dbat-camcal" / "camcaldemo.xml").as_posix()}"\n\n'
+                 '[[stage]]\nuse = "bundle"\n[stage.options]\nap_model = "brown"\nresidual = "corrected"\n',
+                 encoding="utf-8")
+    assert main(["validate", str(p)]) != 0
+    err = capsys.readouterr().err
+    assert "p.toml:13, field 'residual'" in err and "brown-backward" in err and err.count("error") == 1
+
+
+def test_the_retired_stage_names_the_option(tmp_path, capsys):
+    from baarda.pipeline.cli import main
+
+    p = tmp_path / "p.toml"
+    p.write_text('[project]\nname = "t"\n\n[[stage]]\nuse = "dbat-residuals"\n', encoding="utf-8")
+    assert main(["validate", str(p)]) != 0
+    assert 'p.toml:5, field \'use\': stage \'dbat-residuals\' was retired' in capsys.readouterr().err

@@ -87,3 +87,29 @@ def test_a_bad_line_is_still_named(camcal):
     with pytest.raises(InputError) as e:
         reader.read_dbat(camcal / "camcaldemo.xml")
     assert e.value.line == k + 1 and e.value.field == "x"
+
+
+@pytest.mark.parametrize("variant", ["as-is", "spaces-and-comments", "crlf", "tabs-only-line"])
+def test_the_plain_path_and_its_fallbacks(camcal, monkeypatch, variant):
+    """Plain ASCII files with \\n line ends are parsed without a Python loop over the lines
+    (reader._plain_rows: comments and lines of only spaces blanked by regular expressions); other
+    line ends fall back to stripping each line.  Either way exactly the line-by-line reading."""
+    marks = camcal / "measurements" / "markpts.txt"
+    lines = marks.read_text().splitlines()
+    k = next(i for i, s in enumerate(lines) if s.strip() and not s.lstrip().startswith("#"))
+    end = "\n"
+    if variant == "spaces-and-comments":
+        lines[k] = "   " + lines[k] + "  # trailing comment"
+        lines[k + 2:k + 2] = ["", "    ", "# a comment line", "\t# indented comment"]
+    elif variant == "crlf":
+        end = "\r\n"
+    elif variant == "tabs-only-line":
+        lines.insert(k + 1, "\t \t")
+    marks.write_bytes((end.join(lines) + end).encode("ascii"))
+    plain = []
+    real = reader._plain_rows
+    monkeypatch.setattr(reader, "_plain_rows", lambda *a: plain.append(real(*a) is not None) or real(*a))
+    fast, slow, taken = _read_both(camcal / "camcaldemo.xml", monkeypatch)
+    assert all(taken)
+    assert plain[0] == (variant != "crlf")
+    _same(fast, slow)

@@ -57,6 +57,8 @@ SECONDS = {
     "pmexport/camcal-missing-obs.toml": 1.0,
     "pmexport/camcal.toml": 1.0,
     "opensfm/opensfm.toml": 6.6,
+    "opensfm/gcp/gcp.toml": 7.0,
+    "opensfm/berlin/berlin.toml": 11.0,
     "paper000/data1.toml": 0.6,
     "paper000/data2.toml": 0.6,
     "paper000/data3.toml": 0.6,

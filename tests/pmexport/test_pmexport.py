@@ -96,3 +96,18 @@ def test_estimate_words():
     assert e["skew"] is False and all(v for k, v in e.items() if k != "skew")
     with pytest.raises(InputError, match="unknown camera parameter 'kk'"):
         parse_estimate(["kk"], None)
+
+
+def test_camcal_in_dbats_residual_definition(data):
+    """With the bundle's residual = "corrected" the PhotoModeler export gives DBAT's σ0 and camera to
+    its printed digits (c: 4 decimals, 0.05 σ; every other parameter within 0.01 σ)."""
+    from baarda.plugins.dbat.stage import _quality
+
+    ref = dbat_report(data / "camcal-dbatreport.txt")
+    script, _ = setup(data)
+    res = adjust(dbat_block(script), BundleSettings(datum="control", residual="corrected"))
+    assert f"{res.sigma0_hat:.5g}" == f"{ref['sigma0']:.5g}"
+    q = _quality(res)
+    for k, (v, s) in ref["camera"].items():
+        assert abs(q["camera"][k][0] - v) / s < (0.05 if k == "cc" else 0.01), k
+        assert q["camera"][k][1] == pytest.approx(s, rel=0.01), k
