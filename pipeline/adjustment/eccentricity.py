@@ -9,7 +9,11 @@ and points (the adjusted ones during the bundle's iteration, :func:`.workflow.ad
 
 ``q_e`` the camera-frame ray of the ellipse centre (the pinhole closed form), ``proj`` the bundle's
 own collinearity with the camera's AP model: the distortion (and affinity) acts on the ellipse
-centre after the conic is projected, as in the image.  The corrected observation is ``l − Δ``.
+centre after the conic is projected (``distortion = "centre"``).  ``distortion = "rim"`` instead
+projects ``RIM_POINTS`` points of the circle's rim through the camera model and takes the centre of
+the conic fitted to them (least squares, as a detector fits an ellipse to the distorted outline):
+it keeps the curvature of the distortion across the target that the closed form leaves out.  The
+corrected observation is ``l − Δ``.
 
 Target normals: those the block gives (``CircleTargets.normal``, the object system); where NaN, the
 normal of the best-fitting plane through the target and its 8 nearest circular targets, from the
@@ -29,7 +33,10 @@ from baarda.pipeline.geometry.rotations import rotation_from_opk_many
 from .collinearity import project_observations
 from .settings import BundleSettings, camera_meta
 
-__all__ = ["Eccentricity", "eccentricity_corrections", "NEIGHBOURS"]
+__all__ = ["Eccentricity", "eccentricity_corrections", "NEIGHBOURS", "RIM_POINTS", "conic_centres"]
+
+RIM_POINTS = 64
+"""Points of the rim projected per observation with ``distortion = "rim"``."""
 
 NEIGHBOURS = 8
 """Circular targets whose best-fitting plane gives a target's normal when the block gives none."""
@@ -56,12 +63,47 @@ def _frozen(a) -> np.ndarray:
     return a
 
 
-def eccentricity_corrections(block, settings: BundleSettings | None = None) -> Eccentricity:
+def conic_centres(xy: np.ndarray) -> np.ndarray:
+    """Centres ``(k, 2)`` of the least-squares conics through ``xy (k, n, 2)`` (n ≥ 6 points each): the
+    smallest right singular vector of ``[x², xy, y², x, y, 1]`` on coordinates centred and scaled per
+    conic; NaN where the conic has no centre."""
+    xy = np.asarray(xy, float)
+    c0 = xy.mean(axis=1, keepdims=True)
+    s = np.abs(xy - c0).max(axis=(1, 2), keepdims=True)
+    s = np.where(s > 0, s, 1.0)
+    y = (xy - c0) / s
+    x1, y1 = y[..., 0], y[..., 1]
+    A = np.stack([x1 * x1, x1 * y1, y1 * y1, x1, y1, np.ones_like(x1)], axis=-1)
+    a, b, c, d, e, _ = np.moveaxis(np.linalg.svd(A, full_matrices=False)[2][:, -1], -1, 0)
+    det = 4 * a * c - b * b
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u = (b * e - 2 * c * d) / det
+        v = (b * d - 2 * a * e) / det
+    return np.column_stack([u, v]) * s[:, 0] + c0[:, 0]
+
+
+def _rim(centre: np.ndarray, normal: np.ndarray, radius: np.ndarray, n: int) -> np.ndarray:
+    """``(s, n, 3)`` points on circles (object system) of the given centres, unit normals and radii."""
+    a = np.where((np.abs(normal[:, :1]) < 0.9), [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    u = np.cross(normal, a)
+    u /= np.linalg.norm(u, axis=1)[:, None]
+    v = np.cross(normal, u)
+    t = np.linspace(0.0, 2 * np.pi, n, endpoint=False)
+    return (centre[:, None] + radius[:, None, None] * (np.cos(t)[None, :, None] * u[:, None]
+                                                       + np.sin(t)[None, :, None] * v[:, None]))
+
+
+def eccentricity_corrections(block, settings: BundleSettings | None = None, distortion: str = "centre"
+                             ) -> Eccentricity:
     """Corrections of the observations of ``block.circles``' points at the block's current values.
 
-    ``settings`` supplies the AP models' constants (``ap_meta``) as in the adjustment.  A block
+    ``settings`` supplies the AP models' constants (``ap_meta``) as in the adjustment.
+    ``distortion``: ``"centre"`` (the closed form, the camera model applied to the ellipse centre) or
+    ``"rim"`` (the centre of the conic fitted to the rim projected through the camera model).  A block
     without circular targets gives zero corrections.
     """
+    if distortion not in ("centre", "rim"):
+        raise ValueError(f"distortion must be 'centre' or 'rim', got {distortion!r}")
     obs, pts, ph, cams = block.observations, block.points, block.photos, block.cameras
     k, n = len(obs), len(pts)
     corr = np.zeros((k, 2))
@@ -99,10 +141,18 @@ def eccentricity_corrections(block, settings: BundleSettings | None = None) -> E
     cam_params = np.column_stack([cams.c, cams.xp, cams.yp, cams.ap]) if len(cams) else np.zeros((0, 3))
     meta = camera_meta(block, settings or BundleSettings())
     s = len(idx)
-    both = np.concatenate([Q, pts.XYZ[q]])
-    xy = project_observations(np.concatenate([p, p]), np.arange(2 * s), both, ph.X0, ph.opk, ph.camera, cam_params,
-                              cams.ap_model, meta, jacobians=False).xy
-    delta = xy[:s] - xy[s:]
+    if distortion == "centre":
+        both = np.concatenate([Q, pts.XYZ[q]])
+        xy = project_observations(np.concatenate([p, p]), np.arange(2 * s), both, ph.X0, ph.opk, ph.camera,
+                                  cam_params, cams.ap_model, meta, jacobians=False).xy
+        delta = xy[:s] - xy[s:]
+    else:
+        n_r = RIM_POINTS
+        rim = _rim(pts.XYZ[q], normal[q], radius[q], n_r).reshape(-1, 3)
+        both = np.concatenate([rim, pts.XYZ[q]])
+        xy = project_observations(np.concatenate([np.repeat(p, n_r), p]), np.arange(len(both)), both, ph.X0,
+                                  ph.opk, ph.camera, cam_params, cams.ap_model, meta, jacobians=False).xy
+        delta = conic_centres(xy[:s * n_r].reshape(s, n_r, 2)) - xy[s * n_r:]
     good = front & np.isfinite(delta).all(axis=1)
     corr[idx[good]] = delta[good]
     applied[idx[good]] = True

@@ -157,6 +157,10 @@ class EccentricityConfig:
     tol: float = option(0.01, "settled when no correction changes by more than this × the coordinate's a-priori σ",
                         gt=0.0)
     max_rounds: int = option(5, "at most this many re-adjustments with updated corrections", ge=1)
+    distortion: Literal["centre", "rim"] = option(
+        "centre", "the camera's distortion applied to the ellipse centre of the closed form, or to 64 points of "
+                  "the circle's rim whose fitted conic's centre is taken (keeps the distortion's curvature across "
+                  "the target; docs/targets.md)")
 
     def __post_init__(self):
         check_bounds(self)
@@ -593,7 +597,7 @@ def adjust_block(block: Block, config: BundleConfig | None = None, *,
         out_block = out_block.replace(observations=out_block.observations.replace(cov=configured.observations.cov))
     if ecc is not None:      # the output keeps the measured centres: a later bundle corrects them again
         out_block = out_block.replace(observations=out_block.observations.replace(xy=raw.observations.xy))
-        after = eccentricity_corrections(res.block, res.settings)
+        after = eccentricity_corrections(res.block, res.settings, o.eccentricity.distortion)
         ecc = dataclasses.replace(ecc, after=after)
     if rejected_rows.any():
         act = out_block.observations.active.copy()
@@ -626,7 +630,7 @@ def _eccentricity_rounds(block: Block, o: BundleConfig, say, threads: int) -> tu
             say(f"eccentricity of circular targets: round {r}")
             work = configured.replace(observations=obs.replace(xy=obs.xy - corr))
             res = adjust(work, settings, covariance=False, **({} if res is None else {"start": res.state}))
-            new = eccentricity_corrections(res.block, settings)
+            new = eccentricity_corrections(res.block, settings, e.distortion)
             use = rows & new.applied[:, None]
             changes.append(_largest_change(new.correction, corr, sigma, use | (rows & (corr != 0))))
             rms.append(float(np.sqrt(np.mean(new.correction[use] ** 2))) if use.any() else 0.0)

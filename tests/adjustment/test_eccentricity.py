@@ -1,6 +1,8 @@
 """Eccentricity of circular targets: the closed form against a numerical ellipse, zero where it must be,
 the target normals, and a synthetic bundle whose bias the correction recovers (docs/targets.md)."""
 
+import functools
+
 import numpy as np
 import pytest
 
@@ -128,6 +130,7 @@ def test_circle_targets_refuse_bad_sizes_and_normals():
 DIAMETER = 0.16          # object units: the cloud spans ±1 at ≈ 3.2 (a large target for a clear bias)
 
 
+@functools.lru_cache(maxsize=None)
 def _circle_block(model="brown", given_normals=True):
     """The close-range block with each point a circular target (random normal within 35° of +Z) whose
     observation is the centre of the conic fitted to its projected rim — computed numerically, with the
@@ -205,3 +208,31 @@ def test_without_circles_nothing_changes():
     assert rep.eccentricity is None
     ecc = eccentricity_corrections(block)
     assert not ecc.applied.any() and not np.any(ecc.correction)
+
+
+def test_rim_mode_equals_the_closed_form_without_distortion_and_a_rim_fit_with_it():
+    """``distortion = "rim"``: without APs the projected rim is an exact ellipse (the closed form);
+    with Brown distortion it is the centre of a conic fitted to the distorted rim (computed here per
+    observation, 720 points) and differs from the closed form by the distortion's curvature."""
+    block, _ = _circle_block(model="none")
+    a, b = eccentricity_corrections(block), eccentricity_corrections(block, distortion="rim")
+    assert np.abs(a.correction).max() > 1e-3
+    np.testing.assert_allclose(b.correction, a.correction, atol=1e-12)
+    block, _ = _circle_block(model="brown")
+    centre, rim = eccentricity_corrections(block), eccentricity_corrections(block, distortion="rim")
+    obs, ph, pts, cams = block.observations, block.photos, block.points, block.cameras
+    cam = np.column_stack([cams.c, cams.xp, cams.yp, cams.ap])
+    meta = [dict(block.ap_meta.get("cam", {}))]
+    ideal = project_observations(obs.photo, obs.point, pts.XYZ, ph.X0, ph.opk, ph.camera, cam, cams.ap_model, meta,
+                                 jacobians=False).xy
+    for i in range(0, len(obs), 17):
+        n = block.circles.normal[obs.point[i]]
+        u, v = _basis(n / np.linalg.norm(n))
+        t = np.linspace(0, 2 * np.pi, 720, endpoint=False)
+        ring = pts.XYZ[obs.point[i]] + DIAMETER / 2 * (np.cos(t)[:, None] * u + np.sin(t)[:, None] * v)
+        xy = project_observations(np.full(720, obs.photo[i]), np.arange(720), ring, ph.X0, ph.opk, ph.camera, cam,
+                                  cams.ap_model, meta, jacobians=False).xy
+        assert np.abs(_conic_centre(xy) - ideal[i] - rim.correction[i]).max() < 1e-9     # mm
+    assert np.abs(rim.correction - centre.correction).max() > 1e-7
+    with pytest.raises(ValueError, match="distortion"):
+        eccentricity_corrections(block, distortion="edge")
