@@ -20,14 +20,14 @@ from typing import Literal
 
 import numpy as np
 
-from baarda.pipeline.api import Context, InputError, Stage, StageResult, TableData, entity_part, log_block, option
+from baarda.pipeline.api import (CircleTargets, Context, InputError, Stage, StageResult, TableData, entity_part,
+                                 log_block, option)
 from baarda.pipeline.geometry import rotation_from_opk
 from baarda.pipeline.imagefiles import read_gray
 
 from baarda.pipeline.geometry.image import pixels_from_mm
 from baarda.pipeline.api import project_block
 from baarda.pipeline.camera.convert import BROWN
-from baarda.pipeline.model import CircleTargets
 
 from .blocks import IOP, detection_block
 from .boards import BoardGeometry, aruco_dictionary
