@@ -80,6 +80,10 @@ class TargetOptions:
     circle_normal: list[float] = option([], "'circles': normal of the targets' plane [X, Y, Z] in the object system "
                                             "(a planar test field); empty: per target, the best-fitting plane of "
                                             "its 8 nearest targets at the adjusted coordinates")
+    circle_normals: dict[str, list[float]] = option({}, "'circles': normals of single targets, point id -> [X, Y, Z] "
+                                                        "(override circle_normal for those points)")
+    circle_diameters: dict[str, float] = option({}, "'circles': diameters of single targets, point id -> diameter in "
+                                                    "'unit' (override circle_diameter for those points)", gt=0.0)
     opencv_reference: bool = option(True, "with a known board: also run cv2.calibrateCamera per camera and report it")
     log_max_size: int = option(800, "longest side of the images logged to rerun, pixels")
 
@@ -92,10 +96,10 @@ class TargetOptions:
                 re.compile(self.camera_from_name)
             except re.error as e:
                 raise ValueError(f"camera_from_name is not a regular expression: {e}") from None
-        if self.circle_normal and (len(self.circle_normal) != 3 or not np.all(np.isfinite(self.circle_normal))
-                                   or not np.any(np.asarray(self.circle_normal, float))):
-            raise ValueError(f"circle_normal: expected 3 finite numbers, not all zero [X, Y, Z], got "
-                             f"{self.circle_normal!r}")
+        for name, n in [("circle_normal", self.circle_normal)] * bool(self.circle_normal) + [
+                (f"circle_normals.{k}", v) for k, v in self.circle_normals.items()]:
+            if len(n) != 3 or not np.all(np.isfinite(n)) or not np.any(np.asarray(n, float)):
+                raise ValueError(f"{name}: expected 3 finite numbers, not all zero [X, Y, Z], got {n!r}")
         self.geometry()   # validates the board options
         if self.target in ("aruco", "charuco"):
             aruco_dictionary(self.dictionary)
@@ -372,17 +376,33 @@ def circle_table(options: TargetOptions, layout, block) -> CircleTargets | None:
     rows of the detected points); None with ``eccentricity = false`` or nothing known."""
     if not options.eccentricity:
         return None
-    if options.circle_diameter > 0:
+    known = set(block.points.ids.tolist()) | set(getattr(layout, "points", block.points).ids.tolist())
+    for name, table in (("circle_normals", options.circle_normals), ("circle_diameters", options.circle_diameters)):
+        bad = sorted(set(table) - known)
+        if bad:
+            raise InputError(f"{name}: no point {bad[0]!r} in the input block", field=name)
+    own = getattr(layout, "circles", None)
+    if options.circle_diameter > 0 or options.circle_diameters:
         if block.object_unit not in _UNIT_M:
             raise InputError(f"circle_diameter: the input block's object unit {block.object_unit!r} is not a length "
                              f"({', '.join(_UNIT_M)}): the diameter cannot be converted", field="circle_diameter")
-        d = options.circle_diameter * _UNIT_M[options.unit] / _UNIT_M[block.object_unit]
-        return CircleTargets.make(block.points.ids, d, options.circle_normal or None)
-    own = getattr(layout, "circles", None)
+        f = _UNIT_M[options.unit] / _UNIT_M[block.object_unit]
+        ids = block.points.ids.tolist()
+        d = np.array([options.circle_diameters.get(i, options.circle_diameter) * f for i in ids])
+        n = np.array([options.circle_normals.get(i, options.circle_normal or [np.nan] * 3) for i in ids], float)
+        keep = d > 0                        # without circle_diameter only the points circle_diameters names
+        return CircleTargets.make(np.asarray(ids)[keep], d[keep], n[keep]) if keep.any() else None
     if own is None:
         return None
     keep = np.isin(own.ids, block.points.ids)
-    return own.take(keep) if keep.any() else None
+    if not keep.any():
+        return None
+    own = own.take(keep)
+    if options.circle_normal or options.circle_normals:
+        n = np.array([options.circle_normals.get(i, options.circle_normal or list(v))
+                      for i, v in zip(own.ids.tolist(), own.normal)], float)
+        own = own.replace(normal=n)
+    return own
 
 
 def _circles_summary(block) -> dict:

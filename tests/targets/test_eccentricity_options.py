@@ -64,3 +64,20 @@ def test_circle_table_converts_the_diameter_to_the_object_unit():
     layout = block.replace(circles=CircleTargets.make(["2", "3", "9"], [0.01, 0.02, 0.03]))
     t = circle_table(TargetOptions(target="circles"), layout, block)
     assert t.ids.tolist() == ["2", "3"] and np.allclose(t.diameter, [0.01, 0.02])
+
+
+def test_single_targets_get_their_own_normal_and_diameter():
+    block = _layout("m")
+    opts = TargetOptions(target="circles", circle_diameter=10.0, unit="mm", circle_normal=[0, 0, 1],
+                         circle_normals={"2": [1, 0, 0]}, circle_diameters={"3": 20.0})
+    t = circle_table(opts, None, block)
+    assert np.allclose(t.diameter, [0.01, 0.01, 0.02])
+    assert np.allclose(t.normal, [[0, 0, 1], [1, 0, 0], [0, 0, 1]])
+    only = circle_table(TargetOptions(target="circles", circle_diameters={"3": 20.0}), None, block)
+    assert only.ids.tolist() == ["3"] and np.isnan(only.normal).all()
+    from baarda.pipeline.errors import InputError
+    with pytest.raises(InputError, match="circle_normals: no point '7'"):
+        circle_table(TargetOptions(target="circles", circle_diameter=10.0, circle_normals={"7": [0, 0, 1]}), None,
+                     block)
+    with pytest.raises(ValueError, match=r"circle_normals.2: expected 3 finite numbers"):
+        TargetOptions(target="circles", circle_normals={"2": [0, 0, 0]})
