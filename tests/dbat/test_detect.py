@@ -170,3 +170,20 @@ def test_the_dot_diameter_of_the_fixture_is_the_one_in_the_images(detect_dir, sh
             est.append(2 * np.sqrt(A * B / 4 / abs(np.linalg.det(J))))
     assert len(est) > 200
     assert np.median(est) == pytest.approx(0.0316, abs=0.0003)
+
+
+@pytest.mark.slow
+def test_correcting_the_marks_too_shifts_their_calibration_alike(shared_data):
+    """PhotoModeler's marks with the same circle table (0.0316, normals from the neighbours): c moves by
+    ≈ +0.5 σ as the detections' does, the rest by < 0.05 σ (docs/dbat.md)."""
+    from baarda.pipeline.api import BundleConfig, CircleTargets, adjust
+
+    marks = dbat_block(read_dbat(shared_data / "dbat-camcal" / "camcaldemo.xml"))
+    off = adjust(marks, BundleConfig(datum="control"))
+    on = adjust(marks.replace(circles=CircleTargets.make(marks.points.ids, 0.0316)), BundleConfig(datum="control"))
+    assert on.eccentricity.settled and off.eccentricity is None
+    s = np.sqrt(np.diag(off.result.cov_cameras[0]))
+    z = (on.result.state.cam_params[0] - off.result.state.cam_params[0]) / np.where(s > 0, s, np.inf)
+    names = off.result.cam_param_names[0]
+    assert 0.3 < z[names.index("c")] < 0.7
+    assert np.all(np.abs(np.delete(z, names.index("c"))) < 0.05)
