@@ -441,14 +441,13 @@ class EccentricityRounds:
     rms_mm: tuple[float, ...]
     settled: bool
     tol: float
+    sigma_rows: np.ndarray = dataclasses.field(default=None, repr=False)   # (k, 2) a-priori σ of each coordinate
 
     @property
     def remaining(self) -> float:
         """Largest change (in σ) the reported solution would make to the corrections it used."""
         return _largest_change(self.after.correction, self.final.correction, self.sigma_rows, self.final.applied
                                | self.after.applied)
-
-    sigma_rows: np.ndarray = dataclasses.field(default=None, repr=False)   # (k, 2) a-priori σ of each coordinate
 
 
 def _largest_change(a: np.ndarray, b: np.ndarray, sigma: np.ndarray, rows: np.ndarray) -> float:
