@@ -15,13 +15,13 @@ holds the test helpers.  ``adjust(block, BundleConfig(...))`` runs the bundle wo
 from __future__ import annotations
 
 from . import stats
-from .adjustment import (APSelectionConfig, BundleConfig, BundleReport, OutputConfig, RobustConfig, ScaleBar,
-                         SolverConfig, StatTestsConfig, VarianceComponentsConfig)
+from .adjustment import (APSelectionConfig, BundleConfig, BundleReport, EccentricityConfig, OutputConfig, RobustConfig,
+                         ScaleBar, SolverConfig, StatTestsConfig, VarianceComponentsConfig)
 from .adjustment import adjust_block as adjust
 from .adjustment import parameter_covariance, project_block
 from .contracts import AdjustmentArtefact
 from .errors import AdjustmentError, BaardaError, InputError
-from .model import Block
+from .model import Block, CircleTargets
 from .options import NoOptions, option
 from .recording import (ROLE_COLORS, entity_part, log_block, log_text, log_values, point_ellipsoids,
                         role_colors, thin, view_from_photo, view_vectors, viewer_text)
@@ -37,12 +37,12 @@ __all__ = [
     "Stage", "SourceStage", "StageResult", "TableData", "Context", "Progress", "option", "NoOptions",
     # the bundle workflow as a library (docs/library.md)
     "adjust", "BundleConfig", "BundleReport", "SolverConfig", "StatTestsConfig", "RobustConfig",
-    "VarianceComponentsConfig", "APSelectionConfig", "OutputConfig", "ScaleBar", "parameter_covariance",
-    "project_block",
+    "VarianceComponentsConfig", "APSelectionConfig", "OutputConfig", "EccentricityConfig", "ScaleBar",
+    "parameter_covariance", "project_block",
     # errors
     "InputError", "AdjustmentError", "BaardaError",
     # data and contracts
-    "Block", "AdjustmentArtefact", "Snapshot", "stats",
+    "Block", "CircleTargets", "AdjustmentArtefact", "Snapshot", "stats",
     # recordings
     "ROLE_COLORS", "role_colors", "view_from_photo", "view_vectors", "entity_part", "log_block", "log_text",
     "log_values", "point_ellipsoids", "thin", "viewer_text",

@@ -358,6 +358,39 @@ class ScaleBars(Table):
         return list(zip(self.a.tolist(), self.b.tolist(), self.distance.tolist(), self.sigma.tolist()))
 
 
+@dataclass(frozen=True, eq=False)
+class CircleTargets(Table):
+    """Circular targets of known size: one row per object point that is a circle (``docs/targets.md``).
+
+    ids (t,) point ids; diameter (t,) in the block's object unit; normal (t, 3) the normal of the
+    target's plane in the object system (any length, any sign; NaN: estimated from the best-fitting
+    plane of the point's neighbours).  Image observations of these points are ellipse centres; the
+    bundle corrects them for the perspective eccentricity (``BundleConfig.eccentricity``)."""
+
+    ids: np.ndarray
+    diameter: np.ndarray
+    normal: np.ndarray
+
+    _columns: ClassVar = {"ids": (str, ()), "diameter": (float, ()), "normal": (float, (3,))}
+
+    def __post_init__(self):
+        super().__post_init__()
+        if np.any(~(self.diameter > 0)):
+            raise ValueError("CircleTargets.diameter: every diameter must be > 0")
+        given = np.isfinite(self.normal).all(axis=1)
+        if np.any(np.linalg.norm(np.where(given[:, None], self.normal, 1.0), axis=1) == 0):
+            raise ValueError("CircleTargets.normal: a given normal must not be zero")
+
+    @classmethod
+    def make(cls, ids, diameter, normal=None) -> "CircleTargets":
+        """From point ids, a diameter (scalar or per target) and a normal ((3,) common, (t, 3), or None:
+        estimate from the neighbours)."""
+        ids = [str(i) for i in np.atleast_1d(ids)]
+        t = len(ids)
+        return cls(ids=np.array(ids, dtype=str), diameter=np.broadcast_to(np.asarray(diameter, float), (t,)),
+                   normal=np.broadcast_to(np.asarray(np.nan if normal is None else normal, float), (t, 3)))
+
+
 @dataclass(frozen=True)
 class CrsInfo:
     """The user's coordinate reference system of a block whose coordinates were read in one and
@@ -439,7 +472,8 @@ class Block:
     read in (:class:`CrsInfo`, None for a local system), ``scale_bars`` (:class:`ScaleBars`),
     ``source`` (:class:`SourceInfo`: the file read, its format, the line of each observation),
     ``ap_meta`` camera id → the AP model's constants (``r0`` of the AICON model, ``b`` of Ebner's),
-    and the image file of each photo (``photos.image_path``).
+    the image file of each photo (``photos.image_path``) and ``circles`` (:class:`CircleTargets`:
+    points that are circular targets of known diameter, or None).
 
     ``meta`` is a namespace private to the plugin that wrote the block: a key is read only by the
     plugin that writes it (``tests/pipeline/test_contracts_typed.py`` checks this), never used to
@@ -458,6 +492,7 @@ class Block:
     scale_bars: ScaleBars = field(default_factory=lambda: ScaleBars.make())
     source: SourceInfo = field(default_factory=SourceInfo)
     ap_meta: Mapping = field(default_factory=dict)
+    circles: CircleTargets | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "ap_meta", FrozenMap({str(k): _frozen_mapping(v)

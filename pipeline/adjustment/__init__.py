@@ -27,6 +27,7 @@ from .adjust import BundleResult, adjust, padded_ap, result_of
 from .apselect import APSelection, select_aps
 from .collinearity import EO_NAMES, IOP_NAMES, project_observations
 from .diagnose import parameter_names
+from .eccentricity import Eccentricity, eccentricity_corrections
 from .initial import ResectionResult, initial_values, intersection, resection
 from .lm import ITERATION_CALLBACK, solve_bundle
 from .phases import PHASE_CALLBACK, PhaseEvent
@@ -39,9 +40,9 @@ from .reproject import project_block, reprojection_px, reprojection_summary
 from .settings import BundleSettings, BundleState, Distance, camera_meta
 from .variance import (GroupPart, LinearComponents, VarianceComponents, VarianceGroup, estimate_components,
                        group_parts, image_group_labels, linear_components)
-from .workflow import (EO_LABELS, APSelectionConfig, BundleConfig, BundleReport, OutputConfig, RobustConfig, ScaleBar,
-                       SolverConfig, StatTestsConfig, VarianceComponentsConfig, adjust_block, bundle_settings,
-                       configure_block)
+from .workflow import (EO_LABELS, APSelectionConfig, BundleConfig, BundleReport, EccentricityConfig,
+                       EccentricityRounds, OutputConfig, RobustConfig, ScaleBar, SolverConfig, StatTestsConfig,
+                       VarianceComponentsConfig, adjust_block, bundle_settings, configure_block)
 
 __all__ = [
     "adjust", "BundleResult", "result_of", "BundleSettings", "BundleState", "Distance", "padded_ap", "camera_meta",
@@ -56,5 +57,6 @@ __all__ = [
     "global_rows", "GlobalRowStats",
     "adjust_block", "BundleConfig", "BundleReport", "configure_block", "bundle_settings", "ScaleBar",
     "SolverConfig", "StatTestsConfig", "RobustConfig", "VarianceComponentsConfig", "APSelectionConfig",
-    "OutputConfig", "EO_LABELS",
+    "OutputConfig", "EO_LABELS", "EccentricityConfig", "EccentricityRounds", "Eccentricity",
+    "eccentricity_corrections",
 ]

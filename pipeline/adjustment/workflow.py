@@ -38,6 +38,7 @@ from baarda.pipeline.stats.critical import delta0 as _delta0
 from .adjust import BundleResult, adjust, padded_ap, result_of
 from .apselect import APSelection, select_aps
 from .corrected import check_models
+from .eccentricity import Eccentricity, eccentricity_corrections
 from .reliability import GlobalRowStats, OwnEffects, global_rows, own_effects, parameter_covariance
 from .settings import BundleSettings, Distance
 from ..threads import single_blas
@@ -146,6 +147,27 @@ class OutputConfig:
 
 
 @dataclasses.dataclass(frozen=True)
+class EccentricityConfig:
+    """``[bundle.eccentricity]``: circular targets (``Block.circles``) corrected for the perspective
+    eccentricity of their imaged centres, iterated with the adjustment (docs/targets.md)."""
+
+    enabled: bool = option(
+        True, "correct the image observations of circular targets of known diameter (the block's circle table, "
+              "e.g. opencv-targets with target = 'circles' and circle_diameter) for the eccentricity of the "
+              "ellipse centre at the adjusted orientation, re-adjusting until the corrections settle")
+    tol: float = option(0.01, "settled when no correction changes by more than this × the coordinate's a-priori σ",
+                        gt=0.0)
+    max_rounds: int = option(5, "at most this many re-adjustments with updated corrections", ge=1)
+    distortion: Literal["centre", "rim"] = option(
+        "centre", "the camera's distortion applied to the ellipse centre of the closed form, or to 64 points of "
+                  "the circle's rim whose fitted conic's centre is taken (keeps the distortion's curvature across "
+                  "the target; docs/targets.md)")
+
+    def __post_init__(self):
+        check_bounds(self)
+
+
+@dataclasses.dataclass(frozen=True)
 class BundleConfig:
     """The bundle's options: the ``bundle`` stage's option table and :func:`adjust_block`'s argument."""
 
@@ -211,6 +233,8 @@ class BundleConfig:
         VarianceComponentsConfig(), "variance components per observation group")
     ap_selection: APSelectionConfig = option(APSelectionConfig(), "selection of additional parameters")
     output: OutputConfig = option(OutputConfig(), "external reliability, ellipsoids, covariances on demand")
+    eccentricity: EccentricityConfig = option(
+        EccentricityConfig(), "eccentricity of circular targets' imaged centres (blocks with a circle table only)")
 
     def __post_init__(self):
         check_bounds(self)
@@ -409,6 +433,40 @@ class GnssTests:
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
+class EccentricityRounds:
+    """How the eccentricity corrections were iterated with the adjustment.
+
+    ``final`` the corrections the reported adjustment used (applied to ``BundleReport.block``'s
+    observations: ``observed − correction``); ``after`` those recomputed at its solution (what one more
+    round would use); ``changes`` per round the largest change of a correction in units of the
+    coordinate's a-priori σ (round 1: against no correction), ``rms_mm`` the RMS correction of each
+    round (mm, over the corrected coordinates); ``settled`` whether the last change was below ``tol``."""
+
+    final: Eccentricity
+    after: Eccentricity
+    changes: tuple[float, ...]
+    rms_mm: tuple[float, ...]
+    settled: bool
+    tol: float
+    sigma_rows: np.ndarray = dataclasses.field(default=None, repr=False)   # (k, 2) a-priori σ of each coordinate
+
+    @property
+    def remaining(self) -> float:
+        """Largest change (in σ) the reported solution would make to the corrections it used."""
+        return _largest_change(self.after.correction, self.final.correction, self.sigma_rows, self.final.applied
+                               | self.after.applied)
+
+
+def _largest_change(a: np.ndarray, b: np.ndarray, sigma: np.ndarray, rows: np.ndarray) -> float:
+    if not rows.any():
+        return 0.0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        z = np.abs(a[rows] - b[rows]) / sigma[rows]
+    z = z[np.isfinite(z)]
+    return float(z.max()) if z.size else 0.0
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
 class BundleReport:
     """What :func:`adjust_block` found (frozen; its arrays are read-only).
 
@@ -438,6 +496,7 @@ class BundleReport:
     covariance: ParameterCovariance | None = None
     gnss: GnssTests | None = None
     warnings: tuple[str, ...] = ()
+    eccentricity: EccentricityRounds | None = None
 
     @property
     def sigma0_hat(self) -> float:
@@ -463,6 +522,10 @@ def adjust_block(block: Block, config: BundleConfig | None = None, *,
     config = BundleConfig() if config is None else config
     say = progress or (lambda message: None)
     o = config
+    raw = block
+    ecc = None
+    if o.eccentricity.enabled and block.circles is not None and len(block.circles):
+        block, ecc = _eccentricity_rounds(block, o, say, threads)
     configured = configure_block(block, o)
     check_requests(configured, o.output.covariance_of)
     settings = bundle_settings(o, configured, threads)
@@ -538,6 +601,10 @@ def adjust_block(block: Block, config: BundleConfig | None = None, *,
     out_block = res.block
     if robust is not None:   # the robust weights are the estimator's, not the block's a-priori σ
         out_block = out_block.replace(observations=out_block.observations.replace(cov=configured.observations.cov))
+    if ecc is not None:      # the output keeps the measured centres: a later bundle corrects them again
+        out_block = out_block.replace(observations=out_block.observations.replace(xy=raw.observations.xy))
+        after = eccentricity_corrections(res.block, res.settings, o.eccentricity.distortion)
+        ecc = dataclasses.replace(ecc, after=after)
     if rejected_rows.any():
         act = out_block.observations.active.copy()
         act[np.unique(np.flatnonzero(rejected_rows) // 2)] = False
@@ -545,7 +612,43 @@ def adjust_block(block: Block, config: BundleConfig | None = None, *,
     return BundleReport(config=o, result=res, block=configured, output_block=out_block, decision=_frozen(decision),
                         rejected_rows=_frozen(rejected_rows), global_test=gt, snooping=ds, joint=joint, ids=ids,
                         before_ids=before, selection=selection, vc=vc, robust=robust, external=external, delta0=d0,
-                        covariance=covariance, gnss=gnss, warnings=tuple(warnings))
+                        covariance=covariance, gnss=gnss, warnings=tuple(warnings), eccentricity=ecc)
+
+
+def _eccentricity_rounds(block: Block, o: BundleConfig, say, threads: int) -> tuple[Block, EccentricityRounds]:
+    """Adjust, compute the eccentricity corrections at the solution, adjust the corrected observations
+    (from the previous solution), until no correction changes by more than ``tol`` σ or ``max_rounds``
+    re-adjustments are done.  Returns the block with corrected observations (for the workflow's final
+    adjustment) and the rounds.  The core adjustment only: no tests, no rejections in the rounds."""
+    e = o.eccentricity
+    configured = configure_block(block, o)
+    settings = bundle_settings(o, configured, threads)
+    obs = configured.observations
+    sigma = np.sqrt(np.einsum("kii->ki", obs.cov))
+    rows = obs.active[:, None] & np.ones((1, 2), bool)
+    corr = np.zeros((len(obs), 2))
+    current = None
+    changes, rms = [], []
+    res = None
+    settled = False
+    try:
+        for r in range(e.max_rounds + 1):
+            say(f"eccentricity of circular targets: round {r}")
+            work = configured.replace(observations=obs.replace(xy=obs.xy - corr))
+            res = adjust(work, settings, covariance=False, **({} if res is None else {"start": res.state}))
+            new = eccentricity_corrections(res.block, settings, e.distortion)
+            use = rows & new.applied[:, None]
+            changes.append(_largest_change(new.correction, corr, sigma, use | (rows & (corr != 0))))
+            rms.append(float(np.sqrt(np.mean(new.correction[use] ** 2))) if use.any() else 0.0)
+            corr, current = np.array(new.correction), new
+            if changes[-1] < e.tol:
+                settled = True
+                break
+    except AdjustmentError as err:
+        raise _with_block(err, configured) from err
+    out = block.replace(observations=block.observations.replace(xy=block.observations.xy - corr))
+    return out, EccentricityRounds(final=current, after=current, changes=tuple(changes), rms_mm=tuple(rms),
+                                   settled=settled, tol=e.tol, sigma_rows=_frozen(sigma))
 
 
 def _with_block(err: AdjustmentError, block: Block) -> AdjustmentError:

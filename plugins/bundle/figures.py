@@ -47,17 +47,19 @@ def _backdrop(path: str, longest: int = 1200):
     return img
 
 
-def residual_vectors(res, decision=None, images: dict | None = None):
+def residual_vectors(res, decision=None, images: dict | None = None, *, vectors=None,
+                     what: str = "Image residuals (observed − computed)"):
     """Residual vectors (observed − computed) per photo over the format, the photos with the
     largest RMS first; one arrow scale for all panels.  ``images``: photo id → image file, drawn
-    behind the arrows (the pixel grid mapped onto the format: the sensor centre is the origin)."""
+    behind the arrows (the pixel grid mapped onto the format: the sensor centre is the origin).
+    ``vectors`` (k, 2) mm draws other per-observation vectors instead (``what`` names them)."""
     plt = _plt()
     block = res.block_in
     obs, cams = block.observations, block.cameras
     unit, scale, _ = image_units(block)
     g = scale if unit == "px" else 1.0          # format coordinates: px for a pixel source, else mm
     act = np.asarray(res.obs_active, bool)
-    v = np.asarray(res.residuals, float)
+    v = np.asarray(res.residuals if vectors is None else vectors, float)
     # the RMS per photo of the protocol and bundle_photos: coordinates in the adjustment (a rejected
     # coordinate is drawn, red, but not counted)
     used = np.asarray(res.row_active, bool) & act[:, None]
@@ -107,7 +109,7 @@ def residual_vectors(res, decision=None, images: dict | None = None):
         ax.tick_params(labelsize=7)
     for ax in axes.ravel()[n:]:
         ax.axis("off")
-    fig.suptitle(f"Image residuals (observed − computed) over the format ({'px' if unit == 'px' else 'mm'}, y up); an arrow of "
+    fig.suptitle(f"{what} over the format ({'px' if unit == 'px' else 'mm'}, y up); an arrow of "
                  f"{0.08 * 100:.0f} % of the format is {fmt_q(vmax * scale, unit, 3)} (95th percentile); red: flagged/rejected",
                  fontsize=10)
     fig.tight_layout()
@@ -390,7 +392,7 @@ def reliability_maps(res):
     return fig
 
 
-def bundle_figures(res, decision=None) -> dict:
+def bundle_figures(res, decision=None, eccentricity=None) -> dict:
     """Every figure of a bundle result: name → (figure, caption), the most telling first (report.html
     shows a stage's first figures and folds the rest): residuals, network, distortion (where the
     camera's additional parameters are estimated), reliability maps, check points; then w, redundancy
@@ -399,6 +401,12 @@ def bundle_figures(res, decision=None) -> dict:
     images = res.block_in.photos.images()     # photo id → image file (``Photos.image_path``), where a source found it
     out["residuals"] = (residual_vectors(res, decision, images),
                         "Residual vectors per photo over the format" + (" and the photo" if images else ""))
+    if eccentricity is not None:     # the corrections of circular targets' centres (BundleReport.eccentricity)
+        out["eccentricity"] = (residual_vectors(res, decision, images, vectors=eccentricity.final.correction,
+                                                what="Eccentricity corrections (ellipse centre − image of the "
+                                                     "circle's centre)"),
+                               "Eccentricity of the circular targets' imaged centres, subtracted from the "
+                               "detections (the photos with the largest corrections first)")
     out["network"] = (network(res), "Network: plan and elevation with standard error ellipses")
     snap = res.snapshot
     cams = res.block_in.cameras

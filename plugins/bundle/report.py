@@ -93,7 +93,42 @@ def summary(rep) -> dict:
                        + (f"; IDS removed {len(rep.ids.removed_labels)}" if rep.ids is not None else ""))
     if rep.gnss is not None:
         out["gnss"] = gnss_parts(rep)["summary"]
+    if rep.eccentricity is not None:
+        out["eccentricity"] = eccentricity_summary(rep)
     return out
+
+
+def eccentricity_summary(rep) -> dict:
+    """The eccentricity correction of circular targets (``rep.eccentricity``) in the image unit."""
+    e, block = rep.eccentricity, rep.block
+    iu = ImageUnits.of(block)
+    used = e.final.applied & block.observations.active
+    d = np.linalg.norm(iu.diff(np.asarray(e.final.correction), flip_y=True), axis=1)[used]
+    circles = block.circles
+    pts = np.isin(block.points.ids, circles.ids)
+    return {"observations": int(used.sum()), "targets": int(pts.sum()),
+            "normals_estimated": int(e.final.estimated.sum()),
+            "normals_given": int((pts & np.isfinite(e.final.normal).all(axis=1) & ~e.final.estimated).sum()),
+            f"rms{iu.suffix}": float(np.sqrt(np.mean(d ** 2))) if d.size else 0.0,
+            f"max{iu.suffix}": float(d.max()) if d.size else 0.0,
+            "rounds": len(e.changes), "changes_sigma": [float(c) for c in e.changes], "settled": bool(e.settled),
+            "remaining_sigma": float(e.remaining), "tol_sigma": float(e.tol)}
+
+
+def _eccentricity_lines(rep) -> list[str]:
+    if rep.eccentricity is None:
+        return []
+    s = eccentricity_summary(rep)
+    iu = ImageUnits.of(rep.block)
+    u = iu.unit
+    rms, mx = s[f"rms{iu.suffix}"], s[f"max{iu.suffix}"]
+    return [f"- eccentricity of circular targets: {s['observations']} image points of {s['targets']} targets "
+            f"corrected (ellipse centre → image of the circle's centre; normals: {s['normals_given']} given, "
+            f"{s['normals_estimated']} from the neighbours' plane), RMS {rms:.3g} {u}, largest {mx:.3g} {u}; "
+            f"{s['rounds']} adjustment(s) before this one, largest change of a correction per round "
+            + ", ".join(f"{c:.3g}" for c in s["changes_sigma"]) + " σ"
+            + ("" if s["settled"] else f" (not below {s['tol_sigma']:g} σ: max_rounds reached)")
+            + f"; at this solution {s['remaining_sigma']:.2g} σ (bundle_observations.csv: ecc_x, ecc_y)"]
 
 
 def _sigma0_um(res: BundleResult) -> float:
@@ -138,6 +173,7 @@ def report_text(rep, work=None, protocol=None) -> str:
                  "(T2d, T2d_critical, T2d_flagged)")
     L.extend(_ids_lines(rep))
     L.extend(_robust_lines(rep.robust))
+    L.extend(_eccentricity_lines(rep))
     if res.check:
         c, ou = res.check, object_unit_text(block)
         L.append(f"- check points ({c.n}, adjusted − surveyed): Sx = {fmt_obj(c.Sx, ou)}, "
@@ -424,6 +460,15 @@ def _image_columns(block, iu, v, nab, mdbs) -> tuple[dict, dict]:
     return cols, {f"nabla_x{s}": dn[:, 0], f"nabla_y{s}": dn[:, 1], f"mdb_x{s}": dm[:, 0], f"mdb_y{s}": dm[:, 1]}
 
 
+def _eccentricity_columns(rep, iu) -> dict:
+    """Per observation: the eccentricity correction the adjustment subtracted from the measured centre
+    (only when the block has circular targets and the correction is on)."""
+    if rep.eccentricity is None:
+        return {}
+    d = iu.diff(np.asarray(rep.eccentricity.final.correction), flip_y=True)
+    return {f"ecc_x{iu.suffix}": d[:, 0], f"ecc_y{iu.suffix}": d[:, 1]}
+
+
 def units_from_suffix(columns) -> dict:
     """Each column's unit from its name's suffix (docs/conventions.md, *Column names*); "" for none."""
     return {c: column_unit(c) for c in columns}
@@ -453,6 +498,7 @@ def tables(rep) -> dict:
             **_joint_columns(rep.joint, len(obs)),
             **bundle_external.observation_columns(bundle_external.external_view(rep), len(obs)),
             **_robust_columns(rep.robust, len(obs)),
+            **_eccentricity_columns(rep, iu),
             "decision": decision.tolist()}
     tables["observations"] = TableData(
         cols,

@@ -79,7 +79,8 @@ class BundleAdjustment:
         """Figures for report.html (drawn by the engine; see plugins/bundle/figures.py)."""
         from .figures import bundle_figures
 
-        return bundle_figures(result.data["result"], result.data["decision"])
+        return bundle_figures(result.data["result"], result.data["decision"],
+                              getattr(result.data.get("report"), "eccentricity", None))
 
     def log(self, result: StageResult, rec, ctx: Context) -> None:
         from .rrlog import log_bundle

@@ -20,7 +20,8 @@ from typing import Literal
 
 import numpy as np
 
-from baarda.pipeline.api import Context, InputError, Stage, StageResult, TableData, entity_part, log_block, option
+from baarda.pipeline.api import (CircleTargets, Context, InputError, Stage, StageResult, TableData, entity_part,
+                                 log_block, option)
 from baarda.pipeline.geometry import rotation_from_opk
 from baarda.pipeline.imagefiles import read_gray
 
@@ -71,6 +72,18 @@ class TargetOptions:
     min_points: int = option(4, "images with fewer detected points are skipped (warning)")
     match_radius_px: float = option(10.0, "'circles': largest distance of a blob from its predicted position")
     polarity: Literal["auto", "dark", "light"] = option("auto", "'circles': dark dots, light dots or both")
+    eccentricity: bool = option(True, "'circles': the bundle corrects the detected (ellipse) centres for the "
+                                      "perspective eccentricity of circular targets (needs circle_diameter or an "
+                                      "input block with a circle table; docs/targets.md)")
+    circle_diameter: float = option(0.0, "'circles': diameter of the circular targets, in 'unit' (converted to the "
+                                         "block's object unit); 0: the input block's circle table, if any", ge=0.0)
+    circle_normal: list[float] = option([], "'circles': normal of the targets' plane [X, Y, Z] in the object system "
+                                            "(a planar test field); empty: per target, the best-fitting plane of "
+                                            "its 8 nearest targets at the adjusted coordinates")
+    circle_normals: dict[str, list[float]] = option({}, "'circles': normals of single targets, point id -> [X, Y, Z] "
+                                                        "(override circle_normal for those points)")
+    circle_diameters: dict[str, float] = option({}, "'circles': diameters of single targets, point id -> diameter in "
+                                                    "'unit' (override circle_diameter for those points)", gt=0.0)
     opencv_reference: bool = option(True, "with a known board: also run cv2.calibrateCamera per camera and report it")
     log_max_size: int = option(800, "longest side of the images logged to rerun, pixels")
 
@@ -83,6 +96,10 @@ class TargetOptions:
                 re.compile(self.camera_from_name)
             except re.error as e:
                 raise ValueError(f"camera_from_name is not a regular expression: {e}") from None
+        for name, n in [("circle_normal", self.circle_normal)] * bool(self.circle_normal) + [
+                (f"circle_normals.{k}", v) for k, v in self.circle_normals.items()]:
+            if len(n) != 3 or not np.all(np.isfinite(n)) or not np.any(np.asarray(n, float)):
+                raise ValueError(f"{name}: expected 3 finite numbers, not all zero [X, Y, Z], got {n!r}")
         self.geometry()   # validates the board options
         if self.target in ("aruco", "charuco"):
             aruco_dictionary(self.dictionary)
@@ -268,10 +285,13 @@ class TargetDetection(Stage):
             raise InputError(f"no usable detection in {len(files)} image(s) (see the warnings)", field="images",
                              path=ctx.project_file)
         block, info = detection_block(dets, geom, options, sigma_px, layout, ctx.warn)
+        if options.target == "circles":
+            block = block.replace(circles=circle_table(options, layout, block))
         for r in rows:
             if r["photo"] in info["size_mismatch"]:
                 r["status"], r["message"] = "skipped", "image size differs from the camera's first image"
         summary = {**block.summary(), "target": options.target, "sigma_px": sigma_px,
+                   **({"circles": _circles_summary(block)} if block.circles is not None else {}),
                    "images": len(files), "used_images": len(block.photos),
                    "detections": {r["photo"]: r["points"] for r in rows}, "cameras_px": info["cameras_px"]}
         ref = {}
@@ -344,6 +364,52 @@ class TargetDetection(Stage):
                 rec.log(f"{path}/points", rr.Points2D(uv, labels=list(ids), colors=[[255, 60, 40]],
                                                       radii=rr.Radius.ui_points(3.0)), static=True)
         log_block(rec, result.data["block"], root=f"{ctx.stage_id}/block")
+
+
+_UNIT_M = {"mm": 1e-3, "cm": 1e-2, "m": 1.0, "ft": 0.3048, "km": 1e3}
+
+
+def circle_table(options: TargetOptions, layout, block) -> CircleTargets | None:
+    """The circle table the output block carries for the bundle's eccentricity correction: every
+    detected point a circle of ``circle_diameter`` (in ``unit``, converted to the block's object unit)
+    with ``circle_normal`` (or NaN: estimated); without a diameter the input block's own table (its
+    rows of the detected points); None with ``eccentricity = false`` or nothing known."""
+    if not options.eccentricity:
+        return None
+    known = set(block.points.ids.tolist()) | set(getattr(layout, "points", block.points).ids.tolist())
+    for name, table in (("circle_normals", options.circle_normals), ("circle_diameters", options.circle_diameters)):
+        bad = sorted(set(table) - known)
+        if bad:
+            raise InputError(f"{name}: no point {bad[0]!r} in the input block", field=name)
+    own = getattr(layout, "circles", None)
+    if options.circle_diameter > 0 or options.circle_diameters:
+        if block.object_unit not in _UNIT_M:
+            raise InputError(f"circle_diameter: the input block's object unit {block.object_unit!r} is not a length "
+                             f"({', '.join(_UNIT_M)}): the diameter cannot be converted", field="circle_diameter")
+        f = _UNIT_M[options.unit] / _UNIT_M[block.object_unit]
+        ids = block.points.ids.tolist()
+        d = np.array([options.circle_diameters.get(i, options.circle_diameter) * f for i in ids])
+        n = np.array([options.circle_normals.get(i, options.circle_normal or [np.nan] * 3) for i in ids], float)
+        keep = d > 0                        # without circle_diameter only the points circle_diameters names
+        return CircleTargets.make(np.asarray(ids)[keep], d[keep], n[keep]) if keep.any() else None
+    if own is None:
+        return None
+    keep = np.isin(own.ids, block.points.ids)
+    if not keep.any():
+        return None
+    own = own.take(keep)
+    if options.circle_normal or options.circle_normals:
+        n = np.array([options.circle_normals.get(i, options.circle_normal or list(v))
+                      for i, v in zip(own.ids.tolist(), own.normal)], float)
+        own = own.replace(normal=n)
+    return own
+
+
+def _circles_summary(block) -> dict:
+    c = block.circles
+    d = np.unique(c.diameter)
+    return {"targets": len(c), "diameter": float(d[0]) if d.size == 1 else [float(d.min()), float(d.max())],
+            "unit": block.object_unit, "normals_given": int(np.isfinite(c.normal).all(axis=1).sum())}
 
 
 def _common_folder(files) -> Path:
