@@ -24,9 +24,9 @@ target = "circles"
 
 @pytest.mark.parametrize("line, at, field, message", [
     ("circle_diameter = -3.0", 9, "circle_diameter", "must be at least 0"),
-    # a rule between numbers (the class's own check): the line of the stage's option table, the field named
-    ("circle_normal = [0.0, 0.0, 0.0]", 5, "circle_normal", "not all zero"),
-    ("circle_normal = [0.0, 1.0]", 5, "circle_normal", "expected 3 finite numbers"),
+    # the class's own check: a message that starts with the option's name points to that option's line
+    ("circle_normal = [0.0, 0.0, 0.0]", 9, "circle_normal", "not all zero"),
+    ("circle_normal = [0.0, 1.0]", 9, "circle_normal", "expected 3 finite numbers"),
 ])
 def test_validate_names_the_wrong_option(tmp_path, capsys, line, at, field, message):
     (tmp_path / "p.toml").write_text(PROJECT.format(line=line), encoding="utf-8")
