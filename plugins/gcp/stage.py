@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from baarda.pipeline.crs import LocalFrame, frame_of_block, local_frame
-from baarda.pipeline.api import Context, InputError, SourceStage, StageResult, TableData, option
+from baarda.pipeline.api import Context, InputError, SourceStage, StageResult, TableData, ValidationContext, option
 from baarda.pipeline.units import length_suffix
 from baarda.pipeline.report import markdown_table
 
@@ -238,9 +238,12 @@ class GnssCentres:
         self._checked(options, ctx)
         return None
 
-    def validate_block(self, options: GnssOptions, block, ctx: Context) -> None:
+    def validate_with(self, v: ValidationContext) -> None:
         """``baarda validate`` with the block the sources read: every photo of the CSV in the block
         (unless on_unknown = 'skip'), every lever arm's camera a camera of the block."""
+        if v.block is None:
+            return
+        options, block, ctx = v.options, v.block, v.ctx
         g = self._checked(options, ctx)
         known = set(block.photos.ids.tolist())
         unknown = [(p, ln) for p, ln in zip(g.photo, g.line) if p not in known]

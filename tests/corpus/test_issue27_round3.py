@@ -1,0 +1,148 @@
+"""Issue 27, round three: what ``baarda validate`` must know before a run (a block that exists only
+during the run, every output name a stage writes), one validation hook, the refusal messages, batch
+sweep tables over one project."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from baarda.pipeline.cli import main
+from baarda.pipeline.options import option
+from baarda.pipeline.project import load_project, validate_inputs
+from baarda.pipeline.stage import Stage, StageResult, ValidationContext
+from baarda.pipeline.testing import make_plugin_manager
+
+ROOT = Path(__file__).resolve().parents[2]
+RENDERED = ROOT / "fixtures" / "rendered" / "rendered.toml"
+DATA1 = (ROOT / "fixtures" / "paper000" / "data1.cmp").read_text(encoding="utf-8")
+
+
+def cli(*argv) -> tuple[int, str]:
+    err = io.StringIO()
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
+        code = main([str(a) for a in argv])
+    return code, err.getvalue()
+
+
+# -- 1. RRR's rho for a block that exists only during the run -------------------------------------
+
+def _rendered_with_rrr(tmp_path: Path, rho: int) -> Path:
+    text = RENDERED.read_text(encoding="utf-8").replace('method = "ids"', f'method = "rrr"\nrho = {rho}')
+    p = tmp_path / "rendered.toml"
+    p.write_text(text, encoding="utf-8")
+    return p
+
+
+def test_validate_bounds_rrr_rho_for_the_rendered_test_field(tmp_path):
+    """The rendered field's block is made by detecting targets in the rendered images: validate
+    builds it dry (every target whose disk reaches into each image) and refuses a rho beyond n − u."""
+    p = _rendered_with_rrr(tmp_path, 200)
+    line = next(i for i, ln in enumerate(p.read_text().splitlines(), 1) if ln.startswith("rho ="))
+    code, err = cli("validate", p)
+    assert code == 2, err
+    assert f"rendered.toml:{line}, field 'rho'" in err and "n = " in err, err
+    code, err = cli("validate", _rendered_with_rrr(tmp_path, 20))     # within the bound: valid
+    assert code == 0, err
+
+
+def test_the_dry_block_holds_every_target_a_detection_can_find():
+    """The dry construction's (photo, target) pairs include every target whose true centre lies in
+    the rendered image (what a perfect detector finds), so its rows bound the run's."""
+    from baarda.pipeline.options import parse_options
+    from baarda.plugins.testfield.photos import OBJECT_UNIT_MM, image_size, true_targets, truth_from_meta
+    from baarda.plugins.testfield.render import RenderOptions, dry_detection_block
+    from baarda.plugins.testfield.source import simulate_field
+
+    opts = parse_options(RenderOptions, {"pixel_mm": 0.025, "testfield": {"case": 5}})
+    sim = opts.simulation(7)
+    block, _ = simulate_field(sim, np.random.default_rng(sim.seed))
+    dry = dry_detection_block(block, opts)
+    truth = truth_from_meta(block.meta)
+    size = image_size(block.cameras.format_mm[0], opts.pixel_mm)
+    pairs = {(str(dry.photos.ids[a]), str(dry.points.ids[b]))
+             for a, b in zip(dry.observations.photo, dry.observations.point)}
+    found = {(p, q) for p, t in true_targets(truth, opts.pixel_mm, size).items() for q in t}
+    assert found and found <= pairs
+    assert len(pairs) == len(dry.observations)                      # at most once per photo and target
+    assert OBJECT_UNIT_MM[block.object_unit] > 0
+
+
+# -- 6. one validation hook ------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class PointOptions:
+    point: str = option("1", "a point id of the block")
+
+
+class NewHook(Stage):
+    summary = "checks a point id with validate_with"
+    reads = ("block",)
+    Options = PointOptions
+    seen: list = []
+
+    def validate_with(self, v: ValidationContext) -> None:
+        NewHook.seen.append(v)
+        if v.block is not None and v.options.point not in v.block.points.ids:
+            raise v.ctx.option_error(f"unknown point {v.options.point!r}", "point")
+
+    def run(self, inputs, options, ctx):
+        return StageResult()
+
+
+class OldHook(Stage):
+    summary = "checks a point id with the deprecated validate_block"
+    reads = ("block",)
+    Options = PointOptions
+
+    def validate_block(self, options, block, ctx):
+        if options.point not in block.points.ids:
+            raise ctx.option_error(f"unknown point {options.point!r}", "point")
+
+    def run(self, inputs, options, ctx):
+        return StageResult()
+
+
+def _project(tmp_path, use, point):
+    (tmp_path / "data.cmp").write_text(DATA1, encoding="utf-8")
+    p = tmp_path / "p.toml"
+    p.write_text(f'[[stage]]\nuse = "comparator"\nid = "source"\n[stage.options]\npath = "data.cmp"\n\n'
+                 f'[[stage]]\nuse = "{use}"\nid = "check"\n[stage.options]\npoint = "{point}"\n', encoding="utf-8")
+    return p
+
+
+def test_one_validation_hook_gets_the_whole_context(tmp_path):
+    from baarda.pipeline.errors import InputError
+
+    pm = make_plugin_manager({"new": NewHook, "old": OldHook}, builtins=True)
+    NewHook.seen.clear()
+    validate_inputs(load_project(_project(tmp_path, "new", "1"), pm))
+    v = NewHook.seen[-1]
+    assert v.block is not None and v.rows is v.block and v.adjuster is None
+    assert v.spec.id == "check" and [s.id for s in v.project.stages] == ["source", "check"]
+    with pytest.raises(InputError) as e:
+        validate_inputs(load_project(_project(tmp_path, "new", "NOPE"), pm))
+    assert e.value.field == "point" and e.value.line == 11
+    # the old hook still runs, with a DeprecationWarning naming the new one
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        with pytest.raises(InputError) as e:
+            validate_inputs(load_project(_project(tmp_path, "old", "NOPE"), pm))
+    assert e.value.field == "point"
+    assert any(issubclass(x.category, DeprecationWarning) and "validate_with" in str(x.message) for x in w)
+
+
+def test_no_builtin_stage_uses_the_old_hooks():
+    from baarda.pipeline.plugins import PluginManager
+
+    pm = PluginManager()
+    old = [n for n in pm.names() if any(hasattr(pm.get(n).cls, h) for h in ("validate_block", "validate_rows"))]
+    assert old == []
+    assert {"bundle", "gnss-centres", "blunder-rejection", "testfield-render"} <= {
+        n for n in pm.names() if hasattr(pm.get(n).cls, "validate_with")}
