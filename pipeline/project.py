@@ -38,7 +38,7 @@ from pathlib import Path
 from typing import Any, Literal, Mapping, get_args, get_origin
 
 from .errors import BaardaError, InputError
-from .options import Where, option, output_problem, parse_options, to_plain
+from .options import Where, declared_outputs, option, output_problem, parse_options, to_plain
 from .plausibility import check_block
 from .plugins import PluginManager
 from .stage import Context, RowBound, ValidationContext, keeps_rows
@@ -340,6 +340,7 @@ def _build(path: Path, text: str, data: dict, plugins: PluginManager,
 
     available: dict[str, str] = {}
     all_ids = tuple(c[2] for c in chosen)
+    owners = {c[2]: declared_outputs(c[3].cls) for c in chosen}      # every stage's tables and figures
     outputs: dict[str, str] = {}             # every output name of the project → its stage
     for k, raw, sid, info in chosen:
         use, line = info.name, loc.stage(k)
@@ -360,7 +361,7 @@ def _build(path: Path, text: str, data: dict, plugins: PluginManager,
 
         options = parse_options(info.cls.Options, raw, path=path, line=line, locate=locate)
         for name, role in path_roles(info.cls).items():
-            problem = (output_problem(getattr(options, name), all_ids, getattr(info.cls, "output_adds", {}).get(name, ("",)))
+            problem = (output_problem(getattr(options, name), owners, getattr(info.cls, "output_adds", {}).get(name, ("",)))
                        if role == "output" else None)
             if role == "output" and not problem:      # two writers, one file: the second would fail
                 for made in _output_names(getattr(options, name), getattr(info.cls, "output_adds", {}).get(name, ("",))):
@@ -506,7 +507,8 @@ def stage_context(project: Project, spec: StageSpec, **kw):
     return Context(stage_id=spec.id, project_dir=project.directory, seed=project.seed,
                    project_file=project.path, object_unit=project.object_unit,
                    option_lines=dict(spec.option_lines), stage_line=spec.line,
-                   stage_ids=tuple(s.id for s in project.stages), **kw)
+                   stage_ids=tuple(s.id for s in project.stages),
+                   stage_outputs={s.id: declared_outputs(s.cls) for s in project.stages}, **kw)
 
 
 def validate_inputs(project: Project) -> list[str]:

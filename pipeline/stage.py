@@ -27,6 +27,11 @@ A stage is a class with
   stage writes has no observation row the block it reads lacks (an adjustment that flags or removes
   rows; a detection that measures the points of its input block): ``baarda validate`` then keeps
   bounding the adjustment's redundancy across it;
+* ``outputs`` (optional) — the names of the tables and figures the stage writes (``<id>_<name>``
+  .csv/.parquet/.png; ``fnmatch`` patterns such as ``"distortion_*"`` for names made of the data).
+  ``baarda validate`` refuses an output option of any stage (a writer's ``path``) that would be
+  one of them, whether the stage runs before or after the writer; a stage without the declaration
+  owns every name ``<id>_*``.  The runner refuses a table or figure the declaration does not name;
 * ``paths`` (optional) — ``{option name: role}`` for options naming files.  An option typed
   ``Path`` (or ``Path | None``, ``list[Path]``) is an ``"input"`` relative to the project file
   that must exist; other roles: ``"glob"`` (list of files or glob patterns), ``"prefix"`` (a
@@ -325,6 +330,9 @@ class Context:
     """Line of the stage's ``[[stage]]`` table in ``project_file``."""
     stage_ids: tuple[str, ...] = ()
     """Ids of every stage of the project (their tables' names are the run's own; :meth:`output_path`)."""
+    stage_outputs: Mapping[str, Any] = field(default_factory=dict)
+    """``{stage id: its outputs declaration (names of its tables and figures) or None}`` for every
+    stage of the project (:func:`~baarda.pipeline.options.stage_file_patterns`; :meth:`output_path`)."""
     threads: int = 1
     """Cores the stage may use for work that pays (``baarda run --threads``; e.g. the bundle's
     sparse route).  BLAS itself stays single-threaded outside such work."""
@@ -353,7 +361,8 @@ class Context:
         a file already in the run directory (a folder may be: writers add files to it) — each an
         :class:`InputError` on the option.
         """
-        problem = output_problem(value, self.stage_ids, adds)
+        owners = {**{sid: None for sid in self.stage_ids}, **dict(self.stage_outputs)}
+        problem = output_problem(value, owners, adds)
         if problem:
             raise self.option_error(problem, key)
         base = self.run_dir if self.run_dir is not None else self.project_dir

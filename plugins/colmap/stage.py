@@ -110,6 +110,7 @@ class ColmapExport(Stage):
     reads = ("block", "bundle?")
     writes = ()
     paths = {"path": "output"}            # the folder written (not checked by validate)
+    outputs = ()                          # no table or figure: every other name is free for path
     Options = ColmapExportOptions
 
     def run(self, inputs, options: ColmapExportOptions, ctx: Context) -> StageResult:

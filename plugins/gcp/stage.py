@@ -231,6 +231,7 @@ class GnssCentres:
     summary = "GNSS antenna positions per photo (CSV, any CRS, lever arm per camera) as observations of the bundle"
     reads = ("block",)
     writes = ("block",)
+    outputs = ("antennas",)               # its table <id>_antennas
     Options = GnssOptions
 
     def validate(self, options: GnssOptions, ctx: Context):

@@ -73,6 +73,7 @@ class MetashapeExport(Stage):
     reads = ("block", "bundle?")
     writes = ()
     paths = {"path": "output"}
+    outputs = ()                          # no table or figure: every other name is free for path
     Options = MetashapeExportOptions
 
     def run(self, inputs, options: MetashapeExportOptions, ctx: Context) -> StageResult:

@@ -82,6 +82,7 @@ class OpensfmExport(Stage):
     reads = ("block", "bundle?")
     writes = ()
     paths = {"path": "output"}
+    outputs = ()                          # no table or figure: every other name is free for path
     Options = OpensfmExportOptions
 
     def run(self, inputs, options: OpensfmExportOptions, ctx: Context) -> StageResult:

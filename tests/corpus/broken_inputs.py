@@ -740,7 +740,11 @@ def writer_cases() -> list[Case]:
         c.append(Case(f"writers/{use}-collides-with-a-table", {"data.cmp": DATA1},
                       _stage_project(use, True, 'path = "source_observations"' if prefix
                                      else 'path = "source_observations.csv"'),
-                      names="already in the run directory", quick=use == "colmap-export"))
+                      names="field 'path'", quick=use == "colmap-export"))
+        c.append(Case(f"writers/{use}-collides-with-a-later-table", {"data.cmp": DATA1},
+                      _stage_project(use, True, 'path = "later_observations"' if prefix
+                                     else 'path = "later_observations.csv"') + SCREENING.replace('"screening"', '"later"'),
+                      command="validate", names="stage 'later'", quick=use == "export"))
     return c
 
 

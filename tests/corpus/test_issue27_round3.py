@@ -146,3 +146,66 @@ def test_no_builtin_stage_uses_the_old_hooks():
     assert old == []
     assert {"bundle", "gnss-centres", "blunder-rejection", "testfield-render"} <= {
         n for n in pm.names() if hasattr(pm.get(n).cls, "validate_with")}
+
+
+# -- 2. validate knows every output name each stage writes ----------------------------------------
+
+def _writer_before_tables(tmp_path: Path, path: str, writer: str = "export") -> Path:
+    (tmp_path / "data.cmp").write_text(DATA1, encoding="utf-8")
+    p = tmp_path / "p.toml"
+    p.write_text('[[stage]]\nuse = "comparator"\nid = "source"\n[stage.options]\npath = "data.cmp"\n\n'
+                 f'[[stage]]\nuse = "{writer}"\nid = "export"\n[stage.options]\npath = "{path}"\n\n'
+                 '[[stage]]\nuse = "helmert-screening"\nid = "screening"\n', encoding="utf-8")
+    return p
+
+
+@pytest.mark.parametrize("path,writer", [("screening_observations", "export"),     # + .csv: a later table
+                                         ("screening_observations.csv", "comparator-export"),
+                                         ("screening_anything.csv", "comparator-export")])
+def test_validate_refuses_a_writer_name_of_a_later_stages_table(tmp_path, path, writer):
+    p = _writer_before_tables(tmp_path, path, writer)
+    code, err = cli("validate", p)
+    assert code == 2, err
+    assert "p.toml:11, field 'path'" in err and "stage 'screening'" in err, err
+    code, err = cli("run", p, "--out", tmp_path / "run", "--quiet")         # the run: the same rule, first
+    assert code == 2 and "p.toml:11, field 'path'" in err, err
+    assert not (tmp_path / "run" / "results.json").exists()
+
+
+def test_declared_outputs_leave_other_names_free(tmp_path):
+    """A stage that declares its tables owns only those: a writer may use its own id's prefix, and
+    gnss-centres' id as a prefix of a name that is not its table (fixtures/gnss: gnss_points)."""
+    from baarda.pipeline.options import output_problem
+
+    assert output_problem("export_points", {"export": ()}) is None
+    assert output_problem("gnss_points", {"gnss": ("antennas",)}, adds=(".ply", ".csv")) is None
+    assert "gnss_antennas.csv" in output_problem("gnss_antennas", {"gnss": ("antennas",)}, adds=(".ply", ".csv"))
+    assert "stage 'bundle'" in output_problem("bundle_mine.csv", {"bundle": None})
+    assert output_problem("bundle/mine.csv", {"bundle": None}) is None          # a folder named as the id
+    code, err = cli("validate", _writer_before_tables(tmp_path, "export_points"))
+    assert code == 0, err
+
+
+@dataclass(frozen=True)
+class NoOpts:
+    pass
+
+
+class Undeclared(Stage):
+    summary = "writes a table its declaration does not name"
+    outputs = ("declared",)
+    Options = NoOpts
+
+    def run(self, inputs, options, ctx):
+        from baarda.pipeline.stage import TableData
+
+        return StageResult(tables={"other": TableData({"a": [1.0]})})
+
+
+def test_the_run_refuses_a_table_the_declaration_does_not_name(tmp_path):
+    from baarda.pipeline.testing import run_project_text
+
+    pm = make_plugin_manager({"undeclared": Undeclared})
+    out = run_project_text('[[stage]]\nuse = "undeclared"\nid = "u"\n', tmp_path, plugins=pm)
+    assert not out.ok and "'other'" in out.message and "outputs" in out.message, out.message
+    assert not (out.run_dir / "u_other.csv").exists()
