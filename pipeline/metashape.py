@@ -43,8 +43,11 @@ REFUSED = ("k4", "p3", "p4")
 
 
 def _parse(path: Path):
+    from defusedxml import DefusedXmlException
     from defusedxml import ElementTree as ET
     from xml.etree.ElementTree import ParseError
+
+    from baarda.pipeline.xmlsafe import refusal
 
     try:
         return ET.parse(str(path)).getroot()
@@ -53,8 +56,11 @@ def _parse(path: Path):
     except ParseError as e:
         line = e.position[0] if getattr(e, "position", None) else None
         raise InputError(f"not well-formed XML: {e}", path=path, line=line, field="xml") from None
-    except Exception as e:       # defusedxml refuses entities and DTDs
-        raise InputError(f"XML refused: {type(e).__name__}", path=path, field="xml") from None
+    except DefusedXmlException as e:       # defusedxml refuses entities and external references
+        raise refusal(e, path) from None
+    except (OSError, ValueError) as e:      # a folder, an unreadable file, bytes that are no text
+        raise InputError(f"cannot read the file as XML: {e.strerror if isinstance(e, OSError) else e}",
+                         path=path, field="xml") from None
 
 
 def _float(text, path, where, field, *, positive=False):

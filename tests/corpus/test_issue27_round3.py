@@ -209,3 +209,39 @@ def test_the_run_refuses_a_table_the_declaration_does_not_name(tmp_path):
     out = run_project_text('[[stage]]\nuse = "undeclared"\nid = "u"\n', tmp_path, plugins=pm)
     assert not out.ok and "'other'" in out.message and "outputs" in out.message, out.message
     assert not (out.run_dir / "u_other.csv").exists()
+
+
+# -- 5. the XML refusal in words ------------------------------------------------------------------
+
+BOMB = b'<?xml version="1.0"?>\n<!DOCTYPE d [\n <!ENTITY a "x">\n <!ENTITY b "&a;&a;">\n]>\n<document>&b;</document>\n'
+
+
+def test_each_defusedxml_refusal_is_said_in_words():
+    from defusedxml import common
+
+    from baarda.pipeline.xmlsafe import refusal_text
+
+    cases = {common.EntitiesForbidden("lol", "x", None, None, None, None): ("entity declarations", "<!ENTITY lol"),
+             common.DTDForbidden("d", None, None): ("document type declaration", "remove the DTD"),
+             common.ExternalReferenceForbidden(None, None, "file:///etc/passwd", None): ("external references",
+                                                                                          "file:///etc/passwd"),
+             common.NotSupportedError("x"): ("not support", "remove"),
+             common.DefusedXmlException(): ("refuses", "remove")}
+    for e, words in cases.items():
+        text = refusal_text(e, "cams.xml")
+        assert type(e).__name__ not in text and "cams.xml" in text, text
+        assert all(w in text for w in words), text
+
+
+def test_metashape_entity_refusal_names_the_line_in_words(tmp_path):
+    from baarda.pipeline.errors import InputError
+    from baarda.pipeline.metashape import read_metashape
+
+    f = tmp_path / "cams.xml"
+    f.write_bytes(BOMB)
+    with pytest.raises(InputError) as e:
+        read_metashape(f)
+    msg = str(e.value)
+    assert "EntitiesForbidden" not in msg and "XML refused" not in msg
+    assert "entity declarations (<!ENTITY a …>) are not allowed in cams.xml" in msg and "remove the DTD" in msg
+    assert e.value.line == 3 and e.value.field == "xml"
