@@ -764,6 +764,10 @@ def batch_cases() -> list[Case]:
         "cells-missing-of-two": "name,screening.alpha0,screening.threshold_mm\na,0.01,5\nb,0.02\n",
         "cells-too-many": "name,screening.alpha0\na,0.01,7\n",
         "unknown-stage": "bundle.max_iter\n3\n",
+        "project-missing": "project,screening.alpha0\nnope.toml,0.01\n",
+        "project-folder": "project,screening.alpha0\n.,0.01\n",
+        "project-not-toml": "project,screening.alpha0\ndata.cmp,0.01\n",
+        "project-stage-missing": "project,bundle.max_iter\nproject.toml,3\n",
     }
     return [Case(f"batch/{n}", {"data.cmp": DATA1, "sweep.csv": t}, base, command="batch", names="sweep.csv",
                  out="bout") for n, t in tables.items()]

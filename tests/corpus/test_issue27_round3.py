@@ -245,3 +245,62 @@ def test_metashape_entity_refusal_names_the_line_in_words(tmp_path):
     assert "EntitiesForbidden" not in msg and "XML refused" not in msg
     assert "entity declarations (<!ENTITY a …>) are not allowed in cams.xml" in msg and "remove the DTD" in msg
     assert e.value.line == 3 and e.value.field == "xml"
+
+
+# -- 4. a sweep table naming several projects ------------------------------------------------------
+
+BASE = ('[project]\nname = "{name}"\n\n[[stage]]\nuse = "comparator"\nid = "source"\n[stage.options]\n'
+        'path = "data.cmp"\n\n[[stage]]\nuse = "helmert-screening"\nid = "screening"\n[stage.options]\n'
+        'threshold_mm = {threshold}\n')
+
+
+def _two_projects(tmp_path: Path) -> None:
+    (tmp_path / "data.cmp").write_text(DATA1, encoding="utf-8")
+    (tmp_path / "p.toml").write_text(BASE.format(name="first", threshold=3.0), encoding="utf-8")
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / "data.cmp").write_text(DATA1, encoding="utf-8")
+    (tmp_path / "other" / "q.toml").write_text(BASE.format(name="second", threshold=7.0), encoding="utf-8")
+
+
+@pytest.mark.parametrize("table,text", [
+    ("sweep.csv", "name,project,screening.alpha0\na,p.toml,0.01\nb,other/q.toml,0.02\nc,,0.03\n"),
+    ("sweep.toml", '[[run]]\nname = "a"\nproject = "p.toml"\n"screening.alpha0" = 0.01\n\n'
+                   '[[run]]\nname = "b"\nproject = "other/q.toml"\n"screening.alpha0" = 0.02\n\n'
+                   '[[run]]\nname = "c"\n"screening.alpha0" = 0.03\n')])
+def test_each_sweep_row_runs_its_own_project(tmp_path, table, text):
+    """A table naming two projects: every row runs the project it names (its own options and inputs),
+    never the first one; a row without one runs the project given on the command line."""
+    import tomllib
+
+    _two_projects(tmp_path)
+    (tmp_path / table).write_text(text, encoding="utf-8")
+    code, err = cli("batch", tmp_path / "p.toml", "--sweep", tmp_path / table, "--out", tmp_path / "b",
+                    "--scheduler", "sync", "--quiet")
+    assert code == 0, err
+    resolved = {n: tomllib.loads((tmp_path / "b" / "runs" / n / "project.resolved.toml").read_text())
+                for n in "abc"}
+    screening = {n: next(s for s in r["stage"] if s["id"] == "screening")["options"] for n, r in resolved.items()}
+    assert [resolved[n]["project"]["name"] for n in "abc"] == ["first [a]", "second [b]", "first [c]"]
+    assert [screening[n]["threshold_mm"] for n in "abc"] == [3.0, 7.0, 3.0]
+    assert [screening[n]["alpha0"] for n in "abc"] == [0.01, 0.02, 0.03]
+    src = next(s for s in resolved["b"]["stage"] if s["id"] == "source")["options"]["path"]
+    assert Path(src) == (tmp_path / "other" / "data.cmp").resolve()     # q's own input, relative to q
+
+
+@pytest.mark.parametrize("text,line,field", [("project,screening.alpha0\np.toml,0.01\nnope.toml,0.02\n", 3, "project"),
+                                             ("project,screening.alpha0\nother,0.01\n", 2, "project")])
+def test_a_sweep_row_naming_a_missing_project_is_refused_with_its_line(tmp_path, text, line, field):
+    _two_projects(tmp_path)
+    (tmp_path / "sweep.csv").write_text(text, encoding="utf-8")
+    code, err = cli("batch", tmp_path / "p.toml", "--sweep", tmp_path / "sweep.csv", "--out", tmp_path / "b",
+                    "--scheduler", "sync", "--quiet")
+    assert code == 2 and f"sweep.csv:{line}, field '{field}'" in err, err
+    assert not (tmp_path / "b" / "runs").exists() or not any((tmp_path / "b" / "runs").iterdir())
+
+
+def test_several_projects_with_one_sweep_are_refused_by_name(tmp_path):
+    _two_projects(tmp_path)
+    (tmp_path / "sweep.csv").write_text("screening.alpha0\n0.01\n", encoding="utf-8")
+    code, err = cli("batch", tmp_path / "p.toml", tmp_path / "other" / "q.toml", "--sweep", tmp_path / "sweep.csv",
+                    "--out", tmp_path / "b", "--scheduler", "sync", "--quiet")
+    assert code == 2 and "sweep.csv" in err and "2 were given" in err and "column 'project'" in err, err
