@@ -304,3 +304,34 @@ def test_several_projects_with_one_sweep_are_refused_by_name(tmp_path):
     code, err = cli("batch", tmp_path / "p.toml", tmp_path / "other" / "q.toml", "--sweep", tmp_path / "sweep.csv",
                     "--out", tmp_path / "b", "--scheduler", "sync", "--quiet")
     assert code == 2 and "sweep.csv" in err and "2 were given" in err and "column 'project'" in err, err
+
+
+# -- 7. one mechanism where there were two ---------------------------------------------------------
+
+def test_the_model_exports_share_one_mechanism():
+    from baarda.pipeline.exporting import BlockExport, block_to_export
+    from baarda.plugins.colmap import stage as colmap_stage
+    from baarda.plugins.metashape.stage import MetashapeExport
+    from baarda.plugins.opensfm.stage import OpensfmExport
+
+    assert issubclass(MetashapeExport, BlockExport) and issubclass(OpensfmExport, BlockExport)
+    assert "run" not in vars(MetashapeExport) and "run" not in vars(OpensfmExport)
+    assert colmap_stage.block_to_export is block_to_export
+
+
+def test_gnss_centres_reads_its_csv_once_and_checks_photos_in_one_place(monkeypatch):
+    from baarda.pipeline.project import load_project, stage_context
+    from baarda.plugins.gcp import stage as gcp_stage
+
+    project = load_project(ROOT / "fixtures" / "gnss" / "gnss.toml")
+    source, gnss = project.stages[0], project.stages[1]
+    block = source.cls().validate(source.options, stage_context(project, source))
+    calls = []
+    real = gcp_stage.read_gnss_csv
+    monkeypatch.setattr(gcp_stage, "read_gnss_csv", lambda *a, **k: calls.append(a) or real(*a, **k))
+    matched = []
+    real_matched = gcp_stage.GnssCentres._matched
+    monkeypatch.setattr(gcp_stage.GnssCentres, "_matched",
+                        staticmethod(lambda *a: matched.append(a) or real_matched(*a)))
+    gnss.cls().run({"block": block}, gnss.options, stage_context(project, gnss))
+    assert len(calls) == 1 and len(matched) == 1
