@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from baarda.pipeline.camera.convert import BROWN
-from baarda.pipeline.errors import InputError
+from baarda.pipeline.errors import InputError, quote
 from baarda.pipeline.geometry.image import mm_from_pixels, pixels_from_mm
 from baarda.pipeline.geometry.pose import cv_from_pose, pose_from_cv
 from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points, SourceInfo
@@ -282,6 +282,8 @@ def read_metashape(path: str | Path, *, pixel_mm: float = 0.001, sigma_px: float
         if ref is not None and ref.get("x") is not None:
             xyz = [_float(ref.get(a), path, where, f"reference/@{a}") for a in "xyz"]
             role = "full" if ref.get("enabled", "true") not in ("false", "0") else "check"
+        if mid in m_key:
+            raise InputError(f"{where}: marker id {quote(mid)} is given twice", path=path, field=f"{where}/@id")
         m_key[mid] = len(m_ids)
         m_ids.append(m.get("label") or mid)
         m_xyz.append(xyz)

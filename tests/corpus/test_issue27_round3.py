@@ -335,3 +335,29 @@ def test_gnss_centres_reads_its_csv_once_and_checks_photos_in_one_place(monkeypa
                         staticmethod(lambda *a: matched.append(a) or real_matched(*a)))
     gnss.cls().run({"block": block}, gnss.options, stage_context(project, gnss))
     assert len(calls) == 1 and len(matched) == 1
+
+
+# -- 3. the new readers' corpora: findings of the fuzzing -------------------------------------------
+
+def test_a_metashape_marker_id_given_twice_is_an_input_error(tmp_path):
+    """Found by fuzzing (a line doubled): two markers with one id ended in an IndexError."""
+    from baarda.pipeline.errors import InputError
+    from baarda.pipeline.metashape import read_metashape
+
+    text = (Path(__file__).parent / "metashape" / "mini.xml").read_text(encoding="utf-8")
+    marker = '      <marker id="0" label="p0">'
+    assert marker in text
+    f = tmp_path / "cams.xml"
+    f.write_text(text.replace(marker, '      <marker id="0" label="q0"/>\n' + marker, 1), encoding="utf-8")
+    with pytest.raises(InputError) as e:
+        read_metashape(f)
+    assert e.value.field == "marker[@id='0']/@id" and "given twice" in e.value.message
+
+
+def test_a_long_element_path_keeps_its_end_in_the_message():
+    """A field longer than 40 characters (an XML element path) showed as 'of 52 characters'."""
+    from baarda.pipeline.errors import InputError
+
+    e = InputError("must be a number", "cams.xml", None, "sensor[@id='0']/property[@name='pixel_width']/@value")
+    assert "of 52 characters" not in str(e) and "/@value'" in str(e), str(e)
+    assert "of 3 characters" in str(InputError("x", "f", None, "a\x00b"))      # never a file's raw bytes
