@@ -40,9 +40,10 @@ class BlockExport(Stage):
     """A stage writing the block (adjusted, if a bundle of it ran before) with a format's writer.
 
     Subclasses set ``summary``, ``Options`` (with a ``path`` option), ``path_is`` (what ``path``
-    names, for the message when it is missing: ``"the output file"``) and define
-    ``write(block, out, options) -> dict`` (the writer's counts; ``ValueError`` for a block the
-    format cannot hold) and ``headline(info, options, which) -> str``.
+    names, for the message when it is missing: ``"the output file"``), ``writer`` (a
+    ``staticmethod``: ``writer(block, out) -> dict`` of counts, ``ValueError`` for a block the format
+    cannot hold) and ``headline_format`` (filled with ``path``, ``which`` and the writer's counts);
+    a format with options of its own overrides ``write(block, out, options)`` or ``headline``.
     """
 
     reads = ("block", "bundle?")
@@ -50,12 +51,13 @@ class BlockExport(Stage):
     paths = {"path": "output"}
     outputs = ()                          # no table or figure: every other name is free for path
     path_is: ClassVar[str] = "the output file"
+    headline_format: ClassVar[str] = "{path} (block {which})"
 
     def write(self, block, out, options) -> dict:
-        raise NotImplementedError  # pragma: no cover - the format's writer
+        return type(self).writer(block, out)
 
     def headline(self, info: dict, options: Any, which: str) -> str:
-        raise NotImplementedError  # pragma: no cover - the format's one line
+        return self.headline_format.format(**{**info, "path": options.path, "which": which})
 
     def run(self, inputs, options, ctx: Context) -> StageResult:
         if not str(options.path) or str(options.path) == ".":

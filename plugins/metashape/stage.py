@@ -71,10 +71,6 @@ class MetashapeExport(BlockExport):
     summary = "block (adjusted if a bundle of it ran) → Metashape camera XML"
     Options = MetashapeExportOptions
     path_is = "the output file"
-
-    def write(self, block, out, options: MetashapeExportOptions) -> dict:
-        return write_metashape(block, out)
-
-    def headline(self, info: dict, options: MetashapeExportOptions, which: str) -> str:
-        return (f"Metashape XML {options.path} (block {which}): {info['sensors']} sensor(s), {info['cameras']} "
-                f"cameras, {info['markers']} markers, {info['observations']} projections")
+    writer = staticmethod(write_metashape)
+    headline_format = ("Metashape XML {path} (block {which}): {sensors} sensor(s), {cameras} cameras, {markers} "
+                       "markers, {observations} projections")

@@ -81,10 +81,6 @@ class OpensfmExport(BlockExport):
     summary = "block (adjusted if a bundle of it ran) → OpenSfM reconstruction.json + tracks.csv"
     Options = OpensfmExportOptions
     path_is = "the output folder"
-
-    def write(self, block, out, options: OpensfmExportOptions) -> dict:
-        return write_opensfm(block, out)
-
-    def headline(self, info: dict, options: OpensfmExportOptions, which: str) -> str:
-        return (f"OpenSfM reconstruction {options.path}/ (block {which}): {info['cameras']} camera(s), "
-                f"{info['shots']} shots, {info['points']} points, {info['observations']} observations")
+    writer = staticmethod(write_opensfm)
+    headline_format = ("OpenSfM reconstruction {path}/ (block {which}): {cameras} camera(s), {shots} shots, "
+                       "{points} points, {observations} observations")
