@@ -264,9 +264,9 @@ def _two_projects(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("table,text", [
     ("sweep.csv", "name,project,screening.alpha0\na,p.toml,0.01\nb,other/q.toml,0.02\nc,,0.03\n"),
-    ("sweep.toml", '[[run]]\nname = "a"\nproject = "p.toml"\n"screening.alpha0" = 0.01\n\n'
-                   '[[run]]\nname = "b"\nproject = "other/q.toml"\n"screening.alpha0" = 0.02\n\n'
-                   '[[run]]\nname = "c"\n"screening.alpha0" = 0.03\n')])
+    pytest.param("sweep.toml", '[[run]]\nname = "a"\nproject = "p.toml"\n"screening.alpha0" = 0.01\n\n'
+                               '[[run]]\nname = "b"\nproject = "other/q.toml"\n"screening.alpha0" = 0.02\n\n'
+                               '[[run]]\nname = "c"\n"screening.alpha0" = 0.03\n', marks=pytest.mark.slow)])
 def test_each_sweep_row_runs_its_own_project(tmp_path, table, text):
     """A table naming two projects: every row runs the project it names (its own options and inputs),
     never the first one; a row without one runs the project given on the command line."""
