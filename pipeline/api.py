@@ -25,7 +25,7 @@ from .model import Block, CircleTargets
 from .options import NoOptions, option
 from .recording import (ROLE_COLORS, entity_part, log_block, log_text, log_values, point_ellipsoids,
                         role_colors, thin, view_from_photo, view_vectors, viewer_text)
-from .stage import Context, Progress, SourceStage, Stage, StageResult, TableData
+from .stage import Context, Progress, RowBound, SourceStage, Stage, StageResult, TableData, ValidationContext
 from .stats.snapshot import Snapshot
 
 # libraries and engine modules stages share (independent models, COLMAP models in and out)
@@ -35,6 +35,7 @@ from .colmap import block_from_reconstruction, read_colmap, read_reconstruction,
 __all__ = [
     # the protocol
     "Stage", "SourceStage", "StageResult", "TableData", "Context", "Progress", "option", "NoOptions",
+    "ValidationContext", "RowBound",
     # the bundle workflow as a library (docs/library.md)
     "adjust", "BundleConfig", "BundleReport", "SolverConfig", "StatTestsConfig", "RobustConfig",
     "VarianceComponentsConfig", "APSelectionConfig", "OutputConfig", "EccentricityConfig", "ScaleBar",

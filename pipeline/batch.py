@@ -19,9 +19,11 @@ whose header names ``<stage id>.<option>`` columns (``<stage id>.<table>.<option
 of a nested table, ``bundle.solver.max_iter``; the stage id is what the column starts with, the
 rest the option's dotted path, applied as ``--set`` applies it) and optionally ``name``, one run per row,
 cells read as TOML values (``0.01``, ``true``, ``"text"``, ``[1, 2]``; a bare word is a string),
-or a TOML file of ``[[run]]`` tables with the same keys.  Every name and value is checked against
-the stage's options before anything runs (an InputError naming the table, its line and the
-column).
+or a TOML file of ``[[run]]`` tables with the same keys.  A column ``project`` names a row's own
+project file (relative to the table; an empty cell: the project given), so one table may sweep
+several projects: each row runs its own project, never another.  Every name and value is checked
+against the stage's options of the row's project before anything runs (an InputError naming the
+table, its line and the column).
 """
 
 from __future__ import annotations
@@ -123,26 +125,35 @@ def plan_batch(projects: list[str | Path], out: str | Path, sweep: str | Path | 
         names = _unique_names([p.stem for p in paths])
         return [BatchJob(name=n, project=p, out=out / "runs" / n, source=str(p)) for n, p in zip(names, paths)]
     if len(paths) != 1:
-        raise InputError(f"a sweep applies to one project; {len(paths)} were given", path=sweep, field="--sweep")
+        raise InputError(f"a sweep applies to one project; {len(paths)} were given (a sweep over several projects "
+                         f"names each row's project file in a column '{PROJECT_COLUMN}')", path=sweep,
+                         field="--sweep")
     base = load_project(paths[0], plugins)
     rows = read_sweep(sweep, base, plugins)
     out = open_batch(out)
-    names = _unique_names([r["name"] or f"{paths[0].stem}-{k + 1:03d}" for k, r in enumerate(rows)])
+    names = _unique_names([r["name"] or f"{r['project'].path.stem}-{k + 1:03d}" for k, r in enumerate(rows)])
     (out / "projects").mkdir(parents=True, exist_ok=True)
     jobs = []
     for name, row in zip(names, rows):
         path = out / "projects" / f"{name}.toml"
-        _write_variant(base, row["overrides"], name, path, plugins)
+        _write_variant(row["project"], row["overrides"], name, path, plugins)
         jobs.append(BatchJob(name=name, project=path, out=out / "runs" / name,
                              source=f"{sweep}:{row['line']}", overrides=dict(row["overrides"])))
     return jobs
 
 
+PROJECT_COLUMN = "project"
+"""The sweep column (CSV) or ``[[run]]`` key (TOML) naming a row's own project file (relative to the
+sweep table); an empty cell: the project given on the command line."""
+
+
 def read_sweep(path: str | Path, project, plugins: PluginManager | None = None) -> list[dict]:
-    """Rows of a sweep table, each ``{"name", "line", "overrides": {"stage.option": value}}``,
-    every row applied to ``project`` (:func:`~baarda.pipeline.project.with_overrides`, the check
-    of ``--set``): its columns against the stages and options, its values against their types and
-    ranges."""
+    """Rows of a sweep table, each ``{"name", "line", "project", "overrides": {"stage.option":
+    value}}``, every row applied to its project — the one its ``project`` cell names (a path
+    relative to the table), else ``project`` — by :func:`~baarda.pipeline.project.with_overrides`
+    (the check of ``--set``): its columns against that project's stages and options, its values
+    against their types and ranges.  A project file that does not exist or does not load is an
+    InputError naming the table's line and the column ``project``."""
     plugins = plugins or PluginManager()
     path = Path(path)
     if not path.is_file():
@@ -170,7 +181,12 @@ def read_sweep(path: str | Path, project, plugins: PluginManager | None = None) 
             name = r.get("name", "")
             if not isinstance(name, str):
                 raise InputError("name must be a string", path=path, line=line, field="name")
-            rows.append({"name": name, "line": line, "overrides": {c: v for c, v in r.items() if c != "name"}})
+            proj = r.get(PROJECT_COLUMN, "")
+            if not isinstance(proj, str):
+                raise InputError("project must be a string (a project file)", path=path, line=line,
+                                 field=PROJECT_COLUMN)
+            rows.append({"name": name, "line": line, "project": proj.strip(),
+                         "overrides": {c: v for c, v in r.items() if c not in ("name", PROJECT_COLUMN)}})
     else:
         reader = csv.reader(io.StringIO(text))
         try:
@@ -192,7 +208,8 @@ def read_sweep(path: str | Path, project, plugins: PluginManager | None = None) 
                 raise InputError(f"{len(cells)} cells for {len(header)} columns", path=path, line=line)
             row = dict(zip(header, cells))
             name = row.pop("name", "").strip()
-            rows.append({"name": name, "line": line,
+            proj = row.pop(PROJECT_COLUMN, "").strip()
+            rows.append({"name": name, "line": line, "project": proj,
                          "overrides": {c: toml_value(v) for c, v in row.items() if v.strip() != ""}})
     if not rows:
         raise InputError("the sweep table has no runs", path=path)
@@ -207,10 +224,37 @@ def read_sweep(path: str | Path, project, plugins: PluginManager | None = None) 
                              field="name")
         named[folder] = row["line"]
     is_toml = path.suffix.lower() == ".toml"
+    loaded: dict[Path, Any] = {Path(project.path).resolve(): project}
+    for row in rows:       # each row's project: its own, or the one given
+        row["project"] = _row_project(row, path, loaded, project, plugins)
     for row in rows:       # names, types and ranges as --set checks them: the table, its line, the column
-        with_overrides(project, Overrides(row["overrides"], source=path, line=row["line"],
-                                          name_line=row["line"] if is_toml else 1), plugins)
+        with_overrides(row["project"], Overrides(row["overrides"], source=path, line=row["line"],
+                                                 name_line=row["line"] if is_toml else 1), plugins)
     return rows
+
+
+def _row_project(row: dict, table: Path, loaded: dict, default, plugins):
+    """The loaded project of a sweep row: its ``project`` cell (relative to the sweep table), or
+    ``default``.  A file that is missing, not a file, or does not load is an InputError on the
+    row's line and the column ``project`` (a project's own mistake names that project's file)."""
+    text = row["project"]
+    if not text:
+        return default
+    p = Path(text).expanduser()
+    p = (p if p.is_absolute() else table.parent / p).resolve()
+    if p in loaded:
+        return loaded[p]
+    if not p.is_file():
+        raise InputError(f"project file {'not found' if not p.exists() else 'is not a file'}: {p}", path=table,
+                         line=row["line"], field=PROJECT_COLUMN)
+    try:
+        loaded[p] = load_project(p, plugins)
+    except InputError as e:
+        if e.path is not None and Path(str(e.path)).resolve() == p:    # its own mistake: its file, line, field
+            raise InputError(f"{e.message} (the project of {table.name}:{row['line']})", e.path, e.line,
+                             e.field) from None
+        raise InputError(f"project {p.name}: {e}", path=table, line=row["line"], field=PROJECT_COLUMN) from None
+    return loaded[p]
 
 
 def _write_variant(project, overrides: dict, name: str, path: Path, plugins=None) -> None:

@@ -45,8 +45,12 @@ class InputError(BaardaError):
             where = self.path
             if self.line is not None:
                 where += f":{self.line}"
-        fld = self.field if self.field is None or len(self.field) <= 40 and self.field.isprintable() else (
-            f"of {len(self.field)} characters")                  # never a file's contents
+        fld = self.field
+        if fld is not None and not fld.isprintable():
+            fld = f"of {len(fld)} characters"                    # never a file's contents
+        elif fld is not None and len(fld) > 40:                  # a long element path: its end names the field
+            tail = fld[-39:]
+            fld = "…" + (tail[tail.index("/"):] if "/" in tail else tail)
         parts = [p for p in (where, f"field '{fld}'" if fld else "") if p]
         prefix = ", ".join(parts)
         return f"{prefix}: {self.message}" if prefix else self.message

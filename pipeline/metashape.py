@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from baarda.pipeline.camera.convert import BROWN
-from baarda.pipeline.errors import InputError
+from baarda.pipeline.errors import InputError, quote
 from baarda.pipeline.geometry.image import mm_from_pixels, pixels_from_mm
 from baarda.pipeline.geometry.pose import cv_from_pose, pose_from_cv
 from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points, SourceInfo
@@ -43,8 +43,11 @@ REFUSED = ("k4", "p3", "p4")
 
 
 def _parse(path: Path):
+    from defusedxml import DefusedXmlException
     from defusedxml import ElementTree as ET
     from xml.etree.ElementTree import ParseError
+
+    from baarda.pipeline.xmlsafe import refusal
 
     try:
         return ET.parse(str(path)).getroot()
@@ -53,8 +56,11 @@ def _parse(path: Path):
     except ParseError as e:
         line = e.position[0] if getattr(e, "position", None) else None
         raise InputError(f"not well-formed XML: {e}", path=path, line=line, field="xml") from None
-    except Exception as e:       # defusedxml refuses entities and DTDs
-        raise InputError(f"XML refused: {type(e).__name__}", path=path, field="xml") from None
+    except DefusedXmlException as e:       # defusedxml refuses entities and external references
+        raise refusal(e, path) from None
+    except (OSError, ValueError) as e:      # a folder, an unreadable file, bytes that are no text
+        raise InputError(f"cannot read the file as XML: {e.strerror if isinstance(e, OSError) else e}",
+                         path=path, field="xml") from None
 
 
 def _float(text, path, where, field, *, positive=False):
@@ -276,6 +282,8 @@ def read_metashape(path: str | Path, *, pixel_mm: float = 0.001, sigma_px: float
         if ref is not None and ref.get("x") is not None:
             xyz = [_float(ref.get(a), path, where, f"reference/@{a}") for a in "xyz"]
             role = "full" if ref.get("enabled", "true") not in ("false", "0") else "check"
+        if mid in m_key:
+            raise InputError(f"{where}: marker id {quote(mid)} is given twice", path=path, field=f"{where}/@id")
         m_key[mid] = len(m_ids)
         m_ids.append(m.get("label") or mid)
         m_xyz.append(xyz)

@@ -31,10 +31,11 @@ from __future__ import annotations
 import dataclasses
 import re
 import difflib
+import fnmatch
 import types
 import typing
 from pathlib import Path
-from typing import Any, Literal, get_args, get_origin
+from typing import Any, Iterable, Literal, Mapping, get_args, get_origin
 
 from .errors import InputError
 
@@ -501,9 +502,46 @@ stages' ``<id>.error.txt``; the stages' tables ``<id>_<name>.csv/.png`` are know
 written: :meth:`~baarda.pipeline.stage.Context.output_path` refuses a file already in the run)."""
 
 
+TABLE_SUFFIXES = (".csv", ".parquet", ".png")
+"""What the runner makes of a stage's table or figure ``<id>_<name>``: ``.csv`` + ``.parquet``
+(tables), ``.png`` (figures)."""
+
+
+def stage_file_patterns(stage_id: str, outputs: Iterable[str] | None) -> tuple[str, ...]:
+    """The names (``fnmatch`` patterns, at the top of the run directory) of the tables and figures
+    stage ``stage_id`` writes, from its ``outputs`` declaration — the names (patterns allowed,
+    ``"distortion_*"``) of its tables and figures.  A stage without the declaration (None) owns
+    every name ``<id>_*``."""
+    if outputs is None:
+        return (f"{stage_id}_*",)
+    return tuple(f"{stage_id}_{o}{suffix}" for o in outputs for suffix in TABLE_SUFFIXES)
+
+
+def declared_outputs(cls: type) -> tuple[str, ...] | None:
+    """A stage class's ``outputs`` declaration (None when it has none)."""
+    out = getattr(cls, "outputs", None)
+    return None if out is None else tuple(str(o) for o in out)
+
+
+def _owned(stage_ids) -> dict[str, tuple[str, ...]]:
+    """``{stage id: its file patterns}`` from a mapping ``{id: outputs declaration}`` or ids alone
+    (then each owns ``<id>_*``)."""
+    if isinstance(stage_ids, Mapping):
+        return {str(sid): stage_file_patterns(str(sid), outs) for sid, outs in stage_ids.items()}
+    return {str(sid): stage_file_patterns(str(sid), None) for sid in stage_ids}
+
+
 def run_file_clash(name: str, stage_ids=()) -> str | None:
     """Why ``name`` (a POSIX path relative to the run directory) is a file the run writes itself,
-    or None."""
+    or None.  ``stage_ids``: the project's stage ids, or ``{id: outputs declaration}`` (the names of
+    each stage's tables and figures, :func:`stage_file_patterns`)."""
+    top = name.split("/")[0]
+    for sid, patterns in _owned(stage_ids).items():
+        hit = next((p for p in patterns if fnmatch.fnmatchcase(top, p)), None)
+        if hit is not None:
+            what = (f"a name of stage '{sid}', whose tables and figures are {sid}_<name>.csv/.parquet/.png"
+                    if hit == f"{sid}_*" else f"a table or figure of stage '{sid}' ({hit})")
+            return f"'{top}' is {what}"
     if "/" in name:
         return None
     if name in RUN_OWN_FILES:
@@ -522,7 +560,11 @@ def output_problem(value: Any, stage_ids=(), adds=("",)) -> str | None:
     Outputs are written inside the run directory: the path must be relative, must not climb out
     of it, must not be empty or the run directory itself (``""``, ``"."``, ``"a/.."``), and none of
     the names the writer makes of it (``value`` + each of ``adds``, e.g. ``.ply``/``.csv``) may be
-    a file the run writes itself (:func:`run_file_clash`)."""
+    a file the run writes itself (:func:`run_file_clash`): the runner's own files, recordings,
+    error files, and every stage's tables and figures (``stage_ids`` as ``{id: outputs
+    declaration}``; a stage id alone owns every ``<id>_*``) — whether that stage runs before or
+    after the writer.  ``baarda validate`` (project loading) and the writer in the run
+    (:meth:`~baarda.pipeline.stage.Context.output_path`) apply this one rule."""
     text = str(value if value is not None else "")
     if not text.strip():
         return "an output path must name a file or folder inside the run directory; got an empty path"

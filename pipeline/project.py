@@ -38,10 +38,10 @@ from pathlib import Path
 from typing import Any, Literal, Mapping, get_args, get_origin
 
 from .errors import BaardaError, InputError
-from .options import Where, option, output_problem, parse_options, to_plain
+from .options import Where, declared_outputs, option, output_problem, parse_options, to_plain
 from .plausibility import check_block
 from .plugins import PluginManager
-from .stage import Context
+from .stage import Context, RowBound, ValidationContext, keeps_rows
 
 PROJECT_KEYS = {"name", "description", "seed", "object_unit"}
 STAGE_KEYS = {"use", "id", "options", "enabled"}
@@ -340,6 +340,7 @@ def _build(path: Path, text: str, data: dict, plugins: PluginManager,
 
     available: dict[str, str] = {}
     all_ids = tuple(c[2] for c in chosen)
+    owners = {c[2]: declared_outputs(c[3].cls) for c in chosen}      # every stage's tables and figures
     outputs: dict[str, str] = {}             # every output name of the project → its stage
     for k, raw, sid, info in chosen:
         use, line = info.name, loc.stage(k)
@@ -360,7 +361,7 @@ def _build(path: Path, text: str, data: dict, plugins: PluginManager,
 
         options = parse_options(info.cls.Options, raw, path=path, line=line, locate=locate)
         for name, role in path_roles(info.cls).items():
-            problem = (output_problem(getattr(options, name), all_ids, getattr(info.cls, "output_adds", {}).get(name, ("",)))
+            problem = (output_problem(getattr(options, name), owners, getattr(info.cls, "output_adds", {}).get(name, ("",)))
                        if role == "output" else None)
             if role == "output" and not problem:      # two writers, one file: the second would fail
                 for made in _output_names(getattr(options, name), getattr(info.cls, "output_adds", {}).get(name, ("",))):
@@ -506,30 +507,33 @@ def stage_context(project: Project, spec: StageSpec, **kw):
     return Context(stage_id=spec.id, project_dir=project.directory, seed=project.seed,
                    project_file=project.path, object_unit=project.object_unit,
                    option_lines=dict(spec.option_lines), stage_line=spec.line,
-                   stage_ids=tuple(s.id for s in project.stages), **kw)
+                   stage_ids=tuple(s.id for s in project.stages),
+                   stage_outputs={s.id: declared_outputs(s.cls) for s in project.stages}, **kw)
 
 
 def validate_inputs(project: Project) -> list[str]:
     """Check what a loaded project's options name, without running anything.
 
     For every stage in order: each option naming files (:func:`path_roles`) is resolved against
-    the project file and must exist; then the stage's ``validate(options, ctx)`` hook, if any,
-    runs (a source stage parses its files there; when it returns the block it read, the checks
-    every source's block gets in a run, :func:`~baarda.pipeline.plausibility.check_block`, run too);
-    a stage without it but with ``validate_block(block, options, ctx)`` gets the last source's block
-    (the bundle checks its ``fix``/``free``/``sigma`` names against the cameras' models there).  The first mistake raises :class:`InputError`
-    (the project file, the option's line and name for a missing path; the input file's own line
-    and field for a mistake inside it).  A stage that reads the block may have a
-    ``validate_block(options, block, ctx)`` hook: it gets the block the sources before it read (as
-    read, before any adjustment) and checks the options that must fit it (point ids of a datum,
-    camera names).  A stage with ``validate_rows(options, block, adjuster, ctx)`` gets the last
-    source's block and the :class:`StageSpec` of the stage that writes the adjustment it reads, when
-    no other stage changed the block in between (blunder-rejection bounds RRR's ``rho`` by n − u).
-    Returns the warnings of the hooks as ``"[id] text"``.
+    the project file and must exist; then the stage's ``validate_with(v)`` hook, if any, gets a
+    :class:`~baarda.pipeline.stage.ValidationContext` ``v``: the block the sources before it read
+    (as read, before any adjustment; None once a stage changed it in ways validate cannot know),
+    a block whose observation rows bound those of the adjustment's block (``v.rows``: the last
+    source's block or a source's dry construction, kept across stages that declare
+    ``keeps_rows``), the stage that writes the adjustment it reads and the project — for the
+    options that must fit them (the bundle's point ids and parameter names, the GNSS CSV's photos,
+    RRR's ``rho`` below n − u).  Then the stage's ``validate(options, ctx)`` hook, if any, runs (a
+    source stage parses its files there; when it returns the block it read, the checks every
+    source's block gets in a run, :func:`~baarda.pipeline.plausibility.check_block`, run too; a
+    :class:`~baarda.pipeline.stage.RowBound` is a dry construction that only bounds the rows).
+    The first mistake raises :class:`InputError` (the project file, the option's line and name for
+    a missing path; the input file's own line and field for a mistake inside it).  Returns the
+    warnings of the hooks as ``"[id] text"``.
     """
     warnings = []
-    latest = None                   # the block the sources read so far (for ``validate_block`` hooks)
-    source, since, adjuster = None, [], None   # the last source's block, stages that changed it since, the adjuster
+    latest = None                   # the block the sources read so far (ValidationContext.block)
+    rows = None                     # a block bounding the rows of the block now in the pipeline
+    adjuster = None                 # the spec of the stage that wrote the adjustment so far
     for spec in project.stages:
         for name, role in path_roles(spec.cls).items():
             if role == "output":
@@ -538,23 +542,48 @@ def validate_inputs(project: Project) -> list[str]:
             if problem:
                 raise InputError(problem, project.path, spec.option_lines.get(name, spec.line), name)
         ctx = stage_context(project, spec)
-        block_hook = getattr(spec.cls, "validate_block", None)
-        if block_hook is not None and latest is not None and "block" in [r.rstrip("?") for r in spec.cls.reads]:
-            spec.cls().validate_block(spec.options, latest, ctx)      # options that must fit the block
-        if (getattr(spec.cls, "validate_rows", None) is not None and source is not None
-                and all(s is adjuster for s in since)):
-            spec.cls().validate_rows(spec.options, source, adjuster, ctx)   # counts the adjustment's rows bound
+        reads_block = "block" in [r.rstrip("?") for r in spec.cls.reads]
+        v = ValidationContext(options=spec.options, ctx=ctx, block=latest if reads_block else None,
+                              rows=rows, adjuster=adjuster, spec=spec, project=project)
+        dry = run_validate_with(spec.cls(), v)
         hook = getattr(spec.cls, "validate", None)
         block = spec.cls().validate(spec.options, ctx) if hook is not None else None
-        if block is not None and hasattr(block, "observations"):      # a source's block: the runner's checks
+        block = dry if isinstance(dry, RowBound) else block
+        if isinstance(block, RowBound):                                # a dry construction: rows only
+            latest, rows = None, block.block
+        elif block is not None and hasattr(block, "observations"):    # a source's block: the runner's checks
             for w in check_block(block):
                 ctx.warn(w)
-            latest = source = block
-            since = []
+            latest = rows = block
         elif "block" in [w.rstrip("?") for w in spec.cls.writes]:
             latest = None           # a stage changes the block in ways validate cannot know: no guesses
-            since.append(spec)
+            if not keeps_rows(spec.cls, spec.options):
+                rows = None
         if "adjustment" in [w.rstrip("?") for w in spec.cls.writes]:
             adjuster = spec
         warnings += [f"[{spec.id}] {w}" for w in ctx.warnings]
     return warnings
+
+
+def run_validate_with(stage: Any, v: ValidationContext) -> Any:
+    """A stage's ``validate_with(v)`` hook (returns what it returns: None, or a
+    :class:`~baarda.pipeline.stage.RowBound` for a block that exists only during the run), or the
+    two hooks it replaces (with a DeprecationWarning): ``validate_block(options, block, ctx)`` when
+    ``v.block`` is known, ``validate_rows(options, rows, adjuster, ctx)`` when ``v.rows`` is."""
+    import warnings as _warnings
+
+    hook = getattr(stage, "validate_with", None)
+    if hook is not None:
+        return hook(v)
+    cls = type(stage).__qualname__
+    if getattr(stage, "validate_block", None) is not None:
+        _warnings.warn(f"{cls}.validate_block(options, block, ctx) is deprecated: define validate_with(v) "
+                       "(baarda.pipeline.api.ValidationContext; docs/plugins.md)", DeprecationWarning, stacklevel=2)
+        if v.block is not None:
+            stage.validate_block(v.options, v.block, v.ctx)
+    if getattr(stage, "validate_rows", None) is not None:
+        _warnings.warn(f"{cls}.validate_rows(options, block, adjuster, ctx) is deprecated: define "
+                       "validate_with(v) (baarda.pipeline.api.ValidationContext; docs/plugins.md)",
+                       DeprecationWarning, stacklevel=2)
+        if v.rows is not None:
+            stage.validate_rows(v.options, v.rows, v.adjuster, v.ctx)

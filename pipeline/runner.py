@@ -35,6 +35,7 @@ from typing import Any
 
 from . import __version__
 from .errors import AdjustmentError, BaardaError, InputError
+from .options import declared_outputs
 from .plugins import PluginManager
 from .plausibility import check_block
 from .project import Project, load_project, stage_context
@@ -125,6 +126,10 @@ def run_project(project_path: str | Path, out: str | Path | None = None, *,
                            if w.rstrip("?") not in result.artefacts and not w.endswith("?")]
                 if missing:
                     raise TypeError(f"stage did not produce the artefact(s) it declares: {', '.join(missing)}")
+                undeclared = undeclared_outputs(spec, [*result.tables, *result.figures])
+                if undeclared:
+                    raise TypeError(f"stage wrote table or figure '{undeclared[0]}', which its 'outputs' "
+                                    "declaration does not name (baarda validate cannot keep writers off it)")
                 if "block" in result.artefacts and "block" not in inputs:     # a source: check what it read
                     for w in check_block(result.artefacts["block"]):
                         ctx.warn(w)
@@ -188,6 +193,18 @@ def _first_line(e: BaseException) -> str:
     return text[0][:200] if text else ""
 
 
+def undeclared_outputs(spec, names) -> list[str]:
+    """The table or figure names of ``names`` that the stage's ``outputs`` declaration does not
+    name (none for a stage without the declaration: it owns every ``<id>_*``) — the run keeps to
+    what ``baarda validate`` knows (:func:`~baarda.pipeline.options.stage_file_patterns`)."""
+    import fnmatch
+
+    outs = declared_outputs(spec.cls)
+    if outs is None:
+        return []
+    return [str(n) for n in names if not any(fnmatch.fnmatchcase(str(n), o) for o in outs)]
+
+
 def _write_outputs(run_dir, spec, stage, result, ctx, rec, recording_id, outputs="full") -> None:
     written = write_tables(run_dir, spec.id, result.tables, outputs=outputs)
     rec.tables, rec.skipped = written.tables, written.skipped
@@ -226,6 +243,10 @@ def _write_plots(run_dir, spec, stage, result, ctx, rec) -> None:
 
     use_agg()
     figs = stage.plots(result, ctx) or {}
+    undeclared = undeclared_outputs(spec, figs)
+    if undeclared:
+        raise TypeError(f"plots() drew figure '{undeclared[0]}', which the stage's 'outputs' declaration does "
+                        "not name")
     with ctx.progress.bar(len(figs), "figures", unit="fig") as bar:     # Agg renders in savefig
         for name, item in figs.items():
             fig, caption = item if isinstance(item, tuple) else (item, "")

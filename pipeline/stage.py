@@ -17,6 +17,21 @@ A stage is a class with
   a source stage reads and checks its input files here (raising :class:`InputError`) with the
   code and messages of ``run``, without adjusting anything, and returns the block it read.
   ``ctx.run_dir`` is None and there are no artefacts;
+* ``validate_with(v)`` (optional) — what ``baarda validate`` checks of the options against what
+  the earlier stages give: ``v`` is a :class:`ValidationContext` (the options, the context, the
+  block the sources read, a block bounding the adjustment's rows, the stage that adjusts, the
+  project).  Raise :class:`InputError` for the first mistake (``v.ctx.option_error``).  The two
+  hooks of earlier versions, ``validate_block(options, block, ctx)`` and ``validate_rows(options,
+  block, adjuster, ctx)``, still run with a ``DeprecationWarning``;
+* ``keeps_rows`` (optional) — True (or a function of the options returning True) when the block the
+  stage writes has no observation row the block it reads lacks (an adjustment that flags or removes
+  rows; a detection that measures the points of its input block): ``baarda validate`` then keeps
+  bounding the adjustment's redundancy across it;
+* ``outputs`` (optional) — the names of the tables and figures the stage writes (``<id>_<name>``
+  .csv/.parquet/.png; ``fnmatch`` patterns such as ``"distortion_*"`` for names made of the data).
+  ``baarda validate`` refuses an output option of any stage (a writer's ``path``) that would be
+  one of them, whether the stage runs before or after the writer; a stage without the declaration
+  owns every name ``<id>_*``.  The runner refuses a table or figure the declaration does not name;
 * ``paths`` (optional) — ``{option name: role}`` for options naming files.  An option typed
   ``Path`` (or ``Path | None``, ``list[Path]``) is an ``"input"`` relative to the project file
   that must exist; other roles: ``"glob"`` (list of files or glob patterns), ``"prefix"`` (a
@@ -315,6 +330,9 @@ class Context:
     """Line of the stage's ``[[stage]]`` table in ``project_file``."""
     stage_ids: tuple[str, ...] = ()
     """Ids of every stage of the project (their tables' names are the run's own; :meth:`output_path`)."""
+    stage_outputs: Mapping[str, Any] = field(default_factory=dict)
+    """``{stage id: its outputs declaration (names of its tables and figures) or None}`` for every
+    stage of the project (:func:`~baarda.pipeline.options.stage_file_patterns`; :meth:`output_path`)."""
     threads: int = 1
     """Cores the stage may use for work that pays (``baarda run --threads``; e.g. the bundle's
     sparse route).  BLAS itself stays single-threaded outside such work."""
@@ -343,7 +361,8 @@ class Context:
         a file already in the run directory (a folder may be: writers add files to it) — each an
         :class:`InputError` on the option.
         """
-        problem = output_problem(value, self.stage_ids, adds)
+        owners = {**{sid: None for sid in self.stage_ids}, **dict(self.stage_outputs)}
+        problem = output_problem(value, owners, adds)
         if problem:
             raise self.option_error(problem, key)
         base = self.run_dir if self.run_dir is not None else self.project_dir
@@ -368,6 +387,51 @@ class Context:
     def warn(self, text: str) -> None:
         self.warnings.append(text)
         self.progress.message(f"warning: {text}")
+
+
+@dataclass
+class ValidationContext:
+    """What ``baarda validate`` gives a stage's ``validate_with(v)`` hook.
+
+    options : the stage's parsed options;
+    ctx : its :class:`Context` (``ctx.run_dir`` is None; ``ctx.option_error`` names the project
+        file, the option's line and the option);
+    block : the block the sources before it read, as read (before any adjustment), or None when a
+        stage in between changed it in ways validate cannot know (or no source came before);
+    rows : a block with at least every observation row the block of the stage's adjustment can
+        have — the last source's block, or a dry construction of a block that exists only during
+        the run (the rendered test field: every target in front of every camera), kept across the
+        stages that declare ``keeps_rows`` — or None;
+    adjuster : the :class:`~baarda.pipeline.project.StageSpec` of the stage that writes the
+        ``adjustment`` the stage reads (None when there is none);
+    spec, project : the stage's own spec and the whole project (every stage, in order).
+    """
+
+    options: Any
+    ctx: "Context"
+    block: Any = None
+    rows: Any = None
+    adjuster: Any = None
+    spec: Any = None
+    project: Any = None
+
+
+@dataclass(frozen=True)
+class RowBound:
+    """What a stage's ``validate`` returns for a block that exists only during the run: ``block``
+    has at least every observation row (and at most the unknowns) the run's block can have — a
+    dry construction (e.g. every target in front of every camera, where the run detects them in
+    rendered images).  ``baarda validate`` bounds the redundancy with it (``ValidationContext.rows``)
+    but checks no names against it."""
+
+    block: Any
+
+
+def keeps_rows(cls: type, options: Any) -> bool:
+    """Whether stage ``cls`` with ``options`` declares that the block it writes has no observation
+    row its input block lacks (its ``keeps_rows`` attribute, a bool or a function of the options)."""
+    kr = getattr(cls, "keeps_rows", False)
+    return bool(kr(options) if callable(kr) else kr)
 
 
 class Stage:

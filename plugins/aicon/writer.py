@@ -115,6 +115,7 @@ class AiconExportStage:
     reads = ("block", "bundle?")
     writes = ()
     paths = {"path": "output"}
+    outputs = ()                          # no table or figure: every other name is free for path
     output_adds = {"path": (".ior", ".eor", ".obc", ".phc", ".scale")}   # the files made of the prefix
     Options = AiconExportOptions
 

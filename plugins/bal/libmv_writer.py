@@ -134,6 +134,7 @@ class LibmvExport:
     reads = ("block", "bundle?")
     writes = ()
     paths = {"path": "output"}
+    outputs = ()                          # no table or figure: every other name is free for path
     Options = LibmvExportOptions
 
     def run(self, inputs, options: LibmvExportOptions, ctx: Context) -> StageResult:

@@ -149,6 +149,7 @@ class BalExport:
     reads = ("block", "bundle?")
     writes = ()
     paths = {"path": "output"}
+    outputs = ()                          # no table or figure: every other name is free for path
     Options = BalExportOptions
 
     def run(self, inputs, options: BalExportOptions, ctx: Context) -> StageResult:

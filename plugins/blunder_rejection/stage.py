@@ -12,7 +12,7 @@ import dataclasses
 
 import numpy as np
 
-from baarda.pipeline.api import AdjustmentArtefact, Context, InputError, StageResult, TableData
+from baarda.pipeline.api import AdjustmentArtefact, Context, InputError, StageResult, TableData, ValidationContext
 from baarda.pipeline.report import cap_text
 
 from .decide import METHODS, ROBUST_METHODS, BlunderOptions, MethodResult, row_statistics, run_methods
@@ -38,7 +38,9 @@ def redundancy_bound(block, adjuster=None) -> tuple[int, int]:
     n counts every row the block can give: two per active image observation, three per GNSS
     antenna, one per weighted (0 < σ < ∞) point coordinate, orientation element and camera
     parameter, and the ``distances`` of the adjusting stage's options.  u is only bounded for a
-    ``bundle``: three per tie point with an active observation and no a-priori σ; otherwise 0."""
+    ``bundle``: three per tie point with two or more active observations and no a-priori σ (a tie
+    point seen once adds 2 rows and 3 unknowns, or nothing when the run does not see it: left out,
+    the bound holds for any block whose rows are a subset of ``block``'s); otherwise 0."""
     def weighted(s):
         s = np.asarray(s, float)
         return int(((s > 0) & np.isfinite(s)).sum()) if s.size else 0
@@ -54,10 +56,9 @@ def redundancy_bound(block, adjuster=None) -> tuple[int, int]:
     if adjuster is not None:
         n += len(getattr(adjuster.options, "distances", None) or ())
         if adjuster.use == "bundle":
-            seen = np.zeros(len(block.points), bool)
-            seen[np.asarray(obs.point)[active]] = True
+            rays = np.bincount(np.asarray(obs.point)[active], minlength=len(block.points))
             free = np.isinf(np.asarray(block.points.sigma, float).reshape(len(block.points), -1)).all(axis=1)
-            u = 3 * int((seen & (np.asarray(block.points.role) == "tie") & free).sum())
+            u = 3 * int(((rays >= 2) & (np.asarray(block.points.role) == "tie") & free).sum())
     return n, u
 
 
@@ -67,13 +68,17 @@ class BlunderRejection:
     writes = ("blunders", "block")
     Options = BlunderOptions
 
-    def validate_rows(self, options: BlunderOptions, block, adjuster, ctx: Context) -> None:
-        """``baarda validate``: RRR's ``rho`` below an upper bound of n − u, from the source's block and
-        the adjusting stage (``adjuster``, a StageSpec or None) — :func:`redundancy_bound`."""
+    keeps_rows = True               # its block: the observations it read, some marked inactive
+
+    def validate_with(self, v: ValidationContext) -> None:
+        """``baarda validate``: RRR's ``rho`` below an upper bound of n − u, from a block bounding the
+        adjustment's rows (``v.rows``: the source's block, or a dry construction of a block that
+        exists only during the run) and the adjusting stage (``v.adjuster``) — :func:`redundancy_bound`."""
+        options, ctx = v.options, v.ctx
         methods = list(METHODS) if options.method == "all" else [options.method]
-        if "rrr" not in methods or not options.rho:
+        if "rrr" not in methods or not options.rho or v.rows is None:
             return
-        n, u = redundancy_bound(block, adjuster)
+        n, u = redundancy_bound(v.rows, v.adjuster)
         if options.rho >= n - u:
             raise ctx.option_error(f"rho = {options.rho} suspects leave no redundant clean observation: RRR needs "
                                    f"rho < n − u, and this block gives at most n = {n} observation rows and at "

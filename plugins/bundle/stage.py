@@ -13,6 +13,7 @@ import dataclasses
 import numpy as np
 
 from baarda.pipeline.api import (AdjustmentArtefact, AdjustmentError, Block, BundleConfig, Context, InputError,
+                                 ValidationContext,
                                  StageResult, TableData, adjust)
 from baarda.pipeline.adjustment import EO_NAMES
 from baarda.pipeline.units import length_suffix, object_unit_text
@@ -32,10 +33,16 @@ class BundleAdjustment:
     writes = ("bundle", "adjustment", "block")
     Options = BundleConfig          # the stage's option table is the library's config (one schema)
 
-    def validate_block(self, options: BundleConfig, block, ctx: Context) -> None:
+    keeps_rows = True               # its block: the observations it read, some flagged or inactive
+
+    def validate_with(self, v: ValidationContext) -> None:
         """``baarda validate``: the options that name points (datum_points, distances), cameras
         (ap_models) or parameters (fix, free, sigma) must name those of the block the sources read."""
         from baarda.pipeline.adjustment import bundle_settings, configure_block
+
+        if v.block is None:
+            return
+        options, block, ctx = v.options, v.block, v.ctx
 
         try:
             bundle_settings(options, configure_block(block, options))

@@ -6,12 +6,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-import numpy as np
-
 from baarda.pipeline.adjustment import reprojection_summary
 from baarda.pipeline.api import (Context, InputError, SourceStage, Stage, StageResult, log_block, option,
                                  read_colmap, write_colmap)
 from baarda.pipeline.camera.convert import COLMAP_PARAMS
+from baarda.pipeline.exporting import block_to_export   # one choice of the block for every export
 
 
 @dataclass(frozen=True)
@@ -88,22 +87,6 @@ class ColmapExportOptions:
             raise ValueError(f"camera_model must be 'keep', 'auto' or one of {', '.join(COLMAP_PARAMS)}")
 
 
-def block_to_export(block, bundle=None) -> tuple[object, str]:
-    """The block to write: the adjusted block of the run's ``bundle`` (a BundleResult) when it was
-    computed from ``block``, ``block`` itself when it is that adjusted block (the bundle hands it on,
-    rejected observations switched off), else ``block`` as given."""
-    if bundle is None:
-        return block, "as given"
-    if bundle.block_in is block:
-        return bundle.block, "adjusted"
-    done = bundle.block
-    if done is block or (
-            np.array_equal(done.points.XYZ, block.points.XYZ, equal_nan=True)
-            and np.array_equal(done.photos.X0, block.photos.X0, equal_nan=True)):
-        return block, "adjusted"            # the bundle hands it on (rejected observations switched off)
-    return block, "as given"
-
-
 class ColmapExport(Stage):
     """Write the block (adjusted, if a bundle ran before) as a COLMAP model."""
 
@@ -111,6 +94,7 @@ class ColmapExport(Stage):
     reads = ("block", "bundle?")
     writes = ()
     paths = {"path": "output"}            # the folder written (not checked by validate)
+    outputs = ()                          # no table or figure: every other name is free for path
     Options = ColmapExportOptions
 
     def run(self, inputs, options: ColmapExportOptions, ctx: Context) -> StageResult:

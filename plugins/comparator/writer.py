@@ -134,6 +134,7 @@ class ComparatorExport:
     reads = ("block", "bundle?")
     writes = ()
     paths = {"path": "output"}
+    outputs = ()                          # no table or figure: every other name is free for path
     Options = ComparatorExportOptions
 
     def run(self, inputs, options: ComparatorExportOptions, ctx: Context) -> StageResult:

@@ -319,6 +319,7 @@ class DbatExport:
     reads = ("block", "bundle?")
     writes = ()
     paths = {"path": "output"}
+    outputs = ()                          # no table or figure: every other name is free for path
     Options = DbatExportOptions
 
     def run(self, inputs, options: DbatExportOptions, ctx: Context) -> StageResult:

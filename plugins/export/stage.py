@@ -53,6 +53,7 @@ class PointExport:
     reads = ("block", "bundle?")
     writes = ()
     paths = {"path": "output"}
+    outputs = ()                          # no table or figure: every other name is free for path
     output_adds = {"path": (".ply", ".csv")}              # the files made of the prefix
     Options = ExportOptions
 

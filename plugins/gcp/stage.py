@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from baarda.pipeline.crs import LocalFrame, frame_of_block, local_frame
-from baarda.pipeline.api import Context, InputError, SourceStage, StageResult, TableData, option
+from baarda.pipeline.api import Context, InputError, SourceStage, StageResult, TableData, ValidationContext, option
 from baarda.pipeline.units import length_suffix
 from baarda.pipeline.report import markdown_table
 
@@ -231,6 +231,7 @@ class GnssCentres:
     summary = "GNSS antenna positions per photo (CSV, any CRS, lever arm per camera) as observations of the bundle"
     reads = ("block",)
     writes = ("block",)
+    outputs = ("antennas",)               # its table <id>_antennas
     Options = GnssOptions
 
     def validate(self, options: GnssOptions, ctx: Context):
@@ -238,10 +239,18 @@ class GnssCentres:
         self._checked(options, ctx)
         return None
 
-    def validate_block(self, options: GnssOptions, block, ctx: Context) -> None:
+    def validate_with(self, v: ValidationContext) -> None:
         """``baarda validate`` with the block the sources read: every photo of the CSV in the block
         (unless on_unknown = 'skip'), every lever arm's camera a camera of the block."""
-        g = self._checked(options, ctx)
+        if v.block is None:
+            return
+        self._matched(self._checked(v.options, v.ctx), v.options, v.block, v.ctx)
+
+    @staticmethod
+    def _matched(g, options: GnssOptions, block, ctx: Context) -> list:
+        """The CSV's photos against the block (an unknown photo is an error unless on_unknown =
+        'skip') and the lever arms' cameras against its cameras — for ``validate`` and ``run`` alike.
+        Returns the unknown ``(photo, line)`` rows (skipped)."""
         known = set(block.photos.ids.tolist())
         unknown = [(p, ln) for p, ln in zip(g.photo, g.line) if p not in known]
         if unknown and options.on_unknown == "error":
@@ -252,6 +261,7 @@ class GnssCentres:
             if cid not in block.cameras.ids:
                 raise ctx.option_error(f"lever_arm: unknown camera {cid!r} (cameras: "
                                        f"{', '.join(block.cameras.ids.tolist())})", "lever_arm")
+        return unknown
 
     def _checked(self, options: GnssOptions, ctx: Context):
         """The CSV read, its CRS and the crs option parsed, the lever arms plausible (in metres)."""
@@ -278,11 +288,7 @@ class GnssCentres:
 
     def run(self, inputs, options: GnssOptions, ctx: Context) -> StageResult:
         block = inputs["block"]
-        self._checked(options, ctx)
-        if options.path is None or not str(options.path) or str(options.path) == ".":
-            raise InputError("the gnss-centres stage needs the option 'path' (the GNSS CSV)", path=ctx.project_file,
-                             field="path")
-        g = read_gnss_csv(ctx.resolve(options.path))
+        g = self._checked(options, ctx)
         frame = frame_of_block(block)
         crs = g.crs or options.crs
         unit = 1000.0 if block.object_unit == "mm" else 1.0
@@ -302,16 +308,7 @@ class GnssCentres:
             user = LocalFrame(src.to_wkt(), frame.origin, frame.a, frame.f)
             X = user.to_local(g.xyz)
         sig = np.where(np.isnan(g.sigma), np.asarray(options.sigma_mm) / 1000.0, g.sigma)
-        known = set(block.photos.ids.tolist())
-        unknown = [(p, ln) for p, ln in zip(g.photo, g.line) if p not in known]
-        if unknown and options.on_unknown == "error":
-            p, ln = unknown[0]
-            raise InputError(f"photo {p!r} is not in the block ({len(unknown)} unknown; on_unknown = 'skip' ignores "
-                             "them)", path=g.path, line=int(ln), field="photo")
-        for cid in options.lever_arm:
-            if cid not in block.cameras.ids:
-                raise ctx.option_error(f"lever_arm: unknown camera {cid!r} (cameras: "
-                                       f"{', '.join(block.cameras.ids.tolist())})", "lever_arm")
+        unknown = self._matched(g, options, block, ctx)
         arms = {k: np.asarray(v, float) * unit for k, v in options.lever_arm.items()}
         out, info = apply_gnss(block, g.photo, X * unit, sig * unit, lever_arm=arms,
                                opk_default=None if options.opk_deg is None else np.radians(options.opk_deg))

@@ -105,6 +105,7 @@ class GcpExport:
     reads = ("block", "bundle?")
     writes = ()
     paths = {"path": "output"}
+    outputs = ()                          # no table or figure: every other name is free for path
     Options = GcpExportOptions
 
     def run(self, inputs, options: GcpExportOptions, ctx: Context) -> StageResult:

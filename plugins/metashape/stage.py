@@ -6,9 +6,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-import numpy as np
-
-from baarda.pipeline.api import Context, InputError, SourceStage, Stage, StageResult, log_block, option
+from baarda.pipeline.api import Context, InputError, SourceStage, StageResult, log_block, option
+from baarda.pipeline.exporting import BlockExport
 from baarda.pipeline.metashape import read_metashape, write_metashape
 
 
@@ -66,32 +65,12 @@ class MetashapeExportOptions:
     path: Path = field(metadata={"doc": "the XML file to write (relative paths: inside the run directory) (required)"})
 
 
-class MetashapeExport(Stage):
+class MetashapeExport(BlockExport):
     """Write the block (adjusted, if a bundle ran before) as a Metashape camera XML."""
 
     summary = "block (adjusted if a bundle of it ran) → Metashape camera XML"
-    reads = ("block", "bundle?")
-    writes = ()
-    paths = {"path": "output"}
     Options = MetashapeExportOptions
-
-    def run(self, inputs, options: MetashapeExportOptions, ctx: Context) -> StageResult:
-        if not str(options.path) or str(options.path) == ".":
-            raise InputError("option 'path' (the output file) is required", field="path", path=ctx.project_file)
-        out = ctx.output_path(options.path, "path")
-        block, which = inputs["block"], "as given"
-        bundle = inputs.get("bundle")
-        if bundle is not None and bundle.block_in is block:
-            block, which = bundle.block, "adjusted"
-        elif bundle is not None and (bundle.block is block or (
-                np.array_equal(bundle.block.points.XYZ, block.points.XYZ, equal_nan=True)
-                and np.array_equal(bundle.block.photos.X0, block.photos.X0, equal_nan=True))):
-            which = "adjusted"            # the bundle hands the adjusted block on
-        try:
-            info = write_metashape(block, out)
-        except ValueError as e:
-            raise InputError(str(e), path=ctx.project_file, field="block") from None
-        info["block"] = which
-        info["headline"] = (f"Metashape XML {options.path} (block {which}): {info['sensors']} sensor(s), "
-                            f"{info['cameras']} cameras, {info['markers']} markers, {info['observations']} projections")
-        return StageResult(summary=info, report=info["headline"] + ".")
+    path_is = "the output file"
+    writer = staticmethod(write_metashape)
+    headline_format = ("Metashape XML {path} (block {which}): {sensors} sensor(s), {cameras} cameras, {markers} "
+                       "markers, {observations} projections")

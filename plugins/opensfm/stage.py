@@ -8,9 +8,9 @@ from pathlib import Path
 from typing import Literal
 
 from baarda.pipeline.adjustment import reprojection_summary
-import numpy as np
 
-from baarda.pipeline.api import Context, InputError, SourceStage, Stage, StageResult, log_block, option
+from baarda.pipeline.api import Context, InputError, SourceStage, StageResult, log_block, option
+from baarda.pipeline.exporting import BlockExport
 from baarda.pipeline.opensfm import read_opensfm, write_opensfm
 
 
@@ -123,33 +123,12 @@ class OpensfmExportOptions:
                                         "inside the run directory) (required)"})
 
 
-class OpensfmExport(Stage):
+class OpensfmExport(BlockExport):
     """Write the block (adjusted, if a bundle ran before) as an OpenSfM reconstruction."""
 
     summary = "block (adjusted if a bundle of it ran) → OpenSfM reconstruction.json + tracks.csv"
-    reads = ("block", "bundle?")
-    writes = ()
-    paths = {"path": "output"}
     Options = OpensfmExportOptions
-
-    def run(self, inputs, options: OpensfmExportOptions, ctx: Context) -> StageResult:
-        if not str(options.path) or str(options.path) == ".":
-            raise InputError("option 'path' (the output folder) is required", field="path", path=ctx.project_file)
-        out = ctx.output_path(options.path, "path")
-        block = inputs["block"]
-        bundle = inputs.get("bundle")
-        which = "as given"
-        if bundle is not None and bundle.block_in is block:
-            block, which = bundle.block, "adjusted"
-        elif bundle is not None and (bundle.block is block or (
-                np.array_equal(bundle.block.points.XYZ, block.points.XYZ, equal_nan=True)
-                and np.array_equal(bundle.block.photos.X0, block.photos.X0, equal_nan=True))):
-            which = "adjusted"            # the bundle hands the adjusted block on
-        try:
-            info = write_opensfm(block, out)
-        except ValueError as e:
-            raise InputError(str(e), path=ctx.project_file, field="block") from None
-        info["block"] = which
-        info["headline"] = (f"OpenSfM reconstruction {options.path}/ (block {which}): {info['cameras']} camera(s), "
-                            f"{info['shots']} shots, {info['points']} points, {info['observations']} observations")
-        return StageResult(summary=info, report=info["headline"] + ".")
+    path_is = "the output folder"
+    writer = staticmethod(write_opensfm)
+    headline_format = ("OpenSfM reconstruction {path}/ (block {which}): {cameras} camera(s), {shots} shots, "
+                       "{points} points, {observations} observations")

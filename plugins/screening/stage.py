@@ -110,6 +110,7 @@ class HelmertScreening:
     summary = "Screen stereo pairs by a 2-D Helmert transformation: data snooping, Pope τ, swaps, format, thresholds"
     reads = ("block",)
     writes = ("screening", "block", "adjustment")
+    keeps_rows = True               # its block: the observations it read, some flagged or inactive
     Options = ScreeningOptions
 
     def run(self, inputs, options: ScreeningOptions, ctx: Context) -> StageResult:

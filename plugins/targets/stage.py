@@ -179,6 +179,12 @@ class TargetDetection(Stage):
     paths = {"images": "glob", "detector_params": "input"}
     Options = TargetOptions
 
+    @staticmethod
+    def keeps_rows(options: TargetOptions) -> bool:
+        """'circles' measures the points of its input block in that block's photos: at most one
+        observation per photo and point of the layout (``baarda validate`` keeps the layout's bound)."""
+        return options.target == "circles"
+
     def validate(self, options: TargetOptions, ctx: Context) -> None:
         """``baarda validate``: the images exist and have a readable image header, the detector
         parameters parse; no detection (that is the run's work)."""

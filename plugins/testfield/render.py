@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from baarda.pipeline.geometry import mm_from_pixels
-from baarda.pipeline.api import Context, InputError, Stage, StageResult, TableData, option
+from baarda.pipeline.api import Context, InputError, RowBound, Stage, StageResult, TableData, ValidationContext, option
 from baarda.pipeline.options import parse_options
 from baarda.pipeline.report import markdown_table
 from baarda.pipeline.synthetic.testfield import TestFieldConfig
@@ -100,6 +100,36 @@ class RenderOptions(ImageSettings):
             raise ValueError(f"{e.field}: {e.message}" if e.field and e.field not in e.message else e.message) from None
 
 
+def dry_detection_block(block, options: "RenderOptions"):
+    """``block`` (a simulated test field) with one observation per photo and target whose disk
+    reaches into the rendered image (in front of the camera, its true centre at most its image
+    radius + 1 px outside the frame), at the target's true image position (mm): a detection in the
+    rendered photos finds each target at most once per photo, and no target beyond these, so this
+    block's rows bound the run's (:class:`RowBound`)."""
+    from baarda.pipeline.geometry import pixels_from_mm
+    from baarda.pipeline.model import Observations
+    from baarda.pipeline.synthetic.testfield import project_truth
+
+    truth = truth_from_meta(block.meta)
+    W, H = image_size(block.cameras.format_mm[0], options.pixel_mm)
+    radius = options.target_radius_mm / OBJECT_UNIT_MM[block.object_unit]
+    xy, depth = project_truth(truth.XYZ, truth.X0, truth.opk, truth.c, truth.xp, truth.yp, truth.distortion)
+    ph = block.photos.index_of([str(p) for p in truth.photo_ids])
+    pt = block.points.index_of([str(q) for q in truth.point_ids])
+    rows_k, rows_j = [], []
+    for k in range(len(truth.photo_ids)):
+        uv = pixels_from_mm(xy[k], (W, H), options.pixel_mm, "opencv")
+        r = np.nan_to_num(target_radius_px(truth, k, radius, options.pixel_mm), nan=0.0) + 1.0
+        inside = ((depth[k] > 0) & (uv[:, 0] >= -0.5 - r) & (uv[:, 0] <= W - 0.5 + r)
+                  & (uv[:, 1] >= -0.5 - r) & (uv[:, 1] <= H - 0.5 + r))
+        j = np.flatnonzero(inside)
+        rows_k += [k] * len(j)
+        rows_j += j.tolist()
+    k, j = np.asarray(rows_k, int), np.asarray(rows_j, int)
+    obs = Observations.make(ph[k], pt[j], xy[k, j].reshape(-1, 2))
+    return block.replace(observations=obs)
+
+
 class TestFieldRender(Stage):
     """Render the simulated test field's photos to PNG files; the block without observations."""
 
@@ -110,6 +140,23 @@ class TestFieldRender(Stage):
     writes = ("images", "block")
     Options = RenderOptions
     paths = {"folder": "output"}           # written inside the run directory
+
+    def validate_with(self, v: ValidationContext) -> RowBound | None:
+        """``baarda validate``: the block the run's detection can measure, built dry (no image is
+        rendered): the simulated test field (this stage's simulation, with the run's seed, or the
+        earlier testfield stage's block) with one observation per photo and target in front of its
+        camera — at least every row a detection in the rendered images can give, so that the
+        redundancy checks of later stages (RRR's ``rho``) have a bound (:class:`RowBound`)."""
+        ctx = v.ctx
+        earlier = v.project.stages[:v.project.stages.index(v.spec)] if v.project is not None else []
+        if v.block is not None:
+            block = self._field(v.block, v.options, 0, ctx)
+        elif any("block" in [w.rstrip("?") for w in s.cls.writes] for s in earlier):
+            return None             # the run renders a block validate does not know: no bound
+        else:
+            sim_seed, _ = (int(s) for s in ctx.rng.integers(0, 2**62, size=2))
+            block = self._field(None, v.options, sim_seed, ctx)
+        return RowBound(dry_detection_block(block, v.options))
 
     def run(self, inputs, options: RenderOptions, ctx: Context) -> StageResult:
         import cv2

@@ -62,7 +62,9 @@ def test_toml_sweep(tmp_path, project):
     with pytest.raises(InputError, match=r"sweep.toml:5, field 'blunders.alpha_rrr'"):
         read_sweep(p, project)
     p.write_text('[[run]]\nname = "one"\n"screening.threshold_mm" = 2.5\n', encoding="utf-8")
-    assert read_sweep(p, project) == [{"name": "one", "line": 1, "overrides": {"screening.threshold_mm": 2.5}}]
+    rows = read_sweep(p, project)
+    assert [r.pop("project") for r in rows] == [project]        # no project column: the one given
+    assert rows == [{"name": "one", "line": 1, "overrides": {"screening.threshold_mm": 2.5}}]
 
 
 def test_sweep_project_files_have_absolute_inputs(tmp_path):

@@ -47,6 +47,7 @@ class Case:
     command: str = "run"            # run | validate | review | run+validate
     code: int = 2
     names: str = ""                 # the file the message must name (a substring of the error line)
+    also: str = ""                  # a second substring it must hold (the field, where names gives file and line)
     earlier: list[str] = field(default_factory=list)   # files of earlier stages that must be in the run
     out: str = "out"
     extra_args: list[str] = field(default_factory=list)
@@ -740,7 +741,11 @@ def writer_cases() -> list[Case]:
         c.append(Case(f"writers/{use}-collides-with-a-table", {"data.cmp": DATA1},
                       _stage_project(use, True, 'path = "source_observations"' if prefix
                                      else 'path = "source_observations.csv"'),
-                      names="already in the run directory", quick=use == "colmap-export"))
+                      names="field 'path'", quick=use == "colmap-export"))
+        c.append(Case(f"writers/{use}-collides-with-a-later-table", {"data.cmp": DATA1},
+                      _stage_project(use, True, 'path = "later_observations"' if prefix
+                                     else 'path = "later_observations.csv"') + SCREENING.replace('"screening"', '"later"'),
+                      command="validate", names="stage 'later'", quick=use == "export"))
     return c
 
 
@@ -760,6 +765,10 @@ def batch_cases() -> list[Case]:
         "cells-missing-of-two": "name,screening.alpha0,screening.threshold_mm\na,0.01,5\nb,0.02\n",
         "cells-too-many": "name,screening.alpha0\na,0.01,7\n",
         "unknown-stage": "bundle.max_iter\n3\n",
+        "project-missing": "project,screening.alpha0\nnope.toml,0.01\n",
+        "project-folder": "project,screening.alpha0\n.,0.01\n",
+        "project-not-toml": "project,screening.alpha0\ndata.cmp,0.01\n",
+        "project-stage-missing": "project,bundle.max_iter\nproject.toml,3\n",
     }
     return [Case(f"batch/{n}", {"data.cmp": DATA1, "sweep.csv": t}, base, command="batch", names="sweep.csv",
                  out="bout") for n, t in tables.items()]
@@ -908,10 +917,62 @@ def round_two_cases() -> list[Case]:
     return c
 
 
+# -- the readers with corpora of their own: PhotoModeler exports, Metashape XML, OpenSfM -------------
+
+CORPORA = Path(__file__).resolve().parent
+
+
+def _corpus_cases(reader: str) -> dict:
+    """``CASES`` of ``tests/corpus/<reader>/cases.py`` (read as a file: each corpus has one)."""
+    import runpy
+
+    return runpy.run_path(str(CORPORA / reader / "cases.py"))["CASES"]
+
+
+def reader_corpus_cases() -> list[Case]:
+    """The broken files of the pmexport, metashape and opensfm corpora through the source stage, in
+    ``validate`` and ``run``: the message names the file, the line (where the corpus gives one) and
+    the field."""
+    c = []
+    pm = CORPORA / "pmexport"
+    control = (pm / "control.txt").read_bytes()
+    for k, (name, (line, fld)) in enumerate(sorted(_corpus_cases("pmexport").items())):
+        where = f"export.txt:{line}, field '{fld}'" if line is not None else "export.txt"
+        for cmd in ("validate", "run"):
+            c.append(Case(f"pmexport/{name}-{cmd}", {"export.txt": (pm / f"{name}.txt").read_bytes(),
+                                                     "control.txt": control},
+                          source_project("pmexport", "export.txt", 'control = "control.txt"'), command=cmd,
+                          names=where, also=f"field '{fld}'", quick=k % 4 == 0))
+    for name, line, fld in (("control-columns", 1, "x"), ("control-sigma", 1, "sxyz"), ("control-id", 1, "id")):
+        c.append(Case(f"pmexport/{name}", {"export.txt": (pm / "mini.txt").read_bytes(),
+                                           "control.txt": (pm / f"{name}.txt").read_bytes()},
+                      source_project("pmexport", "export.txt", 'control = "control.txt"'), command="validate",
+                      names=f"control.txt:{line}, field '{fld}'", quick=name == "control-id"))
+    ms = CORPORA / "metashape"
+    for k, (name, (file, fld)) in enumerate(sorted(_corpus_cases("metashape").items())):
+        for cmd in ("validate", "run"):
+            c.append(Case(f"metashape/{name}-{cmd}", {"cams.xml": (ms / file).read_bytes()},
+                          source_project("metashape", "cams.xml"), command=cmd, names="cams.xml",
+                          also=f"{fld}'", quick=k % 4 == 0))
+    osfm = CORPORA / "opensfm"
+    for k, (name, (file, line, fld)) in enumerate(sorted(_corpus_cases("opensfm").items())):
+        tracks = file.endswith(".tracks.csv")
+        files = {"rec.json": (osfm / ("mini.json" if tracks else file)).read_bytes(),
+                 "rec.tracks.csv": (osfm / (file if tracks else "mini.tracks.csv")).read_bytes()}
+        broken = "rec.tracks.csv" if tracks else "rec.json"
+        where = f"{broken}:{line}" if line is not None else broken
+        for cmd in ("validate", "run"):
+            c.append(Case(f"opensfm/{name}-{cmd}", files,
+                          source_project("opensfm", "rec.json", 'tracks = "rec.tracks.csv"'), command=cmd,
+                          names=where, also=f"{fld}'", quick=k % 4 == 0))
+    return c
+
+
 def all_cases() -> list[Case]:
     return (comparator_cases() + bal_cases() + aicon_cases() + colmap_cases() + targets_cases()
             + dbat_cases() + gcp_cases() + option_cases() + project_cases() + run_cases()
-            + generated_option_cases() + writer_cases() + batch_cases() + hardening_cases() + round_two_cases())
+            + generated_option_cases() + writer_cases() + batch_cases() + hardening_cases() + round_two_cases()
+            + reader_corpus_cases())
 
 
 # -- running a case -------------------------------------------------------------------------------

@@ -22,7 +22,7 @@ def test_the_corpus_is_large_and_covers_every_reader():
     assert len(CASES) >= 600
     kinds = {c.name.split("/")[0] for c in CASES}
     assert {"comparator", "bal", "libmv", "aicon", "colmap", "targets", "dbat", "gcp", "options", "project", "run",
-            "review", "stage-options", "set", "writers", "batch"} <= kinds
+            "review", "stage-options", "set", "writers", "batch", "pmexport", "metashape", "opensfm"} <= kinds
     assert sum(c.command == "validate" for c in CASES) >= 200
 
 
@@ -55,6 +55,7 @@ def test_broken_input(case, tmp_path):
     assert lines, err
     message = lines[0]
     assert case.names in message, f"the message does not name {case.names!r}: {message}"
+    assert case.also in message, f"the message does not name {case.also!r}: {message}"
     assert not [ln for ln in err.splitlines() if ln.startswith("[") and "ERROR" in ln], err   # no library log lines
     # nothing outside the run directory changed; no file that was there before changed
     out = case.out.split("/")[0]

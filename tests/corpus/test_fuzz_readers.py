@@ -5,8 +5,10 @@ a token of a line replaced by a troublesome one (nan, inf, 1e300, 1e-320, a lett
 integer …), lines dropped or doubled, other encodings — and must give a block (or its parsed
 structure) or one :class:`InputError` that names the file: never another exception, never a hang
 (each example runs under a time limit) and never more than a size limit of memory (the readers'
-own limits).  The quick profile (a few seconds per reader) runs in ``make test``; the larger one
-under the ``slow`` marker (``make test-slow``).
+own limits).  The readers with corpora of their own (PhotoModeler exports, Metashape XML, OpenSfM
+JSON and tracks) must name the field or element as well.  The quick profile (a few seconds per
+reader) runs in ``make test``; the larger one under the ``slow`` marker (``make test-slow``).
+``KNOWN`` lists what the fuzzing found in readers other engineers own (expected failures).
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ from pathlib import Path
 import pytest
 
 hypothesis = pytest.importorskip("hypothesis")
-from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import HealthCheck, Phase, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -35,7 +37,8 @@ if not SHARED.is_dir():  # pragma: no cover
 
 TIME_LIMIT_S = 30          # one example of one reader; a hang fails the test
 QUICK = settings(max_examples=3, deadline=None, database=None, derandomize=True,
-                 suppress_health_check=list(HealthCheck))
+                 suppress_health_check=list(HealthCheck),
+                 phases=[Phase.explicit, Phase.reuse, Phase.generate])      # no shrinking in make test
 LARGE = settings(max_examples=300, deadline=None, database=None, suppress_health_check=list(HealthCheck))
 
 NASTY = ["nan", "inf", "-inf", "-1", "0", "1e300", "1e-320", "x", "", "99999999999999999999", "1,5", "--", "1e",
@@ -99,14 +102,17 @@ def _token(lines, k, j, new):
     return b"\n".join(out)
 
 
-def check(call, folder: Path):
+def check(call, folder: Path, field: bool = False):
     """``call()`` returns, or raises one InputError naming a file of the input (the broken one, or
-    the one a cross-file check blames: a mark naming an image the image list lacks)."""
+    the one a cross-file check blames: a mark naming an image the image list lacks) — and, with
+    ``field``, the field (or element) too."""
     try:
         with time_limit(TIME_LIMIT_S):
             call()
     except InputError as e:
         assert e.path is not None and str(e).startswith(str(folder)), f"the message names no input file: {e}"
+        if field:
+            assert e.field, f"the message names no field or element: {e}"
 
 
 def source(use: str, options: dict, folder: Path):
@@ -207,6 +213,30 @@ def _crs():
         lambda: parse_crs((d / "crs.txt").read_bytes().decode("utf-8", "replace"), path=d / "crs.txt"))
 
 
+CORPORA = Path(__file__).resolve().parent
+
+
+def _pmexport(which):
+    def make():
+        pm = CORPORA / "pmexport"
+        files = {"export.txt": (pm / "mini.txt").read_bytes(), "control.txt": (pm / "control.txt").read_bytes()}
+        return files, which, lambda d: source("pmexport", {"path": "export.txt", "control": "control.txt"}, d)
+    return make
+
+
+def _metashape():
+    return ({"cams.xml": (CORPORA / "metashape" / "mini.xml").read_bytes()}, "cams.xml",
+            lambda d: source("metashape", {"path": "cams.xml"}, d))
+
+
+def _opensfm(which):
+    def make():
+        o = CORPORA / "opensfm"
+        files = {"rec.json": (o / "mini.json").read_bytes(), "rec.tracks.csv": (o / "mini.tracks.csv").read_bytes()}
+        return files, which, lambda d: source("opensfm", {"path": "rec.json", "tracks": "rec.tracks.csv"}, d)
+    return make
+
+
 READERS = {
     "comparator": (_comparator, True), "bal": (_bal, True), "libmv": (_libmv, False),
     "aicon-ior": (_aicon("ior"), True), "aicon-eor": (_aicon("eor"), True), "aicon-obc": (_aicon("obc"), True),
@@ -219,7 +249,22 @@ READERS = {
     "colmap-images-bin": (_colmap_bin("images.bin"), False), "colmap-cameras-bin": (_colmap_bin("cameras.bin"), False),
     "colmap-points-bin": (_colmap_bin("points3D.bin"), False),
     "crs": (_crs, True),
+    "pmexport": (_pmexport("export.txt"), True), "pmexport-control": (_pmexport("control.txt"), True),
+    "metashape-xml": (_metashape, True),
+    "opensfm-json": (_opensfm("rec.json"), True), "opensfm-tracks": (_opensfm("rec.tracks.csv"), True),
 }
+KNOWN = {
+    "opensfm-json": "pipeline/opensfm.py reads reconstruction.json with read_text: a non-UTF-8 byte is a "
+                    "UnicodeDecodeError (exit 3), and no size limit (the OpenSfM reader's owner)",
+    "opensfm-tracks": "pipeline/opensfm.py reads tracks.csv with read_text: a non-UTF-8 byte is a "
+                      "UnicodeDecodeError (exit 3), and no size limit (the OpenSfM reader's owner)",
+    "pmexport-control": "plugins/dbat/pm_block.py read_control: 'not a UTF-8 text file' names neither the line "
+                        "(or byte offset) nor a field (the DBAT reader's owner)",
+}
+"""Targets whose fuzzing finds a mistake in a reader another engineer owns: expected to fail until
+that reader is fixed (not strict: a fix makes them pass)."""
+NAMES_FIELD = {"pmexport", "pmexport-control", "metashape-xml", "opensfm-json", "opensfm-tracks"}
+"""Readers whose every InputError must name the field (or element) as well as the file."""
 
 
 def _fuzz(name, profile):
@@ -231,20 +276,25 @@ def _fuzz(name, profile):
     def run(data):
         d = _with_file(files, target, data)
         try:
-            check(reader(d), d)
+            check(reader(d), d, field=name in NAMES_FIELD)
         finally:
             shutil.rmtree(d, ignore_errors=True)
 
     run()
 
 
-@pytest.mark.parametrize("name", list(READERS))
+def _targets():
+    return [pytest.param(n, marks=pytest.mark.xfail(reason=KNOWN[n], strict=False)) if n in KNOWN else n
+            for n in READERS]
+
+
+@pytest.mark.parametrize("name", _targets())
 def test_fuzz_reader_quick(name):
     _fuzz(name, QUICK)
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", list(READERS))
+@pytest.mark.parametrize("name", _targets())
 def test_fuzz_reader_large(name):
     _fuzz(name, LARGE)
 
