@@ -7,6 +7,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
+import numpy as np
+
 from baarda.pipeline.adjustment import reprojection_summary
 
 from baarda.pipeline.api import Context, InputError, SourceStage, StageResult, log_block, option
