@@ -165,6 +165,7 @@ def write_closerange_project(folder: Path, seed: int = 2) -> dict:
 
 
 def _dbat_toml(folder: Path, xml: Path, name: str) -> dict:
+    folder.mkdir(parents=True, exist_ok=True)
     (folder / "project.toml").write_text(f"""# written by benchmarks/run_vs_pycolmap.py
 [project]
 name = "{name}"
