@@ -559,8 +559,9 @@ class BrownBackward(APModel):
         gx, gy, _, _ = self._correction(mx, my, self._params(params, mx.shape[0]), False)
         return gx, gy
 
-    def _invert(self, xbar, ybar, P):
-        """``m = g⁻¹(x̄)`` by Newton's method; returns m (n, 2), G and ∂g/∂θ at m."""
+    def _invert(self, xbar, ybar, P, want_jac: bool = True):
+        """``m = g⁻¹(x̄)`` by Newton's method; returns m (n, 2), G and ∂g/∂θ at m (``None`` without
+        ``want_jac``)."""
         xb = np.asarray(xbar, float)
         yb = np.asarray(ybar, float)
         # Newton per point in one compiled pass (numpy evaluated g and ∂g/∂m for every point in
@@ -569,12 +570,12 @@ class BrownBackward(APModel):
         from ..adjustment.kernels import brown_invert
 
         mx, my, _ = brown_invert(xb, yb, P, self.newton_tol, self.newton_max_iter)
-        _, _, G, Gp = self._correction(mx, my, P, True)
+        _, _, G, Gp = self._correction(mx, my, P, True) if want_jac else (None, None, None, None)
         return np.column_stack([mx, my]), G, Gp
 
     def distortion(self, xbar, ybar, params, c, meta):
         xb = np.asarray(xbar, float)
-        m, _, _ = self._invert(xb, ybar, self._params(params, xb.shape[0]))
+        m, _, _ = self._invert(xb, ybar, self._params(params, xb.shape[0]), want_jac=False)
         return m[:, 0] - xb, m[:, 1] - np.asarray(ybar, float)
 
     def jacobians(self, xbar, ybar, params, c, meta, cols):
