@@ -3,34 +3,40 @@
 Run as a script (from the repository root; ``make bench-run`` runs the default set)::
 
     .venv/bin/python benchmarks/run_vs_pycolmap.py [--sizes 2000 10000] [--no-closerange]
-                                                   [--dbat PROJECT.xml] [--skip-pycolmap]
+                                                   [--dbat-repo DIR | --dbat PROJECT.xml]
+                                                   [--skip-pycolmap | --sparse-only] [--repeat N]
                                                    [--timeout 3600] [--mem-gb 22] [--threads N]
                                                    [--workdir DIR] [--json FILE]
 
-For every size a simulated aerial block (``scale.py``'s generator: 60/30 % overlap, ≈ 150 points per
-footprint, 0.5 px noise, start perturbed as ``scale.PERTURB``) is written as a **BAL file with a
-project** (``bal`` source, σ 0.5 px, intrinsics fixed; ``bundle`` with a free network on the
-projection centres, covariance on — the configuration of issue 22's table), and
+For every size a simulated aerial block (``scale.simulate_start``: scale.py's layout, 60/30 %
+overlap, ≈ 150 points per footprint, 0.5 px noise, start perturbed as ``scale.PERTURB``) is written
+as a **BAL file with a project** (``bal`` source, σ 0.5 px, intrinsics fixed; ``bundle`` with a
+free network on the projection centres, covariance on — the configuration of issue 22's table), and
 
 * ``baarda``: ``baarda run project.toml --out DIR`` in its own process, *every output written*
-  (tables, results.json, report.md/html, figures, recording): wall time of the whole process and
-  its peak resident set (``ru_maxrss`` of the waited-for child: the process ``exec``s, so its
-  high-water mark is its own);
+  (tables, results.json, report.md/html, figures, recording): wall and CPU time of the whole
+  process and its peak resident set (``wait4`` of the child: it ``exec``s at once, so the
+  high-water mark is its own), with the load average at its start and end;
 * ``pycolmap``: the same start block (the simulated block the BAL file was written from: one
-  shared camera with its resolution, intrinsics fixed, as the BAL project holds them) through the cross-check machinery in its own process, twice — with
-  ``SPARSE_SCHUR`` forced (``max_num_images_direct_sparse_cpu_solver`` raised above the block) and
-  with pycolmap's default choice (``ITERATIVE_SCHUR`` beyond 1 000 images); *solve* =
+  shared camera with its resolution, intrinsics fixed, as the BAL project holds them) through the
+  cross-check machinery in its own process, twice — with ``SPARSE_SCHUR`` forced
+  (``max_num_images_direct_sparse_cpu_solver`` raised above the block) and with pycolmap's default
+  choice (``ITERATIVE_SCHUR`` beyond 1 000 images; ``--sparse-only`` leaves it out); *solve* =
   ``adjuster.solve()`` only, with the peak resident set of that child.
 
 The ratios: whole run / pycolmap's SPARSE_SCHUR solve (goal ≤ 1.0 at 2 000 photos), peak memory
 baarda / pycolmap (goal ≤ 2), and the same against the default solver.  The 10 000-photo goal is
-absolute (whole run ≤ 3 minutes, ≤ 6 GB).
+absolute (whole run ≤ 3 minutes, ≤ 6 GB).  ``--repeat N`` runs every baarda run and pycolmap solve
+N times and keeps the fastest (every time is in the JSON).
 
-``--closerange`` (default on) adds a close-range project of 60 photos and ≈ 180 000 image
-coordinates written as a **DBAT script project** (``dbat`` source: one self-calibrating
-``brown-backward`` camera, 30 fixed control points, orientations given, every tie point intersected
-before the bundle), or the real DBAT project ``--dbat`` names; goal: whole run ≤ 15 s.  Method and
-numbers: ``docs/benchmarks.md`` ("Whole runs").
+The close-range case (default on; goal: whole run ≤ 15 s) is **DBAT's own Roma demo**
+(``data/script/romabundledemo`` of niclasborlin/dbat, BSD-style licence: 60 photos, 26 321
+points, 90 561 marks = 181 122 image coordinates, self-calibration, ``set_datum depend``), taken
+from a DBAT work tree or extracted with ``git show`` from a git directory (``--dbat-repo``,
+``$BAARDA_DBAT_REPO``, else this workplace's mirror) and run as a ``dbat`` source project with the
+covariance on.  When no DBAT repository is found, the script says so and runs the simulated
+60-photo DBAT project (``closerange_block``) instead; ``--dbat`` runs any other DBAT script.
+Method and numbers: ``docs/benchmarks.md`` ("Whole runs").
 """
 
 from __future__ import annotations
