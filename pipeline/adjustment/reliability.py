@@ -229,6 +229,7 @@ def own_effects(res, delta0: float = 4.13, bias=None, chunk_bytes: float = 3.2e7
     image row on its own point's coordinates and its own photo's orientation, either solver route."""
     if res.snapshot is None:
         raise ValueError("external reliability needs the precision: adjust with covariance = true")
+    phase_step("external reliability", 0, len(res.problem.oi), "observations")     # the system at the solution first
     prob, lin, red, Qx = _system(res)
     st = res.state
     k_all = len(res.residuals)
@@ -327,6 +328,7 @@ def _s_transform_effects(prob, datum, G_all, Ap_all, eo_eff, pt_eff, chunk_bytes
     gpt = np.where(prob.g_pt[prob.obs_point] >= 0, prob.g_pt[prob.obs_point], n_g)
     step = max(1, int(chunk_bytes / (8.0 * max(1, cidx.shape[1] + 9) * n_c)))
     for a in range(0, k, step):
+        phase_step("external reliability: datum", a, k, "rows")
         sl = slice(a, min(k, a + step))
         pid = pidx[sl]
         ep = np.flatnonzero(pid < n_e)                      # rows of eliminated points, in the chunk
