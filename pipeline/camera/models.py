@@ -559,24 +559,30 @@ class BrownBackward(APModel):
         gx, gy, _, _ = self._correction(mx, my, self._params(params, mx.shape[0]), False)
         return gx, gy
 
-    def _invert(self, xbar, ybar, P, want_jac: bool = True):
-        """``m = g⁻¹(x̄)`` by Newton's method; returns m (n, 2), G and ∂g/∂θ at m (``None`` without
-        ``want_jac``)."""
+    def _invert(self, xbar, ybar, P):
+        """``m = g⁻¹(x̄)`` by Newton's method; returns m (n, 2), G and ∂g/∂θ at m."""
         xb = np.asarray(xbar, float)
         yb = np.asarray(ybar, float)
-        # Newton per point in one compiled pass (numpy evaluated g and ∂g/∂m for every point in
-        # every step: 3.8 s of the 24 s CPU of DBAT's 90 561-mark Roma project, now < 0.1 s);
-        # a point without an inverse keeps the first-order value m ≈ x̄ − (g(x̄) − x̄)
+        m = self._inverse(xb, yb, P)
+        _, _, G, Gp = self._correction(m[:, 0], m[:, 1], P, True)
+        return m, G, Gp
+
+    def _inverse(self, xb, yb, P):
+        """``m = g⁻¹(x̄)`` (n, 2) alone: Newton per point in one compiled pass (numpy evaluated g and
+        ∂g/∂m for every point in every step: 3.8 s of the 24 s CPU of DBAT's 90 561-mark Roma
+        project, now < 0.1 s); a point without an inverse (far outside the format, beyond the
+        radius where the correction folds back) keeps the first-order value m ≈ x̄ − (g(x̄) − x̄):
+        finite, so that initial iterations can go on."""
         from ..adjustment.kernels import brown_invert
 
         mx, my, _ = brown_invert(xb, yb, P, self.newton_tol, self.newton_max_iter)
-        _, _, G, Gp = self._correction(mx, my, P, True) if want_jac else (None, None, None, None)
-        return np.column_stack([mx, my]), G, Gp
+        return np.column_stack([mx, my])
 
     def distortion(self, xbar, ybar, params, c, meta):
         xb = np.asarray(xbar, float)
-        m, _, _ = self._invert(xb, ybar, self._params(params, xb.shape[0]), want_jac=False)
-        return m[:, 0] - xb, m[:, 1] - np.asarray(ybar, float)
+        yb = np.asarray(ybar, float)
+        m = self._inverse(xb, yb, self._params(params, xb.shape[0]))
+        return m[:, 0] - xb, m[:, 1] - yb
 
     def jacobians(self, xbar, ybar, params, c, meta, cols):
         xb = np.asarray(xbar, float)
