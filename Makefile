@@ -64,8 +64,9 @@ clean:
 
 # Whole runs against pycolmap (docs/benchmarks.md, "Whole runs"): `baarda run` of simulated aerial
 # blocks written as BAL projects (every output written) against pycolmap's SPARSE_SCHUR and default
-# solves, and a 60-photo close-range DBAT project; not part of `make test`.  The 10 000-photo block
-# takes ≈ 15–25 minutes with pycolmap's two solves: RUN_ARGS="--sizes 2000" for the short set.
+# solves, and DBAT's 60-photo Roma project (from a DBAT repository, see the script); not part of
+# `make test`.  The 10 000-photo block takes ≈ 15–25 minutes with pycolmap's two solves:
+# RUN_ARGS="--sizes 2000" for the short set.
 RUN_ARGS ?= --sizes 2000 10000
 .PHONY: bench-run
 bench-run: $(STAMP)

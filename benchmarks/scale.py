@@ -128,15 +128,26 @@ def _cost_px(block) -> float:
     return cost_px(block)
 
 
-def child_simulate(a) -> dict:
+def simulate_start(n_photos: int = 0, seed: int = 1, *, strips: int = 0, per_strip: int = 0):
+    """The simulated aerial block of ``n_photos`` (laid out by :func:`layout`, or ``strips`` ×
+    ``per_strip``) and its start disturbed as ``PERTURB``: ``(start, strips, per_strip)``.  The one
+    generator of this benchmark and of ``run_vs_pycolmap.py``."""
     import numpy as np
 
     from baarda.pipeline.synthetic.aerial import perturb_start, simulate_aerial
 
+    if not strips:
+        strips, per_strip = layout(n_photos)
+    rng = np.random.default_rng(seed)
+    noisy, _ = simulate_aerial(rng, n_strips=strips, photos_per_strip=per_strip)
+    return perturb_start(noisy, rng, **PERTURB), strips, per_strip
+
+
+def child_simulate(a) -> dict:
+    import numpy as np
+
     t0 = time.perf_counter()
-    rng = np.random.default_rng(a.seed)
-    noisy, _ = simulate_aerial(rng, n_strips=a.strips, photos_per_strip=a.per_strip)
-    start = perturb_start(noisy, rng, **PERTURB)
+    start, _, _ = simulate_start(seed=a.seed, strips=a.strips, per_strip=a.per_strip)
     seconds = time.perf_counter() - t0
     save_block(Path(a.block), start)
     s = start.summary()
@@ -231,15 +242,10 @@ def child_warm(a) -> dict:
     """Compile (or load from numba's cache) every kernel the solvers use, dense and sparse route, on
     a small block, so that no timed child pays for compilation (the first process after kernels.py
     changed compiles for ≈ 2–3 s)."""
-    import numpy as np
-
     from baarda.pipeline.adjustment import BundleSettings, adjust
-    from baarda.pipeline.synthetic.aerial import perturb_start, simulate_aerial
 
     t0 = time.perf_counter()
-    rng = np.random.default_rng(0)
-    noisy, _ = simulate_aerial(rng, n_strips=3, photos_per_strip=8)
-    start = perturb_start(noisy, rng, **PERTURB)
+    start, _, _ = simulate_start(seed=0, strips=3, per_strip=8)
     for solver in ("dense", "sparse"):
         adjust(start, BundleSettings(covariance=True, solver=solver))
     return {"seconds": time.perf_counter() - t0}
@@ -249,8 +255,9 @@ CHILDREN = {"simulate": child_simulate, "baarda": child_baarda, "pycolmap": chil
             "warm": child_warm}
 
 
-def child_main(a) -> int:
-    """Run one child: memory limit first, then the job; the result (or why it failed) as JSON."""
+def child_main(a, children=None) -> int:
+    """Run one child (``children[a.child]``, default this script's): memory limit first, then the
+    job; the result (or why it failed) as JSON in ``a.out``, with ``child_seconds`` and ``peak_kb``."""
     import resource
 
     if a.mem_gb > 0:
@@ -258,7 +265,7 @@ def child_main(a) -> int:
         resource.setrlimit(resource.RLIMIT_AS, (lim, lim))
     t0 = time.perf_counter()
     try:
-        out = CHILDREN[a.child](a)
+        out = (children or CHILDREN)[a.child](a)
         out["status"] = "ok"
         code = 0
     except MemoryError:
@@ -275,18 +282,13 @@ def child_main(a) -> int:
 
 
 # -- the parent (no numpy here: a child's ru_maxrss includes the parent's resident set) ------------
-def run_child(kind: str, workdir: Path, tag: str, args: list[str], *, timeout: float, mem_gb: float) -> dict:
-    """Run one child to completion, timeout or death; its JSON result plus ``status``, ``peak_kb``."""
-    out = workdir / f"{tag}-{kind}.json"
-    out.unlink(missing_ok=True)
-    env = dict(os.environ)
-    for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-        env.setdefault(k, "1")
-    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT / "benchmarks"), env.get("PYTHONPATH")]))
-    cmd = [sys.executable, str(Path(__file__).resolve()), "--child", kind, "--out", str(out),
-           "--mem-gb", str(mem_gb), *args]
-    with open(workdir / f"{tag}-{kind}.stdout", "w") as so, open(workdir / f"{tag}-{kind}.stderr", "w") as se:
-        proc = subprocess.Popen(cmd, stdout=so, stderr=se, env=env, cwd=str(ROOT))
+def run_process(cmd: list[str], stdout: Path, stderr: Path, *, timeout: float, env=None, cwd=None) -> dict:
+    """Run ``cmd`` to completion or ``timeout`` (then killed): ``rc``, ``timed_out``, wall and CPU
+    seconds (``wait4``'s rusage of the child) and ``ru_maxrss_kb``, the child's high-water resident
+    set as the kernel counts it (for a child that ``exec``s at once, its own)."""
+    with open(stdout, "w") as so, open(stderr, "w") as se:
+        t0 = time.perf_counter()
+        proc = subprocess.Popen(cmd, stdout=so, stderr=se, env=env, cwd=cwd or str(ROOT))
         deadline = time.monotonic() + timeout
         timed_out = False
         while True:
@@ -298,28 +300,50 @@ def run_child(kind: str, workdir: Path, tag: str, args: list[str], *, timeout: f
                 pid, status, ru = os.wait4(proc.pid, 0)
                 timed_out = True
                 break
-            time.sleep(0.1)
-        proc.returncode = os.waitstatus_to_exitcode(status)
+            time.sleep(0.05)
+        wall = time.perf_counter() - t0
+    return {"rc": os.waitstatus_to_exitcode(status), "timed_out": timed_out, "wall_seconds": wall,
+            "cpu_seconds": ru.ru_utime + ru.ru_stime, "ru_maxrss_kb": int(ru.ru_maxrss)}
+
+
+def failure_status(w: dict, stderr: Path, timeout: float) -> str:
+    """Why a child gave no result: timeout, killed (out of memory?), or its last line of stderr."""
+    rc = w["rc"]
+    if w["timed_out"]:
+        return f"timeout ({timeout:.0f} s)"
+    if rc == -signal.SIGKILL:
+        return "killed (out of memory?)"
+    if rc < 0:
+        return f"killed by signal {-rc}"
+    tail = stderr.read_text(errors="replace").strip().splitlines() if stderr.exists() else []
+    last = tail[-1][:120] if tail else "no message"
+    oom = any(w in last.lower() for w in ("memory", "bad_alloc"))
+    return f"{'out of memory' if oom else 'failed'} (exit {rc}): {last}"
+
+
+def run_child(kind: str, workdir: Path, tag: str, args: list[str], *, timeout: float, mem_gb: float,
+              script: Path | None = None) -> dict:
+    """Run one child of ``script`` (default this one: ``--child kind``) to completion, timeout or
+    death; its JSON result plus ``status``, ``peak_kb`` and the ``run_process`` numbers."""
+    out = workdir / f"{tag}-{kind}.json"
+    out.unlink(missing_ok=True)
+    env = dict(os.environ)
+    for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        env.setdefault(k, "1")
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT / "benchmarks"), env.get("PYTHONPATH")]))
+    cmd = [sys.executable, str(Path(script or __file__).resolve()), "--child", kind, "--out", str(out),
+           "--mem-gb", str(mem_gb), *args]
+    stderr = workdir / f"{tag}-{kind}.stderr"
+    w = run_process(cmd, workdir / f"{tag}-{kind}.stdout", stderr, timeout=timeout, env=env)
     result = {}
     if out.exists():
         try:
             result = json.loads(out.read_text())
         except ValueError:
             result = {}
-    if timed_out:
-        result["status"] = f"timeout ({timeout:.0f} s)"
-    elif not result.get("status"):
-        rc = proc.returncode
-        if rc == -signal.SIGKILL:
-            result["status"] = "killed (out of memory?)"
-        elif rc < 0:
-            result["status"] = f"killed by signal {-rc}"
-        else:
-            tail = (workdir / f"{tag}-{kind}.stderr").read_text(errors="replace").strip().splitlines()
-            last = tail[-1][:120] if tail else "no message"
-            oom = any(w in last.lower() for w in ("memory", "bad_alloc"))
-            result["status"] = f"{'out of memory' if oom else 'failed'} (exit {rc}): {last}"
-    result.setdefault("peak_kb", int(ru.ru_maxrss))
+    if w["timed_out"] or not result.get("status"):
+        result["status"] = failure_status(w, stderr, timeout)
+    result.setdefault("peak_kb", w["ru_maxrss_kb"])
     return result
 
 

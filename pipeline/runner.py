@@ -206,7 +206,7 @@ def undeclared_outputs(spec, names) -> list[str]:
 
 
 def _write_outputs(run_dir, spec, stage, result, ctx, rec, recording_id, outputs="full") -> None:
-    written = write_tables(run_dir, spec.id, result.tables, outputs=outputs)
+    written = write_tables(run_dir, spec.id, result.tables, outputs=outputs, progress=ctx.progress)
     rec.tables, rec.skipped = written.tables, written.skipped
     rec.files += written.files
     note = skipped_note(spec.id, written.skipped)
@@ -288,13 +288,17 @@ def viewer_command() -> str:
 def _write_recording(run_dir, spec, stage, result, ctx, rec, recording_id):
     fname = f"{spec.id}.rrd"
     rr_stream = open_recording(run_dir / fname, recording_id)
-    try:
-        log_text(rr_stream, f"{spec.id}/summary", f"## {spec.id} ({spec.use})\n\n{result.report}")
-        log_values(rr_stream, f"{spec.id}/results", result.summary)
-        if hasattr(stage, "log"):
-            stage.log(result, rr_stream, ctx)
-    finally:
-        rr_stream.disconnect()
+    with ctx.progress.bar(3, "recording", unit="step") as bar:     # summary, the stage's log, the file
+        try:
+            log_text(rr_stream, f"{spec.id}/summary", f"## {spec.id} ({spec.use})\n\n{result.report}")
+            log_values(rr_stream, f"{spec.id}/results", result.summary)
+            bar.update(1, last="summary")
+            if hasattr(stage, "log"):
+                stage.log(result, rr_stream, ctx)
+            bar.update(1, last="log")
+        finally:
+            rr_stream.disconnect()
+        bar.update(1, last=fname)
     rec.files.append(fname)
 
 

@@ -153,20 +153,37 @@ class Written:
     """Names of tables marked ``detail`` not written (``outputs = "summary"``)."""
 
 
+def table_rows(table: TableData) -> int:
+    """Rows of a table (its longest column), without converting it."""
+    return max((len(v) for v in table.columns.values() if hasattr(v, "__len__")), default=0)
+
+
 def write_tables(directory: str | Path, stage_id: str, tables: Mapping[str, TableData], *,
-                 outputs: str = "full") -> Written:
+                 outputs: str = "full", progress=None) -> Written:
     """Write a stage's tables as ``<stage id>_<name>.csv`` / ``.parquet``; with ``outputs =
-    "summary"`` the tables marked ``detail`` are skipped (their names in ``skipped``)."""
+    "summary"`` the tables marked ``detail`` are skipped (their names in ``skipped``).
+    ``progress`` (a :class:`~baarda.pipeline.stage.Progress`) shows a bar over the rows written."""
     if outputs not in OUTPUTS:
         raise ValueError(f"outputs must be one of {', '.join(OUTPUTS)}, got {outputs!r}")
     done = Written()
+    todo = {}
     for name, table in tables.items():
         if outputs == "summary" and table.detail:
             done.skipped.append(name)
-            continue
-        entry = write_table(directory, f"{stage_id}_{name}", table, stage=stage_id, name=name)
-        done.tables[name] = entry
-        done.files += [entry["csv"], entry["parquet"]]
+        else:
+            todo[name] = table
+    rows = {name: max(1, table_rows(t)) for name, t in todo.items()}
+    bar = progress.bar(sum(rows.values()), "tables", unit="rows") if progress is not None and todo else None
+    try:
+        for name, table in todo.items():
+            entry = write_table(directory, f"{stage_id}_{name}", table, stage=stage_id, name=name)
+            done.tables[name] = entry
+            done.files += [entry["csv"], entry["parquet"]]
+            if bar is not None:
+                bar.update(rows[name], last=name)
+    finally:
+        if bar is not None:
+            bar.close()
     return done
 
 

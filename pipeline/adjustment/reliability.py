@@ -229,11 +229,12 @@ def own_effects(res, delta0: float = 4.13, bias=None, chunk_bytes: float = 3.2e7
     image row on its own point's coordinates and its own photo's orientation, either solver route."""
     if res.snapshot is None:
         raise ValueError("external reliability needs the precision: adjust with covariance = true")
+    phase_step("external reliability", 0, len(res.problem.oi), "observations")     # the system at the solution first
     prob, lin, red, Qx = _system(res)
     st = res.state
     k_all = len(res.residuals)
     bias = row_mdb(res, delta0) if bias is None else np.asarray(bias, float).reshape(k_all, 2)
-    n_g, n_e, n_c, q = prob.n_g, prob.n_e, prob.n_c, prob.layout.q
+    n_e, n_c, q = prob.n_e, prob.n_c, prob.layout.q
     Jc, Jp, L = lin.Jc, lin.Jp, prob.L
     Li, B = red.Li, red.B
     k = len(prob.oi)
@@ -293,21 +294,7 @@ def own_effects(res, delta0: float = 4.13, bias=None, chunk_bytes: float = 3.2e7
     single = np.flatnonzero(prob.layout.pidx == n_e)
     red.route.hand_blocks(red, Qx, groups, single, tracks, singles, chunk_bytes)
     if datum is not None:
-        Gg, Gp, T, Yg, Yp = datum
-        Yx = np.vstack([Yg, np.zeros((1, n_c))])
-        CtD = np.einsum("kqc,kqd->kcd", Yx[prob.layout.cidx], G_all)                  # (k, n_c, 2)
-        ep = prob.layout.pidx < n_e
-        if ep.any():
-            CtD[ep] += np.einsum("kac,kad->kcd", Yp[prob.layout.pidx[ep]], Ap_all[ep])
-        TC = np.einsum("cd,kdr->kcr", T, CtD)
-        Gx = np.vstack([Gg, np.zeros((1, n_c))])
-        geo = np.where(prob.g_eo[prob.obs_photo] >= 0, prob.g_eo[prob.obs_photo], n_g)
-        eo_eff -= np.einsum("kac,kcr->kra", Gx[geo], TC)
-        if ep.any():
-            pt_eff[ep] -= np.einsum("kac,kcr->kra", Gp[prob.layout.pidx[ep]], TC[ep]) * prob.layout.pt_mask[ep][:, None, :]
-        gpt = np.where(prob.g_pt[prob.obs_point] >= 0, prob.g_pt[prob.obs_point], n_g)
-        if (~ep).any():
-            pt_eff[~ep] -= np.einsum("kac,kcr->kra", Gx[gpt[~ep]], TC[~ep])
+        _s_transform_effects(prob, datum, G_all, Ap_all, eo_eff, pt_eff, chunk_bytes)
     # to block order, scaled by the biases
     point = np.full((k_all, 2, 3), np.nan)
     eo = np.full((k_all, 2, 6), np.nan)
@@ -323,6 +310,40 @@ def own_effects(res, delta0: float = 4.13, bias=None, chunk_bytes: float = 3.2e7
     esig = np.sqrt(np.clip(np.einsum("mii->mi", res.cov_eo), 0, None) * var0)[obs.photo]
     return OwnEffects(bias=bias, point=point, eo=eo, point_sigma=np.repeat(psig[:, None], 2, axis=1),
                       eo_sigma=np.repeat(esig[:, None], 2, axis=1), bar_delta0=bar_delta0(res, bias))
+
+
+def _s_transform_effects(prob, datum, G_all, Ap_all, eo_eff, pt_eff, chunk_bytes):
+    """A free network's S-transformation of the per-unit effects (in place): ``eo_eff`` (k, 2, 6)
+    and ``pt_eff`` (k, 2, 3) minus the datum part ``G T Cᵀ D`` of each row, ``C`` the row's
+    constraint columns (``Y``), ``G`` the motions of its photo and point.  Over chunks of rows, so
+    that the (rows, columns, n_c) gathers stay within ``chunk_bytes`` (at 10 000 photos one gather
+    of every row was 0.5 GB); each row's products are the same einsums as over all rows at once."""
+    Gg, Gp, T, Yg, Yp = datum
+    n_g, n_e, n_c = prob.n_g, prob.n_e, prob.n_c
+    k = len(G_all)
+    Yx = np.vstack([Yg, np.zeros((1, n_c))])
+    Gx = np.vstack([Gg, np.zeros((1, n_c))])
+    cidx, pidx, mask = prob.layout.cidx, prob.layout.pidx, prob.layout.pt_mask
+    geo = np.where(prob.g_eo[prob.obs_photo] >= 0, prob.g_eo[prob.obs_photo], n_g)
+    gpt = np.where(prob.g_pt[prob.obs_point] >= 0, prob.g_pt[prob.obs_point], n_g)
+    step = max(1, int(chunk_bytes / (8.0 * max(1, cidx.shape[1] + 9) * n_c)))
+    for a in range(0, k, step):
+        phase_step("external reliability: datum", a, k, "rows")
+        sl = slice(a, min(k, a + step))
+        pid = pidx[sl]
+        ep = np.flatnonzero(pid < n_e)                      # rows of eliminated points, in the chunk
+        gp = np.flatnonzero(pid >= n_e)                     # rows of global points (scale bars)
+        CtD = np.einsum("kqc,kqd->kcd", Yx[cidx[sl]], G_all[sl])                       # (c, n_c, 2)
+        if ep.size:
+            CtD[ep] += np.einsum("kac,kad->kcd", Yp[pid[ep]], Ap_all[sl][ep])
+        TC = np.einsum("cd,kdr->kcr", T, CtD)                                           # (c, n_c, 2)
+        eo_eff[sl] -= np.einsum("kac,kcr->kra", Gx[geo[sl]], TC)
+        if ep.size:
+            rows = a + ep
+            pt_eff[rows] -= np.einsum("kac,kcr->kra", Gp[pid[ep]], TC[ep]) * mask[rows][:, None, :]
+        if gp.size:
+            rows = a + gp
+            pt_eff[rows] -= np.einsum("kac,kcr->kra", Gx[gpt[rows]], TC[gp])
 
 
 def _layout(prob):

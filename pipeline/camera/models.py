@@ -570,39 +570,26 @@ class BrownBackward(APModel):
         """``m = g⁻¹(x̄)`` by Newton's method; returns m (n, 2), G and ∂g/∂θ at m."""
         xb = np.asarray(xbar, float)
         yb = np.asarray(ybar, float)
-        n = xb.shape[0]
-        # first-order start: m ≈ x̄ − (g(x̄) − x̄)
-        gx, gy, _, _ = self._correction(xb, yb, P, False)
-        mx0, my0 = 2 * xb - gx, 2 * yb - gy
-        bad = ~(np.isfinite(mx0) & np.isfinite(my0))
-        mx0[bad], my0[bad] = xb[bad], yb[bad]
-        mx, my = mx0.copy(), my0.copy()
-        scale = np.maximum(1.0, np.abs(xb) + np.abs(yb))
-        done = np.zeros(n, bool)
-        for _ in range(self.newton_max_iter):
-            gx, gy, G, _ = self._correction(mx, my, P, True)
-            rx, ry = gx - xb, gy - yb
-            done = np.abs(rx) + np.abs(ry) <= self.newton_tol * scale
-            if done.all():
-                break
-            det = G[:, 0, 0] * G[:, 1, 1] - G[:, 0, 1] * G[:, 1, 0]
-            ok = det > 1e-12                      # beyond the fold of g (det ≤ 0) there is no inverse
-            det = np.where(ok, det, 1.0)
-            sx = np.where(ok, (G[:, 1, 1] * rx - G[:, 0, 1] * ry) / det, 0.0)
-            sy = np.where(ok, (-G[:, 1, 0] * rx + G[:, 0, 0] * ry) / det, 0.0)
-            mx, my = mx - sx, my - sy
-        # a point without an inverse (far outside the format, beyond the radius where the correction
-        # folds back) keeps the first-order value: finite, so that initial iterations can go on
-        fail = ~done | ~np.isfinite(mx) | ~np.isfinite(my)
-        if fail.any():
-            mx[fail], my[fail] = mx0[fail], my0[fail]
-        _, _, G, Gp = self._correction(mx, my, P, True)
-        return np.column_stack([mx, my]), G, Gp
+        m = self._inverse(xb, yb, P)
+        _, _, G, Gp = self._correction(m[:, 0], m[:, 1], P, True)
+        return m, G, Gp
+
+    def _inverse(self, xb, yb, P):
+        """``m = g⁻¹(x̄)`` (n, 2) alone: Newton per point in one compiled pass (numpy evaluated g and
+        ∂g/∂m for every point in every step: 3.8 s of the 24 s CPU of DBAT's 90 561-mark Roma
+        project, now < 0.1 s); a point without an inverse (far outside the format, beyond the
+        radius where the correction folds back) keeps the first-order value m ≈ x̄ − (g(x̄) − x̄):
+        finite, so that initial iterations can go on."""
+        from ..adjustment.kernels import brown_invert
+
+        mx, my, _ = brown_invert(xb, yb, P, self.newton_tol, self.newton_max_iter)
+        return np.column_stack([mx, my])
 
     def distortion(self, xbar, ybar, params, c, meta):
         xb = np.asarray(xbar, float)
-        m, _, _ = self._invert(xb, ybar, self._params(params, xb.shape[0]))
-        return m[:, 0] - xb, m[:, 1] - np.asarray(ybar, float)
+        yb = np.asarray(ybar, float)
+        m = self._inverse(xb, yb, self._params(params, xb.shape[0]))
+        return m[:, 0] - xb, m[:, 1] - yb
 
     def jacobians(self, xbar, ybar, params, c, meta, cols):
         xb = np.asarray(xbar, float)

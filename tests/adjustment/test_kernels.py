@@ -260,3 +260,45 @@ def test_extend_add_and_gather_block(rng):
     G = kernels.gather_block(F, rel)
     assert G.flags.c_contiguous
     assert np.array_equal(G, F[np.ix_(rel, rel)])
+
+
+def _brown_invert_numpy(xb, yb, P, tol=1e-13, max_iter=30):
+    """The numpy form of the ``brown-backward`` inversion (every point stepped until all converged)."""
+    from baarda.pipeline.camera.models import BrownBackward
+
+    corr = BrownBackward._correction
+    gx, gy, _, _ = corr(xb, yb, P, False)
+    mx, my = 2 * xb - gx, 2 * yb - gy
+    scale = np.maximum(1.0, np.abs(xb) + np.abs(yb))
+    for _ in range(max_iter):
+        gx, gy, G, _ = corr(mx, my, P, True)
+        rx, ry = gx - xb, gy - yb
+        done = np.abs(rx) + np.abs(ry) <= tol * scale
+        if done.all():
+            break
+        det = G[:, 0, 0] * G[:, 1, 1] - G[:, 0, 1] * G[:, 1, 0]
+        mx, my = mx - (G[:, 1, 1] * rx - G[:, 0, 1] * ry) / det, my - (-G[:, 1, 0] * rx + G[:, 0, 0] * ry) / det
+    return mx, my, done
+
+
+def test_brown_invert_is_the_newton_iteration(rng):
+    """Inside the format the compiled inversion is the numpy iteration's to the last bit and g(m) = x̄;
+    beyond the fold of g (no inverse) it keeps the first-order value and says so."""
+    from baarda.pipeline.camera.models import BrownBackward
+
+    n = 500
+    xb, yb = rng.uniform(-18, 18, n), rng.uniform(-12, 12, n)
+    P = np.tile([-2.0e-4, 3.0e-7, -1.0e-10, 2.0e-5, -1.5e-5, 1.0e-4, -2.0e-4], (n, 1))
+    mx, my, ok = kernels.brown_invert(xb, yb, P, 1e-13, 30)
+    rx, ry, done = _brown_invert_numpy(xb, yb, P)
+    assert ok.all() and done.all()
+    np.testing.assert_array_equal(mx, rx)
+    np.testing.assert_array_equal(my, ry)
+    gx, gy, _, _ = BrownBackward._correction(mx, my, P, False)
+    assert np.abs(gx - xb).max() < 1e-12 and np.abs(gy - yb).max() < 1e-12
+    # far outside the format a strong negative K1 folds g back: no inverse, the first-order value
+    far = np.array([400.0]), np.array([300.0])
+    Pf = np.array([[-1.0e-3, 0, 0, 0, 0, 0, 0]])
+    mx, my, ok = kernels.brown_invert(*far, Pf, 1e-13, 30)
+    gx, gy, _, _ = BrownBackward._correction(*far, Pf, False)
+    assert not ok[0] and mx[0] == 2 * far[0][0] - gx[0] and my[0] == 2 * far[1][0] - gy[0]

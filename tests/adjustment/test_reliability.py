@@ -125,6 +125,21 @@ def test_free_network_effects_on_inner_constraints(solver, on):
     res = adjust(blk, BundleSettings(datum="free", solver=solver, datum_centres=on == "centres"))
     assert res.n_datum_constraints > 0 and res.solver_route == solver
     _check_own(res, free=True, rtol=5e-4, on=on)
+    if solver == "sparse":     # the S-transformation over chunks of rows: the same numbers as all at once
+        from baarda.pipeline.adjustment.phases import PHASE_CALLBACK
+
+        events = []
+        token = PHASE_CALLBACK.set(events.append)
+        try:
+            a, b = own_effects(res), own_effects(res, chunk_bytes=2e3)
+        finally:
+            PHASE_CALLBACK.reset(token)
+        k = len(res.problem.oi)        # progress: the system, the tracks, then the datum's chunks
+        assert (events[0].phase, events[0].done, events[0].total) == ("external reliability", 0, k)
+        datum = [e for e in events if e.phase == "external reliability: datum"]
+        assert len(datum) > 2 and all(e.total == k for e in datum) and datum[-1].done < k
+        np.testing.assert_array_equal(a.point, b.point)
+        np.testing.assert_array_equal(a.eo, b.eo)
 
 
 def test_parameter_covariance_against_dense_inverse():

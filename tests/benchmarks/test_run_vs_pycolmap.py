@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import importlib.util
 import io
+import shutil
+import subprocess
 import sys
 
 import numpy as np
@@ -40,7 +42,8 @@ def test_whole_run_200_photos(repo_root, tmp_path):
     assert set(r["baarda"]["stages"]) == {"source", "bundle"}
     assert r["sparse"]["status"] == r["default"]["status"] == "ok"
     assert r["sparse"]["linear_solver"] == "SPARSE_SCHUR"
-    assert (tmp_path / "aerial-200-run" / "results.json").exists()
+    assert (tmp_path / "aerial-200-0-run" / "results.json").exists()
+    assert len(r["baarda"]["load"]) == 2
 
 
 def test_closerange_block(repo_root):
@@ -51,3 +54,26 @@ def test_closerange_block(repo_root):
     assert len(block.photos) == 12 and (rays[10:] >= 2).all() and 2.9 < rays[10:].mean() < 4.0
     assert np.isnan(block.points.XYZ[10:]).all() and np.isfinite(block.points.XYZ[:10]).all()
     assert block.photos.has_orientation.all() and str(block.cameras.ap_model[0]) == "brown-backward"
+
+
+@pytest.mark.skipif(shutil.which("git") is None, reason="needs git")
+def test_find_roma(repo_root, tmp_path):
+    """Roma from a DBAT work tree, from a bare git directory (extracted with ``git show``), or
+    ``None`` with the places it looked in — then the simulated close-range project stands in."""
+    bench = _module(repo_root)
+    tree = tmp_path / "dbat"
+    demo = tree / bench.ROMA
+    (demo / "measurements").mkdir(parents=True)
+    (demo / "romabundledemo.xml").write_text("<document/>")
+    (demo / "measurements" / "markpts.txt").write_text(" 1, 1, 2.0, 3.0\n")
+    xml, where = bench.find_roma(tmp_path / "w1", str(tree))
+    assert xml == demo / "romabundledemo.xml" and "work tree" in where
+    git = ["git", "-C", str(tree), "-c", "user.name=t", "-c", "user.email=t@t"]
+    subprocess.run([*git, "init", "-q"], check=True)
+    subprocess.run([*git, "add", "."], check=True)
+    subprocess.run([*git, "commit", "-qm", "roma"], check=True)
+    xml, where = bench.find_roma(tmp_path / "w2", str(tree / ".git"))
+    assert xml == tmp_path / "w2" / "romabundledemo" / "romabundledemo.xml" and "git" in where
+    assert (xml.parent / "measurements" / "markpts.txt").read_text() == " 1, 1, 2.0, 3.0\n"
+    xml, where = bench.find_roma(tmp_path / "w3", str(tmp_path / "nothing"))
+    assert xml is None and "nothing" in where

@@ -104,6 +104,20 @@ def test_summary_outputs_skip_detail_tables(tmp_path):
         write_tables(tmp_path, "st", tables, outputs="some")
 
 
+def test_writing_tables_shows_progress_over_rows(tmp_path):
+    """Writing a stage's tables is a phase with a bar: rows written of all rows, the last table."""
+    import io
+
+    from baarda.pipeline.stage import Progress
+
+    out = io.StringIO()
+    tables = {"observations": TableData({"a": np.arange(300)}, detail=True), "sums": TableData({"b": [2.0]})}
+    write_tables(tmp_path, "st", tables, progress=Progress("st", stream=out, enabled=True, live=False, interval=0))
+    lines = out.getvalue().splitlines()
+    assert lines[0].startswith("  [st] tables 300/301 (100 %), last observations")
+    assert lines[-1].startswith("  [st] tables 301/301 (100 %), last sums")
+
+
 @pytest.fixture(scope="module")
 def full_run(tmp_path_factory) -> Path:
     """Paper 000's Data 1 run with every output."""
