@@ -129,13 +129,14 @@ def read_limited(path, limit: int = TEXT_MAX_BYTES, what: str = "this input") ->
 
 
 def read_text_limited(path, limit: int = TEXT_MAX_BYTES, what: str = "this input",
-                      encoding: str = "utf-8") -> str:
+                      encoding: str = "utf-8", field: str | None = None) -> str:
     """:func:`read_limited`, decoded: bytes that are not ``encoding`` are an :class:`InputError`
-    naming the line and the byte (never a ``UnicodeDecodeError``)."""
+    naming the line, the byte and ``field`` (the file's kind of content, for readers whose every
+    error names a field; never a ``UnicodeDecodeError``)."""
     data = read_limited(path, limit, what)
     try:
         return data.decode(encoding)
     except UnicodeDecodeError as e:
         line = data.count(b"\n", 0, e.start) + 1
         raise InputError(f"not {encoding.upper()} text (byte 0x{data[e.start]:02x}); save the file as "
-                         f"{encoding.upper()}", path=path, line=line) from None
+                         f"{encoding.upper()}", path=path, line=line, field=field) from None

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from baarda.pipeline.camera.convert import BROWN, brown_from_opencv, opencv_from_brown
-from baarda.pipeline.errors import InputError
+from baarda.pipeline.errors import InputError, read_text_limited
 from baarda.pipeline.geometry.image import mm_from_pixels, pixels_from_mm
 from baarda.pipeline.geometry.pose import cv_from_pose, pose_from_cv
 from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points, SourceInfo
@@ -120,29 +120,29 @@ def opensfm_from_camera(c, xp, yp, ap, size, pixel_mm) -> dict:
 def read_tracks(path: Path) -> tuple[list[str], list[str], np.ndarray, np.ndarray]:
     """``(images, track ids, xy_norm (n, 2), line numbers)`` of an OpenSfM ``tracks.csv`` (v0, v1, v2)."""
     images, tracks, xy, lines = [], [], [], []
-    with open(path, encoding="utf-8") as f:
-        for ln, line in enumerate(f, 1):
-            if ln == 1 and line.startswith(TRACKS_HEADER):
-                continue
-            if not line.strip():
-                continue
-            parts = line.rstrip("\n").split("\t")
-            if len(parts) < 5:
-                raise InputError(f"expected at least 5 tab-separated columns (image, track_id, feature_id, x, y), "
-                                 f"got {len(parts)}", path=path, line=ln, field="x" if len(parts) == 4 else "columns")
-            for k, name in ((3, "x"), (4, "y")):
-                try:
-                    val = float(parts[k])
-                except ValueError:
-                    raise InputError(f"{name}: expected a number, got {parts[k]!r}", path=path, line=ln,
-                                     field=name) from None
-                if not math.isfinite(val):
-                    raise InputError(f"{name}: expected a finite number, got {parts[k]!r}", path=path, line=ln,
-                                     field=name)
-            images.append(parts[0])
-            tracks.append(parts[1])
-            xy.append((float(parts[3]), float(parts[4])))
-            lines.append(ln)
+    text = read_text_limited(path, what="tracks.csv", field="tracks")
+    for ln, line in enumerate(text.replace("\r\n", "\n").replace("\r", "\n").split("\n"), 1):   # as open() reads
+        if ln == 1 and line.startswith(TRACKS_HEADER):
+            continue
+        if not line.strip():
+            continue
+        parts = line.rstrip("\n").split("\t")
+        if len(parts) < 5:
+            raise InputError(f"expected at least 5 tab-separated columns (image, track_id, feature_id, x, y), "
+                             f"got {len(parts)}", path=path, line=ln, field="x" if len(parts) == 4 else "columns")
+        for k, name in ((3, "x"), (4, "y")):
+            try:
+                val = float(parts[k])
+            except ValueError:
+                raise InputError(f"{name}: expected a number, got {parts[k]!r}", path=path, line=ln,
+                                 field=name) from None
+            if not math.isfinite(val):
+                raise InputError(f"{name}: expected a finite number, got {parts[k]!r}", path=path, line=ln,
+                                 field=name)
+        images.append(parts[0])
+        tracks.append(parts[1])
+        xy.append((float(parts[3]), float(parts[4])))
+        lines.append(ln)
     return images, tracks, np.array(xy, float).reshape(-1, 2), np.array(lines, int)
 
 
@@ -164,10 +164,9 @@ def read_opensfm(path: str | Path, *, tracks: str | Path | None = None, pixel_mm
     path = Path(path)
     if intrinsics not in ("opensfm", "fixed", "free"):
         raise ValueError(f"intrinsics must be 'opensfm', 'fixed' or 'free', got {intrinsics!r}")
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
+    if not path.exists():
         raise InputError("reconstruction.json not found", path=path) from None
+    text = read_text_limited(path, what="reconstruction.json", field="json")
     try:
         doc = json.loads(text)
     except json.JSONDecodeError as e:

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from baarda.pipeline.api import InputError
-from baarda.pipeline.errors import finite_number as _num
+from baarda.pipeline.errors import finite_number as _num, read_text_limited
 from baarda.pipeline.model import FIXED
 from .pm_reader import PmExport
 from .reader import IO_FLAGS, DbatCamera, DbatScript, MarkFile, PointSet
@@ -30,16 +30,7 @@ DBAT_ESTIMATE_NAMES = {"cc": ("cc",), "px": ("px",), "py": ("py",), "pp": ("px",
 def read_control(file: Path) -> PointSet:
     """A DBAT control-point file (``loadcpt``): ``id,label,x,y,z`` then 0, 1, 2 or 3 σ values."""
     file = Path(file)
-    try:
-        text = file.read_bytes().decode("utf-8")
-    except FileNotFoundError:
-        raise InputError("file not found", path=file) from None
-    except IsADirectoryError:
-        raise InputError("is a folder, not a file", path=file) from None
-    except UnicodeDecodeError:
-        raise InputError("not a UTF-8 text file", path=file) from None
-    except OSError as e:
-        raise InputError(f"cannot read: {e.strerror}", path=file) from None
+    text = read_text_limited(file, what="the control-point file", field="id")
     ids, labels, XYZ, sig, lines = [], [], [], [], []
     seen = {}
     for i, raw in enumerate(text.splitlines(), start=1):
