@@ -10,7 +10,8 @@ redundancy numbers), :mod:`.diagnose` (a singular system named), :mod:`.initial`
 intersection, initial values), :mod:`.apselect` (additional-parameter selection), :mod:`.adjust`
 (the entry point and its result), :mod:`.reproject` (a block's reprojection errors),
 :mod:`.variance` (variance components per observation group), :mod:`.reliability` (external
-reliability, covariances of chosen parameters, the linearised model for RRR), :mod:`.workflow` (the
+reliability, covariances of chosen parameters, the linearised model for RRR), :mod:`.rig` (camera rigs: frames and sensor poses,
+docs/rigs.md), :mod:`.workflow` (the
 whole bundle workflow: :func:`adjust_block` with a :class:`BundleConfig`, docs/library.md).
 
 Everything other code needs is imported from this package::
@@ -34,6 +35,7 @@ from .problem import BundleProblem
 from .records import Convergence, Iteration, IterationEvent, Timings
 from .reliability import (GlobalRowStats, OwnEffects, ParameterVectors, effect_vectors, global_rows, linearised_model,
                           own_effects, parameter_covariance, row_mdb)
+from .rig import SENSOR_NAMES, RigResult, RigStructure, SensorResult, rig_result, rig_structure
 from .reproject import project_block, reprojection_px, reprojection_summary
 from .settings import BundleSettings, BundleState, Distance, camera_meta
 from .variance import (GroupPart, LinearComponents, VarianceComponents, VarianceGroup, estimate_components,
@@ -55,4 +57,5 @@ __all__ = [
     "adjust_block", "BundleConfig", "BundleReport", "configure_block", "bundle_settings", "ScaleBar",
     "SolverConfig", "StatTestsConfig", "RobustConfig", "VarianceComponentsConfig", "APSelectionConfig",
     "OutputConfig", "EO_LABELS",
+    "rig_result", "RigResult", "SensorResult", "rig_structure", "RigStructure", "SENSOR_NAMES",
 ]

@@ -1,0 +1,121 @@
+"""Rigs in the bundle core: Jacobians against finite differences, truth recovery on a simulated
+stereo rig, fixed / weighted sensors, the stability test, and the structure's errors."""
+
+import numpy as np
+import pytest
+
+from baarda.pipeline.adjustment import BundleProblem, BundleSettings, adjust, rig_result
+from baarda.pipeline.adjustment.rig import compose_photos
+from baarda.pipeline.errors import InputError
+from baarda.pipeline.model import FrameMembers
+from baarda.pipeline.synthetic.rig import make_rig_block
+
+
+def _perturbed(block, seed=5):
+    rng = np.random.default_rng(seed)
+    ph, pts = block.photos, block.points
+    tie = (pts.role == "tie")[:, None]
+    return block.replace(photos=ph.replace(X0=ph.X0 + rng.normal(0, 0.03, ph.X0.shape),
+                                           opk=ph.opk + rng.normal(0, 0.01, ph.opk.shape)),
+                         points=pts.replace(XYZ=np.where(tie, pts.XYZ + rng.normal(0, 0.02, pts.XYZ.shape), pts.XYZ)))
+
+
+def test_rig_jacobians_match_finite_differences():
+    block, truth = make_rig_block(np.random.default_rng(0), n_frames=4, n_points=20,
+                                  sensors=((0, 0, 0, 0, 0, 0), (0.3, 0.05, -0.1, 0.2, -0.4, 0.3)))
+    prob = BundleProblem(block, BundleSettings())
+    st = prob.initial_state()
+    pr = prob.project(st, jacobians=True)
+    J = pr.J_eo                                                   # (k, 2, 12): frame 6 | sensor 6
+    assert J.shape[2] == 12
+    h = 1e-7
+    for which, arr in (("frame", 0), ("sensor", 6)):
+        for t in range(6):
+            xy = []
+            for sgn in (1, -1):
+                s2 = st.copy()
+                target = s2.frame if which == "frame" else s2.sensor
+                target[:, t] += sgn * h
+                s2.X0, s2.opk = compose_photos(prob.rig, s2.frame, s2.sensor, s2.X0, s2.opk)
+                xy.append(prob.project(s2, jacobians=False).xy)
+            fd = (xy[0] - xy[1]) / (2 * h)
+            col = J[:, :, arr + t]
+            if which == "sensor":          # only the non-reference sensor's photos depend on it
+                on = prob.rig.photo_sensor[prob.obs_photo] == 1
+                fd, col = fd[on], col[on]
+            np.testing.assert_allclose(col, fd, atol=1e-5 * np.abs(fd).max() + 1e-9)
+
+
+def test_stereo_rig_recovers_truth_within_sigma():
+    block, truth = make_rig_block(np.random.default_rng(1), noise_mm=0.001)
+    res = adjust(_perturbed(block))
+    assert abs(res.sigma0_hat - 1) < 0.1
+    rr = rig_result(res)
+    s = rr.sensors[1]
+    assert not s.reference_sensor and s.status == ("estimated",) * 6
+    z = (s.value - truth["sensor"][1]) / s.sigma
+    assert np.all(np.abs(z) < 4), z
+    np.testing.assert_allclose(s.baseline, np.linalg.norm(truth["sensor"][1][:3]), atol=4 * s.sigma_baseline)
+    # photos' orientations are the composition, with the covariance propagated (non-zero for every photo)
+    assert (res.eo_sigmas()[res.photo_used] > 0).all()
+    assert np.abs(res.state.X0 - truth["X0"]).max() < 5e-3
+
+
+def test_rig_has_fewer_unknowns_than_independent_photos():
+    block, _ = make_rig_block(np.random.default_rng(1), noise_mm=0.001)
+    free = adjust(block.replace(rigs=type(block.rigs)()))
+    rig = adjust(block)
+    F, S = 8, 2
+    assert rig.dof - free.dof == 6 * F * S - (6 * F + 6)
+    assert rig.vtpv >= free.vtpv
+
+
+def test_fixed_and_weighted_sensor_and_stability_test():
+    block, truth = make_rig_block(np.random.default_rng(2), noise_mm=0.001)
+    rs = block.rigs.sensors
+    good = truth["sensor"][1]
+    # fixed at the truth: no sensor unknowns
+    fixed = block.replace(rigs=block.rigs.replace(sensors=rs.replace(
+        centre=np.array([[0, 0, 0], good[:3]]), opk=np.array([[0, 0, 0], good[3:]]), sigma=np.zeros((2, 6)))))
+    r_fixed = adjust(fixed)
+    assert (r_fixed.problem.g_sensor < 0).all()
+    np.testing.assert_allclose(r_fixed.state.sensor[1], good)
+    # weighted with a prior 2 mm / 0.01° off: redundancy numbers in (0, 1), test passes
+    sig = np.r_[np.full(3, 0.002), np.full(3, np.radians(0.01))]
+    prior = good + np.r_[0.001, 0, 0, 0, 0, 0]
+    weighted = block.replace(rigs=block.rigs.replace(sensors=rs.replace(
+        centre=np.array([[0, 0, 0], prior[:3]]), opk=np.array([[0, 0, 0], prior[3:]]),
+        sigma=np.array([np.zeros(6), sig]))))
+    rr = rig_result(adjust(weighted))
+    s = rr.sensors[1]
+    assert s.status == ("weighted",) * 6
+    assert np.all((s.redundancy > 0) & (s.redundancy < 1))
+    assert s.stability["stable"] and s.stability["mode"] == "weighted"
+    # estimated, with a calibration 5 cm off: the stability test rejects it
+    bad = good + np.r_[0.05, 0, 0, 0, 0, 0]
+    est = block.replace(rigs=block.rigs.replace(sensors=rs.replace(
+        centre=np.array([[0, 0, 0], bad[:3]]), opk=np.array([[0, 0, 0], bad[3:]]),
+        sigma=np.array([np.zeros(6), np.full(6, np.inf)]), prior_sigma=np.array([np.full(6, np.nan), sig]))))
+    rr = rig_result(adjust(est))
+    s = rr.sensors[1]
+    assert s.stability["mode"] == "estimated" and not s.stability["stable"]
+    assert rr.stability["T"] == s.stability["T"]
+    # ... and accepts a calibration within its σ
+    ok = est.replace(rigs=est.rigs.replace(sensors=est.rigs.sensors.replace(
+        centre=np.array([[0, 0, 0], good[:3]]), opk=np.array([[0, 0, 0], good[3:]]))))
+    assert rig_result(adjust(ok)).sensors[1].stability["stable"]
+
+
+def test_structure_errors_name_the_frame_and_photo():
+    block, _ = make_rig_block(np.random.default_rng(0), n_frames=3, n_points=20)
+    fm = block.rigs.frames
+    # a frame without the reference sensor's photo
+    drop = FrameMembers(frame=fm.frame[1:], photo=fm.photo[1:], line=np.arange(2, len(fm) + 1))
+    with pytest.raises(InputError, match="no photo of rig 'rig'.s reference sensor") as e:
+        BundleProblem(block.replace(rigs=block.rigs.replace(frames=drop, frames_path="frames.csv")), BundleSettings())
+    assert e.value.path == "frames.csv" and e.value.field == "frame"
+    # a photo in two frames
+    two = FrameMembers(frame=np.r_[fm.frame, ["F09"]], photo=np.r_[fm.photo, [0]], line=np.arange(1, len(fm) + 2))
+    with pytest.raises(InputError, match="is in frame 'F01' already") as e:
+        BundleProblem(block.replace(rigs=block.rigs.replace(frames=two, frames_path="frames.csv")), BundleSettings())
+    assert e.value.line == len(fm) + 1 and e.value.field == "photo"
