@@ -40,7 +40,7 @@ from .reproject import project_block, reprojection_px, reprojection_summary
 from .settings import BundleSettings, BundleState, Distance, camera_meta
 from .variance import (GroupPart, LinearComponents, VarianceComponents, VarianceGroup, estimate_components,
                        group_parts, image_group_labels, linear_components)
-from .workflow import (EO_LABELS, APSelectionConfig, BundleConfig, BundleReport, OutputConfig, RobustConfig, ScaleBar,
+from .workflow import (EO_LABELS, APSelectionConfig, BundleConfig, BundleReport, OutputConfig, RigConfig, RobustConfig, ScaleBar,
                        SolverConfig, StatTestsConfig, VarianceComponentsConfig, adjust_block, bundle_settings,
                        configure_block)
 
@@ -57,5 +57,5 @@ __all__ = [
     "adjust_block", "BundleConfig", "BundleReport", "configure_block", "bundle_settings", "ScaleBar",
     "SolverConfig", "StatTestsConfig", "RobustConfig", "VarianceComponentsConfig", "APSelectionConfig",
     "OutputConfig", "EO_LABELS",
-    "rig_result", "RigResult", "SensorResult", "rig_structure", "RigStructure", "SENSOR_NAMES",
+    "RigConfig", "rig_result", "RigResult", "SensorResult", "rig_structure", "RigStructure", "SENSOR_NAMES",
 ]

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import re
 from typing import Callable, ClassVar, Literal
 
 import numpy as np
@@ -145,6 +146,29 @@ class OutputConfig:
 
 
 @dataclasses.dataclass(frozen=True)
+class RigConfig:
+    """``[bundle.rig]`` (and the sources' ``rig``): camera rigs from a rig table and a frame table
+    (``docs/rigs.md``); empty ``table``: the block's own rigs (a COLMAP model's, a source's)."""
+
+    table: str = option("", "rig table (CSV: rig, camera, reference, status, the sensor's pose in the rig and σ), "
+                            "relative to the project file; empty: the rigs the block brings")
+    frames: str = option("", "frame table (CSV: frame, photo), relative to the project file")
+    frames_from_name: str = option("", "regular expression on the photo id whose first group (or match) names the "
+                                       "frame, e.g. '(\\d+)$' (instead of a frame table)")
+    alpha: float = option(0.05, "significance level of the test of the rig against its calibration", gt=0.0, lt=1.0)
+
+    def __post_init__(self):
+        check_bounds(self)
+        if self.frames_from_name:
+            try:
+                re.compile(self.frames_from_name)
+            except re.error as e:
+                raise ValueError(f"frames_from_name is not a regular expression: {e}") from None
+        if (self.frames or self.frames_from_name) and not self.table:
+            raise ValueError("rig.frames / rig.frames_from_name need the rig table (rig.table)")
+
+
+@dataclasses.dataclass(frozen=True)
 class BundleConfig:
     """The bundle's options: the ``bundle`` stage's option table and :func:`adjust_block`'s argument."""
 
@@ -207,6 +231,8 @@ class BundleConfig:
         VarianceComponentsConfig(), "variance components per observation group")
     ap_selection: APSelectionConfig = option(APSelectionConfig(), "selection of additional parameters")
     output: OutputConfig = option(OutputConfig(), "external reliability, ellipsoids, covariances on demand")
+    rig: RigConfig = option(RigConfig(), "camera rigs: sensors' poses in the rig, photos grouped into frames "
+                                         "(docs/rigs.md)")
 
     def __post_init__(self):
         check_bounds(self)
