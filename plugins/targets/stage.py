@@ -188,6 +188,8 @@ class TargetDetection(Stage):
         if not usable:
             raise InputError(f"none of the {len(files)} image(s) is a readable image of at least {MIN_IMAGE_PX} "
                              "pixels", field="images", path=ctx.project_file)
+        if options.rig.table:
+            _with_rig(_skeleton_block(files, options), options, ctx)
         return None
 
     def _params(self, options: TargetOptions, ctx: Context):
@@ -372,6 +374,20 @@ class TargetDetection(Stage):
                 rec.log(f"{path}/points", rr.Points2D(uv, labels=list(ids), colors=[[255, 60, 40]],
                                                       radii=rr.Radius.ui_points(3.0)), static=True)
         log_block(rec, result.data["block"], root=f"{ctx.stage_id}/block")
+
+
+def _skeleton_block(files, options: TargetOptions):
+    """Cameras and photos the images name (no observations): what ``baarda validate`` checks a rig
+    table and its frames against."""
+    from baarda.pipeline.model import Block, Cameras, Observations, Photos, Points
+
+    ids = _photo_ids(files)
+    cams = [camera_name(f, options.camera_from_name) for f in files]
+    keep = [i for i, c in enumerate(cams) if c is not None]
+    cam_ids = list(dict.fromkeys(cams[i] for i in keep))
+    return Block(Cameras.make(cam_ids, 1.0), Photos.make([ids[i] for i in keep], [cam_ids.index(cams[i]) for i in keep]),
+                 Points.make([]), Observations.make(np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2))),
+                 object_unit=options.unit)
 
 
 def _with_rig(block, options: TargetOptions, ctx: Context):
