@@ -35,7 +35,7 @@ from .problem import BundleProblem
 from .records import Convergence, Iteration, IterationEvent, Timings
 from .reliability import (GlobalRowStats, OwnEffects, ParameterVectors, effect_vectors, global_rows, linearised_model,
                           own_effects, parameter_covariance, row_mdb)
-from .rig import SENSOR_NAMES, RigResult, RigStructure, SensorResult, rig_result, rig_structure
+from .rig import SENSOR_NAMES, RigResult, RigStructure, SensorResult, initial_rig_state, rig_result, rig_structure
 from .reproject import project_block, reprojection_px, reprojection_summary
 from .settings import BundleSettings, BundleState, Distance, camera_meta
 from .variance import (GroupPart, LinearComponents, VarianceComponents, VarianceGroup, estimate_components,
@@ -57,5 +57,5 @@ __all__ = [
     "adjust_block", "BundleConfig", "BundleReport", "configure_block", "bundle_settings", "ScaleBar",
     "SolverConfig", "StatTestsConfig", "RobustConfig", "VarianceComponentsConfig", "APSelectionConfig",
     "OutputConfig", "EO_LABELS",
-    "RigConfig", "rig_result", "RigResult", "SensorResult", "rig_structure", "RigStructure", "SENSOR_NAMES",
+    "RigConfig", "rig_result", "RigResult", "SensorResult", "rig_structure", "RigStructure", "SENSOR_NAMES", "initial_rig_state",
 ]

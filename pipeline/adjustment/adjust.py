@@ -190,6 +190,12 @@ class BundleResult:
         return self.cofactors.diagonal()
 
     @property
+    def rig(self):
+        """The block's rigs as index arrays (:class:`~.rig.RigStructure`: frames, the reference photo
+        of each, each photo's frame and sensor), None without rigs (docs/rigs.md)."""
+        return getattr(self.problem, "rig", None)
+
+    @property
     def solver_route(self) -> str:
         """How the reduced camera system was solved: ``"dense"`` or ``"sparse"``."""
         return self.route.name

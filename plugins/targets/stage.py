@@ -379,7 +379,8 @@ class TargetDetection(Stage):
 def _skeleton_block(files, options: TargetOptions):
     """Cameras and photos the images name (no observations): what ``baarda validate`` checks a rig
     table and its frames against."""
-    from baarda.pipeline.model import Block, Cameras, Observations, Photos, Points
+    from baarda.pipeline.api import Block
+    from baarda.pipeline.model import Cameras, Observations, Photos, Points
 
     ids = _photo_ids(files)
     cams = [camera_name(f, options.camera_from_name) for f in files]
