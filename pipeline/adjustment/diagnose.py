@@ -15,6 +15,7 @@ from baarda.pipeline.errors import AdjustmentError
 from baarda.pipeline.geometry import opk_from_rotation_many, rotation_from_opk_many, similarity_motions
 
 from .collinearity import EO_NAMES
+from .rig import rig_parameter_names
 
 MOTION_NAMES = ("translation X", "translation Y", "translation Z",
                 "rotation about X", "rotation about Y", "rotation about Z", "scale")
@@ -40,6 +41,8 @@ def parameter_names(prob) -> list[str]:
             i = prob.g_pt[p, t]
             if i >= 0:
                 names[i] = f"{'XYZ'[t]} of point {str(points.ids[p])!r}"
+    for i, name in rig_parameter_names(prob).items():      # frames and sensors of rigs (docs/rigs.md)
+        names[i] = name
     return names
 
 

@@ -44,6 +44,7 @@ from baarda.pipeline.stats.snapshot import Snapshot
 from .collinearity import EO_NAMES
 from .phases import phase_step
 from .lm import final_system
+from .rig import rig_parameter_names
 
 __all__ = ["OwnEffects", "own_effects", "effect_vectors", "ParameterVectors", "parameter_covariance", "parameter_names_of",
            "row_mdb", "bar_delta0", "linearised_model", "GlobalRowStats", "global_rows"]
@@ -603,6 +604,7 @@ def _prior_labels(res) -> list[str]:
     gi = np.argwhere(prob.g_pt >= 0)
     for i, t in gi:
         names[int(prob.g_pt[i, t])] = f"point {blk.points.ids[i]} {'XYZ'[t]}"
+    names.update(rig_parameter_names(prob))                 # frames and sensors of rigs (docs/rigs.md)
     out = [f"prior {names.get(int(g), g)}" for g in prob.prior_g_idx]
     out += [f"control point {blk.points.ids[prob.elim_points[p]]} {'XYZ'[c]}"
             for p, c in zip(prob.prior_p_idx, prob.prior_p_coord)]

@@ -35,9 +35,10 @@ from baarda.pipeline.geometry import opk_from_rotation_many, rotation_and_deriva
 
 from .collinearity import Projection, Projector
 
-__all__ = ["RigStructure", "rig_structure", "compose_photos", "initial_rig_state", "RigProjector",
+__all__ = ["RigStructure", "rig_structure", "rig_parameter_names", "photo_columns", "compose_photos", "initial_rig_state", "RigProjector",
            "photo_transform", "RigResult", "SensorResult", "rig_result", "SENSOR_NAMES"]
 
+EO_PARAMS = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
 SENSOR_NAMES = ("X", "Y", "Z", "omega", "phi", "kappa")
 """The six parameters of a sensor's pose in the rig: its projection centre in the rig frame and
 ω, φ, κ of ``R_sensor_from_rig``."""
@@ -136,6 +137,48 @@ def rig_structure(block) -> RigStructure | None:
                        "pose is that photo's", fpath, first_line, "frame")
         ref_photo[f] = refs[0]
     return RigStructure(np.array(frame_ids, dtype=str), ref_photo, photo_frame, photo_sensor)
+
+
+def rig_parameter_names(prob) -> dict:
+    """Global column → readable name of the frames' and sensors' unknowns of a problem with rigs
+    (``{}`` without): ``"omega of frame 'F01'"``, ``"X of camera 'right' in rig 'stereo'"``."""
+    rig = getattr(prob, "rig", None)
+    if rig is None:
+        return {}
+    out = {}
+    rs, cams = prob.block.rigs.sensors, prob.block.cameras
+    for f, fid in enumerate(rig.frame_ids.tolist()):
+        for t in range(6):
+            if prob.g_frame[f, t] >= 0:
+                out[int(prob.g_frame[f, t])] = f"{EO_PARAMS[t]} of frame {fid!r}"
+    for i in range(len(rs)):
+        for t in range(6):
+            if prob.g_sensor[i, t] >= 0:
+                out[int(prob.g_sensor[i, t])] = (f"{SENSOR_NAMES[t]} of camera {str(cams.ids[rs.camera[i]])!r} in rig "
+                                                 f"{str(rs.rig[i])!r}")
+    return out
+
+
+def photo_columns(prob, st, photos) -> tuple[np.ndarray, np.ndarray]:
+    """``(cols (N, 12), T (N, 6, 12))``: the global columns (−1 fixed) a photo's orientation depends
+    on and the linear map from them to its ``[X0, ω, φ, κ]`` — the photo's own 6 columns and
+    ``[I 0]`` for a photo in no frame, its frame's and sensor's 12 and the composition's Jacobian
+    for a photo of a rig."""
+    photos = np.asarray(photos, int)
+    N = len(photos)
+    cols = np.full((N, 12), -1)
+    T = np.zeros((N, 6, 12))
+    cols[:, :6] = prob.g_eo[photos]
+    T[:, :, :6] = np.eye(6)
+    rig = getattr(prob, "rig", None)
+    if rig is None:
+        return cols, T
+    inf = rig.photo_frame[photos] >= 0
+    if inf.any():
+        ph = photos[inf]
+        cols[inf] = np.concatenate([prob.g_frame[rig.photo_frame[ph]], prob.g_sensor[rig.photo_sensor[ph]]], axis=1)
+        T[inf] = photo_transform(rig, st.frame, st.sensor, st.opk)[ph]
+    return cols, T
 
 
 # -- poses ------------------------------------------------------------------------------------------

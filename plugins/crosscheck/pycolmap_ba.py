@@ -372,7 +372,35 @@ def read_solution(rec, recmap: RecMap, sigma_mm, block) -> dict:
         size = recmap.size[j]
         res[rows] = (mm_from_pixels(kp, size, sigma_mm[j], "colmap")
                      - mm_from_pixels(uv, size, sigma_mm[j], "colmap"))
-    return {"X0": X0, "opk": opk, "XYZ": XYZ, "cam": cam, "residuals": res}
+    out = {"X0": X0, "opk": opk, "XYZ": XYZ, "cam": cam, "residuals": res}
+    if recmap.rig_sensors is not None:
+        out["sensor"] = _read_sensors(rec, recmap)
+    return out
+
+
+def _read_sensors(rec, recmap: RecMap) -> np.ndarray:
+    """(S, 6) each rig sensor's pose in its rig as baarda writes it (centre ``−F Rᵀ t``, ω φ κ of
+    ``F R F``; the reference sensor 0; nan where pycolmap has none), from the solved rigs."""
+    from baarda.pipeline.geometry import opk_from_rotation
+
+    rs = recmap.rig_sensors
+    F = np.diag([1.0, -1.0, -1.0])
+    out = np.full((len(rs), 6), np.nan)
+    by_cam = {}
+    for rig in rec.rigs.values():
+        for sid, pose in rig.non_ref_sensors.items():
+            by_cam[int(sid.id)] = pose
+    for i in range(len(rs)):
+        if rs.reference[i]:
+            out[i] = 0.0
+            continue
+        pose = by_cam.get(int(recmap.camera_id[rs.camera[i]]))
+        if pose is None:
+            continue
+        R = np.asarray(pose.rotation.matrix(), float)
+        out[i, :3] = -F @ R.T @ np.asarray(pose.translation, float)
+        out[i, 3:] = opk_from_rotation(F @ R @ F)
+    return out
 
 
 def block_with_solution(block, sol: dict):

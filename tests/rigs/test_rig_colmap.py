@@ -68,3 +68,5 @@ def test_synthetic_rig_truth_and_pycolmap_crosscheck():
     baarda_cost = 0.5 * res.vtpv / res.settings.sigma0 ** 2
     assert abs(cc.solution.final_cost - baarda_cost) <= 1e-6 * baarda_cost
     np.testing.assert_allclose(cc.solution.X0[res.photo_used], res.state.X0[res.photo_used], atol=1e-6)
+    rs = cc.quantities["rig_sensors"]
+    assert rs["n"] == 2 and rs["max"] < 1e-3                    # pycolmap's sensor_from_rig: baarda's, in σ

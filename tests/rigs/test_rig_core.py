@@ -119,3 +119,30 @@ def test_structure_errors_name_the_frame_and_photo():
     with pytest.raises(InputError, match="is in frame 'F01' already") as e:
         BundleProblem(block.replace(rigs=block.rigs.replace(frames=two, frames_path="frames.csv")), BundleSettings())
     assert e.value.line == len(fm) + 1 and e.value.field == "photo"
+
+
+def test_photo_covariances_of_a_rig_match_a_numerical_propagation():
+    """The composed photos' covariance (bundle_eo.csv, calibration-quality's joint covariance) is the
+    frame's and sensor's covariance propagated through the composition: checked against finite
+    differences of compose_photos."""
+    from baarda.pipeline.adjustment.calquality import joint_covariance
+    from baarda.pipeline.adjustment.rig import photo_columns
+
+    block, _ = make_rig_block(np.random.default_rng(4), n_frames=5, n_points=30, noise_mm=0.001)
+    res = adjust(block)
+    prob, st = res.problem, res.state
+    p = int(np.flatnonzero(prob.rig.photo_sensor == 1)[2])
+    cols, T = photo_columns(prob, st, [p])
+    h = 1e-7
+    for t in range(12):
+        s2 = st.copy()
+        (s2.frame[prob.rig.photo_frame[p]] if t < 6 else s2.sensor[1])[t % 6] += h
+        X0, opk = compose_photos(prob.rig, s2.frame, s2.sensor, st.X0, st.opk)
+        s3 = st.copy()
+        (s3.frame[prob.rig.photo_frame[p]] if t < 6 else s3.sensor[1])[t % 6] -= h
+        X0m, opkm = compose_photos(prob.rig, s3.frame, s3.sensor, st.X0, st.opk)
+        fd = np.r_[X0[p] - X0m[p], opk[p] - opkm[p]] / (2 * h)
+        np.testing.assert_allclose(T[0][:, t], fd, atol=1e-6)
+    C = joint_covariance(res, 1, [p])[-6:, -6:]
+    np.testing.assert_allclose(C, res.cov_eo[p], rtol=1e-8, atol=1e-20)
+    assert (np.diag(C) > 0).all()
