@@ -33,7 +33,7 @@ from scipy import stats
 from baarda.pipeline.errors import InputError
 from baarda.pipeline.geometry import opk_from_rotation_many, rotation_and_derivatives, rotation_from_opk_many
 
-from .collinearity import Projection, Projector
+from .collinearity import Projection, Projector, bmm
 
 __all__ = ["RigStructure", "rig_structure", "rig_parameter_names", "photo_columns", "compose_photos", "initial_rig_state", "RigProjector",
            "photo_transform", "RigResult", "SensorResult", "rig_result", "SENSOR_NAMES"]
@@ -295,26 +295,26 @@ class RigProjector(Projector):
         if len(obs):
             frame, sensor = rig
             st = self.struct
+            # per photo in a frame: R_s s_f (columns a), (∂R_f/∂θ_a)ᵀ c_s, R_fᵀ and s_s
+            phs = np.unique(self.obs_photo[obs])
+            f, s = st.photo_frame[phs], st.photo_sensor[phs]
+            _, dRf, sf = _axial(frame[f, 3:])
+            Rs, _, ss = _axial(sensor[s, 3:])
+            Rf = rotation_from_opk_many(frame[f, 3:])
+            A = np.zeros((self.struct.photo_frame.shape[0], 4, 3, 3))
+            A[phs, 0] = Rs @ sf
+            A[phs, 1] = np.einsum("paji,pj->pia", dRf, sensor[s, :3])
+            A[phs, 2] = np.transpose(Rf, (0, 2, 1))
+            A[phs, 3] = ss
             ph = self.obs_photo[obs]
-            f, s = st.photo_frame[ph], st.photo_sensor[ph]
-            uf, f_inv = np.unique(f, return_inverse=True)
-            us, s_inv = np.unique(s, return_inverse=True)
-            Rf, dRf, sf = _axial(frame[uf, 3:])
-            Rs, _, ss = _axial(sensor[us, 3:])
             Jx = pr.J_point[obs]                                                  # (o, 2, 3)
-            d = pr._d[obs]
-            Rp = pr._R[ph]
-            JR = np.einsum("oij,okj->oik", Jx, Rp)                                # J_X Rᵀ
-            cross = np.zeros((len(obs), 3, 3))                                     # [d]×
-            cross[:, 0, 1], cross[:, 0, 2], cross[:, 1, 2] = -d[:, 2], d[:, 1], -d[:, 0]
-            cross[:, 1, 0], cross[:, 2, 0], cross[:, 2, 1] = d[:, 2], -d[:, 1], d[:, 0]
-            Jd = -np.einsum("oij,ojk->oik", JR, cross)                             # ∂xy/∂δ (left)
-            c = sensor[us, :3][s_inv]
-            Bf = np.einsum("oaji,oj->oia", dRf[f_inv], c)                          # (∂R_f/∂θ_a)ᵀ c_s
+            JR = bmm(Jx, np.transpose(pr._R[ph], (0, 2, 1)))                      # J_X Rᵀ
+            Jd = np.cross(pr._d[obs][:, None, :], JR)                             # ∂xy/∂δ = −J_X Rᵀ [d]× = d × (J_X Rᵀ)
+            Ap = A[ph]
             J[obs, :, :3] = -Jx
-            J[obs, :, 3:6] = np.einsum("oij,ojk->oik", Jd, (Rs[s_inv] @ sf[f_inv])) - np.einsum("oij,ojk->oik", Jx, Bf)
-            J[obs, :, 6:9] = -np.einsum("oij,okj->oik", Jx, Rf[f_inv])
-            J[obs, :, 9:12] = np.einsum("oij,ojk->oik", Jd, ss[s_inv])
+            J[obs, :, 3:6] = bmm(Jd, Ap[:, 0]) - bmm(Jx, Ap[:, 1])
+            J[obs, :, 6:9] = -bmm(Jx, Ap[:, 2])
+            J[obs, :, 9:12] = bmm(Jd, Ap[:, 3])
         pr.J_eo = J
         return pr
 
