@@ -9,9 +9,25 @@ import numpy as np
 
 from baarda.pipeline.api import TableData, rig_result
 from baarda.pipeline.adjustment import SENSOR_NAMES
+from baarda.pipeline.geometry import rotation_from_opk
 from baarda.pipeline.units import fmt_q, length_suffix, object_unit_text
 
 ANGLES = SENSOR_NAMES[3:]
+
+
+def _reference_entry(s, name: str, names, scale) -> dict:
+    """A sensor against a reference solution: the pose's differences in σ, OpenCV's T of both with
+    baarda's σ and the differences in σ, and the angle between the two rotations."""
+    Tb, Tr = t_cv(s.value), t_cv(s.reference)
+    sT = np.sqrt(np.clip(np.diag(t_cv_covariance(s.value, s.cov)), 0, None))
+    Rd = rotation_from_opk(*s.value[3:]) @ rotation_from_opk(*s.reference[3:]).T
+    ang = float(np.degrees(np.arccos(np.clip((np.trace(Rd) - 1) / 2, -1, 1))))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        dT = np.where(sT > 0, (Tb - Tr) / sT, np.nan)
+    return {"name": name, "value": dict(zip(names, (s.reference * scale).tolist())),
+            "difference_in_sigma": dict(zip(names, s.d_reference_sigma.tolist())),
+            "T_baarda": Tb.tolist(), "sigma_T": sT.tolist(), "T_reference": Tr.tolist(),
+            "T_difference_in_sigma": dT.tolist(), "R_difference_deg": ang}
 
 
 def _test_text(t) -> str:
@@ -19,6 +35,24 @@ def _test_text(t) -> str:
         return ""
     return (f"T = {t['T']:.3g} against {t['critical']:.3g} ({t['distribution']}, α = {t['alpha']:g}, p = {t['p']:.3g}): "
             + ("stable" if t["stable"] else "**changed**"))
+
+
+def t_cv(pose: np.ndarray) -> np.ndarray:
+    """OpenCV's stereo translation ``T`` (``x_s = R x_ref + T``, y-down/z-forward frames) of a
+    sensor pose in the rig ``[c (3), ω, φ, κ]``: ``T = −F R_s c`` (F = diag(1, −1, −1))."""
+    F = np.diag([1.0, -1.0, -1.0])
+    return -F @ rotation_from_opk(*pose[3:]) @ pose[:3]
+
+
+def t_cv_covariance(pose: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """(3, 3) covariance of :func:`t_cv` from the pose's (6, 6) (central differences)."""
+    J = np.zeros((3, 6))
+    for t in range(6):
+        h = 1e-6 * max(1.0, abs(pose[t])) if t < 3 else 1e-7
+        e = np.zeros(6)
+        e[t] = h
+        J[:, t] = (t_cv(pose + e) - t_cv(pose - e)) / (2 * h)
+    return J @ cov @ J.T
 
 
 def rig_parts(rep, alpha: float = 0.05) -> dict | None:
@@ -72,9 +106,7 @@ def rig_parts(rep, alpha: float = 0.05) -> dict | None:
             "redundancy": [None if not np.isfinite(v) else float(v) for v in s.redundancy],
             "w": [None if not np.isfinite(v) else float(v) for v in s.w],
             "stability": s.stability,
-            **({"reference": {"name": rr.reference_name,
-                              "value": dict(zip(names, (s.reference * scale).tolist())),
-                              "difference_in_sigma": dict(zip(names, s.d_reference_sigma.tolist()))}}
+            **({"reference": _reference_entry(s, rr.reference_name, names, scale)}
                if np.isfinite(s.reference).all() and not s.reference_sensor else {}),
         })
     summary = {"frames": rr.n_frames, "unit": ou, "sensors": sensors_json, "stability": rr.stability,
@@ -109,6 +141,12 @@ def rig_parts(rep, alpha: float = 0.05) -> dict | None:
                      + "; angles " + ", ".join(f"{ANGLES[t]} {np.degrees(s.value[3 + t] - s.reference[3 + t]):+.4f}° "
                                               f"({d[3 + t]:+.2f} σ)" for t in range(3))
                      + f"; baseline {fmt_q(s.baseline - np.linalg.norm(s.reference[:3]), ou)}")
+            e = _reference_entry(s, rr.reference_name, names, scale)
+            L.append(f"- {s.camera}, OpenCV's T (x_{s.camera} = R x_ref + T, y down, {ou}): baarda ("
+                     + ", ".join(f"{v:.4f} ± {sv:.2g}" for v, sv in zip(e["T_baarda"], e["sigma_T"]))
+                     + f"), {rr.reference_name or 'reference'} (" + ", ".join(f"{v:.4f}" for v in e["T_reference"])
+                     + "), differences " + ", ".join(f"{v:+.2f} σ" for v in e["T_difference_in_sigma"])
+                     + f"; R differs by a rotation of {e['R_difference_deg']:.4f}°")
     if rr.stability is not None and sum(s.stability is not None for s in rr.sensors) > 1:
         L.append(f"- all sensors with a calibration together: {_test_text(rr.stability)}")
     L.append("- per sensor in bundle_rig.csv (reads back as a rig table), correlations in bundle_rig_correlations.csv")

@@ -146,3 +146,19 @@ def test_photo_covariances_of_a_rig_match_a_numerical_propagation():
     C = joint_covariance(res, 1, [p])[-6:, -6:]
     np.testing.assert_allclose(C, res.cov_eo[p], rtol=1e-8, atol=1e-20)
     assert (np.diag(C) > 0).all()
+
+
+def test_opencv_T_of_a_sensor_pose():
+    """T = −F R_s c is OpenCV's x_s = R x_ref + T: a point's coordinates in both y-down frames agree."""
+    from baarda.pipeline.geometry import rotation_from_opk
+    from baarda.plugins.bundle.rigreport import t_cv, t_cv_covariance
+
+    pose = np.array([0.3, 0.02, -0.05, 0.1, -0.2, 0.05])
+    F = np.diag([1.0, -1.0, -1.0])
+    Rs = rotation_from_opk(*pose[3:])
+    p_ref = np.array([0.4, -0.2, -3.0])                       # baarda frame of the reference camera
+    p_s = Rs @ (p_ref - pose[:3])
+    R_cv = F @ Rs @ F
+    np.testing.assert_allclose(F @ p_s, R_cv @ (F @ p_ref) + t_cv(pose), atol=1e-12)
+    C = t_cv_covariance(pose, np.diag([1e-6] * 3 + [1e-8] * 3))
+    assert C.shape == (3, 3) and np.all(np.linalg.eigvalsh(C) > 0)
