@@ -38,6 +38,7 @@ from baarda.pipeline.stats.critical import delta0 as _delta0
 
 from .adjust import BundleResult, adjust, padded_ap, result_of
 from .apselect import APSelection, select_aps
+from .rig import rig_structure
 from .reliability import GlobalRowStats, OwnEffects, global_rows, own_effects, parameter_covariance
 from .settings import BundleSettings, Distance
 from ..threads import single_blas
@@ -311,7 +312,11 @@ def configure_block(block: Block, config: BundleConfig) -> Block:
     if o.sigma_eo:
         ph = block.photos
         se = np.array(ph.sigma_eo, float)
-        se[ph.has_orientation] = np.r_[o.sigma_eo[:3], np.radians(o.sigma_eo[3:])]
+        to = ph.has_orientation.copy()
+        rig = rig_structure(block)
+        if rig is not None:               # a rig photo's orientation is its frame's (the reference photo's)
+            to &= (rig.photo_frame < 0) | np.isin(np.arange(len(ph)), rig.frame_ref_photo)
+        se[to] = np.r_[o.sigma_eo[:3], np.radians(o.sigma_eo[3:])]
         block = block.replace(photos=ph.replace(sigma_eo=se))
     if o.sigma_image_scale != 1.0:
         obs = block.observations

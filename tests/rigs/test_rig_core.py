@@ -162,3 +162,16 @@ def test_opencv_T_of_a_sensor_pose():
     np.testing.assert_allclose(F @ p_s, R_cv @ (F @ p_ref) + t_cv(pose), atol=1e-12)
     C = t_cv_covariance(pose, np.diag([1e-6] * 3 + [1e-8] * 3))
     assert C.shape == (3, 3) and np.all(np.linalg.eigvalsh(C) > 0)
+
+
+def test_sigma_eo_option_weights_the_frames_of_a_rig():
+    """The bundle option sigma_eo weights the frames (through their reference photos), not the
+    non-reference photos whose orientation follows from frame and sensor."""
+    from baarda.pipeline.adjustment import BundleConfig, configure_block
+
+    block, _ = make_rig_block(np.random.default_rng(6), n_frames=4, n_points=30, noise_mm=0.001)
+    b = configure_block(block, BundleConfig(sigma_eo=[0.01, 0.01, 0.01, 0.1, 0.1, 0.1]))
+    ref = np.isin(np.arange(len(b.photos)), [0, 2, 4, 6])
+    assert np.isfinite(b.photos.sigma_eo[ref]).all() and np.isinf(b.photos.sigma_eo[~ref]).all()
+    prob = BundleProblem(b, BundleSettings())
+    assert len(prob.prior_g_idx) == 6 * 4 and np.isin(prob.prior_g_idx, prob.g_frame).all()
