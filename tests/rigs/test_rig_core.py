@@ -175,3 +175,21 @@ def test_sigma_eo_option_weights_the_frames_of_a_rig():
     assert np.isfinite(b.photos.sigma_eo[ref]).all() and np.isinf(b.photos.sigma_eo[~ref]).all()
     prob = BundleProblem(b, BundleSettings())
     assert len(prob.prior_g_idx) == 6 * 4 and np.isin(prob.prior_g_idx, prob.g_frame).all()
+
+
+def test_weighted_sensor_is_a_variance_component_group():
+    """A weighted sensor pose is its own group ("rig") of the variance components: its redundancy
+    share is the sum of the six constraints' redundancy numbers."""
+    from baarda.pipeline.adjustment import group_parts, image_group_labels
+
+    block, truth = make_rig_block(np.random.default_rng(7), n_frames=5, n_points=30, noise_mm=0.001)
+    rs = block.rigs.sensors
+    good = truth["sensor"][1]
+    sig = np.r_[np.full(3, 0.002), np.full(3, np.radians(0.02))]
+    b = block.replace(rigs=block.rigs.replace(sensors=rs.replace(
+        centre=np.array([[0, 0, 0], good[:3]]), opk=np.array([[0, 0, 0], good[3:]]), sigma=np.array([np.zeros(6), sig]))))
+    res = adjust(b)
+    parts = {p.name: p for p in group_parts(res, image_group_labels(b, "camera"))}
+    assert "rig" in parts and parts["rig"].n == 6
+    np.testing.assert_allclose(parts["rig"].redundancy, np.sum(rig_result(res).sensors[1].redundancy), rtol=1e-8)
+    assert abs(sum(p.redundancy for p in parts.values()) - res.dof) < 1e-6 * res.dof
