@@ -282,22 +282,24 @@ class BundleProblem:
         self.g_sensor[free_s] = np.arange(nx, nx + cnt)
         return nx + cnt
 
-    def _obs_eo_cols(self) -> np.ndarray:
-        """The orientation columns of each observation: the photo's 6 (no rig), or with rigs 12: the
-        frame's 6 (a photo in no frame: its own) and its sensor's 6 (−1 fixed or none)."""
+    def eo_columns(self, photo) -> np.ndarray:
+        """The orientation columns of observations in photos ``photo``: the photo's 6 (no rig), or
+        with rigs 12: the frame's 6 (a photo in no frame: its own) and its sensor's 6 (−1 fixed or
+        none) — the columns of the projector's ``J_eo``."""
+        photo = np.asarray(photo, int)
         if self.rig is None:
-            return self.g_eo[self.obs_photo]
+            return self.g_eo[photo]
         rig = self.rig
-        f = rig.photo_frame[self.obs_photo]
-        s = rig.photo_sensor[self.obs_photo]
-        cols = np.full((len(self.obs_photo), 12), -1)
-        cols[:, :6] = np.where((f >= 0)[:, None], self.g_frame[np.maximum(f, 0)], self.g_eo[self.obs_photo])
+        f = rig.photo_frame[photo]
+        s = rig.photo_sensor[photo]
+        cols = np.full((len(photo), 12), -1)
+        cols[:, :6] = np.where((f >= 0)[:, None], self.g_frame[np.maximum(f, 0)], self.g_eo[photo])
         cols[:, 6:] = np.where((s >= 0)[:, None], self.g_sensor[np.maximum(s, 0)], -1)
         return cols
 
     def _column_layout(self):
         """The :class:`~.layout.ColumnLayout` of the observations' Jacobian columns (built once)."""
-        self.layout = ColumnLayout.build(self.g_cam[self.obs_cam], self._obs_eo_cols(), self.g_pt[self.obs_point],
+        self.layout = ColumnLayout.build(self.g_cam[self.obs_cam], self.eo_columns(self.obs_photo), self.g_pt[self.obs_point],
                                          self.obs_photo, self.n_g, self.elim_of[self.obs_point], self.elim_free)
 
     def _global_rows(self):
@@ -554,6 +556,19 @@ class BundleProblem:
         return out
 
     # ------------------------------------------------------------------------------------------
+    def project_rows(self, st: BundleState, photo, point) -> "tuple":
+        """``(projection with Jacobians, orientation columns)`` of any observations ``(photo,
+        point)`` (e.g. the ones left out of the adjustment): ``J_eo`` over :meth:`eo_columns`."""
+        photo, point = np.asarray(photo, int), np.asarray(point, int)
+        args = (photo, point, self.block.photos.camera, self.block.cameras.ap_model, self.meta)
+        if self.rig is None:
+            pj = Projector(*args)
+            pr = pj.jacobians(pj.project(st.XYZ, st.X0, st.opk, st.cam_params))
+        else:
+            pj = RigProjector(self.rig, *args)
+            pr = pj.jacobians(pj.project(st.XYZ, st.X0, st.opk, st.cam_params, rig=(st.frame, st.sensor)))
+        return pr, self.eo_columns(photo)
+
     def project(self, st: BundleState, jacobians: bool):
         if self.rig is None:
             pr = self.projector.project(st.XYZ, st.X0, st.opk, st.cam_params)

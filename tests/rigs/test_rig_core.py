@@ -193,3 +193,19 @@ def test_weighted_sensor_is_a_variance_component_group():
     assert "rig" in parts and parts["rig"].n == 6
     np.testing.assert_allclose(parts["rig"].redundancy, np.sum(rig_result(res).sensors[1].redundancy), rtol=1e-8)
     assert abs(sum(p.redundancy for p in parts.values()) - res.dof) < 1e-6 * res.dof
+
+
+def test_predicted_variance_of_a_removed_rig_observation():
+    """A switched-off observation of a rig photo is predicted through its frame's and sensor's
+    unknowns: its predicted variance Σ + A Q' Aᵀ (the adjustment without it) is the inverse of the
+    P Qvv P block of the adjustment with it (σ0 = 1)."""
+    block, _ = make_rig_block(np.random.default_rng(8), n_frames=5, n_points=30, noise_mm=0.001)
+    obs = block.observations
+    k = int(np.flatnonzero(~block.rigs.sensors.reference[block.photos.camera[obs.photo]])[5])
+    act = np.array(obs.active)
+    act[k] = False
+    out = adjust(block.replace(observations=obs.replace(active=act)))
+    full = adjust(block)
+    pred = out.snapshot.sigma_v_pred.reshape(-1, 2)[k]
+    M = np.linalg.inv(full.PQvvP[k])
+    np.testing.assert_allclose(pred ** 2, np.diag(M), rtol=1e-4)         # two linearisation points
