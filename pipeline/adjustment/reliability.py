@@ -44,7 +44,7 @@ from baarda.pipeline.stats.snapshot import Snapshot
 from .collinearity import EO_NAMES
 from .phases import phase_step
 from .lm import final_system
-from .rig import rig_parameter_names
+from .rig import photo_columns, rig_parameter_names
 
 __all__ = ["OwnEffects", "own_effects", "effect_vectors", "ParameterVectors", "parameter_covariance", "parameter_names_of",
            "row_mdb", "bar_delta0", "linearised_model", "GlobalRowStats", "global_rows"]
@@ -241,6 +241,10 @@ def own_effects(res, delta0: float = 4.13, bias=None, chunk_bytes: float = 3.2e7
     pt_eff = np.zeros((k, 2, 3))          # per unit bias, active order
     eo_eff = np.zeros((k, 2, 6))
     eo_pos, pt_pos = _layout(prob)
+    rigT = None
+    if getattr(prob, "rig", None) is not None:        # a rig photo's orientation: its frame's and sensor's 12
+        eo_pos = _layout(prob, 12)[0]
+        rig_cols, rigT = photo_columns(prob, st, np.arange(prob.m))
     G_all = np.einsum("kiq,kic->kqc", Jc, L)                 # a_g of row c: J̃cᵀ L e_c   (k, q, 2)
     Ap_all = np.einsum("kia,kic->kac", Jp, L)                # a_p                       (k, 3, 2)
     cons = red.route.constraint_cofactors(red, Qx)
@@ -284,7 +288,10 @@ def own_effects(res, delta0: float = 4.13, bias=None, chunk_bytes: float = 3.2e7
         _store(ob, X, None)
 
     def _store(rows, own, y):
-        eo_eff[rows] = np.transpose(_pick(own, eo_pos), (0, 2, 1))
+        if rigT is None:
+            eo_eff[rows] = np.transpose(_pick(own, eo_pos), (0, 2, 1))
+        else:
+            eo_eff[rows] = np.transpose(np.matmul(rigT[prob.obs_photo[rows]], _pick(own, eo_pos)), (0, 2, 1))
         if y is not None:
             pt_eff[rows] = np.transpose(y, (0, 2, 1)) * prob.layout.pt_mask[rows][:, None, :]
         else:
@@ -302,8 +309,13 @@ def own_effects(res, delta0: float = 4.13, bias=None, chunk_bytes: float = 3.2e7
             CtD[ep] += np.einsum("kac,kad->kcd", Yp[prob.layout.pidx[ep]], Ap_all[ep])
         TC = np.einsum("cd,kdr->kcr", T, CtD)
         Gx = np.vstack([Gg, np.zeros((1, n_c))])
-        geo = np.where(prob.g_eo[prob.obs_photo] >= 0, prob.g_eo[prob.obs_photo], n_g)
-        eo_eff -= np.einsum("kac,kcr->kra", Gx[geo], TC)
+        if rigT is None:
+            geo = np.where(prob.g_eo[prob.obs_photo] >= 0, prob.g_eo[prob.obs_photo], n_g)
+            eo_eff -= np.einsum("kac,kcr->kra", Gx[geo], TC)
+        else:
+            c12 = rig_cols[prob.obs_photo]
+            G12 = np.matmul(rigT[prob.obs_photo], Gx[np.where(c12 >= 0, c12, n_g)])
+            eo_eff -= np.einsum("kac,kcr->kra", G12, TC)
         if ep.any():
             pt_eff[ep] -= np.einsum("kac,kcr->kra", Gp[prob.layout.pidx[ep]], TC[ep]) * prob.layout.pt_mask[ep][:, None, :]
         gpt = np.where(prob.g_pt[prob.obs_point] >= 0, prob.g_pt[prob.obs_point], n_g)
@@ -326,8 +338,9 @@ def own_effects(res, delta0: float = 4.13, bias=None, chunk_bytes: float = 3.2e7
                       eo_sigma=np.repeat(esig[:, None], 2, axis=1), bar_delta0=bar_delta0(res, bias))
 
 
-def _layout(prob):
-    """Positions of the orientation's 6 and a global point's 3 columns in ``cidx`` (−1: dropped)."""
+def _layout(prob, n_eo: int = 6):
+    """Positions of the orientation's 6 (with rigs: ``n_eo`` = 12, the frame's and the sensor's)
+    and a global point's 3 columns in ``cidx`` (−1: dropped)."""
     P = 3 + prob.pmax
     off = {}
     o = 0
@@ -335,7 +348,7 @@ def _layout(prob):
         off[name] = o
         o += w
     where = {int(c): j for j, c in enumerate(prob.layout.keep)}
-    eo = np.array([where.get(off["eo"] + a, -1) for a in range(6)]) if "eo" in off else np.full(6, -1)
+    eo = np.array([where.get(off["eo"] + a, -1) for a in range(n_eo)]) if "eo" in off else np.full(n_eo, -1)
     pt = np.array([where.get(off["pt"] + a, -1) for a in range(3)]) if "pt" in off else np.full(3, -1)
     del P
     return eo, pt

@@ -209,3 +209,24 @@ def test_predicted_variance_of_a_removed_rig_observation():
     pred = out.snapshot.sigma_v_pred.reshape(-1, 2)[k]
     M = np.linalg.inv(full.PQvvP[k])
     np.testing.assert_allclose(pred ** 2, np.diag(M), rtol=1e-4)         # two linearisation points
+
+
+def test_external_reliability_on_a_rig_photo_is_its_composed_orientation():
+    """The effect of a bias in an observation of a non-reference photo on that photo's orientation
+    (own_effects) is the change of its composed orientation when the bias is added and the block
+    re-adjusted (linear: a small bias)."""
+    from baarda.pipeline.adjustment import own_effects
+
+    block, _ = make_rig_block(np.random.default_rng(9), n_frames=5, n_points=30, noise_mm=0.001)
+    res = adjust(block)
+    obs = block.observations
+    k = int(np.flatnonzero(~block.rigs.sensors.reference[block.photos.camera[obs.photo]])[3])
+    bias = np.zeros((len(obs), 2))
+    bias[k, 0] = 0.002
+    eff = own_effects(res, bias=bias).eo[k, 0]
+    xy = np.array(obs.xy)
+    xy[k, 0] += 0.002
+    res2 = adjust(block.replace(observations=obs.replace(xy=xy)), start=res.state)
+    p = obs.photo[k]
+    change = np.r_[res2.state.X0[p] - res.state.X0[p], res2.state.opk[p] - res.state.opk[p]]
+    np.testing.assert_allclose(eff, change, rtol=1e-3, atol=1e-9)
