@@ -414,7 +414,11 @@ def _scatter(res, xg, y) -> ParameterVectors:
         return np.moveaxis(xpad[np.where(idx >= 0, idx, n_g)], -1, 0)
 
     cams = [gather(prob.g_cam[j, :3 + m.n_params]) for j, m in enumerate(prob.models)]
-    eo = gather(prob.g_eo)
+    if getattr(prob, "rig", None) is None:
+        eo = gather(prob.g_eo)
+    else:                           # rigs: each photo's orientation through its frame's and sensor's 12
+        cols, T = photo_columns(prob, res.state, np.arange(prob.m))
+        eo = np.einsum("mij,rmj->rmi", T, gather(cols))
     eo[:, ~prob.photo_used] = np.nan
     pts = gather(prob.g_pt)
     if prob.n_e:
@@ -467,9 +471,16 @@ def parameter_covariance(res, specs) -> tuple[list[str], np.ndarray]:
     a_g = np.zeros((prob.n_g + 1, r))
     a_p = np.zeros((prob.n_e + 1, 3, r))
     gidx = np.full(r, -1)
+    rig_cols = rig_T = None
+    if getattr(prob, "rig", None) is not None:
+        rig_cols, rig_T = photo_columns(prob, res.state, np.arange(prob.m))
     for j, (kind, i, t, _) in enumerate(params):
         if kind == "camera":
             g = prob.g_cam[i, t] if t < prob.g_cam.shape[1] else -1
+        elif kind == "photo" and rig_cols is not None:     # a linear function of the frame's and sensor's 12
+            on = rig_cols[i] >= 0
+            np.add.at(a_g[:, j], rig_cols[i][on], rig_T[i][t][on])
+            g = -1
         elif kind == "photo":
             g = prob.g_eo[i, t]
         else:

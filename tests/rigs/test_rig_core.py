@@ -230,3 +230,15 @@ def test_external_reliability_on_a_rig_photo_is_its_composed_orientation():
     p = obs.photo[k]
     change = np.r_[res2.state.X0[p] - res.state.X0[p], res2.state.opk[p] - res.state.opk[p]]
     np.testing.assert_allclose(eff, change, rtol=1e-3, atol=1e-9)
+
+
+def test_covariance_of_a_rig_photo_on_demand():
+    """output.covariance_of for a rig photo: its composed orientation's covariance (bundle_eo.csv's)."""
+    from baarda.pipeline.adjustment import parameter_covariance
+
+    block, _ = make_rig_block(np.random.default_rng(10), n_frames=4, n_points=30, noise_mm=0.001)
+    res = adjust(block)
+    p = int(np.flatnonzero(res.problem.rig.photo_sensor == 1)[1])
+    names, C = parameter_covariance(res, [f"photo {block.photos.ids[p]}"])
+    assert len(names) == 6
+    np.testing.assert_allclose(C, res.cov_eo[p], rtol=1e-7, atol=1e-22)
