@@ -242,3 +242,24 @@ def test_covariance_of_a_rig_photo_on_demand():
     names, C = parameter_covariance(res, [f"photo {block.photos.ids[p]}"])
     assert len(names) == 6
     np.testing.assert_allclose(C, res.cov_eo[p], rtol=1e-7, atol=1e-22)
+
+
+def test_free_network_with_a_rig_datum_motions_and_linearised_model():
+    """A free network of a rig: the similarity motions include the frames (moved as poses) and the
+    sensors (their centres scale), so the minimal datum and the linearised model (RRR's design)
+    exist, with the bundle's degrees of freedom; and a similarity of the solution leaves vᵀPv."""
+    from baarda.pipeline.adjustment import linearised_model
+    from baarda.pipeline.adjustment.diagnose import datum_motions
+
+    block, _ = make_rig_block(np.random.default_rng(11), n_frames=4, n_points=25, noise_mm=0.001)
+    n = len(block.points)
+    block = block.replace(points=block.points.replace(role=np.array(["tie"] * n), sigma=np.full((n, 3), np.inf)))
+    res = adjust(block, BundleSettings(datum="free"))
+    model, _ = linearised_model(res)
+    assert np.linalg.matrix_rank(model.A) == model.A.shape[1]
+    assert model.A.shape[0] - model.A.shape[1] == res.dof
+    prob, st = res.problem, res.state
+    G = datum_motions(prob, st)
+    # the scale motion of a sensor's centre is the centre itself (per unit of the motions' scale)
+    s = prob.g_sensor[1, :3]
+    np.testing.assert_allclose(G[s, 6] / np.linalg.norm(G[s, 6]), st.sensor[1, :3] / np.linalg.norm(st.sensor[1, :3]))
