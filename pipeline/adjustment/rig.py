@@ -31,6 +31,7 @@ import numpy as np
 from scipy import stats
 
 from baarda.pipeline.errors import InputError
+from baarda.pipeline.stats.congruence import lambda0_multi
 from baarda.pipeline.geometry import opk_from_rotation_many, rotation_and_derivatives, rotation_from_opk_many
 
 from .collinearity import Projection, Projector, bmm
@@ -393,6 +394,13 @@ def _group_test(d, Q, var0, sigma0_hat2, dof, alpha):
         out.update(T_F=q / (h * sigma0_hat2), critical_F=float(stats.f.ppf(1 - alpha, h, dof)),
                    p_F=float(stats.f.sf(q / (h * sigma0_hat2), h, dof)))
     out["stable"] = bool(out["T"] <= out["critical"])
+    # the smallest change of each parameter alone the test detects with power 80 %
+    # (λ0 of the χ²(h) test; ∇_i = σ0 √(λ0 / (Q⁺)_ii), as the congruence test's MDD)
+    lam0 = lambda0_multi(alpha, 0.80, h)
+    Qp = (V[:, keep] / w[keep]) @ V[:, keep].T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out["mdc"] = np.where(np.diag(Qp) > 0, np.sqrt(var0 * lam0 / np.diag(Qp)), np.nan).tolist()
+    out["lambda0"] = lam0
     return out
 
 

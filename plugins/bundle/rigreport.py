@@ -131,8 +131,13 @@ def rig_parts(rep, alpha: float = 0.05) -> dict | None:
             L.append(f"- {s.camera}: weighted pose, redundancy numbers {', '.join(f'{v:.2f}' for v in s.redundancy)}, "
                      f"largest |w| {np.nanmax(np.abs(s.w)):.2f}")
         if s.stability:
+            mdc = s.stability.get("mdc") or []
+            pars = s.stability["parameters"]
+            det = ", ".join(f"{n} {fmt_q(v, ou) if n in 'XYZ' else f'{np.degrees(v):.3g}°'}"
+                            for n, v in zip(pars, mdc) if np.isfinite(v))
             L.append(f"- {s.camera} against the rig's calibration ({s.stability['mode']}; "
-                     f"{', '.join(s.stability['parameters'])}): {_test_text(s.stability)}")
+                     f"{', '.join(pars)}): {_test_text(s.stability)}"
+                     + (f"; smallest change detected with 80 % power, each parameter alone: {det}" if det else ""))
         if np.isfinite(s.reference).all():
             d = s.d_reference_sigma
             dc = s.value[:3] - s.reference[:3]

@@ -108,3 +108,10 @@ def test_written_rig_table_reads_back_as_a_calibration(tmp_path, bare):
     assert np.isfinite(s.prior_sigma[1]).all() and np.isinf(s.sigma[1]).all()
     rr = rig_result(adjust(b2))
     assert rr.sensors[1].stability["stable"] and rr.sensors[1].stability["T"] < 1e-6
+    # the report says it, with the smallest detectable change of each parameter alone: σ0 √(λ0 / (Q_d⁻¹)_ii),
+    # at most √λ0 times the marginal σ of the difference (two independent estimates of equal σ: √2 σ)
+    lines = rig_parts(adjust_block(b2, BundleConfig()))["lines"]
+    assert any("against the rig's calibration" in ln and "smallest change" in ln for ln in lines)
+    st = rr.sensors[1].stability
+    mdc = np.array(st["mdc"])
+    assert np.all(mdc > 0) and np.all(mdc <= np.sqrt(st["lambda0"] * 2) * rr.sensors[1].sigma * (1 + 1e-6))
