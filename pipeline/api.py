@@ -15,10 +15,10 @@ holds the test helpers.  ``adjust(block, BundleConfig(...))`` runs the bundle wo
 from __future__ import annotations
 
 from . import stats
-from .adjustment import (APSelectionConfig, BundleConfig, BundleReport, EccentricityConfig, OutputConfig, RobustConfig,
-                         ScaleBar, SolverConfig, StatTestsConfig, VarianceComponentsConfig)
+from .adjustment import (APSelectionConfig, BundleConfig, BundleReport, EccentricityConfig, OutputConfig, RigConfig,
+                         RobustConfig, ScaleBar, SolverConfig, StatTestsConfig, VarianceComponentsConfig)
 from .adjustment import adjust_block as adjust
-from .adjustment import parameter_covariance, project_block
+from .adjustment import RigResult, SensorResult, parameter_covariance, project_block, rig_result
 from .contracts import AdjustmentArtefact
 from .errors import AdjustmentError, BaardaError, InputError
 from .model import Block, CircleTargets
@@ -30,6 +30,7 @@ from .stats.snapshot import Snapshot
 
 # libraries and engine modules stages share (independent models, COLMAP models in and out)
 from . import imodels
+from .rigs import attach_rigs, read_frame_table, read_rig_table
 from .colmap import block_from_reconstruction, read_colmap, read_reconstruction, reconstruction_from_block, write_colmap
 
 __all__ = [
@@ -39,7 +40,9 @@ __all__ = [
     # the bundle workflow as a library (docs/library.md)
     "adjust", "BundleConfig", "BundleReport", "SolverConfig", "StatTestsConfig", "RobustConfig",
     "VarianceComponentsConfig", "APSelectionConfig", "OutputConfig", "EccentricityConfig", "ScaleBar",
-    "parameter_covariance", "project_block",
+    "parameter_covariance",
+    "RigConfig", "rig_result", "RigResult", "SensorResult", "attach_rigs", "read_rig_table", "read_frame_table",
+    "project_block",
     # errors
     "InputError", "AdjustmentError", "BaardaError",
     # data and contracts

@@ -391,6 +391,102 @@ class CircleTargets(Table):
                    normal=np.broadcast_to(np.asarray(np.nan if normal is None else normal, float), (t, 3)))
 
 
+@dataclass(frozen=True, eq=False)
+class RigSensors(Table):
+    """The sensors (cameras) of camera rigs: one row per (rig, camera) (``docs/rigs.md``).
+
+    rig (s,) rig id; camera (s,) index into :class:`Cameras` (a camera belongs to at most one rig);
+    reference (s,) bool, the rig's reference sensor (exactly one per rig: its image-space frame is the
+    rig frame, its pose is the identity); centre (s, 3) the sensor's projection centre in the rig frame
+    (object unit; x right, y up, z back out of the reference lens, ``docs/conventions.md``); opk (s, 3)
+    ω, φ, κ radians of ``R_sensor_from_rig`` (nan: unknown, estimated from the photos' orientations);
+    sigma (s, 6) a-priori σ of the six (``0`` fixed, ``inf`` estimated, else weighted); prior_sigma
+    (s, 6) σ of the given pose as a calibration of the rig (for the stability test of an estimated
+    rig; ``nan`` none); ref_centre, ref_opk (s, 3) a reference solution to compare with (e.g.
+    ``cv2.stereoCalibrate``; nan none); line (s,) the row's line in its file (0 unknown).
+    """
+
+    rig: np.ndarray
+    camera: np.ndarray
+    reference: np.ndarray
+    centre: np.ndarray
+    opk: np.ndarray
+    sigma: np.ndarray
+    prior_sigma: np.ndarray = None  # type: ignore[assignment]
+    ref_centre: np.ndarray = None  # type: ignore[assignment]
+    ref_opk: np.ndarray = None  # type: ignore[assignment]
+    line: np.ndarray = None  # type: ignore[assignment]
+
+    _columns: ClassVar = {
+        "rig": (str, ()), "camera": (int, ()), "reference": (bool, ()), "centre": (float, (3,)),
+        "opk": (float, (3,)), "sigma": (float, (6,)), "prior_sigma": (float, (6,)), "ref_centre": (float, (3,)),
+        "ref_opk": (float, (3,)), "line": (int, ()),
+    }
+
+    def __post_init__(self):
+        s = len(np.atleast_1d(self.rig))
+        for name, tail, fill in (("prior_sigma", (6,), np.nan), ("ref_centre", (3,), np.nan),
+                                 ("ref_opk", (3,), np.nan), ("line", (), 0)):
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, np.full((s,) + tail, fill))
+        super().__post_init__()
+
+    @classmethod
+    def make(cls, rig, camera, reference, centre=None, opk=None, sigma=None, **extra) -> "RigSensors":
+        """From columns; ``centre``/``opk`` default to unknown (nan), ``sigma`` to estimated (inf);
+        the reference sensor's pose is set to the identity and fixed."""
+        rig = np.array([str(r) for r in np.atleast_1d(rig)], dtype=str)
+        s = len(rig)
+        ref = np.broadcast_to(np.asarray(reference, bool), (s,)).copy()
+        c = np.array(np.broadcast_to(np.asarray(np.nan if centre is None else centre, float), (s, 3)))
+        o = np.array(np.broadcast_to(np.asarray(np.nan if opk is None else opk, float), (s, 3)))
+        sg = np.array(np.broadcast_to(np.asarray(FREE if sigma is None else sigma, float), (s, 6)))
+        c[ref], o[ref], sg[ref] = 0.0, 0.0, FIXED
+        return cls(rig=rig, camera=np.broadcast_to(np.asarray(camera, int), (s,)), reference=ref, centre=c, opk=o,
+                   sigma=sg, **extra)
+
+
+@dataclass(frozen=True, eq=False)
+class FrameMembers(Table):
+    """Photos grouped into frames (one pose of a rig per frame): one row per photo of a frame.
+
+    frame (f,) frame id; photo (f,) index into :class:`Photos` (each photo in at most one frame);
+    line (f,) the row's line in its file (0 unknown).  The frame's rig is the rig of its photos'
+    cameras (:class:`RigSensors`)."""
+
+    frame: np.ndarray
+    photo: np.ndarray
+    line: np.ndarray = None  # type: ignore[assignment]
+
+    _columns: ClassVar = {"frame": (str, ()), "photo": (int, ()), "line": (int, ())}
+
+    def __post_init__(self):
+        if self.line is None:
+            object.__setattr__(self, "line", np.zeros(len(np.atleast_1d(self.frame)), int))
+        super().__post_init__()
+
+
+@dataclass(frozen=True, eq=False)
+class Rigs:
+    """Camera rigs of a block (``docs/rigs.md``): ``sensors`` (:class:`RigSensors`) and ``frames``
+    (:class:`FrameMembers`); ``path``/``frames_path`` the files they were read from (for messages)
+    and ``reference_name`` what the sensors' ``ref_*`` columns are (e.g. ``"cv2.stereoCalibrate"``).
+    Empty when the block has no rig: every photo is then its own frame (the bundle as before)."""
+
+    sensors: RigSensors = field(default_factory=lambda: RigSensors.make([], [], []))
+    frames: FrameMembers = field(default_factory=lambda: FrameMembers(frame=np.zeros(0, str),
+                                                                      photo=np.zeros(0, int)))
+    path: str | None = None
+    frames_path: str | None = None
+    reference_name: str = ""
+
+    def __bool__(self) -> bool:
+        return len(self.frames) > 0
+
+    def replace(self, **changes) -> "Rigs":
+        return dataclasses.replace(self, **changes)
+
+
 @dataclass(frozen=True)
 class CrsInfo:
     """The user's coordinate reference system of a block whose coordinates were read in one and
@@ -472,8 +568,9 @@ class Block:
     read in (:class:`CrsInfo`, None for a local system), ``scale_bars`` (:class:`ScaleBars`),
     ``source`` (:class:`SourceInfo`: the file read, its format, the line of each observation),
     ``ap_meta`` camera id → the AP model's constants (``r0`` of the AICON model, ``b`` of Ebner's),
-    the image file of each photo (``photos.image_path``) and ``circles`` (:class:`CircleTargets`:
-    points that are circular targets of known diameter, or None).
+    the image file of each photo (``photos.image_path``), ``circles`` (:class:`CircleTargets`:
+    points that are circular targets of known diameter, or None) and ``rigs`` the camera rigs and the
+    frames their photos are grouped in (:class:`Rigs`; empty: no rig).
 
     ``meta`` is a namespace private to the plugin that wrote the block: a key is read only by the
     plugin that writes it (``tests/pipeline/test_contracts_typed.py`` checks this), never used to
@@ -493,6 +590,7 @@ class Block:
     source: SourceInfo = field(default_factory=SourceInfo)
     ap_meta: Mapping = field(default_factory=dict)
     circles: CircleTargets | None = None
+    rigs: Rigs = field(default_factory=Rigs)
 
     def __post_init__(self):
         object.__setattr__(self, "ap_meta", FrozenMap({str(k): _frozen_mapping(v)
@@ -515,6 +613,11 @@ class Block:
             idx = getattr(self.pairs, name)
             if len(idx) and (idx.min() < 0 or idx.max() >= len(self.photos)):
                 raise ValueError(f"Pairs.{name} index out of range")
+        rs, fm = self.rigs.sensors, self.rigs.frames
+        if len(rs) and (rs.camera.min() < 0 or rs.camera.max() >= len(self.cameras)):
+            raise ValueError("RigSensors.camera index out of range")
+        if len(fm) and (fm.photo.min() < 0 or fm.photo.max() >= len(self.photos)):
+            raise ValueError("FrameMembers.photo index out of range")
 
     def replace(self, **changes) -> "Block":
         return dataclasses.replace(self, **changes)

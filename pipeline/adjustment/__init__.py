@@ -10,7 +10,8 @@ redundancy numbers), :mod:`.diagnose` (a singular system named), :mod:`.initial`
 intersection, initial values), :mod:`.apselect` (additional-parameter selection), :mod:`.adjust`
 (the entry point and its result), :mod:`.reproject` (a block's reprojection errors),
 :mod:`.variance` (variance components per observation group), :mod:`.reliability` (external
-reliability, covariances of chosen parameters, the linearised model for RRR), :mod:`.workflow` (the
+reliability, covariances of chosen parameters, the linearised model for RRR), :mod:`.rig` (camera rigs: frames and sensor poses,
+docs/rigs.md), :mod:`.workflow` (the
 whole bundle workflow: :func:`adjust_block` with a :class:`BundleConfig`, docs/library.md).
 
 Everything other code needs is imported from this package::
@@ -36,13 +37,14 @@ from .records import Convergence, Iteration, IterationEvent, Timings
 from .reliability import (GlobalRowStats, OwnEffects, ParameterVectors, effect_vectors, global_rows, linearised_model,
                           own_point_effects_in_datum,
                           own_effects, parameter_covariance, row_mdb)
+from .rig import SENSOR_NAMES, RigResult, RigStructure, SensorResult, initial_rig_state, rig_result, rig_structure
 from .reproject import project_block, reprojection_px, reprojection_summary
 from .settings import BundleSettings, BundleState, Distance, camera_meta
 from .variance import (GroupPart, LinearComponents, VarianceComponents, VarianceGroup, estimate_components,
                        group_parts, image_group_labels, linear_components)
 from .workflow import (EO_LABELS, APSelectionConfig, BundleConfig, BundleReport, EccentricityConfig,
-                       EccentricityRounds, OutputConfig, RobustConfig, ScaleBar, SolverConfig, StatTestsConfig,
-                       VarianceComponentsConfig, adjust_block, bundle_settings, configure_block)
+                       EccentricityRounds, OutputConfig, RigConfig, RobustConfig, ScaleBar, SolverConfig,
+                       StatTestsConfig, VarianceComponentsConfig, adjust_block, bundle_settings, configure_block)
 
 __all__ = [
     "adjust", "BundleResult", "result_of", "BundleSettings", "BundleState", "Distance", "padded_ap", "camera_meta",
@@ -59,4 +61,5 @@ __all__ = [
     "SolverConfig", "StatTestsConfig", "RobustConfig", "VarianceComponentsConfig", "APSelectionConfig",
     "OutputConfig", "EO_LABELS", "EccentricityConfig", "EccentricityRounds", "Eccentricity",
     "eccentricity_corrections",
+    "RigConfig", "rig_result", "RigResult", "SensorResult", "rig_structure", "RigStructure", "SENSOR_NAMES", "initial_rig_state",
 ]

@@ -22,6 +22,7 @@ from .lm import final_system, solve_bundle
 from .precision import Cofactors, reliability_rows
 from .problem import BundleProblem
 from .records import Convergence, Timings
+from .rig import photo_transform
 from .route import Route
 from .settings import BundleSettings, BundleState
 from ..threads import single_blas
@@ -104,6 +105,9 @@ class BundleResult:
         used = self.problem.point_used
         XYZ = np.where(used[:, None], st.XYZ, b.points.XYZ)
         ph_used = self.problem.photo_used
+        if getattr(self.problem, "rig", None) is not None and st.sensor is not None:
+            rs = b.rigs.sensors              # the adjusted sensor poses written back (docs/rigs.md)
+            b = b.replace(rigs=b.rigs.replace(sensors=rs.replace(centre=st.sensor[:, :3], opk=st.sensor[:, 3:])))
         return b.replace(cameras=new_cams,
                          photos=b.photos.replace(X0=np.where(ph_used[:, None], st.X0, b.photos.X0),
                                                  opk=np.where(ph_used[:, None], st.opk, b.photos.opk)),
@@ -184,6 +188,12 @@ class BundleResult:
     def cofactor_diagonal(self) -> np.ndarray:
         """Diagonal of the cofactor matrix of the global unknowns (n_g,)."""
         return self.cofactors.diagonal()
+
+    @property
+    def rig(self):
+        """The block's rigs as index arrays (:class:`~.rig.RigStructure`: frames, the reference photo
+        of each, each photo's frame and sensor), None without rigs (docs/rigs.md)."""
+        return getattr(self.problem, "rig", None)
 
     @property
     def solver_route(self) -> str:
@@ -332,6 +342,8 @@ def adjust(block: Block, settings: BundleSettings | None = None, *, row_active=N
         cofactors = pre.cofactors
         cov_cams = [var * Q for Q in pre.Q_cam]
         cov_eo = var * pre.Q_eo
+        if prob.rig is not None:
+            cov_eo = cov_eo + var * _rig_photo_cofactors(prob, st, pre.cofactors)
         cov_pts[~prob.point_used] = np.nan
         cov_pts[prob.point_used] = 0.0
         if prob.n_e:
@@ -365,6 +377,20 @@ def adjust(block: Block, settings: BundleSettings | None = None, *, row_active=N
                         snapshot=snapshot, cam_param_names=names, cov_cameras=cov_cams, cov_eo=cov_eo,
                         cov_points=cov_pts, redundancy=red_all, PQvvP=PQ_all, check=check, timings=timings,
                         warnings=list(prob.warnings), Qx=Qx, cofactors=cofactors, route=info.route)
+
+
+def _rig_photo_cofactors(prob, st, cof) -> np.ndarray:
+    """(m, 6, 6) cofactors of the orientations of the photos in frames (their frame's and sensor's
+    12 unknowns propagated through the composition; 0 for the other photos)."""
+    out = np.zeros((prob.m, 6, 6))
+    ph = np.flatnonzero((prob.rig.photo_frame >= 0) & prob.photo_used)
+    if not len(ph) or cof is None:
+        return out
+    cols = np.concatenate([prob.g_frame[prob.rig.photo_frame[ph]], prob.g_sensor[prob.rig.photo_sensor[ph]]], axis=1)
+    Q = cof.blocks(np.where(cols >= 0, cols, prob.n_g))
+    T = photo_transform(prob.rig, st.frame, st.sensor, st.opk)[ph]
+    out[ph] = T @ Q @ np.transpose(T, (0, 2, 1))
+    return out
 
 
 def _project_all(prob: BundleProblem, st: BundleState) -> np.ndarray:

@@ -36,6 +36,7 @@ from baarda.pipeline.geometry.rotations import rotation_from_opk_many, rotation_
 
 from ..camera import get_ap_model
 from .adjust import adjust
+from .rig import photo_columns
 
 __all__ = ["project_camera", "unproject", "format_grid", "joint_covariance", "projection_jacobians",
            "projection_covariance", "worst_sigma", "ProjectionUncertainty", "projection_uncertainty",
@@ -125,6 +126,8 @@ def joint_covariance(res, j: int, photos) -> np.ndarray:
     covariances; rows of parameters that were not unknowns are 0."""
     prob = res.problem
     P = len(res.cam_param_names[j])
+    if res.rig is not None:          # photos of rigs: through their frame's and sensor's unknowns (docs/rigs.md)
+        return _joint_covariance_rig(res, j, photos, P)
     g = np.r_[prob.g_cam[j, :P], prob.g_eo[np.asarray(photos, int)].ravel()]
     free = g >= 0
     out = np.zeros((len(g), len(g)))
@@ -132,6 +135,26 @@ def joint_covariance(res, j: int, photos) -> np.ndarray:
         Q = np.asarray(res.cofactor_columns(g[free]))[g[free]]
         out[np.ix_(free, free)] = res.variance_factor * 0.5 * (Q + Q.T)
     return out
+
+
+def _joint_covariance_rig(res, j: int, photos, P: int) -> np.ndarray:
+    """:func:`joint_covariance` of a block with rigs: the covariance of the camera's parameters and
+    the 12 frame and sensor unknowns of each photo, propagated to the photos' orientations."""
+    prob = res.problem
+    photos = np.asarray(photos, int)
+    N = len(photos)
+    cols, T = photo_columns(prob, res.state, photos)
+    g = np.r_[prob.g_cam[j, :P], cols.ravel()]
+    free = g >= 0
+    C = np.zeros((len(g), len(g)))
+    if free.any():
+        Q = np.asarray(res.cofactor_columns(g[free]))[g[free]]
+        C[np.ix_(free, free)] = res.variance_factor * 0.5 * (Q + Q.T)
+    J = np.zeros((P + 6 * N, P + 12 * N))
+    J[:P, :P] = np.eye(P)
+    for i in range(N):
+        J[P + 6 * i:P + 6 * i + 6, P + 12 * i:P + 12 * i + 12] = T[i]
+    return J @ C @ J.T
 
 
 # -- propagation -----------------------------------------------------------------------------

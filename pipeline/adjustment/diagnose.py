@@ -15,6 +15,7 @@ from baarda.pipeline.errors import AdjustmentError
 from baarda.pipeline.geometry import opk_from_rotation_many, rotation_from_opk_many, similarity_motions
 
 from .collinearity import EO_NAMES
+from .rig import rig_parameter_names
 
 MOTION_NAMES = ("translation X", "translation Y", "translation Z",
                 "rotation about X", "rotation about Y", "rotation about Z", "scale")
@@ -40,6 +41,8 @@ def parameter_names(prob) -> list[str]:
             i = prob.g_pt[p, t]
             if i >= 0:
                 names[i] = f"{'XYZ'[t]} of point {str(points.ids[p])!r}"
+    for i, name in rig_parameter_names(prob).items():      # frames and sensors of rigs (docs/rigs.md)
+        names[i] = name
     return names
 
 
@@ -74,23 +77,35 @@ def datum_motions(prob, st) -> np.ndarray:
     def pos_motion(X):
         return _pos_motion(X, ctr, scale)
 
-    mX = pos_motion(st.X0)
-    R = rotation_from_opk_many(st.opk)
-    h = 1e-6
-    dang = np.zeros((prob.m, 3, 7))
-    for a in range(3):
-        w = np.zeros(3)
-        w[a] = h
-        Wx = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
-        # world rotated by ε: R' = R (I − [ε]×)
-        Rp = R @ (np.eye(3) - Wx)
-        Rm = R @ (np.eye(3) + Wx)
-        diff = opk_from_rotation_many(Rp) - opk_from_rotation_many(Rm)
-        diff = (diff + np.pi) % (2 * np.pi) - np.pi      # wrap the difference, not the derivative
-        dang[:, :, 3 + a] = diff / (2 * h)
-    eo_motion = np.concatenate([mX, dang], axis=1)        # (m, 6, 7)
+    def pose_motion(X0, opk):
+        mX = pos_motion(X0)
+        R = rotation_from_opk_many(opk)
+        h = 1e-6
+        dang = np.zeros((len(R), 3, 7))
+        for a in range(3):
+            w = np.zeros(3)
+            w[a] = h
+            Wx = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
+            # world rotated by ε: R' = R (I − [ε]×)
+            Rp = R @ (np.eye(3) - Wx)
+            Rm = R @ (np.eye(3) + Wx)
+            diff = opk_from_rotation_many(Rp) - opk_from_rotation_many(Rm)
+            diff = (diff + np.pi) % (2 * np.pi) - np.pi      # wrap the difference, not the derivative
+            dang[:, :, 3 + a] = diff / (2 * h)
+        return np.concatenate([mX, dang], axis=1)        # (·, 6, 7)
+
+    eo_motion = pose_motion(st.X0, st.opk)
     msk = prob.g_eo >= 0
     G[prob.g_eo[msk]] = eo_motion[msk]
+    if getattr(prob, "rig", None) is not None:
+        # rigs: a frame's pose moves as a photo's; a sensor's pose in its rig only scales its centre
+        fm = pose_motion(st.frame[:, :3], st.frame[:, 3:])
+        msk = prob.g_frame >= 0
+        G[prob.g_frame[msk]] = fm[msk]
+        sm = np.zeros((len(st.sensor), 6, 7))
+        sm[:, :3, 6] = st.sensor[:, :3] / scale
+        msk = prob.g_sensor >= 0
+        G[prob.g_sensor[msk]] = sm[msk]
     mp = pos_motion(st.XYZ)
     msk = prob.g_pt >= 0
     G[prob.g_pt[msk]] = mp[msk]

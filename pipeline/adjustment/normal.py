@@ -344,7 +344,8 @@ class NormalEquations:
                 node[c] = k
                 cams.append(k)
                 k += 1
-        for table in (self.prob.g_eo, self.prob.g_pt):
+        rig = (self.prob.g_frame, self.prob.g_sensor) if getattr(self.prob, "rig", None) is not None else ()
+        for table in (self.prob.g_eo, *rig, self.prob.g_pt):
             rows = np.flatnonzero((table >= 0).any(axis=1))
             for i in rows.tolist():
                 node[table[i][table[i] >= 0]] = k

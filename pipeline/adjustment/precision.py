@@ -474,11 +474,10 @@ def predicted_variance_dense(prob: BundleProblem, st, red, Qx: np.ndarray, Qpp: 
         return out
     sel = np.flatnonzero(ok)
     ph, pt = ph[sel], pt[sel]
-    pr = project_observations(ph, pt, st.XYZ, st.X0, st.opk, prob.block.photos.camera, st.cam_params,
-                              prob.block.cameras.ap_model, prob.meta, marks=prob.marks_of(idx[sel]))
+    pr, eo_cols = _predicted_projection(prob, st, ph, pt, marks=prob.marks_of(idx[sel]))
     cam = prob.block.photos.camera[ph]
     n_g = prob.n_g
-    C = np.concatenate([prob.g_cam[cam], prob.g_eo[ph], prob.g_pt[pt]], axis=1)
+    C = np.concatenate([prob.g_cam[cam], eo_cols, prob.g_pt[pt]], axis=1)
     J = np.concatenate([pr.J_cam, pr.J_eo, pr.J_point], axis=2)
     J = J * (C >= 0)[:, None, :]
     C = np.where(C >= 0, C, n_g)
@@ -501,6 +500,17 @@ def predicted_variance_dense(prob: BundleProblem, st, red, Qx: np.ndarray, Qpp: 
     return out
 
 
+def _predicted_projection(prob, st, ph, pt, marks=None):
+    """Projection with Jacobians of observations ``(ph, pt)`` and their orientation columns: the
+    photos' own 6, or with rigs (``docs/rigs.md``) the frame's and the sensor's 12.  ``marks``: the
+    observations' measured marks when the residual is DBAT's (:meth:`BundleProblem.marks_of`)."""
+    if getattr(prob, "rig", None) is not None:
+        return prob.project_rows(st, ph, pt, marks=marks)
+    pr = project_observations(ph, pt, st.XYZ, st.X0, st.opk, prob.block.photos.camera, st.cam_params,
+                              prob.block.cameras.ap_model, prob.meta, marks=marks)
+    return pr, prob.g_eo[ph]
+
+
 def _prediction_rows(prob, st, obs_idx):
     """Jacobian rows of block observations ``obs_idx`` over the global unknowns (``J`` (r, 2, q'),
     columns ``C``, n_g = fixed) and the eliminated point (``Jp`` (r, 2, 3), ``e`` its index or −1);
@@ -510,10 +520,9 @@ def _prediction_rows(prob, st, obs_idx):
     ph, pt = obs.photo[idx], obs.point[idx]
     sel = np.flatnonzero(prob.photo_used[ph] & prob.point_used[pt])
     ph, pt = ph[sel], pt[sel]
-    pr = project_observations(ph, pt, st.XYZ, st.X0, st.opk, prob.block.photos.camera, st.cam_params,
-                              prob.block.cameras.ap_model, prob.meta, marks=prob.marks_of(idx[sel]))
+    pr, eo_cols = _predicted_projection(prob, st, ph, pt, marks=prob.marks_of(idx[sel]))
     cam = prob.block.photos.camera[ph]
-    C = np.concatenate([prob.g_cam[cam], prob.g_eo[ph], prob.g_pt[pt]], axis=1)
+    C = np.concatenate([prob.g_cam[cam], eo_cols, prob.g_pt[pt]], axis=1)
     J = np.concatenate([pr.J_cam, pr.J_eo, pr.J_point], axis=2) * (C >= 0)[:, None, :]
     C = np.where(C >= 0, C, prob.n_g)
     Jp = pr.J_point * prob.pt_free[pt][:, None, :]

@@ -43,6 +43,7 @@ from .collinearity import Projector, bmv
 from .corrected import check_models
 from .layout import ColumnLayout
 from .normal import NormalEquations
+from .rig import RigProjector, compose_photos, initial_rig_state, rig_structure
 from .settings import BundleSettings, BundleState, block_distances, camera_meta, check_unique
 
 __all__ = ["BundleProblem", "GlobalRows"]
@@ -88,6 +89,7 @@ class BundleProblem:
         self.settings = settings
         self.warnings: list[str] = []
         self._check_ids()
+        self.rig = rig_structure(block)          # None without rigs (docs/rigs.md)
         self._camera_parameters()
         self._scale_bars()
         self._participants(obs_active, row_active)
@@ -227,9 +229,13 @@ class BundleProblem:
         nx += cnt
         self.g_eo = np.full((m, 6), -1)
         free_e = (photos.sigma_eo != 0) & self.photo_used[:, None]
+        if self.rig is not None:
+            free_e &= (self.rig.photo_frame < 0)[:, None]         # a photo in a frame: the frame's and sensor's
         cnt = int(free_e.sum())
         self.g_eo[free_e] = np.arange(nx, nx + cnt)
         nx += cnt
+        if self.rig is not None:
+            nx = self._rig_unknowns(nx)
         pt_free = (points.sigma != 0) & self.point_used[:, None]
         self.pt_free = pt_free
         glob_pts = np.zeros(n, bool)
@@ -249,9 +255,54 @@ class BundleProblem:
         self.elim_free = pt_free[self.elim_points]                    # (n_e, 3)
         self.n_unknowns = self.n_g + int(self.elim_free.sum())
 
+    def _rig_unknowns(self, nx: int) -> int:
+        """Rigs: the pose of every frame with a used photo (free unless its reference photo's
+        orientation is fixed) and of every non-reference sensor that is not fixed (``g_frame`` (F, 6),
+        ``g_sensor`` (S, 6), −1 fixed); returns the next free column."""
+        rig, rs = self.rig, self.block.rigs.sensors
+        photos = self.block.photos
+        F = rig.n_frames
+        fused = np.zeros(F, bool)
+        fused[rig.photo_frame[self.photo_used & (rig.photo_frame >= 0)]] = True
+        bad = np.flatnonzero((rig.photo_frame >= 0) & ~np.isin(np.arange(self.m), rig.frame_ref_photo)
+                             & ~np.isinf(photos.sigma_eo).all(axis=1))
+        if len(bad):
+            i = int(bad[0])
+            raise InputError(f"photo {str(photos.ids[i])!r} is a non-reference sensor's photo of frame "
+                             f"{str(rig.frame_ids[rig.photo_frame[i]])!r}: its orientation follows from the frame's and "
+                             "the sensor's; give a-priori σ of the orientation on the frame's reference photo",
+                             field="sigma_eo")
+        self.g_frame = np.full((F, 6), -1)
+        free_f = (photos.sigma_eo[rig.frame_ref_photo] != 0) & fused[:, None]
+        cnt = int(free_f.sum())
+        self.g_frame[free_f] = np.arange(nx, nx + cnt)
+        nx += cnt
+        sused = np.zeros(len(rs), bool)
+        sused[rig.photo_sensor[self.photo_used & (rig.photo_frame >= 0)]] = True
+        self.g_sensor = np.full((len(rs), 6), -1)
+        free_s = (rs.sigma != 0) & sused[:, None] & ~rs.reference[:, None]
+        cnt = int(free_s.sum())
+        self.g_sensor[free_s] = np.arange(nx, nx + cnt)
+        return nx + cnt
+
+    def eo_columns(self, photo) -> np.ndarray:
+        """The orientation columns of observations in photos ``photo``: the photo's 6 (no rig), or
+        with rigs 12: the frame's 6 (a photo in no frame: its own) and its sensor's 6 (−1 fixed or
+        none) — the columns of the projector's ``J_eo``."""
+        photo = np.asarray(photo, int)
+        if self.rig is None:
+            return self.g_eo[photo]
+        rig = self.rig
+        f = rig.photo_frame[photo]
+        s = rig.photo_sensor[photo]
+        cols = np.full((len(photo), 12), -1)
+        cols[:, :6] = np.where((f >= 0)[:, None], self.g_frame[np.maximum(f, 0)], self.g_eo[photo])
+        cols[:, 6:] = np.where((s >= 0)[:, None], self.g_sensor[np.maximum(s, 0)], -1)
+        return cols
+
     def _column_layout(self):
         """The :class:`~.layout.ColumnLayout` of the observations' Jacobian columns (built once)."""
-        self.layout = ColumnLayout.build(self.g_cam[self.obs_cam], self.g_eo[self.obs_photo], self.g_pt[self.obs_point],
+        self.layout = ColumnLayout.build(self.g_cam[self.obs_cam], self.eo_columns(self.obs_photo), self.g_pt[self.obs_point],
                                          self.obs_photo, self.n_g, self.elim_of[self.obs_point], self.elim_free)
 
     def _global_rows(self):
@@ -267,6 +318,9 @@ class BundleProblem:
             kinds.append(GlobalRows("distance", 1, cols, (s0 / self.dist_s)[:, None, None], self.dist_l[:, None],
                                     np.arange(len(self.dist_l))))
         gn = self.block.gnss
+        if len(gn) and self.rig is not None and (self.rig.photo_frame[gn.photo] >= 0).any():
+            raise InputError("GNSS antennas on photos of a rig are not supported yet: give them without the rig",
+                             field="gnss")
         if len(gn):
             use = np.flatnonzero(self.photo_used[gn.photo])
             cov = gn.cov[use]
@@ -307,8 +361,12 @@ class BundleProblem:
         """What every iteration reuses: the projector (camera of each observation, AP-model groups,
         the camera Jacobian's columns that feed the layout)."""
         photos = self.block.photos
-        self.projector = Projector(self.obs_photo, self.obs_point, photos.camera, self.block.cameras.ap_model,
-                                   self.meta, cam_cols=self.layout.jac_cols[0], marks=self.marks_of(self.oi))
+        args = (self.obs_photo, self.obs_point, photos.camera, self.block.cameras.ap_model, self.meta)
+        kw = {"cam_cols": self.layout.jac_cols[0], "marks": self.marks_of(self.oi)}
+        if self.rig is None:
+            self.projector = Projector(*args, **kw)
+        else:
+            self.projector = RigProjector(self.rig, *args, **kw)
         self.datum_on_elim = bool(self.n_c and len(self.datum_elim))
 
     def marks_of(self, obs_idx):
@@ -379,6 +437,25 @@ class BundleProblem:
             raise InputError("an exterior-orientation element has an a-priori sigma but no value", field="sigma_eo")
         gi.append(self.g_eo[m]); w.append((s0 / se[m]) ** 2); given.append(val[m])
         ang.append(np.broadcast_to(np.arange(6) >= 3, se.shape)[m])
+        if self.rig is not None:
+            # frames: the reference photo's a-priori orientation; sensors: the rig table's weighted pose
+            ref = self.rig.frame_ref_photo
+            m = (self.g_frame >= 0) & np.isfinite(se[ref]) & (se[ref] > 0)
+            if np.isnan(val[ref][m]).any():
+                raise InputError("an exterior-orientation element has an a-priori sigma but no value", field="sigma_eo")
+            gi.append(self.g_frame[m]); w.append((s0 / se[ref][m]) ** 2); given.append(val[ref][m])
+            ang.append(np.broadcast_to(np.arange(6) >= 3, m.shape)[m])
+            rs = blk.rigs.sensors
+            ss = rs.sigma
+            m = (self.g_sensor >= 0) & np.isfinite(ss) & (ss > 0)
+            sval = np.concatenate([rs.centre, rs.opk], axis=1)
+            if np.isnan(sval[m]).any():
+                i = int(np.argwhere(m & np.isnan(sval))[0, 0])
+                raise InputError(f"rig {str(rs.rig[i])!r}, camera {str(blk.cameras.ids[rs.camera[i]])!r}: a weighted "
+                                 "sensor pose needs its values", path=blk.rigs.path, line=int(rs.line[i]) or None,
+                                 field="X")
+            gi.append(self.g_sensor[m]); w.append((s0 / ss[m]) ** 2); given.append(sval[m])
+            ang.append(np.broadcast_to(np.arange(6) >= 3, m.shape)[m])
         # global points
         ps = blk.points.sigma
         m = (self.g_pt >= 0) & np.isfinite(ps) & (ps > 0)
@@ -417,6 +494,9 @@ class BundleProblem:
         self.scale_free = len(self.dist_l) == 0
         self.n_c = 7 if self.scale_free else 6
         pts = self.block.points
+        if st.datum_centres and self.rig is not None:
+            raise InputError("a free network on the projection centres is not available with rigs: put the inner "
+                             "constraints on points (datum_on = \"points\")", field="datum_on")
         if st.datum_centres:
             self.datum_photos = np.flatnonzero(self.photo_used & (self.g_eo[:, :3] >= 0).all(axis=1))
             if len(self.datum_photos) < 3:
@@ -445,8 +525,12 @@ class BundleProblem:
     # ------------------------------------------------------------------------------------------
     def initial_state(self, block: Block | None = None) -> BundleState:
         b = block or self.block
-        return BundleState(self.cam_params0.copy(), np.array(b.photos.X0, float),
-                           np.array(b.photos.opk, float), np.array(b.points.XYZ, float))
+        st = BundleState(self.cam_params0.copy(), np.array(b.photos.X0, float),
+                         np.array(b.photos.opk, float), np.array(b.points.XYZ, float))
+        if self.rig is not None:
+            st.frame, st.sensor = initial_rig_state(self.rig, self.block.rigs.sensors, st.X0, st.opk)
+            st.X0, st.opk = compose_photos(self.rig, st.frame, st.sensor, st.X0, st.opk)
+        return st
 
     def global_vector(self, st: BundleState) -> np.ndarray:
         x = np.zeros(self.n_g)
@@ -457,6 +541,10 @@ class BundleProblem:
         x[self.g_eo[m]] = eo[m]
         m = self.g_pt >= 0
         x[self.g_pt[m]] = st.XYZ[m]
+        if self.rig is not None:
+            for g, v in ((self.g_frame, st.frame), (self.g_sensor, st.sensor)):
+                m = g >= 0
+                x[g[m]] = v[m]
         return x
 
     def apply(self, st: BundleState, dx_g: np.ndarray, dp: np.ndarray) -> BundleState:
@@ -471,11 +559,33 @@ class BundleProblem:
         out.XYZ[m] += dx_g[self.g_pt[m]]
         if self.n_e:
             out.XYZ[self.elim_points] += np.where(self.elim_free, dp, 0.0)
+        if self.rig is not None:
+            for g, v in ((self.g_frame, out.frame), (self.g_sensor, out.sensor)):
+                m = g >= 0
+                v[m] += dx_g[g[m]]
+            out.X0, out.opk = compose_photos(self.rig, out.frame, out.sensor, out.X0, out.opk)
         return out
 
     # ------------------------------------------------------------------------------------------
+    def project_rows(self, st: BundleState, photo, point, marks=None) -> "tuple":
+        """``(projection with Jacobians, orientation columns)`` of any observations ``(photo,
+        point)`` (e.g. the ones left out of the adjustment): ``J_eo`` over :meth:`eo_columns`.
+        ``marks``: their measured marks when the residual is DBAT's (:meth:`marks_of`)."""
+        photo, point = np.asarray(photo, int), np.asarray(point, int)
+        args = (photo, point, self.block.photos.camera, self.block.cameras.ap_model, self.meta)
+        if self.rig is None:
+            pj = Projector(*args, marks=marks)
+            pr = pj.jacobians(pj.project(st.XYZ, st.X0, st.opk, st.cam_params))
+        else:
+            pj = RigProjector(self.rig, *args, marks=marks)
+            pr = pj.jacobians(pj.project(st.XYZ, st.X0, st.opk, st.cam_params, rig=(st.frame, st.sensor)))
+        return pr, self.eo_columns(photo)
+
     def project(self, st: BundleState, jacobians: bool):
-        pr = self.projector.project(st.XYZ, st.X0, st.opk, st.cam_params)
+        if self.rig is None:
+            pr = self.projector.project(st.XYZ, st.X0, st.opk, st.cam_params)
+        else:
+            pr = self.projector.project(st.XYZ, st.X0, st.opk, st.cam_params, rig=(st.frame, st.sensor))
         return self.projector.jacobians(pr) if jacobians else pr
 
     def residual_parts(self, st: BundleState, proj=None):

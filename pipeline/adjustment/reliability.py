@@ -44,6 +44,7 @@ from baarda.pipeline.stats.snapshot import Snapshot
 from .collinearity import EO_NAMES
 from .phases import phase_step
 from .lm import final_system
+from .rig import photo_columns, rig_parameter_names
 
 __all__ = ["OwnEffects", "own_effects", "own_point_effects_in_datum", "effect_vectors", "ParameterVectors", "parameter_covariance", "parameter_names_of",
            "row_mdb", "bar_delta0", "linearised_model", "GlobalRowStats", "global_rows"]
@@ -241,6 +242,10 @@ def own_effects(res, delta0: float = 4.13, bias=None, chunk_bytes: float = 3.2e7
     pt_eff = np.zeros((k, 2, 3))          # per unit bias, active order
     eo_eff = np.zeros((k, 2, 6))
     eo_pos, pt_pos = _layout(prob)
+    rigT = None
+    if getattr(prob, "rig", None) is not None:        # a rig photo's orientation: its frame's and sensor's 12
+        eo_pos = _layout(prob, 12)[0]
+        rig_cols, rigT = photo_columns(prob, st, np.arange(prob.m))
     G_all = np.einsum("kiq,kic->kqc", Jc, L)                 # a_g of row c: J̃cᵀ L e_c   (k, q, 2)
     Ap_all = np.einsum("kia,kic->kac", Jp, L)                # a_p                       (k, 3, 2)
     cons = red.route.constraint_cofactors(red, Qx)
@@ -284,7 +289,10 @@ def own_effects(res, delta0: float = 4.13, bias=None, chunk_bytes: float = 3.2e7
         _store(ob, X, None)
 
     def _store(rows, own, y):
-        eo_eff[rows] = np.transpose(_pick(own, eo_pos), (0, 2, 1))
+        if rigT is None:
+            eo_eff[rows] = np.transpose(_pick(own, eo_pos), (0, 2, 1))
+        else:
+            eo_eff[rows] = np.transpose(np.matmul(rigT[prob.obs_photo[rows]], _pick(own, eo_pos)), (0, 2, 1))
         if y is not None:
             pt_eff[rows] = np.transpose(y, (0, 2, 1)) * prob.layout.pt_mask[rows][:, None, :]
         else:
@@ -294,7 +302,7 @@ def own_effects(res, delta0: float = 4.13, bias=None, chunk_bytes: float = 3.2e7
     single = np.flatnonzero(prob.layout.pidx == n_e)
     red.route.hand_blocks(red, Qx, groups, single, tracks, singles, chunk_bytes)
     if datum is not None:
-        _s_transform_effects(prob, datum, G_all, Ap_all, eo_eff, pt_eff, chunk_bytes)
+        _s_transform_effects(prob, datum, G_all, Ap_all, eo_eff, pt_eff, chunk_bytes, rigT, rig_cols)
     # to block order, scaled by the biases
     point = np.full((k_all, 2, 3), np.nan)
     eo = np.full((k_all, 2, 6), np.nan)
@@ -312,12 +320,14 @@ def own_effects(res, delta0: float = 4.13, bias=None, chunk_bytes: float = 3.2e7
                       eo_sigma=np.repeat(esig[:, None], 2, axis=1), bar_delta0=bar_delta0(res, bias))
 
 
-def _s_transform_effects(prob, datum, G_all, Ap_all, eo_eff, pt_eff, chunk_bytes):
+def _s_transform_effects(prob, datum, G_all, Ap_all, eo_eff, pt_eff, chunk_bytes, rigT=None, rig_cols=None):
     """A free network's S-transformation of the per-unit effects (in place): ``eo_eff`` (k, 2, 6)
     and ``pt_eff`` (k, 2, 3) minus the datum part ``G T Cᵀ D`` of each row, ``C`` the row's
-    constraint columns (``Y``), ``G`` the motions of its photo and point.  Over chunks of rows, so
-    that the (rows, columns, n_c) gathers stay within ``chunk_bytes`` (at 10 000 photos one gather
-    of every row was 0.5 GB); each row's products are the same einsums as over all rows at once."""
+    constraint columns (``Y``), ``G`` the motions of its photo and point (with rigs, ``rigT``
+    (m, 6, 12) maps the frame's and sensor's motions, columns ``rig_cols`` (m, 12), to the photo's).
+    Over chunks of rows, so that the (rows, columns, n_c) gathers stay within ``chunk_bytes`` (at
+    10 000 photos one gather of every row was 0.5 GB); each row's products are the same einsums as
+    over all rows at once."""
     Gg, Gp, T, Yg, Yp = datum
     n_g, n_e, n_c = prob.n_g, prob.n_e, prob.n_c
     k = len(G_all)
@@ -337,7 +347,13 @@ def _s_transform_effects(prob, datum, G_all, Ap_all, eo_eff, pt_eff, chunk_bytes
         if ep.size:
             CtD[ep] += np.einsum("kac,kad->kcd", Yp[pid[ep]], Ap_all[sl][ep])
         TC = np.einsum("cd,kdr->kcr", T, CtD)                                           # (c, n_c, 2)
-        eo_eff[sl] -= np.einsum("kac,kcr->kra", Gx[geo[sl]], TC)
+        if rigT is None:
+            eo_eff[sl] -= np.einsum("kac,kcr->kra", Gx[geo[sl]], TC)
+        else:
+            ph = prob.obs_photo[sl]
+            c12 = rig_cols[ph]
+            G12 = np.matmul(rigT[ph], Gx[np.where(c12 >= 0, c12, n_g)])
+            eo_eff[sl] -= np.einsum("kac,kcr->kra", G12, TC)
         if ep.size:
             rows = a + ep
             pt_eff[rows] -= np.einsum("kac,kcr->kra", Gp[pid[ep]], TC[ep]) * mask[rows][:, None, :]
@@ -346,8 +362,9 @@ def _s_transform_effects(prob, datum, G_all, Ap_all, eo_eff, pt_eff, chunk_bytes
             pt_eff[rows] -= np.einsum("kac,kcr->kra", Gx[gpt[rows]], TC[gp])
 
 
-def _layout(prob):
-    """Positions of the orientation's 6 and a global point's 3 columns in ``cidx`` (−1: dropped)."""
+def _layout(prob, n_eo: int = 6):
+    """Positions of the orientation's 6 (with rigs: ``n_eo`` = 12, the frame's and the sensor's)
+    and a global point's 3 columns in ``cidx`` (−1: dropped)."""
     P = 3 + prob.pmax
     off = {}
     o = 0
@@ -355,7 +372,7 @@ def _layout(prob):
         off[name] = o
         o += w
     where = {int(c): j for j, c in enumerate(prob.layout.keep)}
-    eo = np.array([where.get(off["eo"] + a, -1) for a in range(6)]) if "eo" in off else np.full(6, -1)
+    eo = np.array([where.get(off["eo"] + a, -1) for a in range(n_eo)]) if "eo" in off else np.full(n_eo, -1)
     pt = np.array([where.get(off["pt"] + a, -1) for a in range(3)]) if "pt" in off else np.full(3, -1)
     del P
     return eo, pt
@@ -460,7 +477,11 @@ def _scatter(res, xg, y) -> ParameterVectors:
         return np.moveaxis(xpad[np.where(idx >= 0, idx, n_g)], -1, 0)
 
     cams = [gather(prob.g_cam[j, :3 + m.n_params]) for j, m in enumerate(prob.models)]
-    eo = gather(prob.g_eo)
+    if getattr(prob, "rig", None) is None:
+        eo = gather(prob.g_eo)
+    else:                           # rigs: each photo's orientation through its frame's and sensor's 12
+        cols, T = photo_columns(prob, res.state, np.arange(prob.m))
+        eo = np.einsum("mij,rmj->rmi", T, gather(cols))
     eo[:, ~prob.photo_used] = np.nan
     pts = gather(prob.g_pt)
     if prob.n_e:
@@ -513,9 +534,16 @@ def parameter_covariance(res, specs) -> tuple[list[str], np.ndarray]:
     a_g = np.zeros((prob.n_g + 1, r))
     a_p = np.zeros((prob.n_e + 1, 3, r))
     gidx = np.full(r, -1)
+    rig_cols = rig_T = None
+    if getattr(prob, "rig", None) is not None:
+        rig_cols, rig_T = photo_columns(prob, res.state, np.arange(prob.m))
     for j, (kind, i, t, _) in enumerate(params):
         if kind == "camera":
             g = prob.g_cam[i, t] if t < prob.g_cam.shape[1] else -1
+        elif kind == "photo" and rig_cols is not None:     # a linear function of the frame's and sensor's 12
+            on = rig_cols[i] >= 0
+            np.add.at(a_g[:, j], rig_cols[i][on], rig_T[i][t][on])
+            g = -1
         elif kind == "photo":
             g = prob.g_eo[i, t]
         else:
@@ -663,6 +691,7 @@ def _prior_labels(res) -> list[str]:
     gi = np.argwhere(prob.g_pt >= 0)
     for i, t in gi:
         names[int(prob.g_pt[i, t])] = f"point {blk.points.ids[i]} {'XYZ'[t]}"
+    names.update(rig_parameter_names(prob))                 # frames and sensors of rigs (docs/rigs.md)
     out = [f"prior {names.get(int(g), g)}" for g in prob.prior_g_idx]
     out += [f"control point {blk.points.ids[prob.elim_points[p]]} {'XYZ'[c]}"
             for p, c in zip(prob.prior_p_idx, prob.prior_p_coord)]

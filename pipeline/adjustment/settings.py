@@ -73,9 +73,13 @@ class BundleState:
     X0: np.ndarray          # (m, 3)
     opk: np.ndarray         # (m, 3)
     XYZ: np.ndarray         # (n, 3)
+    frame: np.ndarray | None = None    # (F, 6) the frames' poses X0, ω φ κ (rigs only; docs/rigs.md)
+    sensor: np.ndarray | None = None   # (S, 6) the sensors' poses in their rig (rigs only)
 
     def copy(self) -> "BundleState":
-        return BundleState(self.cam_params.copy(), self.X0.copy(), self.opk.copy(), self.XYZ.copy())
+        return BundleState(self.cam_params.copy(), self.X0.copy(), self.opk.copy(), self.XYZ.copy(),
+                           None if self.frame is None else self.frame.copy(),
+                           None if self.sensor is None else self.sensor.copy())
 
 
 def check_unique(ids, what: str) -> None:

@@ -56,7 +56,7 @@ class GroupPart:
     ``omega`` (Ω_g = v_gᵀ P_g v_g in the adjustment's weights) and ``redundancy`` (r_g)."""
 
     name: str
-    kind: str                 # image | control | eo | interior | distance | gnss
+    kind: str                 # image | control | eo | interior | distance | gnss | rig
     n: int
     omega: float
     redundancy: float
@@ -67,7 +67,7 @@ class VarianceGroup:
     """One group's estimate: ``factor`` multiplies the group's a-priori σ."""
 
     name: str
-    kind: str                 # image | control | eo | interior | distance | gnss
+    kind: str                 # image | control | eo | interior | distance | gnss | rig
     n: int                    # scalar observations (rows)
     redundancy: float         # r_g (last adjustment)
     omega: float              # Ω_g = v_gᵀ P_g v_g in the last adjustment (its weights)
@@ -232,8 +232,11 @@ def group_parts(result: BundleResult, image_labels: np.ndarray) -> tuple[GroupPa
         kind[prob.g_cam[prob.g_cam >= 0]] = "interior"
         kind[prob.g_eo[prob.g_eo >= 0]] = "eo"
         kind[prob.g_pt[prob.g_pt >= 0]] = "control"
+        if getattr(prob, "rig", None) is not None:        # rigs: frames' priors are orientations, sensors' their own
+            kind[prob.g_frame[prob.g_frame >= 0]] = "eo"
+            kind[prob.g_sensor[prob.g_sensor >= 0]] = "rig"
         kk = kind[prob.prior_g_idx]
-        for name in ("interior", "eo", "control"):
+        for name in ("interior", "eo", "control", "rig"):
             m = kk == name
             if m.any():
                 add(name, name, m.sum(), np.sum(w[m] * dg[m] ** 2), np.sum(1.0 - w[m] * qd[m]))
@@ -275,6 +278,9 @@ def scale_block(block: Block, settings: BundleSettings, factors: dict, image_lab
         f = factors["interior"]
         out = out.replace(cameras=out.cameras.replace(sigma_iop=scaled(out.cameras.sigma_iop, f),
                                                       sigma_ap=scaled(out.cameras.sigma_ap, f)))
+    if factors.get("rig", 1.0) != 1.0 and block.rigs:
+        rs = block.rigs.sensors
+        out = out.replace(rigs=block.rigs.replace(sensors=rs.replace(sigma=scaled(rs.sigma, factors["rig"]))))
     if factors.get("GNSS", 1.0) != 1.0 and len(block.gnss):
         out = out.replace(gnss=block.gnss.replace(cov=block.gnss.cov * factors["GNSS"] ** 2))
     bars = tuple(settings.distances) + tuple(block_distances(block))

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import re
 from typing import Callable, ClassVar, Literal
 
 import numpy as np
@@ -39,6 +40,7 @@ from .adjust import BundleResult, adjust, padded_ap, result_of
 from .apselect import APSelection, select_aps
 from .corrected import check_models
 from .eccentricity import Eccentricity, eccentricity_corrections
+from .rig import rig_structure
 from .reliability import GlobalRowStats, OwnEffects, global_rows, own_effects, parameter_covariance
 from .settings import BundleSettings, Distance
 from ..threads import single_blas
@@ -168,6 +170,29 @@ class EccentricityConfig:
 
 
 @dataclasses.dataclass(frozen=True)
+class RigConfig:
+    """``[bundle.rig]`` (and the sources' ``rig``): camera rigs from a rig table and a frame table
+    (``docs/rigs.md``); empty ``table``: the block's own rigs (a COLMAP model's, a source's)."""
+
+    table: str = option("", "rig table (CSV: rig, camera, reference, status, the sensor's pose in the rig and σ), "
+                            "relative to the project file; empty: the rigs the block brings")
+    frames: str = option("", "frame table (CSV: frame, photo), relative to the project file")
+    frames_from_name: str = option("", "regular expression on the photo id whose first group (or match) names the "
+                                       "frame, e.g. '(\\d+)$' (instead of a frame table)")
+    alpha: float = option(0.05, "significance level of the test of the rig against its calibration", gt=0.0, lt=1.0)
+
+    def __post_init__(self):
+        check_bounds(self)
+        if self.frames_from_name:
+            try:
+                re.compile(self.frames_from_name)
+            except re.error as e:
+                raise ValueError(f"frames_from_name is not a regular expression: {e}") from None
+        if (self.frames or self.frames_from_name) and not self.table:
+            raise ValueError("rig.frames / rig.frames_from_name need the rig table (rig.table)")
+
+
+@dataclasses.dataclass(frozen=True)
 class BundleConfig:
     """The bundle's options: the ``bundle`` stage's option table and :func:`adjust_block`'s argument."""
 
@@ -235,6 +260,8 @@ class BundleConfig:
     output: OutputConfig = option(OutputConfig(), "external reliability, ellipsoids, covariances on demand")
     eccentricity: EccentricityConfig = option(
         EccentricityConfig(), "eccentricity of circular targets' imaged centres (blocks with a circle table only)")
+    rig: RigConfig = option(RigConfig(), "camera rigs: sensors' poses in the rig, photos grouped into frames "
+                                         "(docs/rigs.md)")
 
     def __post_init__(self):
         check_bounds(self)
@@ -313,7 +340,11 @@ def configure_block(block: Block, config: BundleConfig) -> Block:
     if o.sigma_eo:
         ph = block.photos
         se = np.array(ph.sigma_eo, float)
-        se[ph.has_orientation] = np.r_[o.sigma_eo[:3], np.radians(o.sigma_eo[3:])]
+        to = ph.has_orientation.copy()
+        rig = rig_structure(block)
+        if rig is not None:               # a rig photo's orientation is its frame's (the reference photo's)
+            to &= (rig.photo_frame < 0) | np.isin(np.arange(len(ph)), rig.frame_ref_photo)
+        se[to] = np.r_[o.sigma_eo[:3], np.radians(o.sigma_eo[3:])]
         block = block.replace(photos=ph.replace(sigma_eo=se))
     if o.sigma_image_scale != 1.0:
         obs = block.observations

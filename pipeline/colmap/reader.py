@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from baarda.pipeline.errors import InputError, quote
-from baarda.pipeline.model import FIXED, FREE, Block, Cameras, Observations, Photos, Points, SourceInfo
+from baarda.pipeline.model import (FIXED, FREE, Block, Cameras, FrameMembers, Observations, Photos, Points, RigSensors,
+                                   Rigs, SourceInfo)
 
 from baarda.pipeline.geometry.image import mm_from_pixels
 from baarda.pipeline.geometry.pose import pose_from_cv
@@ -186,17 +187,73 @@ def block_from_reconstruction(rec, *, pixel_mm: float = 0.001, sensor_width_mm: 
             "colors": np.array([rec.points3D[p].color for p in pt_ids], np.uint8).reshape(-1, 3),
         },
     }
+    rigs = rigs_from_reconstruction(rec, cam_index, {iid: k for k, iid in enumerate(img_ids)}, source)
     block = Block(cameras=cameras, photos=photos, points=points, observations=observations,
-                  object_unit=object_unit, meta=meta,
+                  object_unit=object_unit, meta=meta, rigs=rigs,
                   source=SourceInfo(path=source or None, format="COLMAP", pixel_format="COLMAP"))
     info = {"inexact_cameras": inexact, "unregistered_images": skipped_images,
             "duplicate_observations": int((~first).sum())}
+    if rigs:
+        info["rigs"] = {"sensors": len(rigs.sensors), "frames": len(set(rigs.frames.frame.tolist()))}
     return block, info
 
 
 def ray_names_params(ap_model: str) -> tuple[str, ...]:
     from baarda.pipeline.camera import get_ap_model
     return tuple(get_ap_model(ap_model).params)
+
+
+F_CV = np.diag([1.0, -1.0, -1.0])
+
+
+def rigs_from_reconstruction(rec, cam_index: dict, photo_index: dict, source: str = "") -> Rigs:
+    """The rigs of a COLMAP ≥ 3.12 model (``rigs``/``frames`` files) with more than one camera, as
+    :class:`~baarda.pipeline.model.Rigs` (``docs/rigs.md``): the reference sensor is the rig's,
+    every other camera's ``sensor_from_rig`` (``p_s = R p_rig + t``, y-down/z-forward) becomes
+    its centre ``c = −F Rᵀ t`` and ω, φ, κ of ``F R F`` (F = diag(1, −1, −1)), estimated (COLMAP's
+    bundle refines it by default; unknown when the model has none); frames hold their registered
+    images.  Trivial rigs (one camera each) give no rig: those photos are adjusted one by one."""
+    from baarda.pipeline.geometry import opk_from_rotation
+
+    rig_col, cam_col, ref_col, centre, opk = [], [], [], [], []
+    frame_col, photo_col = [], []
+    rig_of_cam = {}
+    for rid in sorted(rec.rigs):
+        rig = rec.rigs[rid]
+        cams = [s for s in rig.sensor_ids() if s.type.name == "CAMERA" and s.id in cam_index]
+        if len(cams) < 2:
+            continue
+        for sid in sorted(cams, key=lambda s: (not rig.is_ref_sensor(s), s.id)):
+            ref = bool(rig.is_ref_sensor(sid))
+            c, o = np.zeros(3), np.zeros(3)
+            if not ref:
+                pose = rig.sensor_from_rig(sid) if rig.has_sensor_from_rig(sid) else None
+                if pose is None:
+                    c, o = np.full(3, np.nan), np.full(3, np.nan)
+                else:
+                    R = np.asarray(pose.rotation.matrix(), float)
+                    c = -F_CV @ R.T @ np.asarray(pose.translation, float)
+                    o = opk_from_rotation(F_CV @ R @ F_CV)
+            rig_col.append(str(rid))
+            cam_col.append(cam_index[sid.id])
+            ref_col.append(ref)
+            centre.append(c)
+            opk.append(o)
+            rig_of_cam[sid.id] = rid
+    if not rig_col:
+        return Rigs()
+    for fid in sorted(rec.frames):
+        fr = rec.frames[fid]
+        if fr.rig_id not in set(rig_of_cam.values()):
+            continue
+        for d in sorted(fr.data_ids, key=lambda d: d.id):
+            if d.sensor_id.type.name == "CAMERA" and d.id in photo_index:
+                frame_col.append(str(fid))
+                photo_col.append(photo_index[d.id])
+    sigma = np.where(np.array(ref_col)[:, None], FIXED, FREE) * np.ones((len(rig_col), 6))
+    sensors = RigSensors.make(rig_col, cam_col, ref_col, centre=np.array(centre), opk=np.array(opk), sigma=sigma)
+    frames = FrameMembers(frame=np.array(frame_col, dtype=str), photo=np.array(photo_col, int))
+    return Rigs(sensors, frames, path=source or None)
 
 
 def read_colmap(path: str | Path, **kw) -> tuple[Block, dict]:

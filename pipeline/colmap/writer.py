@@ -1,7 +1,8 @@
 """Block → COLMAP model (``pycolmap.Reconstruction``, written as text or binary).
 
 Cameras become COLMAP cameras with one trivial rig each, photos images with one trivial frame
-each (pycolmap ≥ 3.12 layout: cameras, images, points3D, rigs, frames).  A block read from COLMAP
+each (pycolmap ≥ 3.12 layout: cameras, images, points3D, rigs, frames); the cameras and photos of
+the block's rigs (``block.rigs``, ``docs/rigs.md``) are written as COLMAP rigs and frames.  A block read from COLMAP
 (``meta["colmap"]``) is written back with its camera, image and point ids, all its keypoints, the
 camera models it had and the point colours; other blocks get ids 1, 2, … and one keypoint per
 observation.  Only active observations of points with known coordinates enter tracks.
@@ -91,11 +92,16 @@ def reconstruction_from_block(block, *, camera_model: str = "keep"):
     img_ids = list(meta["image_ids"]) if same_shape else list(range(1, len(photos) + 1))
 
     rec = pycolmap.Reconstruction()
+    rigs = block.rigs
+    in_rig = set(rigs.sensors.camera.tolist()) if rigs else set()
     for k, (model, params) in enumerate(cam_params):
         cam = pycolmap.Camera.create_from_model_name(int(cam_ids[k]), model, 1.0, int(cams.resolution[k, 0]),
                                                      int(cams.resolution[k, 1]))
         cam.params = params
-        rec.add_camera_with_trivial_rig(cam)
+        if k in in_rig:
+            rec.add_camera(cam)
+        else:
+            rec.add_camera_with_trivial_rig(cam)
 
     oriented = photos.has_orientation
     R, t = cv_from_pose(np.nan_to_num(photos.X0), np.nan_to_num(photos.opk))
@@ -116,10 +122,15 @@ def reconstruction_from_block(block, *, camera_model: str = "keep"):
             kp = pixels_from_mm(obs.xy[rows], cams.resolution[cam], cams.pixel_mm[cam], "colmap").reshape(-1, 2)
             obs_kp[rows] = np.arange(rows.size)
         keypoints.append(kp)
+    frame_of = _write_rigs(rec, block, cam_ids, img_ids, oriented, R, t) if rigs else {}
     for k in np.flatnonzero(oriented):
         image = pycolmap.Image(name=str(photos.ids[k]), keypoints=keypoints[k],
                                camera_id=int(cam_ids[photos.camera[k]]), image_id=int(img_ids[k]))
-        rec.add_image_with_trivial_frame(image, pycolmap.Rigid3d(pycolmap.Rotation3d(R[k]), t[k]))
+        if k in frame_of:
+            image.frame_id = frame_of[k]
+            rec.add_image(image)
+        else:
+            rec.add_image_with_trivial_frame(image, pycolmap.Rigid3d(pycolmap.Rotation3d(R[k]), t[k]))
 
     colors = meta.get("colors") if same_shape else None
     pt_ids = list(meta["point3D_ids"]) if same_shape else None
@@ -146,6 +157,74 @@ def reconstruction_from_block(block, *, camera_model: str = "keep"):
             "observations": int(use.sum()), "skipped_photos": photos.ids[~oriented].tolist(),
             "camera_models": [m for m, _ in cam_params]}
     return rec, info
+
+
+def _free_ids(names, taken: set) -> list[int]:
+    """An integer id per name: the name itself when it is a positive integer not taken (nor used
+    before), else the next free one."""
+    out, used = [], set(taken)
+    nxt = max(used | {0}) + 1
+    for n in names:
+        v = int(n) if str(n).isdigit() and int(n) > 0 else None
+        if v is None or v in used:
+            while nxt in used:
+                nxt += 1
+            v = nxt
+        used.add(v)
+        out.append(v)
+    return out
+
+
+def _write_rigs(rec, block, cam_ids, img_ids, oriented, R, t) -> dict:
+    """Add the block's rigs (COLMAP ≥ 3.12 ``rigs``/``frames``) to ``rec``: each rig with its
+    reference camera and every other camera's ``sensor_from_rig`` (``R = F R_s F``,
+    ``t = −F R_s c``, F = diag(1, −1, −1); left unset when unknown), each frame whose reference photo
+    is oriented with its ``rig_from_world`` (the reference photo's pose) and its images.  Returns
+    photo index → frame id for the images to add."""
+    import pycolmap
+
+    from baarda.pipeline.adjustment import rig_structure
+    from baarda.pipeline.geometry import rotation_from_opk_many
+
+    rigs = block.rigs
+    rs = rigs.sensors
+    struct = rig_structure(block)
+    F = np.diag([1.0, -1.0, -1.0])
+    rig_names = list(dict.fromkeys(rs.rig.tolist()))
+    other_cams = {int(cam_ids[k]) for k in range(len(block.cameras)) if k not in set(rs.camera.tolist())}
+    rig_ids = dict(zip(rig_names, _free_ids(rig_names, other_cams)))
+    cam_t = pycolmap.SensorType.CAMERA
+    for name in rig_names:
+        rig = pycolmap.Rig(rig_id=rig_ids[name])
+        rows = np.flatnonzero(rs.rig == name)
+        ref = rows[rs.reference[rows]][0]
+        rig.add_ref_sensor(pycolmap.sensor_t(type=cam_t, id=int(cam_ids[rs.camera[ref]])))
+        for i in rows[~rs.reference[rows]]:
+            Rs = rotation_from_opk_many(rs.opk[i][None])[0]
+            pose = None
+            if np.isfinite(rs.centre[i]).all() and np.isfinite(rs.opk[i]).all():
+                Rc = F @ Rs @ F
+                pose = pycolmap.Rigid3d(pycolmap.Rotation3d(Rc), -F @ Rs @ rs.centre[i])
+            rig.add_sensor(pycolmap.sensor_t(type=cam_t, id=int(cam_ids[rs.camera[i]])), pose)
+        rec.add_rig(rig)
+    alone = {int(img_ids[k]) for k in np.flatnonzero(oriented & (struct.photo_frame < 0))}
+    frame_ids = _free_ids(struct.frame_ids.tolist(), alone)
+    out = {}
+    for f, fid in enumerate(frame_ids):
+        ref = struct.frame_ref_photo[f]
+        if not oriented[ref]:
+            continue
+        members = np.flatnonzero((struct.photo_frame == f) & oriented)
+        rig_name = str(rs.rig[struct.photo_sensor[ref]])
+        frame = pycolmap.Frame(frame_id=fid, rig_id=rig_ids[rig_name])
+        for k in members:
+            frame.add_data_id(pycolmap.data_t(sensor_id=pycolmap.sensor_t(type=cam_t,
+                                                                          id=int(cam_ids[block.photos.camera[k]])),
+                                              id=int(img_ids[k])))
+            out[int(k)] = fid
+        frame.rig_from_world = pycolmap.Rigid3d(pycolmap.Rotation3d(R[ref]), t[ref])
+        rec.add_frame(frame)
+    return out
 
 
 def _groups(keys: np.ndarray, n: int) -> list[np.ndarray]:

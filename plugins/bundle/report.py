@@ -18,6 +18,7 @@ from baarda.pipeline.report import cap_text, markdown_table
 
 from . import external as bundle_external
 from .protocol import bundle_protocol, camera_rows, image_units, protocol_lines
+from .rigreport import rig_parts
 from baarda.pipeline.units import ImageUnits, column_unit, fmt_obj, length_suffix, object_unit_text
 
 
@@ -95,6 +96,9 @@ def summary(rep) -> dict:
         out["gnss"] = gnss_parts(rep)["summary"]
     if rep.eccentricity is not None:
         out["eccentricity"] = eccentricity_summary(rep)
+    rig = rig_parts(rep, rep.config.rig.alpha)
+    if rig is not None:
+        out["rig"] = rig["summary"]
     return out
 
 
@@ -239,6 +243,9 @@ def report_text(rep, work=None, protocol=None) -> str:
     if rep.vc is not None:
         L += ["", "### Variance components", ""] + _vc_lines(rep.vc, o.variance_components, rep.global_test)
     L += bundle_external.report_entries(rep, block)
+    rig = rig_parts(rep, o.rig.alpha)
+    if rig is not None:
+        L += rig["lines"]
     text = "\n".join(L)
     if rep.gnss is not None:          # the GNSS antennas' section
         text += "\n\n" + "\n".join(gnss_parts(rep)["lines"])
@@ -563,6 +570,9 @@ def tables(rep) -> dict:
     tables.update(bundle_external.tables(rep))
     if rep.gnss is not None:
         tables["gnss"] = gnss_parts(rep)["table"]
+    rig = rig_parts(rep, rep.config.rig.alpha)
+    if rig is not None:
+        tables.update(rig["tables"])
     return tables
 
 

@@ -14,7 +14,7 @@ import numpy as np
 
 from baarda.pipeline.api import (AdjustmentArtefact, AdjustmentError, Block, BundleConfig, Context, InputError,
                                  ValidationContext,
-                                 StageResult, TableData, adjust)
+                                 StageResult, TableData, adjust, attach_rigs)
 from baarda.pipeline.adjustment import EO_NAMES
 from baarda.pipeline.units import length_suffix, object_unit_text
 from baarda.pipeline.camera import get_ap_model
@@ -42,8 +42,8 @@ class BundleAdjustment:
 
         if v.block is None:
             return
-        options, block, ctx = v.options, v.block, v.ctx
-
+        options, ctx = v.options, v.ctx
+        block = with_rigs(v.block, options, ctx)
         try:
             bundle_settings(options, configure_block(block, options))
         except InputError as e:
@@ -58,10 +58,11 @@ class BundleAdjustment:
         from .progress import iteration_progress
 
         with iteration_progress(ctx, options.solver.max_iter) as work:
+            block = with_rigs(inputs["block"], options, ctx)
             try:
-                rep = adjust(inputs["block"], options, progress=ctx.progress.message, threads=ctx.threads)
+                rep = adjust(block, options, progress=ctx.progress.message, threads=ctx.threads)
             except AdjustmentError as e:
-                _save_state(e, getattr(e, "block", inputs["block"]), ctx)
+                _save_state(e, getattr(e, "block", block), ctx)
                 raise
             except InputError as e:
                 if e.path is None and str(e.field).split(".")[0] in OPTION_FIELDS:   # an option that does not
@@ -96,6 +97,22 @@ class BundleAdjustment:
 
 
 # ---------------------------------------------------------------------------------------------
+def with_rigs(block: Block, options: BundleConfig, ctx: Context) -> Block:
+    """The block with the rigs of the option table ``rig`` (rig table, frame table or frame names,
+    docs/rigs.md); the block unchanged without ``rig.table``."""
+    rc = options.rig
+    if not rc.table:
+        return block
+    table = ctx.resolve(rc.table)
+    frames = ctx.resolve(rc.frames) if rc.frames else None
+    try:
+        return attach_rigs(block, table, frames=frames, frames_from_name=rc.frames_from_name)
+    except InputError as e:
+        if e.path is None:
+            raise ctx.option_error(e.message, e.field or "rig") from None
+        raise
+
+
 def _save_state(err: AdjustmentError, block: Block, ctx: Context) -> None:
     """Write the last iterate an :class:`AdjustmentError` carries into the run directory
     (``<stage>_last_eo.csv``, ``_last_points.csv``, ``_last_cameras.csv``, each also as ``.parquet``) and

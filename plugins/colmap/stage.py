@@ -67,6 +67,11 @@ class ColmapSource(SourceStage):
                   f"mean {rep['mean_px']:.4f} px, RMS {rep['rms_px']:.4f} px.  Pixel pitch "
                   f"{', '.join(f'{p:g}' for p in summary['pixel_mm'])} mm; cameras use the brown AP model "
                   f"(docs/colmap.md).")
+        if "rigs" in info:             # COLMAP ≥ 3.12 rigs of more than one camera (docs/rigs.md)
+            summary["rigs"] = info["rigs"]
+            report += (f"  Rigs: {info['rigs']['sensors']} cameras in {len(set(block.rigs.sensors.rig.tolist()))} "
+                       f"rig(s), {info['rigs']['frames']} frames; the bundle estimates one pose per frame and each "
+                       "camera's pose in its rig (docs/rigs.md).")
         return StageResult(artefacts={"block": block}, summary=summary, report=report, data=block)
 
     def log(self, result, rec, ctx) -> None:

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from baarda.pipeline.api import BaardaError
+from baarda.pipeline.api import BaardaError, rig_result
 from baarda.pipeline.geometry import rotation_angle
 
 from .plan import CrossCheckPlan, plan_crosscheck
@@ -136,7 +136,8 @@ def crosscheck(result, *, start: str = "initial", rng: np.random.Generator | Non
                                 setup_seconds=summary["setup_seconds"], cov_eo=cov.get("cov_eo"),
                                 cov_cameras=cov.get("cov_cameras"), covariance_seconds=cov.get("seconds", np.nan),
                                 message=summary["message"],
-                                extra={"covariance_error": cov.get("error"), "size": recmap.size})
+                                extra={"covariance_error": cov.get("error"), "size": recmap.size,
+                                       "sensor": sol.get("sensor")})
     return _compare(result, plan, solution, summary, start)
 
 
@@ -209,6 +210,8 @@ def _compare(result, plan: CrossCheckPlan, sol: PycolmapSolution, summary: dict,
         notes.append("baarda's result has no covariance: camera parameters compared relative to their values")
     mx, rms = _stats(ds)
     q["intrinsics"] = {"max": mx, "rms": rms, "unit": iunit, "n": len(rows), "exact": exact}
+    if sol.extra.get("sensor") is not None and plan.sensor_constant is not None:
+        q["rig_sensors"] = _sensor_differences(result, plan, sol.extra["sensor"], exact)
 
     # covariances: pycolmap's (σ = 1 of its pixel = σ0 1) scaled by the same variance factor as baarda's
     dof = result.dof
@@ -246,6 +249,22 @@ def _compare(result, plan: CrossCheckPlan, sol: PycolmapSolution, summary: dict,
                       start=start, baarda_cost=cost_b, notes=notes)
 
 
+def _sensor_differences(result, plan: CrossCheckPlan, sensor: np.ndarray, exact: bool) -> dict:
+    """pycolmap's estimated sensor_from_rig poses against baarda's, in baarda's σ (docs/rigs.md)."""
+    rr = rig_result(result)
+    d = []
+    for i, s in enumerate(rr.sensors):
+        if s.reference_sensor or plan.sensor_constant[i]:
+            continue
+        diff = sensor[i] - s.value
+        diff[3:] = (diff[3:] + np.pi) % (2 * np.pi) - np.pi
+        sg = s.sigma
+        d.append(np.where(sg > 0, diff / np.where(sg > 0, sg, 1.0), np.nan))
+    ds = np.concatenate(d) if d else np.zeros(0)
+    mx, rms = _stats(ds)
+    return {"max": mx, "rms": rms, "unit": "σ", "n": len(d), "exact": exact}
+
+
 def exceeded(cc: CrossCheck, tol: Tolerances) -> list[str]:
     """Human-readable list of the exact quantities whose difference exceeds its tolerance."""
     q = cc.quantities
@@ -277,6 +296,10 @@ def exceeded(cc: CrossCheck, tol: Tolerances) -> list[str]:
         check("intrinsics", v["max"], tol.intrinsics,
               f"camera parameters: max {v['max']:.3g} {u} (camera {worst['camera']} {worst['parameter']}: baarda "
               f"{worst['baarda']:.9g}, pycolmap {worst['pycolmap']:.9g}); tolerance {tol.intrinsics:g} {u}")
+    v = q.get("rig_sensors")
+    if v and v["n"]:
+        check("rig_sensors", v["max"], tol.intrinsics,
+              f"rig sensor poses: max {v['max']:.3g} σ of baarda's; tolerance {tol.intrinsics:g} σ")
     for name, label in (("covariance_poses", "pose standard deviations"),
                         ("covariance_intrinsics", "camera-parameter standard deviations")):
         if name in q and q[name]["n"]:

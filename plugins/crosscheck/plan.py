@@ -94,6 +94,8 @@ class CrossCheckPlan:
     datum_equivalent: bool = True
     behind: np.ndarray | None = None   # (k,) observations of points behind their camera (COLMAP: zero residual)
     notes: list = field(default_factory=list)
+    sensor_constant: np.ndarray | None = None   # (S,) rig sensors held constant (fixed, or held; docs/rigs.md)
+    sensor_held: np.ndarray | None = None       # (S,) held at baarda's adjusted pose (weighted in baarda)
 
     @property
     def exact(self) -> bool:
@@ -106,7 +108,8 @@ class CrossCheckPlan:
     def covariance_comparable(self) -> bool:
         """pycolmap's marginal pose/intrinsics covariances are baarda's: same problem, same gauge."""
         return (self.exact and self.datum == "control" and not self.point_held.any()
-                and not self.photo_held.any() and all(c.mode in ("refine", "unused") for c in self.cameras))
+                and not self.photo_held.any() and all(c.mode in ("refine", "unused") for c in self.cameras)
+                and self.sensor_constant is None)
 
 
 def _status(sigma: float) -> str:
@@ -326,8 +329,23 @@ def plan_crosscheck(result) -> CrossCheckPlan:
             notes.append("free network (inner constraints) on a block that also has fixed or weighted control or "
                          "orientations: baarda's inner constraints then constrain the shape beyond the gauge, "
                          "which pycolmap cannot reproduce (use datum 'control', or make every point a tie point)")
+    struct = result.rig
+    sensor_constant = sensor_held = None
+    if struct is not None:             # rigs: frames and sensor poses (docs/rigs.md)
+        rs = block.rigs.sensors
+        fixed_s = (rs.sigma == 0).all(axis=1)
+        free_s = np.isinf(rs.sigma).all(axis=1) & ~rs.reference
+        sensor_held = ~fixed_s & ~free_s
+        sensor_constant = fixed_s | sensor_held
+        if sensor_held.any():
+            notes.append(f"{int(sensor_held.sum())} rig sensor pose(s) weighted or partly fixed in baarda held at "
+                         "baarda's adjusted values (pycolmap has no priors)")
+        notes.append(f"rigs: {struct.n_frames} frames (one rig_from_world each), {int(free_s.sum())} estimated "
+                     "sensor_from_rig pose(s): pycolmap's bundle adjustment with rig constraints")
     if datum == "free" and datum_ok:
         idx = np.flatnonzero(free_ph)
+        if struct is not None:         # the gauge on frames: photos that carry a frame's pose (or no frame)
+            idx = idx[(struct.photo_frame[idx] < 0) | np.isin(idx, struct.frame_ref_photo)]
         if idx.size >= 2:
             first = idx[0]
             far = idx[np.argmax(np.linalg.norm(result.state.X0[idx] - result.state.X0[first], axis=1))]
@@ -342,4 +360,4 @@ def plan_crosscheck(result) -> CrossCheckPlan:
                           obs_used=result.obs_active.copy(), point_variable=free_pt,
                           point_constant=fixed_pt | held_pt, point_held=held_pt, photo_variable=free_ph,
                           photo_constant=fixed_ph | held_ph, photo_held=held_ph, datum=datum, datum_equivalent=datum_ok,
-                          behind=behind, notes=notes)
+                          behind=behind, notes=notes, sensor_constant=sensor_constant, sensor_held=sensor_held)

@@ -60,6 +60,7 @@ class RecMap:
     obs_point2D: np.ndarray     # (k,) keypoint index of each observation in its image (-1 unused)
     size: np.ndarray            # (K, 2) σ-pixel grid of each camera
     xy_used: np.ndarray         # (k, 2) observations as given to pycolmap (mm; corrected where planned)
+    rig_sensors: object = None  # the block's RigSensors (rigs only)
 
 
 @dataclass
@@ -151,8 +152,25 @@ def start_block(result, plan: CrossCheckPlan, start, *, xy=None):
     obs = start.observations
     obs = obs.replace(active=plan.obs_used, xy=obs.xy if xy is None else xy)
     meta = {}       # no source's private data: the COLMAP writer numbers cameras, images and points afresh
-    return start.replace(cameras=cameras, photos=ph.replace(X0=X0, opk=opk), points=start.points.replace(XYZ=XYZ),
-                         observations=obs, meta=meta), size
+    out = start.replace(cameras=cameras, photos=ph.replace(X0=X0, opk=opk), points=start.points.replace(XYZ=XYZ),
+                        observations=obs, meta=meta)
+    if plan.sensor_constant is not None:
+        out = out.replace(rigs=_start_rigs(result, plan, out))
+    return out, size
+
+
+def _start_rigs(result, plan: CrossCheckPlan, blk):
+    """The rigs pycolmap starts from: held sensors at baarda's adjusted pose, the others at the
+    rig table's pose or, where it has none, at the start (``initial_rig_state`` of the start photos;
+    docs/rigs.md)."""
+    from baarda.pipeline.adjustment import initial_rig_state
+
+    struct = result.rig
+    rs = blk.rigs.sensors
+    adj = result.block.rigs.sensors
+    _, start = initial_rig_state(struct, rs, blk.photos.X0, blk.photos.opk)
+    pose = np.where(plan.sensor_held[:, None], np.c_[adj.centre, adj.opk], start)
+    return blk.rigs.replace(sensors=rs.replace(centre=pose[:, :3], opk=pose[:, 3:]))
 
 
 def build_reconstruction(result, plan: CrossCheckPlan, start):
@@ -237,7 +255,8 @@ def block_to_reconstruction(blk, models, size=None):
         point3D_id[js.pop()] = pid
     in_rec = obs.active & (image_id[obs.photo] > 0) & (point3D_id[obs.point] > 0)
     recmap = RecMap(image_id=image_id, camera_id=camera_id, point3D_id=point3D_id,
-                    obs_point2D=np.where(in_rec, kp, -1), size=size, xy_used=np.array(obs.xy, float))
+                    obs_point2D=np.where(in_rec, kp, -1), size=size, xy_used=np.array(obs.xy, float),
+                    rig_sensors=blk.rigs.sensors if blk.rigs else None)
     return rec, recmap
 
 
@@ -273,6 +292,11 @@ def _config(rec, recmap: RecMap, plan: CrossCheckPlan):
     for p in plan.cameras:
         if p.mode != "unused" and not p.refined:
             config.set_constant_cam_intrinsics(int(recmap.camera_id[p.index]))
+    if plan.sensor_constant is not None:        # rigs: sensors fixed in baarda or held (docs/rigs.md)
+        rs = recmap.rig_sensors
+        for i in np.flatnonzero(plan.sensor_constant & ~rs.reference):
+            config.set_constant_sensor_from_rig_pose(
+                pycolmap.sensor_t(type=pycolmap.SensorType.CAMERA, id=int(recmap.camera_id[rs.camera[i]])))
     return config
 
 
@@ -352,7 +376,35 @@ def read_solution(rec, recmap: RecMap, sigma_mm, block) -> dict:
         size = recmap.size[j]
         res[rows] = (mm_from_pixels(kp, size, sigma_mm[j], "colmap")
                      - mm_from_pixels(uv, size, sigma_mm[j], "colmap"))
-    return {"X0": X0, "opk": opk, "XYZ": XYZ, "cam": cam, "residuals": res}
+    out = {"X0": X0, "opk": opk, "XYZ": XYZ, "cam": cam, "residuals": res}
+    if recmap.rig_sensors is not None:
+        out["sensor"] = _read_sensors(rec, recmap)
+    return out
+
+
+def _read_sensors(rec, recmap: RecMap) -> np.ndarray:
+    """(S, 6) each rig sensor's pose in its rig as baarda writes it (centre ``−F Rᵀ t``, ω φ κ of
+    ``F R F``; the reference sensor 0; nan where pycolmap has none), from the solved rigs."""
+    from baarda.pipeline.geometry import opk_from_rotation
+
+    rs = recmap.rig_sensors
+    F = np.diag([1.0, -1.0, -1.0])
+    out = np.full((len(rs), 6), np.nan)
+    by_cam = {}
+    for rig in rec.rigs.values():
+        for sid, pose in rig.non_ref_sensors.items():
+            by_cam[int(sid.id)] = pose
+    for i in range(len(rs)):
+        if rs.reference[i]:
+            out[i] = 0.0
+            continue
+        pose = by_cam.get(int(recmap.camera_id[rs.camera[i]]))
+        if pose is None:
+            continue
+        R = np.asarray(pose.rotation.matrix(), float)
+        out[i, :3] = -F @ R.T @ np.asarray(pose.translation, float)
+        out[i, 3:] = opk_from_rotation(F @ R @ F)
+    return out
 
 
 def block_with_solution(block, sol: dict):
@@ -434,6 +486,9 @@ def estimate_covariance(rec, adjuster, recmap: RecMap, plan: CrossCheckPlan, blo
     import pycolmap
 
     t0 = time.perf_counter()
+    if block.rigs:
+        return {"error": "pycolmap 4.2's covariance estimation takes no rigs (it checks that every image is its "
+                         "frame's reference); compared without covariances", "seconds": 0.0}
     opts = pycolmap.BACovarianceOptions()
     try:
         cov = pycolmap.estimate_ba_covariance(opts, rec, adjuster)

@@ -69,13 +69,14 @@ class CrossCheckOptions:
 
 _LABELS = {"points": "object points", "centres": "projection centres", "angles": "rotations",
            "residuals": "image residuals", "cost": "final cost ½Σ(v/σ)²", "intrinsics": "camera parameters",
-           "covariance_poses": "σ of poses", "covariance_intrinsics": "σ of camera parameters"}
+           "covariance_poses": "σ of poses", "covariance_intrinsics": "σ of camera parameters",
+           "rig_sensors": "rig sensor poses"}
 
 
 def _tolerance_of(name: str, tol: Tolerances) -> float:
     return {"points": tol.points, "centres": tol.points, "angles": tol.angles, "residuals": tol.residuals_px,
             "cost": tol.cost, "intrinsics": tol.intrinsics, "covariance_poses": tol.covariance,
-            "covariance_intrinsics": tol.covariance}[name]
+            "covariance_intrinsics": tol.covariance, "rig_sensors": tol.intrinsics}[name]
 
 
 def _value_for_tolerance(name: str, v: dict) -> float:

@@ -123,3 +123,48 @@ def layout_detection_block(kept, layout, options, sigma_px) -> Block:
                   ap_meta=layout.ap_meta, scale_bars=layout.scale_bars,
                   source=SourceInfo(path=layout.source.path, format="OpenCV targets", pixel_format="OpenCV"))
     return block.replace(pairs=pairs_of_layout(layout, block))
+
+
+def consistent_rig_ids(block, warn) -> Block:
+    """A chessboard's corner order is ambiguous by a half turn of the board (OpenCV may number a view
+    from either end): for a rig the photos of one frame must number the corners alike.  A photo of a
+    non-reference sensor whose orientation relative to its frame's reference photo (from the
+    approximate orientations) is a half turn off the relative orientation most frames agree on gets
+    its corners renumbered (id → n − 1 − id) and its approximate orientation turned with them; a
+    warning names it.  Other blocks are returned unchanged."""
+    from baarda.pipeline.adjustment import rig_structure
+    from baarda.pipeline.geometry import opk_from_rotation_many, rotation_from_opk_many
+
+    struct = rig_structure(block)
+    ph, pts, obs = block.photos, block.points, block.observations
+    n = len(pts)
+    if struct is None or not np.array_equal(pts.ids, np.array([str(i) for i in range(n)])):
+        return block
+    R = rotation_from_opk_many(ph.opk)
+    nonref = np.flatnonzero((struct.photo_frame >= 0) & ~block.rigs.sensors.reference[np.maximum(struct.photo_sensor, 0)])
+    C = pts.XYZ.mean(axis=0)
+    half = np.diag([-1.0, -1.0, 1.0])                  # a half turn about the board normal (Z)
+    X0, opk = np.array(ph.X0), np.array(ph.opk)
+    point = np.array(obs.point)
+    for s in np.unique(struct.photo_sensor[nonref]):
+        mine = nonref[struct.photo_sensor[nonref] == s]
+        ref = struct.frame_ref_photo[struct.photo_frame[mine]]
+        rel = R[mine] @ np.transpose(R[ref], (0, 2, 1))
+        ang = lambda A, B: np.degrees(np.arccos(np.clip((np.trace(A @ B.T) - 1) / 2, -1, 1)))
+        agree = [sum(ang(rel[a], rel[b]) < 20 for b in range(len(mine))) for a in range(len(mine))]
+        best = rel[int(np.argmax(agree))]
+        for a, p in enumerate(mine):
+            if ang(rel[a], best) < 20:
+                continue
+            Rf = R[p] @ half.T
+            if ang(Rf @ R[ref[a]].T, best) >= 20:
+                continue
+            rows = obs.photo == p
+            point[rows] = n - 1 - point[rows]
+            X0[p] = C + half @ (ph.X0[p] - C)
+            opk[p] = opk_from_rotation_many(Rf[None])[0]
+            warn(f"photo {str(ph.ids[p])!r}: chessboard corners numbered from the other end than in its frame's "
+                 f"reference photo {str(ph.ids[ref[a]])!r}; renumbered (id → {n - 1} − id)")
+    if np.array_equal(point, obs.point):
+        return block
+    return block.replace(photos=ph.replace(X0=X0, opk=opk), observations=obs.replace(point=point))

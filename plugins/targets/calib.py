@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from baarda.pipeline.geometry.image import mm_from_pixels, pixels_from_mm
+from baarda.pipeline.geometry import opk_from_rotation
 from baarda.pipeline.geometry.pose import pose_from_cv
 from baarda.pipeline.camera.convert import brown_from_opencv
 
@@ -155,3 +156,77 @@ def _flag_names(flags: int) -> list[str]:
     names = ("CALIB_USE_INTRINSIC_GUESS", "CALIB_FIX_ASPECT_RATIO", "CALIB_FIX_FOCAL_LENGTH",
              "CALIB_FIX_PRINCIPAL_POINT", "CALIB_ZERO_TANGENT_DIST", "CALIB_FIX_K1", "CALIB_FIX_K2", "CALIB_FIX_K3")
     return [n for n in names if flags & int(getattr(cv2, n))]
+
+
+def opencv_stereo(block, free, cals: dict) -> dict:
+    """``cv2.stereoCalibrate`` on the detections of a two-camera rig (``block.rigs``: the reference
+    sensor is the left camera) — the same photos, the points seen in both photos of a frame, the same
+    interior parameters free as baarda's (``free``, :func:`opencv_flags`), started from the
+    per-camera ``cv2.calibrateCamera`` results ``cals`` (camera id → :func:`opencv_calibration`).
+
+    Returns OpenCV's ``R``, ``T`` (x_right = R x_left + T, y-down/z-forward frames, object unit),
+    the RMS (px), the frames used, and the right camera's pose in the rig as baarda writes it
+    (``centre`` = −F Rᵀ T and ``opk`` of F R F, F = diag(1, −1, −1): x right, y up, z back), the
+    baseline |T|.  ``ValueError`` when the rig is not two cameras or too few frames see both."""
+    import cv2
+
+    rigs = block.rigs
+    rs = rigs.sensors
+    if len(rs) != 2 or len(set(rs.rig.tolist())) != 1:
+        raise ValueError("cv2.stereoCalibrate compares a rig of exactly two cameras")
+    left = int(rs.camera[rs.reference][0])
+    right = int(rs.camera[~rs.reference][0])
+    cams, ph, obs, pts = block.cameras, block.photos, block.observations, block.points
+    lid, rid = str(cams.ids[left]), str(cams.ids[right])
+    if lid not in cals or rid not in cals:
+        raise ValueError("cv2.stereoCalibrate starts from both cameras' cv2.calibrateCamera results")
+    size = tuple(int(v) for v in cams.resolution[left])
+    if tuple(int(v) for v in cams.resolution[right]) != size:
+        raise ValueError("cv2.stereoCalibrate needs both cameras at one image size")
+    known = np.isfinite(pts.XYZ).all(axis=1)
+    fm = rigs.frames
+    obj, img_l, img_r, used = [], [], [], []
+    for frame in dict.fromkeys(fm.frame.tolist()):
+        members = fm.photo[fm.frame == frame]
+        pl = [p for p in members if ph.camera[p] == left]
+        pr = [p for p in members if ph.camera[p] == right]
+        if not pl or not pr:
+            continue
+        rows_l = np.flatnonzero((obs.photo == pl[0]) & obs.active & known[obs.point])
+        rows_r = np.flatnonzero((obs.photo == pr[0]) & obs.active & known[obs.point])
+        common, il, ir = np.intersect1d(obs.point[rows_l], obs.point[rows_r], return_indices=True)
+        if len(common) < 6:
+            continue
+        obj.append((pts.XYZ[common] @ F_BOARD).astype(np.float32))
+        img_l.append(pixels_from_mm(obs.xy[rows_l[il]], size, float(cams.pixel_mm[left]), "opencv").astype(np.float32))
+        img_r.append(pixels_from_mm(obs.xy[rows_r[ir]], size, float(cams.pixel_mm[right]), "opencv").astype(np.float32))
+        used.append(str(frame))
+    if len(obj) < 2:
+        raise ValueError(f"cv2.stereoCalibrate needs ≥ 2 frames with ≥ 6 points seen by both cameras, have {len(obj)}")
+
+    def km(cal):
+        return (np.array([[cal["fx"], 0, cal["cx"]], [0, cal["fy"], cal["cy"]], [0, 0, 1]], float),
+                np.asarray(cal["dist"], float))
+
+    K1, D1 = km(cals[lid])
+    K2, D2 = km(cals[rid])
+    flags, fix_aspect, notes = opencv_flags(free)
+    if fix_aspect:
+        flags |= cv2.CALIB_FIX_ASPECT_RATIO
+    flags |= cv2.CALIB_USE_INTRINSIC_GUESS
+    criteria = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12)
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        rms, K1, D1, K2, D2, R, T, _, _ = cv2.stereoCalibrate(obj, img_l, img_r, K1, D1, K2, D2, size, flags=flags,
+                                                              criteria=criteria)
+    finally:
+        cv2.setNumThreads(threads)
+    T = np.asarray(T, float).ravel()
+    Fl = np.diag([1.0, -1.0, -1.0])
+    R_b = Fl @ R @ Fl
+    centre = -Fl @ R.T @ T
+    return {"R": np.asarray(R).tolist(), "T": T.tolist(), "rms_px": float(rms), "frames": used,
+            "left": lid, "right": rid, "centre": centre.tolist(), "opk": opk_from_rotation(R_b).tolist(),
+            "baseline": float(np.linalg.norm(T)), "flags": _flag_names(flags), "notes": notes,
+            "fx": [float(K1[0, 0]), float(K2[0, 0])]}

@@ -20,7 +20,8 @@ from typing import Literal
 
 import numpy as np
 
-from baarda.pipeline.api import (CircleTargets, Context, InputError, Stage, StageResult, TableData, entity_part,
+from baarda.pipeline.api import (CircleTargets, Context, InputError, RigConfig, Stage, StageResult, TableData,
+                                 attach_rigs, entity_part,
                                  log_block, option)
 from baarda.pipeline.geometry import rotation_from_opk
 from baarda.pipeline.imagefiles import read_gray
@@ -29,9 +30,9 @@ from baarda.pipeline.geometry.image import pixels_from_mm
 from baarda.pipeline.api import project_block
 from baarda.pipeline.camera.convert import BROWN
 
-from .blocks import IOP, detection_block
+from .blocks import IOP, consistent_rig_ids, detection_block
 from .boards import BoardGeometry, aruco_dictionary
-from .calib import opencv_calibration
+from .calib import opencv_calibration, opencv_stereo
 from .detect import (DEFAULT_SIGMA_PX, Detection, detect_aruco, detect_blobs, detect_charuco, detect_chessboard,
                      detect_circles_grid, detector_parameters, match_to_predicted)
 from .report import detection_report, headline
@@ -86,6 +87,8 @@ class TargetOptions:
                                                     "'unit' (override circle_diameter for those points)", gt=0.0)
     opencv_reference: bool = option(True, "with a known board: also run cv2.calibrateCamera per camera and report it")
     log_max_size: int = option(800, "longest side of the images logged to rerun, pixels")
+    rig: RigConfig = option(RigConfig(), "the cameras as a rig (rig table and frames, docs/rigs.md); a rig of two "
+                                         "cameras is also calibrated by cv2.stereoCalibrate for comparison")
 
     def __post_init__(self):       # pixel_mm > 0: the range its name implies (pipeline/options.py)
         bad = sorted(set(self.unknowns) - set(IOP) - set(BROWN))
@@ -208,6 +211,8 @@ class TargetDetection(Stage):
         if not usable:
             raise InputError(f"none of the {len(files)} image(s) is a readable image of at least {MIN_IMAGE_PX} "
                              "pixels", field="images", path=ctx.project_file)
+        if options.rig.table:
+            _with_rig(_skeleton_block(files, options), options, ctx)
         return None
 
     def _params(self, options: TargetOptions, ctx: Context):
@@ -311,6 +316,24 @@ class TargetDetection(Stage):
                     continue
                 ref[str(cid)] = {key: v for key, v in cal.items() if key not in ("rvecs", "tvecs")}
             summary["opencv_calibration"] = ref
+        if options.rig.table:
+            block = _with_rig(block, options, ctx)
+            if options.target == "chessboard":
+                block = consistent_rig_ids(block, ctx.warn)
+            summary["rig"] = {"sensors": len(block.rigs.sensors), "frames": len(set(block.rigs.frames.frame.tolist()))}
+        if options.rig.table and options.opencv_reference and len(ref) == 2 and len(block.rigs.sensors) == 2:
+            try:
+                stereo = opencv_stereo(block, options.unknowns, ref)
+            except ValueError as e:
+                ctx.warn(str(e))
+            else:
+                rs = block.rigs.sensors
+                right = ~rs.reference
+                rc, ro = np.array(rs.ref_centre), np.array(rs.ref_opk)
+                rc[right], ro[right] = stereo["centre"], stereo["opk"]
+                block = block.replace(rigs=block.rigs.replace(sensors=rs.replace(ref_centre=rc, ref_opk=ro),
+                                                              reference_name="cv2.stereoCalibrate"))
+                summary["opencv_stereo"] = stereo
         folder = _common_folder(files)
         per_image = TableData({"file": [_relative(r["file"], folder) for r in rows],
                                **{k: [r[k] for r in rows] for k in ("photo", "camera", "points", "status", "message")}},
@@ -324,6 +347,13 @@ class TargetDetection(Stage):
                           "top-left pixel, x right, y down), as detected (before any image is dropped)",
                           detail=True)
         report = detection_report(options, files, rows, block, ref, sigma_px)
+        if "opencv_stereo" in summary:
+            st = summary["opencv_stereo"]
+            report += (f"\n\ncv2.stereoCalibrate reference, rig {st['left']} + {st['right']} ({len(st['frames'])} frames, "
+                       f"the same interior parameters free, started from cv2.calibrateCamera): baseline |T| = "
+                       f"{st['baseline']:.4f} {block.object_unit}, T = ({', '.join(f'{t:.4f}' for t in st['T'])}) "
+                       f"{block.object_unit}, RMS {st['rms_px']:.4f} px; flags {', '.join(st['flags']) or 'none'}. "
+                       "The bundle compares its rig with it (bundle section, differences in σ).")
         summary["headline"] = headline(options.target, rows, block, ref)
         return StageResult(artefacts={"block": block}, summary=summary, report=report, tables={"detections": table, "images": per_image},
                            data={"images": logged, "block": block})
@@ -416,6 +446,33 @@ def _circles_summary(block) -> dict:
     d = np.unique(c.diameter)
     return {"targets": len(c), "diameter": float(d[0]) if d.size == 1 else [float(d.min()), float(d.max())],
             "unit": block.object_unit, "normals_given": int(np.isfinite(c.normal).all(axis=1).sum())}
+
+
+def _skeleton_block(files, options: TargetOptions):
+    """Cameras and photos the images name (no observations): what ``baarda validate`` checks a rig
+    table and its frames against."""
+    from baarda.pipeline.api import Block
+    from baarda.pipeline.model import Cameras, Observations, Photos, Points
+
+    ids = _photo_ids(files)
+    cams = [camera_name(f, options.camera_from_name) for f in files]
+    keep = [i for i, c in enumerate(cams) if c is not None]
+    cam_ids = list(dict.fromkeys(cams[i] for i in keep))
+    return Block(Cameras.make(cam_ids, 1.0), Photos.make([ids[i] for i in keep], [cam_ids.index(cams[i]) for i in keep]),
+                 Points.make([]), Observations.make(np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2))),
+                 object_unit=options.unit)
+
+
+def _with_rig(block, options: TargetOptions, ctx: Context):
+    """The detections' block with the rig of the option table ``rig`` (docs/rigs.md)."""
+    rc = options.rig
+    try:
+        return attach_rigs(block, ctx.resolve(rc.table), frames=ctx.resolve(rc.frames) if rc.frames else None,
+                           frames_from_name=rc.frames_from_name)
+    except InputError as e:
+        if e.path is None:
+            raise ctx.option_error(e.message, e.field or "rig") from None
+        raise
 
 
 def _common_folder(files) -> Path:

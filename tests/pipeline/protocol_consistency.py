@@ -101,7 +101,13 @@ def _check_table(sid: str, p: dict, names: list[str], rows: list[dict]) -> None:
     else:              # one row per scalar observation of the tested adjustment: its own active flag
         used = [r.get("active", "true").strip().lower() != "false" for r in rows]
     exceed = [[abs(_num(r[c])) > K for c in wcols] for r in rows]
-    n_flagged = sum(e for u, ex in zip(used, exceed) if u for e in ex)
+    if per_point and {"rx", "ry"} <= set(names):
+        # a point with one coordinate rejected keeps the other in the adjustment (its r > 0): that one is tested
+        kept = [[s_ != "inactive" and (s_ != "rejected" or _num(r[rc]) > 0) for rc in ("rx", "ry")]
+                for s_, r in zip(state, rows)]
+        n_flagged = sum(e and k for ex, ks in zip(exceed, kept) for e, k in zip(ex, ks))
+    else:
+        n_flagged = sum(e for u, ex in zip(used, exceed) if u for e in ex)
     assert n_flagged == t["n_flagged"], (f"{sid}: the protocol counts {t['n_flagged']} coordinates with |w| > {K}, "
                                          f"the table's w columns {n_flagged}")
     if per_point:      # a point is flagged when a coordinate's |w| exceeds K and it is kept
