@@ -242,7 +242,7 @@ def own_effects(res, delta0: float = 4.13, bias=None, chunk_bytes: float = 3.2e7
     pt_eff = np.zeros((k, 2, 3))          # per unit bias, active order
     eo_eff = np.zeros((k, 2, 6))
     eo_pos, pt_pos = _layout(prob)
-    rigT = None
+    rigT = rig_cols = None
     if getattr(prob, "rig", None) is not None:        # a rig photo's orientation: its frame's and sensor's 12
         eo_pos = _layout(prob, 12)[0]
         rig_cols, rigT = photo_columns(prob, st, np.arange(prob.m))

@@ -580,7 +580,7 @@ class BrownBackward(APModel):
         project, now < 0.1 s); a point without an inverse (far outside the format, beyond the
         radius where the correction folds back) keeps the first-order value m ≈ x̄ − (g(x̄) − x̄):
         finite, so that initial iterations can go on."""
-        from ..adjustment.kernels import brown_invert
+        from .kernels import brown_invert
 
         mx, my, _ = brown_invert(xb, yb, P, self.newton_tol, self.newton_max_iter)
         return np.column_stack([mx, my])

@@ -5,6 +5,8 @@ observations of no eliminated point and fixed columns)."""
 from __future__ import annotations
 
 import numpy as np
+
+from baarda.pipeline.camera import kernels as camera_kernels
 import pytest
 
 from baarda.pipeline.adjustment import kernels
@@ -207,7 +209,7 @@ def test_whitened_columns(rng, diagonal):
 
 def test_no_cache_when_the_source_changed_since_import(monkeypatch):
     """A kernels.py edited after this process imported it is not cached under the new stamp."""
-    monkeypatch.setattr(kernels, "_IMPORTED_STAMP", (0.0, 0))
+    monkeypatch.setattr(kernels._jit, "imported_stamp", (0.0, 0))
 
     def thrice(a):
         return 3.0 * a
@@ -289,7 +291,7 @@ def test_brown_invert_is_the_newton_iteration(rng):
     n = 500
     xb, yb = rng.uniform(-18, 18, n), rng.uniform(-12, 12, n)
     P = np.tile([-2.0e-4, 3.0e-7, -1.0e-10, 2.0e-5, -1.5e-5, 1.0e-4, -2.0e-4], (n, 1))
-    mx, my, ok = kernels.brown_invert(xb, yb, P, 1e-13, 30)
+    mx, my, ok = camera_kernels.brown_invert(xb, yb, P, 1e-13, 30)
     rx, ry, done = _brown_invert_numpy(xb, yb, P)
     assert ok.all() and done.all()
     np.testing.assert_array_equal(mx, rx)
@@ -299,6 +301,6 @@ def test_brown_invert_is_the_newton_iteration(rng):
     # far outside the format a strong negative K1 folds g back: no inverse, the first-order value
     far = np.array([400.0]), np.array([300.0])
     Pf = np.array([[-1.0e-3, 0, 0, 0, 0, 0, 0]])
-    mx, my, ok = kernels.brown_invert(*far, Pf, 1e-13, 30)
+    mx, my, ok = camera_kernels.brown_invert(*far, Pf, 1e-13, 30)
     gx, gy, _, _ = BrownBackward._correction(*far, Pf, False)
     assert not ok[0] and mx[0] == 2 * far[0][0] - gx[0] and my[0] == 2 * far[1][0] - gy[0]

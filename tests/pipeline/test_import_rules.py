@@ -23,13 +23,13 @@ ROOT = Path(__file__).resolve().parents[2]
 
 #: numerical libraries (modules or packages under pipeline/)
 LIBRARIES = ("geometry", "camera", "adjustment", "stats", "synthetic", "contracts", "accuracy", "model",
-             "imodels", "options", "threads")
+             "imodels", "options", "threads", "jit")
 #: what a library may import besides the standard library and other libraries
 #: (pymetis: the sparse route's fill-reducing ordering; threadpoolctl: its BLAS threads per phase)
 LIBRARY_THIRD_PARTY = {"numpy", "scipy", "pymetis", "threadpoolctl"}
 #: what one library (and its submodules) may import besides those
-#: (numba: the adjustment's compiled per-observation kernels, pipeline/adjustment/kernels.py)
-LIBRARY_ONLY = {"numba": "baarda.pipeline.adjustment"}
+#: (numba: the compiled kernels of the adjustment and the camera models, through pipeline/jit.py)
+LIBRARY_ONLY = {"numba": "baarda.pipeline.jit"}
 #: plugin → plugin edges allowed (through the other plugin's ``__init__`` only), and why: none —
 #: the independent-model numerics and the COLMAP conversion that two plugins shared are
 #: ``baarda.pipeline.imodels`` and ``baarda.pipeline.colmap`` now
