@@ -11,7 +11,7 @@ import numpy as np
 from baarda.pipeline.api import stats
 from baarda.pipeline.camera import get_ap_model
 
-from baarda.pipeline.plots import (BIG, MAP_CELLS, integer_ticks, map_ticks, mark_outside, plain_ticks, redundancy_numbers,
+from baarda.pipeline.plots import (BIG, MAP_CELLS, ImageFrame, integer_ticks, map_ticks, mark_outside, plain_ticks, redundancy_numbers,
                                    robust_limits, role_points, value_map, w_distribution)
 
 
@@ -49,13 +49,17 @@ def _backdrop(path: str, longest: int = 1200):
 
 def residual_vectors(res, decision=None, images: dict | None = None):
     """Residual vectors (observed − computed) per photo over the format, the photos with the
-    largest RMS first; one arrow scale for all panels.  ``images``: photo id → image file, drawn
-    behind the arrows (the pixel grid mapped onto the format: the sensor centre is the origin)."""
+    largest RMS first; one arrow scale for all panels.  A pixel source is drawn in its image's pixel
+    frame (origin top-left, v down, 0 … width × 0 … height: the ``x_px, y_px`` and ``vx_px, vy_px``
+    of bundle_observations.csv), a metric source in mm with the origin at the format centre and y up
+    (:class:`~baarda.pipeline.plots.ImageFrame`).  ``images``: photo id → image file, drawn behind
+    the arrows."""
     plt = _plt()
     block = res.block_in
-    obs, cams = block.observations, block.cameras
+    obs = block.observations
     unit, scale, _ = image_units(block)
-    g = scale if unit == "px" else 1.0          # format coordinates: px for a pixel source, else mm
+    frame = ImageFrame(block)
+    g = scale if frame.pixels else 1.0          # drawn units per mm: px for a pixel source, else mm
     act = np.asarray(res.obs_active, bool)
     v = np.asarray(res.residuals, float)
     # the RMS per photo of the protocol and bundle_photos: coordinates in the adjustment (a rejected
@@ -73,13 +77,13 @@ def residual_vectors(res, decision=None, images: dict | None = None):
     vmax = np.nanpercentile(np.hypot(v[act, 0], v[act, 1]), 95) if act.any() else 1.0
     for ax, p in zip(axes.ravel(), photos):
         j = block.photos.camera[p]
-        fw, fh = np.asarray(cams.format_mm[j], float) * g
         m = act & (obs.photo == p)
-        xy = obs.xy[m] * g
-        size = max(fw, fh) if fw > 0 else np.ptp(xy) or 1.0
-        k = 0.08 * size / (g * vmax or 1.0)      # format units of arrow per format unit of residual
+        xy = frame.positions(obs.xy[m], obs.photo[m])
+        ext = frame.extent(j)
+        size = max(abs(ext[1] - ext[0]), abs(ext[3] - ext[2])) if ext else (np.ptp(xy) or 1.0)
+        k = 0.08 * size / (g * vmax or 1.0)      # drawn units of arrow per drawn unit of residual
         flag = np.zeros(m.sum(), bool) if decision is None else np.isin(np.asarray(decision)[m], ["flagged", "rejected"])
-        vm = v[m] * g
+        vm = frame.vectors(v[m])
         n_all = len(xy)
         if n_all > MAX_ARROWS:      # a dense photo: evenly spaced arrows and every flagged one
             keep = np.zeros(n_all, bool)
@@ -94,20 +98,17 @@ def residual_vectors(res, decision=None, images: dict | None = None):
         ax.plot(xy[:, 0], xy[:, 1], ".", ms=2, color="#555")
         src = (images or {}).get(str(block.photos.ids[p]))
         back = _backdrop(src) if src else None
-        if back is not None and fw > 0:
-            ax.imshow(back, cmap="gray", extent=(-fw / 2, fw / 2, -fh / 2, fh / 2), origin="upper", alpha=0.45,
-                      zorder=0)
-        if fw > 0:
-            ax.add_patch(plt.Rectangle((-fw / 2, -fh / 2), fw, fh, fill=False, ec="#999", lw=0.8))
+        if back is not None and ext is not None:
+            ax.imshow(back, cmap="gray", extent=ext, origin="upper", alpha=0.45, zorder=0)
+        frame.finish(ax, j, ticks=False)
         um = used[obs.photo == p]
         rm = np.sqrt(np.mean(v[obs.photo == p][um] ** 2)) * scale if um.any() else float("nan")
         ax.set_title(f"photo {block.photos.ids[p]}: RMS {fmt_q(rm, unit, 3)}"
                      + (f" ({len(xy)} of {n_all} arrows)" if len(xy) < n_all else ""), fontsize=9)
-        ax.set_aspect("equal")
         ax.tick_params(labelsize=7)
     for ax in axes.ravel()[n:]:
         ax.axis("off")
-    fig.suptitle(f"Image residuals (observed − computed) over the format ({'px' if unit == 'px' else 'mm'}, y up); an arrow of "
+    fig.suptitle(f"Image residuals (observed − computed) over the format ({frame.describe()}); an arrow of "
                  f"{0.08 * 100:.0f} % of the format is {fmt_q(vmax * scale, unit, 3)} (95th percentile); red: flagged/rejected",
                  fontsize=10)
     fig.tight_layout()
@@ -308,12 +309,18 @@ def distortion(res, j: int, n: int = 60):
     dx, dy, sx, sy = delta(X.ravel(), Y.ravel())
     mag = np.hypot(dx, dy)
     k = 0.06 * g * max(fw, fh) / (mag.max() or 1.0)
-    b.quiver(g * X.ravel(), g * Y.ravel(), k * dx, k * dy, angles="xy", scale_units="xy", scale=1, color="#1f4e9c",
+    # drawn as the residuals are: a pixel source in its image's pixel frame (v down), else mm, y up
+    frame = ImageFrame(res.block_in)
+    P = frame.camera_positions(np.column_stack([X.ravel(), Y.ravel()]), j) if frame.pixels else \
+        np.column_stack([X.ravel(), Y.ravel()])
+    D = frame.vectors(np.column_stack([dx, dy]) / scale) * (1.0 if frame.pixels else scale)
+    b.quiver(P[:, 0], P[:, 1], k * D[:, 0], k * D[:, 1], angles="xy", scale_units="xy", scale=1, color="#1f4e9c",
              width=0.004)
-    cs = b.contourf(g * X, g * Y, np.hypot(sx, sy).reshape(X.shape), levels=10, cmap="Oranges", alpha=0.5)
+    cs = b.contourf(P[:, 0].reshape(X.shape), P[:, 1].reshape(X.shape), np.hypot(sx, sy).reshape(X.shape), levels=10,
+                    cmap="Oranges", alpha=0.5)
     fig.colorbar(cs, ax=b, label=f"σ of the distortion ({unit})")
-    b.set_aspect("equal")
-    b.set_title(f"field over the format ({gu}); longest arrow {fmt_q(mag.max(), unit, 3)}", fontsize=10)
+    frame.finish(b, j if frame.extent(j) is not None else None, pad=0.04)
+    b.set_title(f"field over the format; longest arrow {fmt_q(mag.max(), unit, 3)}", fontsize=10)
     fig.tight_layout()
     return fig
 
@@ -331,14 +338,15 @@ def reliability_maps(res):
     block = res.block_in
     obs, pts = block.observations, block.points
     unit, scale, _ = image_units(block)
-    g, gu = (scale, "px") if unit == "px" else (1.0, "mm")
+    frame = ImageFrame(block)        # over the format: a pixel source in its pixel frame (v down)
+    gu = frame.describe()
     act = np.asarray(res.obs_active, bool)
     r = np.where(act, np.nanmin(np.asarray(res.redundancy, float), axis=1), np.nan)
     mdb = np.asarray(stats.mdb(snap), float).reshape(-1, 2)
     with np.errstate(invalid="ignore"):
         m_img = np.where(act, np.nanmax(np.where(np.isfinite(mdb), mdb, -np.inf), axis=1), np.nan) * scale
     m_img[~np.isfinite(m_img)] = np.nan
-    xy = obs.xy * g
+    xy = frame.positions(obs.xy, obs.photo)
     # per object point: smallest r, largest MDB of its image coordinates
     n_pts = len(pts)
     r_pt = np.full(n_pts, np.inf)
@@ -359,9 +367,9 @@ def reliability_maps(res):
     panels = [(axes[0, 0], xy[:, 0], xy[:, 1], r, "viridis", 0.0, 1.0, "min", f"redundancy r over the format ({gu})"),
               (axes[0, 1], xy[:, 0], xy[:, 1], m_img, "magma_r", 0.0, mtop, "max", f"MDB over the format ({gu})"),
               (axes[1, 0], XYZ[used, 0], XYZ[used, 1], r_pt[used], "viridis", 0.0, 1.0, "min",
-               f"smallest r of each point, plan ({block.object_unit})"),
+               f"smallest r of each point, plan ({object_unit_text(block)})"),
               (axes[1, 1], XYZ[used, 0], XYZ[used, 1], m_pt[used], "magma_r", 0.0, mtop, "max",
-               f"largest MDB of each point's image coordinates, plan ({block.object_unit})")]
+               f"largest MDB of each point's image coordinates, plan ({object_unit_text(block)})")]
     for n, (ax, x, y, c, cmap, lo, hi, red, title) in enumerate(panels):
         h = value_map(ax, x, y, c, cmap=cmap, vmin=lo, vmax=hi, reduce="mean" if red == "min" and big else red,
                       s=4 if n < 2 else 8)
@@ -369,11 +377,7 @@ def reliability_maps(res):
         cb.set_label("r" if n % 2 == 0 else f"MDB ({unit})", fontsize=8)
         cb.ax.tick_params(labelsize=7)
         if n < 2:
-            for j in np.unique(block.photos.camera):
-                fw, fh = np.asarray(block.cameras.format_mm[j], float) * g
-                if fw > 0:
-                    ax.add_patch(plt.Rectangle((-fw / 2, -fh / 2), fw, fh, fill=False, ec="#999", lw=0.8))
-            ax.set_aspect("equal", adjustable="datalim")
+            frame.finish(ax, np.unique(block.photos.camera))     # every camera's frame
         else:
             xl = robust_limits(x)
             yl = robust_limits(y)
