@@ -217,3 +217,28 @@ def unit_mismatches(table) -> list[str]:
             out.append(f"{c}: name says {said or 'no unit'!r}, units says {given or 'no unit'!r}")
     out += [f"{c}: unit {u!r} for a column the table lacks" for c, u in units.items() if c not in table.columns]
     return out
+
+
+AP_UNIT_POWER = {
+    "none": (),
+    "brown": (2, 4, 6, 1, 1, 0, 0),
+    "aicon": (2, 4, 6, 1, 1, 0, 0),
+    "brown-backward": (2, 4, 6, 1, 1, 0, 0),
+    "ebner12": (0, 0, 1, 1, 1, 1, 2, 2, 2, 2, 3, 3),
+}
+"""Per AP model, the power k of each additional parameter's unit (mm⁻ᵏ or px⁻ᵏ): K1 of ``x̄ r²`` k = 2,
+P1 k = 1, B1 dimensionless … — the same table as the bundle's ``AP_PIXEL_POWER``
+(plugins/bundle/protocol.py, which converts the parameters to px; tests/pipeline/test_units.py checks
+they agree)."""
+
+_SUPERSCRIPT = str.maketrans("-0123456789", "⁻⁰¹²³⁴⁵⁶⁷⁸⁹")
+
+
+def camera_parameter_units(ap_model: str, n_ap: int, base: str = "mm") -> list[str]:
+    """Units of a camera's parameters c, xp, yp and its ``n_ap`` additional parameters of AP model
+    ``ap_model``, in image unit ``base`` ("mm" or "px"): ``["mm", "mm", "mm", "mm⁻²", …]``; a model not
+    in :data:`AP_UNIT_POWER` (a third-party one) gives "model units (mm)" for its APs."""
+    powers = AP_UNIT_POWER.get(str(ap_model))
+    if powers is None or len(powers) != n_ap:
+        return [base] * 3 + ["model units (mm)"] * n_ap
+    return [base] * 3 + [("1" if k == 0 else f"{base}⁻{str(k).translate(_SUPERSCRIPT)}") for k in powers]
