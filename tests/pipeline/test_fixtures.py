@@ -186,6 +186,42 @@ def test_bundled_project_runs(rel, tmp_path, tables_made):
             assert (tmp_path / "run" / t["csv"]).exists() and (tmp_path / "run" / t["parquet"]).exists(), t
     # one truth per number: the protocol summary is results.json's, its counts and RMS the tables'
     check_run(tmp_path / "run")
+    REPORTS.append((rel, tmp_path / "run" / "report.html"))
+
+
+REPORTS: list[tuple[str, Path]] = []
+"""(project, report.html) of every bundled project run by :func:`test_bundled_project_runs` in this
+session, for :func:`test_bundled_reports_fit_six_screens` (defined after it: pytest runs it later)."""
+
+
+def _screenshots_tool():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("baarda_screenshots_tool", ROOT / "tools" / "screenshots.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.mark.parametrize("session", [pytest.param("quick"), pytest.param("slow", marks=pytest.mark.slow)])
+def test_bundled_reports_fit_six_screens(session):
+    """Every report.html of the bundled projects run in this session is at most six screen heights
+    (1920 × 1080) before its appendix of tables (issue 23), measured as ``make screenshots`` measures
+    it: the page's layout in headless Chromium, after its figures are decoded.  One Chromium run for
+    all reports; skipped without Chromium (``make screenshots`` installs Debian's package)."""
+    import shutil
+
+    if not REPORTS:
+        pytest.skip("no bundled project ran in this session")
+    exe = next((shutil.which(n) for n in ("chromium", "chromium-browser") if shutil.which(n)), None)
+    if exe is None:
+        pytest.skip("no chromium on PATH (make screenshots installs it)")
+    tool = _screenshots_tool()
+    got = tool.measure_many(exe, [page for _, page in REPORTS])
+    screens = {rel: before / tool.VIEW_H for (rel, _), (_, before) in zip(REPORTS, got)}
+    assert all(h > 0.5 for h in screens.values()), screens          # measured: a report is never empty
+    long = {rel: round(h, 2) for rel, h in screens.items() if h > tool.MAX_SCREENS}
+    assert not long, f"reports longer than {tool.MAX_SCREENS} screen heights before the appendix: {long}"
 
 
 MOST_IN_RESULTS = 100
