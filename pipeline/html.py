@@ -67,7 +67,9 @@ def png_of(fig: Any) -> bytes:
 
     buf = io.BytesIO()
     try:
-        fig.savefig(buf, format="png", dpi=FIGURE_DPI)     # the figures lay themselves out (tight_layout)
+        # the figures lay themselves out (tight_layout); the tight bounding box keeps a label that an
+        # equal-aspect panel pushes past the canvas (an axis label, a suptitle) and trims empty margins
+        fig.savefig(buf, format="png", dpi=FIGURE_DPI, bbox_inches="tight", pad_inches=0.08)
     finally:
         plt.close(fig)
     return buf.getvalue()

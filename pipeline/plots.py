@@ -7,6 +7,8 @@ from __future__ import annotations
 import numpy as np
 from scipy import stats as sps
 
+from .units import fmt_num
+
 
 QQ_POINTS = 20_000
 """Order statistics drawn in the QQ plot (evenly spaced in rank; the extremes always)."""
@@ -152,7 +154,7 @@ def point_errors(sets, unit: str, title: str, components=("X", "Y", "Z"), backgr
     map_ticks(a, ext[:, 0] if len(ext) else ())
     a.set_xlabel(f"X ({unit})")
     a.set_ylabel(f"Y ({unit})")
-    a.set_title(f"plan: vectors × {k:.3g}", fontsize=10)
+    a.set_title(f"plan: vectors × {fmt_num(k, 3)}", fontsize=10)
     if sets:                                   # below the plan: a flat plan leaves no free corner
         a.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=min(len(sets), 3), frameon=False)
     ids = []

@@ -16,7 +16,7 @@ from baarda.pipeline.plots import (BIG, MAP_CELLS, ImageFrame, integer_ticks, ma
 
 
 from .protocol import image_units
-from baarda.pipeline.units import fmt_obj, fmt_q, object_unit_text
+from baarda.pipeline.units import fmt_num, fmt_obj, fmt_q, object_unit_text
 
 MAX_DISTORTION_CAMERAS = 2
 """Cameras whose distortion is drawn (most image points first; a COLMAP block may have dozens)."""
@@ -32,6 +32,12 @@ def _plt():
     import matplotlib.pyplot as plt
 
     return plt
+
+
+def _img(value, unit: str, sig: int = 3) -> str:
+    """An image-space quantity (residual, σ, MDB, distortion) in the image unit as is — µm for a
+    metric source (0.630 µm, not 630 nm), px for a pixel source."""
+    return fmt_q(value, unit, sig, rescale=False)
 
 
 def _backdrop(path: str, longest: int = 1200):
@@ -103,13 +109,13 @@ def residual_vectors(res, decision=None, images: dict | None = None):
         frame.finish(ax, j, ticks=False)
         um = used[obs.photo == p]
         rm = np.sqrt(np.mean(v[obs.photo == p][um] ** 2)) * scale if um.any() else float("nan")
-        ax.set_title(f"photo {block.photos.ids[p]}: RMS {fmt_q(rm, unit, 3)}"
+        ax.set_title(f"photo {block.photos.ids[p]}: RMS {_img(rm, unit, 3)}"
                      + (f" ({len(xy)} of {n_all} arrows)" if len(xy) < n_all else ""), fontsize=9)
         ax.tick_params(labelsize=7)
     for ax in axes.ravel()[n:]:
         ax.axis("off")
     fig.suptitle(f"Image residuals (observed − computed) over the format ({frame.describe()}); an arrow of "
-                 f"{0.08 * 100:.0f} % of the format is {fmt_q(vmax * scale, unit, 3)} (95th percentile); red: flagged/rejected",
+                 f"{0.08 * 100:.0f} % of the format is {_img(vmax * scale, unit, 3)} (95th percentile); red: flagged/rejected",
                  fontsize=10)
     fig.tight_layout()
     return fig
@@ -169,7 +175,7 @@ def network(res):
         ax.tick_params(labelsize=8)
     axes[0].legend(fontsize=7, loc="best")
     if k > 0 and not big:
-        head = (f"standard error ellipses × {k:.3g} (σ: 95th percentile {fmt_obj(s95, object_unit_text(block), 3)}, "
+        head = (f"standard error ellipses × {fmt_num(k, 3)} (σ: 95th percentile {fmt_obj(s95, object_unit_text(block), 3)}, "
                 f"largest {fmt_obj(smax, object_unit_text(block), 3)})")
     elif k > 0:
         head = (f"point density ({int(used.sum())} points); σ: 95th percentile {fmt_obj(s95, object_unit_text(block), 3)}, "
@@ -206,7 +212,7 @@ def checkpoint_errors(res):
     a.set_aspect("equal", adjustable="datalim")
     map_ticks(a, res.state.XYZ[res.point_used, 0])
     if dmax > 0:
-        a.set_title(f"check points: plan error vectors × {k:.3g} (adjusted − surveyed; largest "
+        a.set_title(f"check points: plan error vectors × {fmt_num(k, 3)} (adjusted − surveyed; largest "
                     f"{fmt_q(dmax, ou, 3)})", fontsize=10)
     else:
         a.set_title("check points: adjusted − surveyed is 0 in plan at every point (no vectors to draw)", fontsize=10)
@@ -299,7 +305,7 @@ def distortion(res, j: int, n: int = 60):
     a2.set_ylabel(f"σ of the distortion ({unit}, dashed)", fontsize=8)
     plain_ticks(a2, "y")
     smax = max(float(np.max(sx)), float(np.max(sy)))
-    a.set_title(f"camera {cams.ids[j]} ({cams.ap_model[j]}): profiles ±1σ (largest σ {fmt_q(smax, unit, 3)})",
+    a.set_title(f"camera {cams.ids[j]} ({cams.ap_model[j]}): profiles ±1σ (largest σ {_img(smax, unit, 3)})",
                 fontsize=10)
     h1, l1 = a.get_legend_handles_labels()
     h2, l2 = a2.get_legend_handles_labels()
@@ -320,7 +326,7 @@ def distortion(res, j: int, n: int = 60):
                     cmap="Oranges", alpha=0.5)
     fig.colorbar(cs, ax=b, label=f"σ of the distortion ({unit})")
     frame.finish(b, j if frame.extent(j) is not None else None, pad=0.04)
-    b.set_title(f"field over the format; longest arrow {fmt_q(mag.max(), unit, 3)}", fontsize=10)
+    b.set_title(f"field over the format; longest arrow {_img(mag.max(), unit, 3)}", fontsize=10)
     fig.tight_layout()
     return fig
 
@@ -359,6 +365,11 @@ def reliability_maps(res):
     m_pt[~np.isfinite(m_pt)] = np.nan
     XYZ = res.state.XYZ
     used = res.point_used & np.isfinite(XYZ).all(axis=1)
+    # over the object: the view onto its two widest axes (plan X, Y for an aerial block; X, Z for a
+    # façade or a panel standing upright, whose plan is a line)
+    spans = [np.subtract(*robust_limits(XYZ[used, t])[::-1]) if used.any() else 1.0 for t in range(3)]
+    ia, ib = sorted(np.argsort(spans)[::-1][:2])
+    view = "plan (X, Y)" if (ia, ib) == (0, 1) else f"view ({'XYZ'[ia]}, {'XYZ'[ib]})"
     mfin = m_img[np.isfinite(m_img)]
     mtop = float(np.quantile(mfin, 0.98)) if mfin.size else 1.0
     fig, axes = plt.subplots(2, 2, figsize=(11.5, 7.0))
@@ -366,10 +377,10 @@ def reliability_maps(res):
     what = "hexbin: mean r / largest MDB of each cell" if big else "one dot per image point"
     panels = [(axes[0, 0], xy[:, 0], xy[:, 1], r, "viridis", 0.0, 1.0, "min", f"redundancy r over the format ({gu})"),
               (axes[0, 1], xy[:, 0], xy[:, 1], m_img, "magma_r", 0.0, mtop, "max", f"MDB over the format ({gu})"),
-              (axes[1, 0], XYZ[used, 0], XYZ[used, 1], r_pt[used], "viridis", 0.0, 1.0, "min",
-               f"smallest r of each point, plan ({object_unit_text(block)})"),
-              (axes[1, 1], XYZ[used, 0], XYZ[used, 1], m_pt[used], "magma_r", 0.0, mtop, "max",
-               f"largest MDB of each point's image coordinates, plan ({object_unit_text(block)})")]
+              (axes[1, 0], XYZ[used, ia], XYZ[used, ib], r_pt[used], "viridis", 0.0, 1.0, "min",
+               f"smallest r of each point, {view} ({object_unit_text(block)})"),
+              (axes[1, 1], XYZ[used, ia], XYZ[used, ib], m_pt[used], "magma_r", 0.0, mtop, "max",
+               f"largest MDB of each point's image coordinates, {view} ({object_unit_text(block)})")]
     for n, (ax, x, y, c, cmap, lo, hi, red, title) in enumerate(panels):
         h = value_map(ax, x, y, c, cmap=cmap, vmin=lo, vmax=hi, reduce="mean" if red == "min" and big else red,
                       s=4 if n < 2 else 8)
@@ -386,10 +397,12 @@ def reliability_maps(res):
                 ax.legend(fontsize=7, loc="best")
             ax.set_aspect("equal", adjustable="box")
             map_ticks(ax, x)
+            ax.set_xlabel(f"{'XYZ'[ia]} ({object_unit_text(block)})", fontsize=7)
+            ax.set_ylabel(f"{'XYZ'[ib]} ({object_unit_text(block)})", fontsize=7)
         ax.set_title(title, fontsize=9)
         ax.tick_params(labelsize=7)
     fig.suptitle(f"Reliability maps ({what}); MDB colours end at the 98th percentile "
-                 f"{fmt_q(mtop, unit, 3)}", fontsize=10)
+                 f"{_img(mtop, unit, 3)}", fontsize=10)
     fig.tight_layout()
     return fig
 
