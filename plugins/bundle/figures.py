@@ -372,19 +372,22 @@ def reliability_maps(res):
     view = "plan (X, Y)" if (ia, ib) == (0, 1) else f"view ({'XYZ'[ia]}, {'XYZ'[ib]})"
     mfin = m_img[np.isfinite(m_img)]
     mtop = float(np.quantile(mfin, 0.98)) if mfin.size else 1.0
+    mlo = float(np.quantile(mfin, 0.02)) if mfin.size else 0.0     # similar MDBs: colours over their spread
+    mlo = mlo if mlo < mtop else 0.0
     fig, axes = plt.subplots(2, 2, figsize=(11.5, 7.0))
     big = act.sum() > MAP_CELLS
     what = "hexbin: mean r / largest MDB of each cell" if big else "one dot per image point"
     panels = [(axes[0, 0], xy[:, 0], xy[:, 1], r, "viridis", 0.0, 1.0, "min", f"redundancy r over the format ({gu})"),
-              (axes[0, 1], xy[:, 0], xy[:, 1], m_img, "magma_r", 0.0, mtop, "max", f"MDB over the format ({gu})"),
+              (axes[0, 1], xy[:, 0], xy[:, 1], m_img, "magma_r", mlo, mtop, "max", f"MDB over the format ({gu})"),
               (axes[1, 0], XYZ[used, ia], XYZ[used, ib], r_pt[used], "viridis", 0.0, 1.0, "min",
                f"smallest r of each point, {view} ({object_unit_text(block)})"),
-              (axes[1, 1], XYZ[used, ia], XYZ[used, ib], m_pt[used], "magma_r", 0.0, mtop, "max",
+              (axes[1, 1], XYZ[used, ia], XYZ[used, ib], m_pt[used], "magma_r", mlo, mtop, "max",
                f"largest MDB of each point's image coordinates, {view} ({object_unit_text(block)})")]
     for n, (ax, x, y, c, cmap, lo, hi, red, title) in enumerate(panels):
         h = value_map(ax, x, y, c, cmap=cmap, vmin=lo, vmax=hi, reduce="mean" if red == "min" and big else red,
                       s=4 if n < 2 else 8)
-        cb = fig.colorbar(h, ax=ax, extend="max" if n % 2 else "neither", fraction=0.046, pad=0.03)
+        cb = fig.colorbar(h, ax=ax, extend=("both" if mlo > 0 else "max") if n % 2 else "neither", fraction=0.046,
+                          pad=0.03)
         cb.set_label("r" if n % 2 == 0 else f"MDB ({unit})", fontsize=8)
         cb.ax.tick_params(labelsize=7)
         if n < 2:
@@ -401,8 +404,8 @@ def reliability_maps(res):
             ax.set_ylabel(f"{'XYZ'[ib]} ({object_unit_text(block)})", fontsize=7)
         ax.set_title(title, fontsize=9)
         ax.tick_params(labelsize=7)
-    fig.suptitle(f"Reliability maps ({what}); MDB colours end at the 98th percentile "
-                 f"{_img(mtop, unit, 3)}", fontsize=10)
+    fig.suptitle(f"Reliability maps ({what}); MDB colours from the 2nd to the 98th percentile, "
+                 f"{_img(mlo, unit, 3)} – {_img(mtop, unit, 3)}", fontsize=10)
     fig.tight_layout()
     return fig
 
@@ -414,8 +417,10 @@ def bundle_figures(res, decision=None) -> dict:
     numbers, convergence."""
     out = {}
     images = res.block_in.photos.images()     # photo id → image file (``Photos.image_path``), where a source found it
-    out["residuals"] = (residual_vectors(res, decision, images),
-                        "Residual vectors per photo over the format" + (" and the photo" if images else ""))
+    v = np.asarray(res.residuals, float)[np.asarray(res.obs_active, bool)]
+    if np.any(np.abs(v) > 1e-12):        # a planned network (error-free observations) has no residual to draw
+        out["residuals"] = (residual_vectors(res, decision, images),
+                            "Residual vectors per photo over the format" + (" and the photo" if images else ""))
     out["network"] = (network(res), "Network: plan and elevation with standard error ellipses")
     snap = res.snapshot
     cams = res.block_in.cameras

@@ -39,9 +39,11 @@ def _crs_columns(res: BundleResult, block: Block) -> dict:
         J = frame.jacobian(XYZ[ok])
         C = np.nan_to_num(res.cov_points[ok])
         sig[ok] = np.sqrt(np.clip(np.einsum("nij,njk,nik->ni", J, C, J), 0.0, None))
-    names = frame.axis_names()
-    out = {f"{a}_crs": user[:, i] for i, a in enumerate(names)}
-    out.update({f"s{a}_crs": sig[:, i] for i, a in enumerate(names)})
+    from baarda.pipeline.units import crs_axis_suffixes
+
+    names = [a + "_crs" + sfx for a, sfx in zip(frame.axis_names(), crs_axis_suffixes(frame))]   # E_crs_m, lat_crs_deg
+    out = {a: user[:, i] for i, a in enumerate(names)}
+    out.update({f"s{a}": sig[:, i] for i, a in enumerate(names)})
     return out
 
 
@@ -530,8 +532,9 @@ def gnss_parts(rep) -> dict:
     ids = blk.photos.ids[blk.gnss.photo[gs.index]].astype(str).tolist()
     u = blk.object_unit
     cols = {"photo": ids}
-    for name, arr in (("v", gs.v), ("s", gs.sigma), ("r", gs.r), ("w", w), ("mdb", mdb)):
-        cols.update({f"{name}{a}": arr[:, t] for t, a in enumerate(ax)})
+    o = length_suffix(u)             # v, σ and MDB in the object unit: vE_m, sE_m, mdbE_m
+    for name, arr, sfx in (("v", gs.v, o), ("s", gs.sigma, o), ("r", gs.r, ""), ("w", w, ""), ("mdb", mdb, o)):
+        cols.update({f"{name}{a}{sfx}": arr[:, t] for t, a in enumerate(ax)})
     cols["flagged"] = flagged
     rms = np.sqrt(np.mean(gs.v ** 2, axis=0))
     om = float(np.sum(gs.snapshot.Pv * gs.snapshot.v))

@@ -130,6 +130,7 @@ def tables_made(monkeypatch):
     init = TableData.__post_init__
 
     def record(self):
+        self.declared_units = dict(self.units)         # what the stage said, before the suffixes fill in
         init(self)
         made.append(self)
 
@@ -142,11 +143,48 @@ BARE_LENGTHS = {"x", "y", "vx", "vy", "X", "Y", "Z", "sX", "sY", "sZ", "dX", "dY
                 "nabla_x", "nabla_y", "dX_check", "dY_check", "dZ_check"}
 
 
+#: numeric columns without a unit suffix that are lengths all the same — still to be named with their unit
+#: (their owners are changing those tables: the error ellipses of pipeline/stats/ellipses.py's
+#: ``ellipse_columns`` in the bundle, independent-models and datum-transform point tables; the bundle's
+#: external reliability per observation)
+NOT_YET_SUFFIXED = {"ellipsoid_a1", "ellipsoid_a2", "ellipsoid_a3", "plan_a", "plan_b", "height_half",
+                    "ext_eo_x", "ext_eo_y", "ext_point_x", "ext_point_y"}
+
+
+def undeclared_numeric(table) -> list[str]:
+    """Numeric columns of ``table`` with no unit in their name that nothing declares unitless: not the
+    table (``units={"col": ""}`` given by the stage), not the conventional unitless names
+    (``baarda.pipeline.units.known_unitless``: w, r, counts, ratios …), not a per-row ``unit`` column
+    of the table (camera parameters, blunder-rejection rows: one unit per row)."""
+    import numpy as np
+
+    from baarda.pipeline.units import column_unit, known_unitless
+
+    declared = getattr(table, "declared_units", {})
+    if "unit" in table.columns:
+        return []
+    out = []
+    for name, values in table.columns.items():
+        if column_unit(name) or name in declared or known_unitless(name):
+            continue
+        try:
+            a = np.asarray(values)
+        except (TypeError, ValueError):
+            continue
+        if a.size and a.dtype.kind in "iuf":          # an empty column says nothing of its kind
+            out.append(name)
+    return out
+
+
 def check_table_units(tables) -> None:
     """Column names and ``units`` agree in every table (docs/conventions.md, *Column names carry their
-    unit*); the bundle's observation and point tables name no length without its unit."""
+    unit*); a numeric column without a unit suffix is declared unitless (:func:`undeclared_numeric`);
+    the bundle's observation and point tables name no length without its unit."""
     bad = {t.description[:60]: unit_mismatches(t) for t in tables if unit_mismatches(t)}
     assert not bad, bad
+    bare = {t.description[:60]: sorted(set(undeclared_numeric(t)) - NOT_YET_SUFFIXED) for t in tables}
+    bare = {k: v for k, v in bare.items() if v}
+    assert not bare, f"numeric columns with no unit in their name and not declared unitless: {bare}"
     bundle = [t for t in tables if t.description.startswith(("every image observation", "adjusted object points"))]
     bare = {t.description[:40]: sorted(BARE_LENGTHS & set(t.columns)) for t in bundle if BARE_LENGTHS & set(t.columns)}
     assert not bare, bare
@@ -157,6 +195,16 @@ def test_table_unit_check_finds_a_disagreement():
     assert unit_mismatches(TableData({"v_px": [1.0]}, units={"v_px": "mm"}))
     assert unit_mismatches(TableData({"v": [1.0]}, units={"v": "px"}))
     assert unit_mismatches(TableData({"v_um": [1.0]}, units={"x_um": "µm"}))
+
+
+def test_numeric_columns_without_a_unit_must_be_declared_unitless(tables_made):
+    TableData({"v_px": [1.0], "w": [0.5], "n_flagged": [3], "rho": [0.1], "point": ["a"]})
+    TableData({"gain": [2.0]}, units={"gain": ""})                                   # declared by its table
+    TableData({"parameter": ["c", "K1"], "value": [24.0, 1e-4], "unit": ["mm", "mm⁻²"]})   # one unit per row
+    assert [undeclared_numeric(t) for t in tables_made] == [[], [], []]
+    assert undeclared_numeric(TableData({"sigma": [0.1], "flag": [True], "id": ["p"]})) == ["sigma"]
+    with pytest.raises(AssertionError, match="not declared unitless"):
+        check_table_units([TableData({"mdb": [0.3]})])
 
 
 @pytest.mark.parametrize("rel", _runs())
