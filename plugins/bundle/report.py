@@ -334,14 +334,16 @@ def _sigma0_equivalent(res: BundleResult, protocol) -> str:
     return f"{_f(um, 3)} µm"
 
 
-def _flagged_lines(res: BundleResult, ds, most: int = 15) -> list[str]:
-    """The largest flagged standardized residuals, with photo, point and coordinate."""
+def _flagged_lines(res: BundleResult, ds, most: int = MOST_LABELS) -> list[str]:
+    """The largest flagged standardized residuals, with photo, point and coordinate (``most`` rows: the
+    report's one cap of a list, so report.html does not cut the table a second time)."""
     idx = np.flatnonzero(ds.flagged)
     if not len(idx):
         return []
     u, k, _ = image_units(res.block_in)
     idx = idx[np.argsort(-np.abs(ds.w[idx]))]
-    rows = ["", f"  Largest flagged (of {len(idx)}; all in bundle_observations.csv, column `decision`):", "",
+    head = (f"The {most} largest |w| of {len(idx)} flagged" if len(idx) > most else f"All {len(idx)} flagged, largest |w| first")
+    rows = ["", f"  {head} (every one in bundle_observations.csv, column `decision`):", "",
             f"  | observation | v ({u}) | r | w | ∇̂ ({u}) | MDB ({u}) |", "  |---|---|---|---|---|---|"]
     snap = res.snapshot
     for i in idx[:most]:
