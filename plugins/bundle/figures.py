@@ -165,7 +165,9 @@ def network(res):
             sel = np.flatnonzero(ok & inside)[:MAX_ELLIPSES]
             segs = [np.column_stack([XYZ[p, i] + e[0], XYZ[p, j] + e[1]])
                     for p in sel for e in [_ellipse(C[p][np.ix_([i, j], [i, j])]) * k]]
-            ax.add_collection(LineCollection(segs, colors="#28a0a0", linewidths=0.6))   # the recordings' ellipsoid colour
+            dense = len(sel) > 300          # many ellipses: thin and translucent, the points stay visible
+            ax.add_collection(LineCollection(segs, colors="#28a0a0", linewidths=0.3 if dense else 0.6,
+                                             alpha=0.5 if dense else 1.0))   # the recordings' ellipsoid colour
         mark_outside(ax, XYZ[used, i], XYZ[used, j], lims[i], lims[j], label="points beyond the axes (at the edge)")
         ax.set_aspect("equal", adjustable="box")
         ax.set_title(name, fontsize=10)
