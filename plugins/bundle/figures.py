@@ -150,6 +150,14 @@ def network(res):
     smax = float(np.max(sig[ok])) if ok.any() else 0.0
     s95 = float(np.quantile(sig[ok].max(axis=1), 0.95)) if ok.any() else 0.0
     k = 0.03 * span / s95 if s95 > 0 else 0.0
+    pts_ok = XYZ[ok & np.isfinite(XYZ).all(axis=1)]
+    if k > 0 and len(pts_ok) > 20:       # a dense cloud: ellipses of the 95th percentile ≈ the typical spacing
+        from scipy.spatial import cKDTree
+
+        nn = cKDTree(pts_ok).query(pts_ok, k=2)[0][:, 1]
+        spacing = float(np.median(nn[nn > 0])) if np.any(nn > 0) else 0.0
+        if spacing > 0:
+            k = min(k, spacing / s95)
     fig, axes = plt.subplots(1, 2, figsize=(12, 5))
     for ax, (i, j, name) in zip(axes, [(0, 1, "plan (X, Y)"), (0, 2, "elevation (X, Z)")]):
         if big:          # a big block: the points as a density, rasterised
