@@ -260,7 +260,7 @@ _UNITLESS_FAMILIES = (
     r"n_\w+|\w+_count",                    # counts
     r"\w*_in_sigma(_[xyz])?",              # an effect in σ of the parameter
     r"bar_delta0(_[xy])?",                 # δ̄0
-    r"(\w+_)?ratio(_\w+)?|\w+_pct|share\w*|\w*mahalanobis2",     # ratios, percentages, squared Mahalanobis
+    r"(\w+_)?ratio(_\w+)?|\w+_pct|(\w+_)?share(_\w+)?|\w*mahalanobis2",     # ratios, percentages, shares, …
     r"ellipsoid_axis\d_[xyz]",             # direction cosines
 )
 
