@@ -190,6 +190,8 @@ def network(res):
     elif k > 0:
         head = (f"point density ({int(used.sum())} points); σ: 95th percentile {fmt_obj(s95, object_unit_text(block), 3)}, "
                 f"largest {fmt_obj(smax, object_unit_text(block), 3)} (every σ in bundle_points.csv)")
+    elif used.any() and np.all(np.isfinite(sig[used])) and not np.any(sig[used]):
+        head = "every point held fixed (σ = 0): no error ellipse to draw"
     else:
         head = "no standard errors of the points (covariance not computed)"
     fig.suptitle(f"Network; {head}", fontsize=10)
