@@ -67,7 +67,9 @@ def png_of(fig: Any) -> bytes:
 
     buf = io.BytesIO()
     try:
-        fig.savefig(buf, format="png", dpi=FIGURE_DPI)     # the figures lay themselves out (tight_layout)
+        # the figures lay themselves out (tight_layout); the tight bounding box keeps a label that an
+        # equal-aspect panel pushes past the canvas (an axis label, a suptitle) and trims empty margins
+        fig.savefig(buf, format="png", dpi=FIGURE_DPI, bbox_inches="tight", pad_inches=0.08)
     finally:
         plt.close(fig)
     return buf.getvalue()
@@ -234,6 +236,20 @@ def fmt(x: Any, nd: int = 4) -> str:
     return f"{f:.{nd}g}"
 
 
+def object_scale(values, unit: str) -> dict:
+    """How a group of object-space lengths in ``unit`` is printed in the protocol table: in mm when the
+    unit is m and every one of them is below 0.5 m (``0.03303`` mm rather than ``3.303e-05`` m, as a
+    surveyor writes a precision), else as given.  ``{"f": factor, "u": unit text}``; the values in
+    results.json stay in the block's unit."""
+    flat = []
+    for v in values:
+        flat += list(v) if isinstance(v, (list, tuple)) else [v]
+    nums = [abs(float(v)) for v in flat if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)]
+    if unit == "m" and nums and max(nums) < 0.5:
+        return {"f": 1000.0, "u": "mm"}
+    return {"f": 1.0, "u": unit}
+
+
 def zero_columns(cameras: list[dict], key: str = "opencv") -> list[str]:
     """Names of the parameters (``cam[key]``: list of {name, value, sigma}) that are 0 ± 0 in every
     camera: held fixed at zero, folded into one line instead of a column of "0 ± 0"."""
@@ -253,6 +269,8 @@ def _env():
     env.filters["num"] = fmt
     env.filters["md"] = markdown_html
     env.filters["zero_columns"] = zero_columns
+    env.filters["objscale"] = object_scale
+    env.filters["times"] = lambda v, f: v * f if isinstance(v, (int, float)) and not isinstance(v, bool) else v
     return env
 
 

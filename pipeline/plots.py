@@ -7,6 +7,8 @@ from __future__ import annotations
 import numpy as np
 from scipy import stats as sps
 
+from .units import fmt_num
+
 
 QQ_POINTS = 20_000
 """Order statistics drawn in the QQ plot (evenly spaced in rank; the extremes always)."""
@@ -152,7 +154,7 @@ def point_errors(sets, unit: str, title: str, components=("X", "Y", "Z"), backgr
     map_ticks(a, ext[:, 0] if len(ext) else ())
     a.set_xlabel(f"X ({unit})")
     a.set_ylabel(f"Y ({unit})")
-    a.set_title(f"plan: vectors × {k:.3g}", fontsize=10)
+    a.set_title(f"plan: vectors × {fmt_num(k, 3)}", fontsize=10)
     if sets:                                   # below the plan: a flat plan leaves no free corner
         a.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=min(len(sets), 3), frameon=False)
     ids = []
@@ -286,3 +288,97 @@ def value_map(ax, x, y, c, *, cmap="viridis", vmin=None, vmax=None, gridsize: in
     order = np.argsort(-c if reduce == "min" else c, kind="stable")      # the notable values on top
     return ax.scatter(x[order], y[order], c=c[order], s=s, cmap=cmap, vmin=vmin, vmax=vmax, lw=0,
                       rasterized=len(c) > RASTER)
+
+
+class ImageFrame:
+    """Image positions and vectors as a reader of the source draws them.
+
+    A pixel source with a known image size (COLMAP, OpenCV detections, libmv, Metashape, OpenSfM) is
+    drawn in its image's pixel frame: u right, v *down*, origin at the top-left corner, the axes
+    0 … width × 0 … height, aspect equal — the numbers are the ``x_px``, ``y_px`` of
+    ``bundle_observations.csv`` (the source's own convention, ``ImageUnits.coordinates``), vectors
+    (residuals, distortion) in px with v down.  BAL has no image size and its coordinates are centred
+    with y up (its files' convention, and again ``x_px, y_px`` of the table): drawn so.  A metric
+    source (comparator, AICON, DBAT in mm) is drawn as photogrammetrists draw the format: mm,
+    origin at its centre, y up; its vectors in the figure's unit of length per the caller."""
+
+    def __init__(self, block):
+        from .units import ImageUnits
+
+        self.block = block
+        self.iu = ImageUnits.of(block)
+        self.pixels = self.iu.is_pixels
+        self.y_down = self.pixels and self.iu.convention != "bal"
+        self.unit = "px" if self.pixels else "mm"
+
+    def positions(self, xy_mm, photo) -> np.ndarray:
+        """Image coordinates (n, 2) in mm of photos ``photo`` (n,) → drawn positions."""
+        return self.iu.coordinates(self.block, xy_mm, photo) if self.pixels else np.asarray(xy_mm, float)
+
+    def camera_positions(self, xy_mm, camera: int) -> np.ndarray:
+        """Image coordinates (n, 2) in mm of camera ``camera`` → drawn positions."""
+        xy = np.asarray(xy_mm, float)
+        if not self.pixels:
+            return xy
+        cams = self.block.cameras
+        pitch = float(np.asarray(cams.pixel_mm, float)[camera])
+        if not self.y_down:
+            return xy / pitch
+        from .geometry.image import pixels_from_mm
+
+        return pixels_from_mm(xy, np.asarray(cams.resolution, float)[camera], pitch, self.iu.convention)
+
+    def vectors(self, d_mm) -> np.ndarray:
+        """Differences (n, 2) in mm (x right, y up) → drawn vectors: px with v down for a pixel source
+        (``ImageUnits.diff(…, flip_y=True)``), mm unchanged for a metric one."""
+        return self.iu.diff(d_mm, flip_y=True) if self.pixels else np.asarray(d_mm, float)
+
+    def extent(self, camera: int):
+        """(left, right, bottom, top) of camera ``camera``'s format in drawn units — for ``imshow``
+        (``origin="upper"``) and the frame; None when the format is unknown (film without a format, BAL)."""
+        fw, fh = np.asarray(self.block.cameras.format_mm[camera], float)
+        if not (fw > 0 and fh > 0):
+            return None
+        if self.y_down and not np.all(np.asarray(self.block.cameras.resolution[camera]) > 0):
+            return None
+        c = self.camera_positions(np.array([[-fw / 2, -fh / 2], [fw / 2, fh / 2]]), camera)
+        return float(c[0, 0]), float(c[1, 0]), float(c[0, 1]), float(c[1, 1])
+
+    def axis_labels(self) -> tuple[str, str]:
+        if not self.pixels:
+            return "x (mm)", "y (mm, up)"
+        if self.y_down:
+            return "u (px)", "v (px, down)"
+        return "x (px, from the centre)", "y (px, up)"
+
+    def describe(self) -> str:
+        """The frame in words for a figure's title."""
+        if not self.pixels:
+            return "mm, origin at the format centre, y up"
+        if self.y_down:
+            return "px, origin top-left, v down"
+        return f"px, {self.iu.source}'s frame: origin at the centre, y up"
+
+    def finish(self, ax, camera=None, *, frame: bool = True, pad: float = 0.02, ticks: bool = True):
+        """Frames of camera(s) ``camera`` (an index or a list) drawn as grey rectangles, the limits on
+        their union (padded by ``pad``) with v down for a pixel frame, aspect equal, axis labels."""
+        cams = [] if camera is None else list(np.atleast_1d(camera))
+        exts = [e for e in (self.extent(int(j)) for j in cams) if e is not None]
+        if exts:
+            import matplotlib.patches as mp
+
+            box = np.unique(np.array([[min(l, r), max(l, r), min(b, t), max(b, t)] for l, r, b, t in exts]), axis=0)
+            if frame:
+                for x0, x1, y0, y1 in box:
+                    ax.add_patch(mp.Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, ec="#999", lw=0.8))
+            x0, x1, y0, y1 = box[:, 0].min(), box[:, 1].max(), box[:, 2].min(), box[:, 3].max()
+            px, py = pad * (x1 - x0), pad * (y1 - y0)
+            ax.set_xlim(x0 - px, x1 + px)
+            ax.set_ylim((y1 + py, y0 - py) if self.y_down else (y0 - py, y1 + py))
+        elif self.y_down and not ax.yaxis_inverted():
+            ax.invert_yaxis()
+        ax.set_aspect("equal", adjustable="box" if exts else "datalim")
+        if ticks:
+            xl, yl = self.axis_labels()
+            ax.set_xlabel(xl, fontsize=7)
+            ax.set_ylabel(yl, fontsize=7)

@@ -217,3 +217,78 @@ def unit_mismatches(table) -> list[str]:
             out.append(f"{c}: name says {said or 'no unit'!r}, units says {given or 'no unit'!r}")
     out += [f"{c}: unit {u!r} for a column the table lacks" for c, u in units.items() if c not in table.columns]
     return out
+
+
+AP_UNIT_POWER = {
+    "none": (),
+    "brown": (2, 4, 6, 1, 1, 0, 0),
+    "aicon": (2, 4, 6, 1, 1, 0, 0),
+    "brown-backward": (2, 4, 6, 1, 1, 0, 0),
+    "ebner12": (0, 0, 1, 1, 1, 1, 2, 2, 2, 2, 3, 3),
+}
+"""Per AP model, the power k of each additional parameter's unit (mm⁻ᵏ or px⁻ᵏ): K1 of ``x̄ r²`` k = 2,
+P1 k = 1, B1 dimensionless … — the same table as the bundle's ``AP_PIXEL_POWER``
+(plugins/bundle/protocol.py, which converts the parameters to px; tests/pipeline/test_units.py checks
+they agree)."""
+
+_SUPERSCRIPT = str.maketrans("-0123456789", "⁻⁰¹²³⁴⁵⁶⁷⁸⁹")
+
+
+def camera_parameter_units(ap_model: str, n_ap: int, base: str = "mm") -> list[str]:
+    """Units of a camera's parameters c, xp, yp and its ``n_ap`` additional parameters of AP model
+    ``ap_model``, in image unit ``base`` ("mm" or "px"): ``["mm", "mm", "mm", "mm⁻²", …]``; a model not
+    in :data:`AP_UNIT_POWER` (a third-party one) gives "model units (mm)" for its APs."""
+    powers = AP_UNIT_POWER.get(str(ap_model))
+    if powers is None or len(powers) != n_ap:
+        return [base] * 3 + ["model units (mm)"] * n_ap
+    return [base] * 3 + [("1" if k == 0 else f"{base}⁻{str(k).translate(_SUPERSCRIPT)}") for k in powers]
+
+
+UNITLESS_NAMES = frozenset({
+    "w", "r", "tau", "p", "T", "rho", "T2d", "T2d_critical", "dof", "lambda", "vtpv", "rcond", "global_T",
+    "max_abs_w", "sigma0_hat", "max_step_sigma", "scale", "s_scale",
+    "n", "rays", "active_rays", "points", "marks", "measurements", "targets", "models", "realisations", "failed",
+    "iteration", "iterations", "repetition", "row", "line", "case", "kept", "active", "photos", "cameras",
+    "camera", "photo", "point", "model", "id", "mark_point",
+})
+"""Column names a reader knows as unitless (docs/conventions.md, *Column names carry their unit*): test
+statistics and redundancy numbers, correlations, σ̂0 and vᵀPv (in units of σ), counts, indices and
+identifiers (a numeric camera, photo or point id)."""
+
+_UNITLESS_FAMILIES = (
+    r"(w|r|tau)_?[xyzENU]",                # w-test and redundancy per coordinate: wx, w_x, rE
+    r"n_\w+|\w+_count",                    # counts
+    r"\w*_in_sigma(_[xyz])?",              # an effect in σ of the parameter
+    r"bar_delta0(_[xy])?",                 # δ̄0
+    r"(\w+_)?ratio(_\w+)?|\w+_pct|(\w+_)?share(_\w+)?|\w*mahalanobis2",     # ratios, percentages, shares, …
+    r"ellipsoid_axis\d_[xyz]",             # direction cosines
+)
+
+
+def known_unitless(name: str) -> bool:
+    """Whether a column without a unit suffix is unitless by the conventional names
+    (:data:`UNITLESS_NAMES` and their families: ``wx``, ``n_flagged``, ``…_in_sigma``, ``…_ratio``,
+    ``…_pct`` …).  Any other numeric column without a suffix must be declared unitless by its table
+    (``units={"col": ""}``) or sit in a table with a per-row ``unit`` column."""
+    import re
+
+    return name in UNITLESS_NAMES or any(re.fullmatch(f, name) for f in _UNITLESS_FAMILIES)
+
+
+_AXIS_UNIT_SUFFIX = {"metre": "_m", "meter": "_m", "degree": "_deg", "foot": "_ft", "US survey foot": "_ftUS"}
+"""pyproj's unit name of a CRS axis → column-name suffix."""
+
+
+def crs_axis_suffixes(frame) -> list[str]:
+    """Column-name unit suffixes of coordinates in the user's CRS of a ``baarda.pipeline.crs.LocalFrame``
+    (its ``axis_names()`` order): E, N in the projection's unit (``_m``), lon/lat in degrees (``_deg``),
+    heights in m; a frame without a CRS: three empty suffixes (the caller's object unit applies)."""
+    if frame.is_identity:
+        return ["", "", ""]
+    import pyproj
+
+    axes = list(pyproj.CRS.from_user_input(frame.crs).axis_info)
+    out = [_AXIS_UNIT_SUFFIX.get(a.unit_name, "_" + a.unit_name.replace(" ", "")) for a in axes[:3]]
+    if len(out) == 3 or len(out) < 2:
+        return (out + ["_m"] * 3)[:3]
+    return out + ["_m"]                    # a 2-D CRS: ellipsoidal heights in m

@@ -247,7 +247,9 @@ def _report(report: BlunderReport, block, art: AdjustmentArtefact, options,
     snap = art.snapshot
     out = [f"Adjustment **{art.name}**: {int(snap.active.sum())} active rows, dof {snap.dof}, "
            f"σ0 = {snap.sigma0:g}, σ̂0 = {snap.sigma0_hat:.4g}.", "",
-           "| method | rejected (in order) | decisive statistics |", "|---|---|---|"]
+           # with action = flag a method's outliers are flagged, not rejected (the block is unchanged)
+           f"| method | {'rejected' if report.action == 'remove' else 'would reject (flagged here)'} (in order) "
+           "| decisive statistics |", "|---|---|---|"]
     for m, r in report.methods.items():
         if r.skipped:
             out.append(f"| {m} | — | skipped: {r.skipped} |")

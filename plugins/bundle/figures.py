@@ -11,12 +11,12 @@ import numpy as np
 from baarda.pipeline.api import stats
 from baarda.pipeline.camera import get_ap_model
 
-from baarda.pipeline.plots import (BIG, MAP_CELLS, integer_ticks, map_ticks, mark_outside, plain_ticks, redundancy_numbers,
+from baarda.pipeline.plots import (BIG, MAP_CELLS, ImageFrame, integer_ticks, map_ticks, mark_outside, plain_ticks, redundancy_numbers,
                                    robust_limits, role_points, value_map, w_distribution)
 
 
 from .protocol import image_units
-from baarda.pipeline.units import fmt_obj, fmt_q, object_unit_text
+from baarda.pipeline.units import fmt_num, fmt_obj, fmt_q, object_unit_text
 
 MAX_DISTORTION_CAMERAS = 2
 """Cameras whose distortion is drawn (most image points first; a COLMAP block may have dozens)."""
@@ -32,6 +32,12 @@ def _plt():
     import matplotlib.pyplot as plt
 
     return plt
+
+
+def _img(value, unit: str, sig: int = 3) -> str:
+    """An image-space quantity (residual, σ, MDB, distortion) in the image unit as is — µm for a
+    metric source (0.630 µm, not 630 nm), px for a pixel source."""
+    return fmt_q(value, unit, sig, rescale=False)
 
 
 def _backdrop(path: str, longest: int = 1200):
@@ -50,14 +56,17 @@ def _backdrop(path: str, longest: int = 1200):
 def residual_vectors(res, decision=None, images: dict | None = None, *, vectors=None,
                      what: str = "Image residuals (observed − computed)"):
     """Residual vectors (observed − computed) per photo over the format, the photos with the
-    largest RMS first; one arrow scale for all panels.  ``images``: photo id → image file, drawn
-    behind the arrows (the pixel grid mapped onto the format: the sensor centre is the origin).
-    ``vectors`` (k, 2) mm draws other per-observation vectors instead (``what`` names them)."""
+    largest RMS first; one arrow scale for all panels.  A pixel source is drawn in its image's pixel
+    frame (origin top-left, v down, 0 … width × 0 … height: the ``x_px, y_px`` and ``vx_px, vy_px``
+    of bundle_observations.csv), a metric source in mm with the origin at the format centre and y up
+    (:class:`~baarda.pipeline.plots.ImageFrame`).  ``images``: photo id → image file, drawn behind
+    the arrows.  ``vectors`` (k, 2) mm draws other per-observation vectors instead (``what`` names them)."""
     plt = _plt()
     block = res.block_in
-    obs, cams = block.observations, block.cameras
+    obs = block.observations
     unit, scale, _ = image_units(block)
-    g = scale if unit == "px" else 1.0          # format coordinates: px for a pixel source, else mm
+    frame = ImageFrame(block)
+    g = scale if frame.pixels else 1.0          # drawn units per mm: px for a pixel source, else mm
     act = np.asarray(res.obs_active, bool)
     v = np.asarray(res.residuals if vectors is None else vectors, float)
     # the RMS per photo of the protocol and bundle_photos: coordinates in the adjustment (a rejected
@@ -75,13 +84,13 @@ def residual_vectors(res, decision=None, images: dict | None = None, *, vectors=
     vmax = np.nanpercentile(np.hypot(v[act, 0], v[act, 1]), 95) if act.any() else 1.0
     for ax, p in zip(axes.ravel(), photos):
         j = block.photos.camera[p]
-        fw, fh = np.asarray(cams.format_mm[j], float) * g
         m = act & (obs.photo == p)
-        xy = obs.xy[m] * g
-        size = max(fw, fh) if fw > 0 else np.ptp(xy) or 1.0
-        k = 0.08 * size / (g * vmax or 1.0)      # format units of arrow per format unit of residual
+        xy = frame.positions(obs.xy[m], obs.photo[m])
+        ext = frame.extent(j)
+        size = max(abs(ext[1] - ext[0]), abs(ext[3] - ext[2])) if ext else (np.ptp(xy) or 1.0)
+        k = 0.08 * size / (g * vmax or 1.0)      # drawn units of arrow per drawn unit of residual
         flag = np.zeros(m.sum(), bool) if decision is None else np.isin(np.asarray(decision)[m], ["flagged", "rejected"])
-        vm = v[m] * g
+        vm = frame.vectors(v[m])
         n_all = len(xy)
         if n_all > MAX_ARROWS:      # a dense photo: evenly spaced arrows and every flagged one
             keep = np.zeros(n_all, bool)
@@ -96,21 +105,18 @@ def residual_vectors(res, decision=None, images: dict | None = None, *, vectors=
         ax.plot(xy[:, 0], xy[:, 1], ".", ms=2, color="#555")
         src = (images or {}).get(str(block.photos.ids[p]))
         back = _backdrop(src) if src else None
-        if back is not None and fw > 0:
-            ax.imshow(back, cmap="gray", extent=(-fw / 2, fw / 2, -fh / 2, fh / 2), origin="upper", alpha=0.45,
-                      zorder=0)
-        if fw > 0:
-            ax.add_patch(plt.Rectangle((-fw / 2, -fh / 2), fw, fh, fill=False, ec="#999", lw=0.8))
+        if back is not None and ext is not None:
+            ax.imshow(back, cmap="gray", extent=ext, origin="upper", alpha=0.45, zorder=0)
+        frame.finish(ax, j, ticks=False)
         um = used[obs.photo == p]
         rm = np.sqrt(np.mean(v[obs.photo == p][um] ** 2)) * scale if um.any() else float("nan")
-        ax.set_title(f"photo {block.photos.ids[p]}: RMS {fmt_q(rm, unit, 3)}"
+        ax.set_title(f"photo {block.photos.ids[p]}: RMS {_img(rm, unit, 3)}"
                      + (f" ({len(xy)} of {n_all} arrows)" if len(xy) < n_all else ""), fontsize=9)
-        ax.set_aspect("equal")
         ax.tick_params(labelsize=7)
     for ax in axes.ravel()[n:]:
         ax.axis("off")
-    fig.suptitle(f"{what} over the format ({'px' if unit == 'px' else 'mm'}, y up); an arrow of "
-                 f"{0.08 * 100:.0f} % of the format is {fmt_q(vmax * scale, unit, 3)} (95th percentile); red: flagged/rejected",
+    fig.suptitle(f"{what} over the format ({frame.describe()}); an arrow of "
+                 f"{0.08 * 100:.0f} % of the format is {_img(vmax * scale, unit, 3)} (95th percentile); red: flagged/rejected",
                  fontsize=10)
     fig.tight_layout()
     return fig
@@ -145,6 +151,14 @@ def network(res):
     smax = float(np.max(sig[ok])) if ok.any() else 0.0
     s95 = float(np.quantile(sig[ok].max(axis=1), 0.95)) if ok.any() else 0.0
     k = 0.03 * span / s95 if s95 > 0 else 0.0
+    pts_ok = XYZ[ok & np.isfinite(XYZ).all(axis=1)]
+    if k > 0 and len(pts_ok) > 20:       # a dense cloud: ellipses of the 95th percentile ≈ the typical spacing
+        from scipy.spatial import cKDTree
+
+        nn = cKDTree(pts_ok).query(pts_ok, k=2)[0][:, 1]
+        spacing = float(np.median(nn[nn > 0])) if np.any(nn > 0) else 0.0
+        if spacing > 0:
+            k = min(k, spacing / s95)
     fig, axes = plt.subplots(1, 2, figsize=(12, 5))
     for ax, (i, j, name) in zip(axes, [(0, 1, "plan (X, Y)"), (0, 2, "elevation (X, Z)")]):
         if big:          # a big block: the points as a density, rasterised
@@ -160,7 +174,9 @@ def network(res):
             sel = np.flatnonzero(ok & inside)[:MAX_ELLIPSES]
             segs = [np.column_stack([XYZ[p, i] + e[0], XYZ[p, j] + e[1]])
                     for p in sel for e in [_ellipse(C[p][np.ix_([i, j], [i, j])]) * k]]
-            ax.add_collection(LineCollection(segs, colors="#28a0a0", linewidths=0.6))   # the recordings' ellipsoid colour
+            dense = len(sel) > 300          # many ellipses: thin and translucent, the points stay visible
+            ax.add_collection(LineCollection(segs, colors="#28a0a0", linewidths=0.3 if dense else 0.6,
+                                             alpha=0.5 if dense else 1.0))   # the recordings' ellipsoid colour
         mark_outside(ax, XYZ[used, i], XYZ[used, j], lims[i], lims[j], label="points beyond the axes (at the edge)")
         ax.set_aspect("equal", adjustable="box")
         ax.set_title(name, fontsize=10)
@@ -170,11 +186,13 @@ def network(res):
         ax.tick_params(labelsize=8)
     axes[0].legend(fontsize=7, loc="best")
     if k > 0 and not big:
-        head = (f"standard error ellipses × {k:.3g} (σ: 95th percentile {fmt_obj(s95, object_unit_text(block), 3)}, "
+        head = (f"standard error ellipses × {fmt_num(k, 3)} (σ: 95th percentile {fmt_obj(s95, object_unit_text(block), 3)}, "
                 f"largest {fmt_obj(smax, object_unit_text(block), 3)})")
     elif k > 0:
         head = (f"point density ({int(used.sum())} points); σ: 95th percentile {fmt_obj(s95, object_unit_text(block), 3)}, "
                 f"largest {fmt_obj(smax, object_unit_text(block), 3)} (every σ in bundle_points.csv)")
+    elif used.any() and np.all(np.isfinite(sig[used])) and not np.any(sig[used]):
+        head = "every point held fixed (σ = 0): no error ellipse to draw"
     else:
         head = "no standard errors of the points (covariance not computed)"
     fig.suptitle(f"Network; {head}", fontsize=10)
@@ -207,7 +225,7 @@ def checkpoint_errors(res):
     a.set_aspect("equal", adjustable="datalim")
     map_ticks(a, res.state.XYZ[res.point_used, 0])
     if dmax > 0:
-        a.set_title(f"check points: plan error vectors × {k:.3g} (adjusted − surveyed; largest "
+        a.set_title(f"check points: plan error vectors × {fmt_num(k, 3)} (adjusted − surveyed; largest "
                     f"{fmt_q(dmax, ou, 3)})", fontsize=10)
     else:
         a.set_title("check points: adjusted − surveyed is 0 in plan at every point (no vectors to draw)", fontsize=10)
@@ -300,7 +318,7 @@ def distortion(res, j: int, n: int = 60):
     a2.set_ylabel(f"σ of the distortion ({unit}, dashed)", fontsize=8)
     plain_ticks(a2, "y")
     smax = max(float(np.max(sx)), float(np.max(sy)))
-    a.set_title(f"camera {cams.ids[j]} ({cams.ap_model[j]}): profiles ±1σ (largest σ {fmt_q(smax, unit, 3)})",
+    a.set_title(f"camera {cams.ids[j]} ({cams.ap_model[j]}): profiles ±1σ (largest σ {_img(smax, unit, 3)})",
                 fontsize=10)
     h1, l1 = a.get_legend_handles_labels()
     h2, l2 = a2.get_legend_handles_labels()
@@ -310,12 +328,18 @@ def distortion(res, j: int, n: int = 60):
     dx, dy, sx, sy = delta(X.ravel(), Y.ravel())
     mag = np.hypot(dx, dy)
     k = 0.06 * g * max(fw, fh) / (mag.max() or 1.0)
-    b.quiver(g * X.ravel(), g * Y.ravel(), k * dx, k * dy, angles="xy", scale_units="xy", scale=1, color="#1f4e9c",
+    # drawn as the residuals are: a pixel source in its image's pixel frame (v down), else mm, y up
+    frame = ImageFrame(res.block_in)
+    P = frame.camera_positions(np.column_stack([X.ravel(), Y.ravel()]), j) if frame.pixels else \
+        np.column_stack([X.ravel(), Y.ravel()])
+    D = frame.vectors(np.column_stack([dx, dy]) / scale) * (1.0 if frame.pixels else scale)
+    b.quiver(P[:, 0], P[:, 1], k * D[:, 0], k * D[:, 1], angles="xy", scale_units="xy", scale=1, color="#1f4e9c",
              width=0.004)
-    cs = b.contourf(g * X, g * Y, np.hypot(sx, sy).reshape(X.shape), levels=10, cmap="Oranges", alpha=0.5)
+    cs = b.contourf(P[:, 0].reshape(X.shape), P[:, 1].reshape(X.shape), np.hypot(sx, sy).reshape(X.shape), levels=10,
+                    cmap="Oranges", alpha=0.5)
     fig.colorbar(cs, ax=b, label=f"σ of the distortion ({unit})")
-    b.set_aspect("equal")
-    b.set_title(f"field over the format ({gu}); longest arrow {fmt_q(mag.max(), unit, 3)}", fontsize=10)
+    frame.finish(b, j if frame.extent(j) is not None else None, pad=0.04)
+    b.set_title(f"field over the format; longest arrow {_img(mag.max(), unit, 3)}", fontsize=10)
     fig.tight_layout()
     return fig
 
@@ -333,14 +357,15 @@ def reliability_maps(res):
     block = res.block_in
     obs, pts = block.observations, block.points
     unit, scale, _ = image_units(block)
-    g, gu = (scale, "px") if unit == "px" else (1.0, "mm")
+    frame = ImageFrame(block)        # over the format: a pixel source in its pixel frame (v down)
+    gu = frame.describe()
     act = np.asarray(res.obs_active, bool)
     r = np.where(act, np.nanmin(np.asarray(res.redundancy, float), axis=1), np.nan)
     mdb = np.asarray(stats.mdb(snap), float).reshape(-1, 2)
     with np.errstate(invalid="ignore"):
         m_img = np.where(act, np.nanmax(np.where(np.isfinite(mdb), mdb, -np.inf), axis=1), np.nan) * scale
     m_img[~np.isfinite(m_img)] = np.nan
-    xy = obs.xy * g
+    xy = frame.positions(obs.xy, obs.photo)
     # per object point: smallest r, largest MDB of its image coordinates
     n_pts = len(pts)
     r_pt = np.full(n_pts, np.inf)
@@ -353,29 +378,33 @@ def reliability_maps(res):
     m_pt[~np.isfinite(m_pt)] = np.nan
     XYZ = res.state.XYZ
     used = res.point_used & np.isfinite(XYZ).all(axis=1)
+    # over the object: the view onto its two widest axes (plan X, Y for an aerial block; X, Z for a
+    # façade or a panel standing upright, whose plan is a line)
+    spans = [np.subtract(*robust_limits(XYZ[used, t])[::-1]) if used.any() else 1.0 for t in range(3)]
+    ia, ib = sorted(np.argsort(spans)[::-1][:2])
+    view = "plan (X, Y)" if (ia, ib) == (0, 1) else f"view ({'XYZ'[ia]}, {'XYZ'[ib]})"
     mfin = m_img[np.isfinite(m_img)]
     mtop = float(np.quantile(mfin, 0.98)) if mfin.size else 1.0
+    mlo = float(np.quantile(mfin, 0.02)) if mfin.size else 0.0     # similar MDBs: colours over their spread
+    mlo = mlo if mlo < mtop else 0.0
     fig, axes = plt.subplots(2, 2, figsize=(11.5, 7.0))
     big = act.sum() > MAP_CELLS
     what = "hexbin: mean r / largest MDB of each cell" if big else "one dot per image point"
     panels = [(axes[0, 0], xy[:, 0], xy[:, 1], r, "viridis", 0.0, 1.0, "min", f"redundancy r over the format ({gu})"),
-              (axes[0, 1], xy[:, 0], xy[:, 1], m_img, "magma_r", 0.0, mtop, "max", f"MDB over the format ({gu})"),
-              (axes[1, 0], XYZ[used, 0], XYZ[used, 1], r_pt[used], "viridis", 0.0, 1.0, "min",
-               f"smallest r of each point, plan ({block.object_unit})"),
-              (axes[1, 1], XYZ[used, 0], XYZ[used, 1], m_pt[used], "magma_r", 0.0, mtop, "max",
-               f"largest MDB of each point's image coordinates, plan ({block.object_unit})")]
+              (axes[0, 1], xy[:, 0], xy[:, 1], m_img, "magma_r", mlo, mtop, "max", f"MDB over the format ({gu})"),
+              (axes[1, 0], XYZ[used, ia], XYZ[used, ib], r_pt[used], "viridis", 0.0, 1.0, "min",
+               f"smallest r of each point, {view} ({object_unit_text(block)})"),
+              (axes[1, 1], XYZ[used, ia], XYZ[used, ib], m_pt[used], "magma_r", mlo, mtop, "max",
+               f"largest MDB of each point's image coordinates, {view} ({object_unit_text(block)})")]
     for n, (ax, x, y, c, cmap, lo, hi, red, title) in enumerate(panels):
         h = value_map(ax, x, y, c, cmap=cmap, vmin=lo, vmax=hi, reduce="mean" if red == "min" and big else red,
                       s=4 if n < 2 else 8)
-        cb = fig.colorbar(h, ax=ax, extend="max" if n % 2 else "neither", fraction=0.046, pad=0.03)
+        cb = fig.colorbar(h, ax=ax, extend=("both" if mlo > 0 else "max") if n % 2 else "neither", fraction=0.046,
+                          pad=0.03)
         cb.set_label("r" if n % 2 == 0 else f"MDB ({unit})", fontsize=8)
         cb.ax.tick_params(labelsize=7)
         if n < 2:
-            for j in np.unique(block.photos.camera):
-                fw, fh = np.asarray(block.cameras.format_mm[j], float) * g
-                if fw > 0:
-                    ax.add_patch(plt.Rectangle((-fw / 2, -fh / 2), fw, fh, fill=False, ec="#999", lw=0.8))
-            ax.set_aspect("equal", adjustable="datalim")
+            frame.finish(ax, np.unique(block.photos.camera))     # every camera's frame
         else:
             xl = robust_limits(x)
             yl = robust_limits(y)
@@ -384,10 +413,12 @@ def reliability_maps(res):
                 ax.legend(fontsize=7, loc="best")
             ax.set_aspect("equal", adjustable="box")
             map_ticks(ax, x)
+            ax.set_xlabel(f"{'XYZ'[ia]} ({object_unit_text(block)})", fontsize=7)
+            ax.set_ylabel(f"{'XYZ'[ib]} ({object_unit_text(block)})", fontsize=7)
         ax.set_title(title, fontsize=9)
         ax.tick_params(labelsize=7)
-    fig.suptitle(f"Reliability maps ({what}); MDB colours end at the 98th percentile "
-                 f"{fmt_q(mtop, unit, 3)}", fontsize=10)
+    fig.suptitle(f"Reliability maps ({what}); MDB colours from the 2nd to the 98th percentile, "
+                 f"{_img(mlo, unit, 3)} – {_img(mtop, unit, 3)}", fontsize=10)
     fig.tight_layout()
     return fig
 
@@ -399,8 +430,10 @@ def bundle_figures(res, decision=None, eccentricity=None) -> dict:
     numbers, convergence."""
     out = {}
     images = res.block_in.photos.images()     # photo id → image file (``Photos.image_path``), where a source found it
-    out["residuals"] = (residual_vectors(res, decision, images),
-                        "Residual vectors per photo over the format" + (" and the photo" if images else ""))
+    v = np.asarray(res.residuals, float)[np.asarray(res.obs_active, bool)]
+    if np.any(np.abs(v) > 1e-12):        # a planned network (error-free observations) has no residual to draw
+        out["residuals"] = (residual_vectors(res, decision, images),
+                            "Residual vectors per photo over the format" + (" and the photo" if images else ""))
     if eccentricity is not None:     # the corrections of circular targets' centres (BundleReport.eccentricity)
         out["eccentricity"] = (residual_vectors(res, decision, images, vectors=eccentricity.final.correction,
                                                 what="Eccentricity corrections (ellipse centre − image of the "

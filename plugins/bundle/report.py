@@ -40,9 +40,11 @@ def _crs_columns(res: BundleResult, block: Block) -> dict:
         J = frame.jacobian(XYZ[ok])
         C = np.nan_to_num(res.cov_points[ok])
         sig[ok] = np.sqrt(np.clip(np.einsum("nij,njk,nik->ni", J, C, J), 0.0, None))
-    names = frame.axis_names()
-    out = {f"{a}_crs": user[:, i] for i, a in enumerate(names)}
-    out.update({f"s{a}_crs": sig[:, i] for i, a in enumerate(names)})
+    from baarda.pipeline.units import crs_axis_suffixes
+
+    names = [a + "_crs" + sfx for a, sfx in zip(frame.axis_names(), crs_axis_suffixes(frame))]   # E_crs_m, lat_crs_deg
+    out = {a: user[:, i] for i, a in enumerate(names)}
+    out.update({f"s{a}": sig[:, i] for i, a in enumerate(names)})
     return out
 
 
@@ -379,14 +381,16 @@ def _sigma0_equivalent(res: BundleResult, protocol) -> str:
     return f"{_f(um, 3)} µm"
 
 
-def _flagged_lines(res: BundleResult, ds, most: int = 15) -> list[str]:
-    """The largest flagged standardized residuals, with photo, point and coordinate."""
+def _flagged_lines(res: BundleResult, ds, most: int = MOST_LABELS) -> list[str]:
+    """The largest flagged standardized residuals, with photo, point and coordinate (``most`` rows: the
+    report's one cap of a list, so report.html does not cut the table a second time)."""
     idx = np.flatnonzero(ds.flagged)
     if not len(idx):
         return []
     u, k, _ = image_units(res.block_in)
     idx = idx[np.argsort(-np.abs(ds.w[idx]))]
-    rows = ["", f"  Largest flagged (of {len(idx)}; all in bundle_observations.csv, column `decision`):", "",
+    head = (f"The {most} largest |w| of {len(idx)} flagged" if len(idx) > most else f"All {len(idx)} flagged, largest |w| first")
+    rows = ["", f"  {head} (every one in bundle_observations.csv, column `decision`):", "",
             f"  | observation | v ({u}) | r | w | ∇̂ ({u}) | MDB ({u}) |", "  |---|---|---|---|---|---|"]
     snap = res.snapshot
     for i in idx[:most]:
@@ -590,8 +594,9 @@ def gnss_parts(rep) -> dict:
     ids = blk.photos.ids[blk.gnss.photo[gs.index]].astype(str).tolist()
     u = blk.object_unit
     cols = {"photo": ids}
-    for name, arr in (("v", gs.v), ("s", gs.sigma), ("r", gs.r), ("w", w), ("mdb", mdb)):
-        cols.update({f"{name}{a}": arr[:, t] for t, a in enumerate(ax)})
+    o = length_suffix(u)             # v, σ and MDB in the object unit: vE_m, sE_m, mdbE_m
+    for name, arr, sfx in (("v", gs.v, o), ("s", gs.sigma, o), ("r", gs.r, ""), ("w", w, ""), ("mdb", mdb, o)):
+        cols.update({f"{name}{a}{sfx}": arr[:, t] for t, a in enumerate(ax)})
     cols["flagged"] = flagged
     rms = np.sqrt(np.mean(gs.v ** 2, axis=0))
     om = float(np.sum(gs.snapshot.Pv * gs.snapshot.v))

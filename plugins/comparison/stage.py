@@ -19,6 +19,7 @@ import numpy as np
 
 from baarda.pipeline.api import Stage, StageResult, TableData, option
 from baarda.pipeline.report import markdown_table
+from baarda.pipeline.units import length_suffix
 
 from .plot import checkpoint_chart, png_bytes
 
@@ -128,8 +129,10 @@ class Comparison(Stage):
                       "![check-point errors per method](comparison_checkpoints.png)", ""]
             img = checkpoint_chart(methods, unit)
             figures["checkpoints"] = png_bytes(img)
+            sfx = length_suffix(unit)          # the RMSE columns carry their unit: Sx_cm, Sx_m, Sx_mu
             tables["checkpoints"] = TableData({"method": [m["name"] for m in methods],
-                                               **{k: [m[k] for m in methods] for k in KEYS}})
+                                               **{k + sfx: [m[k] for m in methods] for k in KEYS}},
+                                              f"check-point RMSE per method ({unit}; adjusted minus surveyed)")
             best_z = min(methods, key=lambda m: m["Sz"] if np.isfinite(m["Sz"]) else np.inf)
             best_xy = min(methods, key=lambda m: m["Sxy"] if np.isfinite(m["Sxy"]) else np.inf)
             lines.append(f"Best planimetry: **{best_xy['name']}** (Sxy {best_xy['Sxy']:.4g} {unit}); "

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from baarda.pipeline.units import fmt_q
+from baarda.pipeline.units import fmt_num, fmt_q
 
 
 def displacement_figure(c):
@@ -40,7 +40,7 @@ def displacement_figure(c):
     ax.set_aspect("equal")
     ax.set_xlabel(f"X [{u}]")
     ax.set_ylabel(f"Y [{u}]")
-    ax.set_title(f"Plan displacements {ref.name} → {ep.name} (arrows × {scale:.3g}); 95 % ellipses,\n"
+    ax.set_title(f"Plan displacements {ref.name} → {ep.name} (arrows × {fmt_num(scale, 3)}); 95 % ellipses,\n"
                  f"dotted circles: MDD (largest {fmt_q(max(p.mdd for p in r.points), u)}); red: moved",
                  fontsize=9)
     ax.margins(0.1)

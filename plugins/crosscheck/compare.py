@@ -12,6 +12,7 @@ import numpy as np
 
 from baarda.pipeline.api import BaardaError, rig_result
 from baarda.pipeline.geometry import rotation_angle
+from baarda.pipeline.units import camera_parameter_units
 
 from .plan import CrossCheckPlan, plan_crosscheck
 from .pycolmap_ba import (PycolmapSolution, SolverSettings, build_reconstruction, estimate_covariance,
@@ -194,6 +195,7 @@ def _compare(result, plan: CrossCheckPlan, sol: PycolmapSolution, summary: dict,
         pc = sol.cam[j]
         vals = {"c": pc["c"], "xp": pc["xp"], "yp": pc["yp"],
                 **dict(zip(pc.get("names", ("K1", "K2", "K3", "P1", "P2", "B1", "B2")), pc["ap"]))}
+        units = camera_parameter_units(result.block_in.cameras.ap_model[j], len(names) - 3)     # mm, mm⁻² …
         for t, name in enumerate(names):
             if not np.isinf(result.camera_sigma[j, t]):
                 continue
@@ -201,7 +203,8 @@ def _compare(result, plan: CrossCheckPlan, sol: PycolmapSolution, summary: dict,
             s = float(np.sqrt(max(result.cov_cameras[j][t, t], 0.0)))
             diff = float(vals[name]) - b
             rows.append({"camera": p.id, "parameter": name, "baarda": b, "pycolmap": float(vals[name]),
-                         "difference": diff, "sigma_baarda": s, "difference_sigma": diff / s if s > 0 else np.nan})
+                         "difference": diff, "sigma_baarda": s, "unit": units[t],
+                         "difference_sigma": diff / s if s > 0 else np.nan})
     ds = np.array([r["difference_sigma"] for r in rows], float)
     iunit = "σ"
     if rows and not np.isfinite(ds).any():      # the bundle computed no covariance: relative to the value

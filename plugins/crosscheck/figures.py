@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from baarda.pipeline.units import fmt_q
+
 
 def _plt():
     import matplotlib.pyplot as plt
@@ -69,10 +71,12 @@ def differences(cc, result, tables):
     fig, axes = plt.subplots(1, ncol, figsize=(5.2 * ncol, 3.9))
     _log_hist(axes[0], [("object-point coordinates", vp, "#1f4e9c")],
               "|pycolmap − baarda| / σ" if sp else f"|pycolmap − baarda| ({unit})")
-    axes[0].set_title(f"object points: max {cc.quantities['points']['max']:.3g} {unit}", fontsize=10)
+    qp, qc = cc.quantities["points"], cc.quantities["centres"]
+    axes[0].set_title(f"object points: largest |difference| {fmt_q(qp['max'], qp.get('unit', unit), 3)}", fontsize=10)
     _log_hist(axes[1], [("projection-centre coordinates", vc, "#c0392b")],
               "|pycolmap − baarda| / σ" if sc else f"|pycolmap − baarda| ({unit})")
-    axes[1].set_title(f"projection centres: max {cc.quantities['centres']['max']:.3g} {unit}", fontsize=10)
+    axes[1].set_title(f"projection centres: largest |difference| {fmt_q(qc['max'], qc.get('unit', unit), 3)}",
+                      fontsize=10)
     if cc.cameras:
         a = axes[2]
         names = list(dict.fromkeys(r["parameter"] for r in cc.cameras))
@@ -86,7 +90,7 @@ def differences(cc, result, tables):
         a.set_xlim(-0.6, len(names) - 0.4)
         a.set_xlabel("camera parameter (every refined camera)")
         a.set_ylabel("(pycolmap − baarda) / σ" if key else "(pycolmap − baarda) / |baarda|")
-        a.set_title(f"camera parameters ({len(cc.cameras)}): max {cc.quantities['intrinsics']['max']:.3g} {unit_i}",
+        a.set_title(f"camera parameters ({len(cc.cameras)}): largest {fmt_q(cc.quantities['intrinsics']['max'], unit_i, 3)}",
                     fontsize=10)
         a.ticklabel_format(axis="y", style="sci", scilimits=(-3, 3))
     fig.tight_layout()
@@ -150,7 +154,8 @@ def residuals(cc, result):
     a.legend(fontsize=8)
     q = cc.quantities["residuals"]
     _log_hist(b, [("x and y", np.abs(dv).ravel(), "#7d3c98")], f"|pycolmap − baarda| ({q['unit']})")
-    b.set_title(f"residual differences: max {q['max']:.3g}, RMS {q['rms']:.3g} {q['unit']}", fontsize=10)
+    b.set_title(f"residual differences: largest {fmt_q(q['max'], q['unit'], 3)}, RMS {fmt_q(q['rms'], q['unit'], 3)}",
+                fontsize=10)
     fig.tight_layout()
     return fig
 

@@ -225,9 +225,10 @@ def _tables(cc: CrossCheck, result) -> dict:
                   "agreement per quantity")
     out = {"quantities": q, "points": points, "photos": photos}
     if cc.cameras:
-        keys = ["camera", "parameter", "baarda", "pycolmap", "difference", "sigma_baarda", "difference_sigma"]
+        keys = ["camera", "parameter", "baarda", "pycolmap", "difference", "sigma_baarda", "unit", "difference_sigma"]
         out["cameras"] = TableData({key: [r.get(key) for r in cc.cameras] for key in keys},
-                                   "refined camera parameters (mm, brown units)")
+                                   "refined camera parameters in the row's `unit` (c, xp, yp mm, K1 mm⁻² …); the "
+                                   "difference also in σ of baarda's value", units={"difference_sigma": ""})
     return out
 
 

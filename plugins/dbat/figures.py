@@ -8,6 +8,8 @@ from pathlib import PurePath
 
 import numpy as np
 
+from baarda.pipeline.units import fmt_num
+
 PUBLISHED = {
     # niclasborlin/dbat data/script/camcaldemo/result/report.txt (commit 08b5c63, DBAT 0.9.0.1)
     "camcaldemo.xml": {
@@ -237,7 +239,7 @@ def marks_figure(cmp: dict, radius_px: float):
     a.invert_yaxis()
     a.set_xlabel("u (px, mark)")
     a.set_ylabel("v (px, mark; down)")
-    a.set_title(f"{len(duv)} pairs, all photos: block − marks × {k:.3g}", fontsize=10)
+    a.set_title(f"{len(duv)} pairs, all photos: block − marks × {fmt_num(k, 3)}", fontsize=10)
     lim = max(radius_px * 0.25, float(np.nanmax(np.abs(duv))) if len(duv) else 1.0)
     bins = np.linspace(-lim, lim, 41)
     for j, (name, col) in enumerate((("du", "#1f4e9c"), ("dv", "#c0392b"))):

@@ -289,7 +289,7 @@ class DbatMarks(Stage):
                                     "RMS y"], rows))
         d = cmp["pairs"]
         table = TableData({"photo": d["photo"], "mark_point": d["mark_point"], "point": d["point"],
-                           "u_mark": d["uv_mark"][:, 0], "v_mark": d["uv_mark"][:, 1],
+                           "u_mark_px": d["uv_mark"][:, 0], "v_mark_px": d["uv_mark"][:, 1],
                            "du_px": d["duv"][:, 0], "dv_px": d["duv"][:, 1]},
                           "paired marks and image points: differences in pixels (block − marks)", detail=True)
         return StageResult(artefacts={"dbat_marks_comparison": cmp}, summary=summary, report=report,

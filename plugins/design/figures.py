@@ -13,6 +13,7 @@ import numpy as np
 from scipy import stats as sps
 
 from baarda.pipeline.plots import redundancy_numbers, role_colour, role_points
+from baarda.pipeline.units import fmt_num
 
 VIEWS = ((0, 1, "plan (X, Y)"), (0, 2, "elevation (X, Z)"))
 XYZ_COLORS = ("#1f4e9c", "#d35400", "#2e8b57")
@@ -168,12 +169,12 @@ def predicted_network(f: dict, mc=None):
             E = mc["errors_points"]                                       # (N, q, 3)
             P = XYZ[sel][None] + k * E
             ax.plot(P[..., i].ravel(), P[..., j].ravel(), ".", ms=1.5, color="#7f8c8d", alpha=0.6, zorder=2,
-                    label=f"realised errors × {k:.3g} ({E.shape[0]} runs)")
+                    label=f"realised errors × {fmt_num(k, 3)} ({E.shape[0]} runs)")
         a, b, t = f[key][sel].T
         ax.add_collection(EllipseCollection(2 * k * a, 2 * k * b, t, units="xy", offsets=XYZ[sel][:, [i, j]],
                                             offset_transform=ax.transData, facecolors="none", edgecolors="#28a0a0",
                                             linewidths=1.0, zorder=3))
-        ax.plot([], [], color="#28a0a0", label=f"predicted standard ellipses × {k:.3g}")
+        ax.plot([], [], color="#28a0a0", label=f"predicted standard ellipses × {fmt_num(k, 3)}")
         role_points(ax, XYZ, f["role"], f["used"], i, j, ms=6, ms_tie=4, zorder=3)
         _stations(ax, X0, f["view"], None, i, j, L, labels=False)
         ax.update_datalim(np.vstack([XYZ[sel][:, [i, j]] + k * a.max(), XYZ[sel][:, [i, j]] - k * a.max()]))
@@ -182,7 +183,7 @@ def predicted_network(f: dict, mc=None):
     h, lab = axes[0].get_legend_handles_labels()
     fig.legend(h, lab, fontsize=8, loc="lower center", ncol=min(len(lab), 4), frameon=False)
     amax = _mm(unit) * np.nanmax(f["ellipse_xy"][sel, 0])
-    fig.suptitle(f"Predicted precision of the plan: standard error ellipses × {k:.3g} (largest plan semi-axis "
+    fig.suptitle(f"Predicted precision of the plan: standard error ellipses × {fmt_num(k, 3)} (largest plan semi-axis "
                  f"{amax:.3g} mm)", fontsize=11)
     fig.tight_layout(rect=(0, 0.1, 1, 1))
     return fig

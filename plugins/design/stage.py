@@ -24,7 +24,7 @@ from baarda.pipeline.errors import quote
 from baarda.pipeline.geometry import opk_from_rotation
 from baarda.pipeline.options import REQUIRED
 from baarda.pipeline.synthetic.closerange import look_at
-from baarda.pipeline.units import length_suffix, object_unit_text
+from baarda.pipeline.units import camera_parameter_units, length_suffix, object_unit_text
 
 from . import report as design_report
 from .network import PlannedCamera, joint_test, plan_block, ratio_test, realisation_errors
@@ -344,10 +344,15 @@ class DesignMonteCarlo(Stage):
                 **{f"ratio_{a}": r[:, k].tolist() for k, a in enumerate("XYZ")},
                 "rejected": t_pts.rejected.reshape(-1, 3).any(axis=1).tolist()},
                 f"predicted σ ({object_unit_text(block)}) and realised/predicted ratio from {options.n_sim} realisations")
+            # one parameter per row, each in its own unit (as bundle_cameras): a `unit` column
+            cam_units = {j: camera_parameter_units(block.cameras.ap_model[j], len(res.cam_param_names[j]) - 3)
+                         for j in {j for j, *_ in cam_rows}}
             tables["cameras"] = TableData({
                 "parameter": [nm for *_, nm in cam_rows], "sigma_pred": sig_cam.tolist(),
+                "unit": [cam_units[j][t] for j, t, _ in cam_rows],
                 "ratio": t_cam.ratio.tolist(), "rejected": t_cam.rejected.tolist()},
-                f"camera parameters: predicted σ and realised/predicted ratio ({options.n_sim} realisations)")
+                f"camera parameters: predicted σ (in the row's `unit`: c, xp, yp mm, K1 mm⁻² …) and "
+                f"realised/predicted ratio ({options.n_sim} realisations)", units={"ratio": ""})
             summary.update({
                 "points_pooled_ratio": round(t_pts.pooled_ratio, 4), "points_pooled_p": round(t_pts.pooled_p, 4),
                 "points_rejected": int(t_pts.rejected.sum()), "points_components": int(t_pts.ratio.size),

@@ -155,10 +155,18 @@ def _gcp_report(block, info, frame: LocalFrame, cam: CameraSpec) -> str:
     return "\n".join(lines)
 
 
+def _crs_suffixes(frame: LocalFrame, block) -> list[str]:
+    """Unit suffixes of the user's coordinate columns: the CRS axes' units, the block's object unit
+    without a CRS."""
+    from baarda.pipeline.units import crs_axis_suffixes, length_suffix
+
+    return [length_suffix(block.object_unit)] * 3 if frame.is_identity else crs_axis_suffixes(frame)
+
+
 def _gcp_tables(block, frame: LocalFrame) -> dict:
     pts = block.points
     user = block.meta["gcp"]["user_xyz"]
-    names = frame.axis_names()
+    names = [n + sfx for n, sfx in zip(frame.axis_names(), _crs_suffixes(frame, block))]
     cols = {"point": pts.ids.tolist(), "role": pts.role.tolist(),
             names[0]: user[:, 0], names[1]: user[:, 1], names[2]: user[:, 2],
             "E_local_m": pts.XYZ[:, 0], "N_local_m": pts.XYZ[:, 1], "U_local_m": pts.XYZ[:, 2]}

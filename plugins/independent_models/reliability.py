@@ -56,14 +56,34 @@ def block_external(blk, alpha0: float, beta0: float) -> dict | None:
     return out
 
 
-def table(ext: dict) -> TableData:
-    cols = {"row": ext["labels"].tolist(), "mdb": ext["mdb"],
-            "ext_point": ext["point"][0].tolist(), "ext_point_effect": ext["point"][1],
+def table(ext: dict, unit: str) -> TableData:
+    """Per row of the block adjustment: its MDB and the largest effect of that MDB on a point coordinate
+    and on a model parameter.  Every column has one unit (its name's suffix, docs/conventions.md): the MDB
+    of a model-coordinate row is in model units (``mdb_mu``), of a control row in the object unit
+    ``unit``; a model parameter's effect in degrees (ω, φ, κ), the object unit (tx, ty, tz) or × 1
+    (the scale), each in its own column (empty where the row's largest effect is on another kind)."""
+    from baarda.pipeline.units import length_suffix
+
+    o = length_suffix(unit)
+    labels = np.asarray(ext["labels"]).astype(str)
+    control = np.char.startswith(labels, "control")
+    m = np.asarray(ext["mdb"], float)
+    name, val = np.asarray(ext["model"][0]).astype(str), np.asarray(ext["model"][1], float)
+    kind = np.array([x.rsplit(" ", 1)[-1] if x else "" for x in name])
+    ang, trans, scale = np.isin(kind, ["omega", "phi", "kappa"]), np.isin(kind, ["tx", "ty", "tz"]), kind == "scale"
+    nan = np.full(len(m), np.nan)
+    cols = {"row": labels.tolist(), "mdb_mu": np.where(control, nan, m), f"mdb{o}": np.where(control, m, nan),
+            "ext_point": ext["point"][0].tolist(), f"ext_point_effect{o}": ext["point"][1],
             "ext_point_in_sigma": ext["point"][2],
-            "ext_model": ext["model"][0].tolist(), "ext_model_effect": ext["model"][1],
+            "ext_model": name.tolist(), "ext_model_effect_deg": np.where(ang, val, nan),
+            f"ext_model_effect{o}": np.where(trans, val, nan), "ext_model_effect_scale": np.where(scale, val, nan),
             "ext_model_in_sigma": ext["model"][2], "bar_delta0": ext["bar_delta0"]}
-    return TableData(cols, "external reliability of the block adjustment: per row, the largest effect of its MDB "
-                           "on any point coordinate and on any model parameter (object units, degrees; in σ), δ̄0")
+    unitless = {"ext_point_in_sigma": "", "ext_model_in_sigma": "", "ext_model_effect_scale": "", "bar_delta0": ""}
+    return TableData(cols, "external reliability of the block adjustment: per row its MDB (model rows in model "
+                           f"units, control rows in {unit}) and the largest effect of that MDB on any point "
+                           f"coordinate ({unit}) and on any model parameter (degrees, {unit} or × 1 for the "
+                           "scale, one column each); the effects also in σ of the parameter; δ̄0",
+                     units=unitless)
 
 
 def summary(ext: dict | None) -> dict | None:

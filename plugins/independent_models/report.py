@@ -51,13 +51,19 @@ def summary(result: IndependentModelResult, stats: dict, block) -> dict:
 
 # --------------------------------------------------------------------------- tables
 
+RO_COLUMNS = {"by": "by_mu", "bz": "bz_mu", "omega1": "omega1_deg", "phi1": "phi1_deg", "kappa1": "kappa1_deg",
+              "omega2": "omega2_deg", "phi2": "phi2_deg", "kappa2": "kappa2_deg"}
+"""Relative-orientation parameters → the models table's column (one unit each): the dependent method's
+by, bz, ω2, φ2, κ2 and the independent method's φ1, κ1, φ2, ω2, κ2."""
+
+
 def tables(result: IndependentModelResult, stats: dict, block) -> dict:
     blk = result.block
     unit = block.object_unit
     # models and their relative orientation
     rows = {k: [] for k in ("model", "left", "right", "method", "parameters", "points", "dof",
-                            "sigma0_hat", "iterations", "initial", "rcond", "bx", "p1", "p2", "p3", "p4",
-                            "p5", "names", "global_T", "global_rejected", "max_abs_w", "flagged")}
+                            "sigma0_hat", "iterations", "initial", "rcond", "bx_mu", *RO_COLUMNS.values(),
+                            "global_T", "global_rejected", "max_abs_w", "flagged")}
     for (mid, left, right), ro, st in zip(result.pairs, result.relative, stats["models"]):
         ds, gt = st["snooping"], st["global"]
         rows["model"].append(mid)
@@ -71,18 +77,19 @@ def tables(result: IndependentModelResult, stats: dict, block) -> dict:
         rows["iterations"].append(ro.iterations)
         rows["initial"].append(ro.initial)
         rows["rcond"].append(ro.rcond)
-        rows["bx"].append(ro.bx)
-        for k, (nm, v) in enumerate(zip(ro.param_names, ro.p)):
-            rows[f"p{k + 1}"].append(_deg(v) if nm[:-1] in ("omega", "phi", "kappa") else float(v))
-        rows["names"].append(" ".join(f"{n}{'[deg]' if n[:-1] in ('omega', 'phi', 'kappa') else ''}"
-                                      for n in ro.param_names))
+        rows["bx_mu"].append(ro.bx)
+        got = dict(zip(ro.param_names, ro.p))        # dependent: by bz ω2 φ2 κ2; independent: φ1 κ1 φ2 ω2 κ2
+        for nm, col in RO_COLUMNS.items():
+            v = got.get(nm)
+            rows[col].append(float("nan") if v is None else _deg(v) if nm[:-1] in ("omega", "phi", "kappa") else float(v))
         rows["global_T"].append(gt.T)
         rows["global_rejected"].append(bool(gt.rejected))
         ok = np.isfinite(ds.w)
         rows["max_abs_w"].append(float(np.max(np.abs(ds.w[ok]))) if ok.any() else float("nan"))
         rows["flagged"].append(" ".join(ds.flagged_labels))
-    models = TableData(rows, "per model: relative orientation (p1…p5 named in 'names', angles in degrees), "
-                             "σ̂0, global test and y-parallax snooping")
+    models = TableData(rows, "per model: relative orientation (base bx and by, bz in model units, angles in "
+                             "degrees; empty where the model's method has no such parameter), σ̂0, global test "
+                             "and y-parallax snooping")
     # statistics rows of each relative orientation
     t = {k: [] for k in ("model", "row", "active", "v_um", "r", "w", "nabla_um", "mdb_um", "flagged")}
     pts = {k: [] for k in ("model", "point", "used", "vx_left_um", "vy_left_um", "vx_right_um",

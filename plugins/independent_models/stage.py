@@ -120,7 +120,7 @@ class IndependentModels(Stage):
         summary["external_reliability"] = im_reliability.summary(ext)
         tables = im_report.tables(result, stats, block)
         if ext is not None:
-            tables["external"] = im_reliability.table(ext)
+            tables["external"] = im_reliability.table(ext, block.object_unit)
         robust = _robust(result.block, o)
         if robust is not None:
             summary["robust"] = robust.summary()

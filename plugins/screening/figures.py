@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from baarda.pipeline.units import fmt_num
+
 
 def helmert_residuals(art) -> dict:
     import matplotlib.pyplot as plt
@@ -31,7 +33,7 @@ def helmert_residuals(art) -> dict:
             a.annotate(str(i), (x, y), fontsize=8, xytext=(3, 3), textcoords="offset points")
         a.set_aspect("equal", adjustable="datalim")
         a.legend(fontsize=8)
-        a.set_title(f"{p.left} → {p.right}: residuals (observed − computed) × {k:.3g}; longest {vmax:.3g} mm",
+        a.set_title(f"{p.left} → {p.right}: residuals (observed − computed) × {fmt_num(k, 3)}; longest {vmax:.3g} mm",
                     fontsize=10)
         a.set_xlabel("x (mm)")
         a.set_ylabel("y (mm)")

@@ -305,7 +305,8 @@ def _tables(study) -> dict:
                        ("single", "Table 4: single model at 4.0 m (with selected APs)")):
         rows = study["tables"][name]
         if rows:
-            out[name] = TableData({k: [r[k] for r in rows] for k in rows[0]}, desc)
+            out[name] = TableData({(k + "_cm" if k in ("Sx", "Sy", "Sxy", "Sz") else k): [r[k] for r in rows]
+                                   for k in rows[0]}, desc)          # the RMSE columns in cm: Sx_cm …
     rows = study["rows"]
     out["realisations"] = TableData({
         "repetition": [r["repetition"] for r in rows], "block": [r["block"] for r in rows],

@@ -41,6 +41,34 @@ def table5_rows(study) -> list[list]:
     return rows
 
 
+def table_columns(study, table: int) -> dict:
+    """Paper 001's Table 4 (``table=4``: single model, block) or Table 5 (independent models, bundle with
+    APs) as a table of one row per method, every column in one unit (its name's suffix): baarda's RMSE
+    (cm) over the realisations, the paper's (cm), their difference (%) and, for Table 4, the object
+    distance (cm).  The comparison between the two methods (the tables' last rows in the paper) is in
+    the comparisons table (change_pct, paper_pct); report.md prints the tables as the paper does
+    (:func:`table4_rows`, :func:`table5_rows`).  Empty without realisations."""
+    var, geo = study["variants"], study["geometry"]
+    if table == 4:
+        if not var.get(SINGLE_AP, {}).get("realisations") or not var.get(BUNDLE_AP, {}).get("realisations"):
+            return {}
+        methods = [("single model", SINGLE_AP, PAPER_TABLE4["single model"]), ("block", BUNDLE_AP, PAPER_TABLE4["block"])]
+    else:
+        methods = [(label, v, PAPER_TABLE5[label]) for label, v in (("independent models", IM), ("bundle", BUNDLE_AP))
+                   if var.get(v, {}).get("realisations")]
+    cols = {"method": [m for m, *_ in methods], "realisations": [int(var[v]["realisations"]) for _, v, _ in methods]}
+    for k in KEYS:
+        cols[f"{k}_cm"] = [float(var[v][k]) for _, v, _ in methods]
+    for i, k in enumerate(KEYS):
+        cols[f"paper_{k}_cm"] = [float(p[i]) for *_, p in methods]
+    for i, k in enumerate(KEYS):
+        cols[f"{k}_vs_paper_pct"] = [100 * (float(var[v][k]) - p[i]) / p[i] for _, v, p in methods]
+    if table == 4:
+        cols["distance_cm"] = [float(geo[m]["H_m"] * 100) for m, *_ in methods]
+        cols["paper_distance_cm"] = [float(PAPER_DISTANCE_CM[m]) for m, *_ in methods]
+    return cols
+
+
 def _method_rows(label, d, paper, dist_cm, paper_dist_cm) -> list[list]:
     ours = [d[k] for k in KEYS]
     return [[label, f"baarda ({d['realisations']} realisations)", *ours, f"{dist_cm:.0f}"],

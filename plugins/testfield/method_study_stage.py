@@ -17,7 +17,7 @@ from baarda.pipeline import montecarlo
 from baarda.pipeline.api import Context, Stage, StageResult, TableData
 
 from .method_study import KEYS, PAPER_PERCENT, VARIANTS, MethodStudyConfig, method_study, resolve
-from .method_study_report import table4_rows, table5_rows, study_report
+from .method_study_report import study_report, table_columns
 
 
 class MethodStudy(Stage):
@@ -121,15 +121,15 @@ def _headline(study: dict) -> str:
 
 def _tables(study: dict) -> dict:
     out = {}
-    t4, t5 = table4_rows(study), table5_rows(study)
-    cols = ["method", "source", *KEYS, "distance_cm"]
+    t4, t5 = table_columns(study, 4), table_columns(study, 5)
+    pct = {c: "" for c in (*t4, *t5) if c.endswith("_pct")}          # a percentage: a ratio, no unit
     if t4:
-        out["table4"] = TableData({c: [r[i] for r in t4] for i, c in enumerate(cols)},
-                                  "Table 4: single model vs block, check-point RMSE (cm): baarda (RMS over the "
-                                  "realisations), the paper, their difference (%), and block vs single model (%)")
-    out["table5"] = TableData({c: [r[i] for r in t5] for i, c in enumerate(cols[:-1])},
-                              "Table 5: independent models vs bundle (APs), check-point RMSE (cm): baarda, the "
-                              "paper, their difference (%), and independent models vs bundle (%)")
+        out["table4"] = TableData(t4, "Table 4: single model vs block, check-point RMSE (cm): baarda (RMS over the "
+                                      "realisations), the paper, their difference (%), the object distance (cm); "
+                                      "block vs single model (%) is in the comparisons table", units=pct)
+    out["table5"] = TableData(t5, "Table 5: independent models vs bundle (APs), check-point RMSE (cm): baarda, the "
+                                  "paper, their difference (%); independent models vs bundle (%) is in the "
+                                  "comparisons table", units=pct)
     var = study["variants"]
     names = [v for v in VARIANTS if var.get(v, {}).get("realisations")]
     fields = ["realisations", "failed", "n", "Sx", "Sy", "Sxy", "Sz", "Sxy_sd", "Sz_sd", "Sxy_q10", "Sxy_q90",

@@ -330,10 +330,15 @@ def _targets_table(rows, pixel_mm, size) -> TableData:
 def _camera_table(truth) -> TableData:
     from baarda.pipeline.camera import get_ap_model
 
+    from baarda.pipeline.units import camera_parameter_units
+
     names = ["c", "xp", "yp"] + list(get_ap_model("brown").params)
     values = [truth.c, truth.xp, truth.yp] + [float(truth.distortion.get(n, 0.0)) for n in names[3:]]
-    return TableData({"parameter": names, "value": values},
-                     "the true camera: c, xp, yp (mm) and its systematic image errors as brown parameters")
+    # one parameter per row, each in its own unit (as bundle_cameras): a `unit` column, not a suffix
+    return TableData({"parameter": names, "value": values,
+                      "unit": camera_parameter_units("brown", len(names) - 3)},
+                     "the true camera: c, xp, yp (mm) and its systematic image errors as brown parameters "
+                     "(K1 mm⁻² …); the unit of each row's value in `unit`")
 
 
 def _points_table(block, truth) -> TableData:

@@ -33,11 +33,11 @@ def test_bundle_points_in_the_users_crs(tmp_path):
     assert set(exp) <= set(pts)
     for pid, e in exp.items():
         p = pts[pid]
-        assert [float(p[k + "_crs"]) for k in "ENh"] == pytest.approx([float(e[k]) for k in "ENh"], abs=2e-6)
-        assert [float(p["s" + k + "_crs"]) for k in "ENh"] == pytest.approx([float(e["s" + k]) for k in "ENh"],
+        assert [float(p[k + "_crs_m"]) for k in "ENh"] == pytest.approx([float(e[k]) for k in "ENh"], abs=2e-6)
+        assert [float(p["s" + k + "_crs_m"]) for k in "ENh"] == pytest.approx([float(e["s" + k]) for k in "ENh"],
                                                                           rel=1e-5)
         # UTM: horizontal σ scaled by the grid scale factor (≈ 0.9996 near the central meridian), height unchanged
         sl = np.array([float(p[k]) for k in ("sX_m", "sY_m", "sZ_m")])
-        su = np.array([float(p["s" + k + "_crs"]) for k in "ENh"])
+        su = np.array([float(p["s" + k + "_crs_m"]) for k in "ENh"])
         assert np.hypot(*su[:2]) / np.hypot(*sl[:2]) == pytest.approx(1.0, abs=2e-3)
         assert su[2] == pytest.approx(sl[2], rel=1e-6)

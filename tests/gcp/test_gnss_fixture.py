@@ -85,8 +85,8 @@ def test_gnss_fixture_against_truth(repo_root, gnss_run):
     # the points in UTM with their σ (J C Jᵀ) from the bundle's table
     pts = _rows(run / "bundle_points.csv")
     kinds = {"check": "check", "tie": "tie", "full": "control"}
-    P = np.array([[float(r[k]) for k in ("E_crs", "N_crs", "h_crs")] for r in pts])
-    sP = np.array([[float(r[k]) for k in ("sE_crs", "sN_crs", "sh_crs")] for r in pts])
+    P = np.array([[float(r[k]) for k in ("E_crs_m", "N_crs_m", "h_crs_m")] for r in pts])
+    sP = np.array([[float(r[k]) for k in ("sE_crs_m", "sN_crs_m", "sh_crs_m")] for r in pts])
     true_p = np.array([truth[(kinds[r["role"]], r["point"].zfill(5))] for r in pts])
     zp = (P - true_p) / sP
     check = np.array([r["role"] == "check" for r in pts])
@@ -124,7 +124,7 @@ def test_gnss_section_lists_every_photo(repo_root, gnss_run):
     sig = {r["photo"]: (float(r["sigma_h"]), float(r["sigma_v"]))
            for r in _rows(repo_root / "fixtures" / "gnss" / "gnss.csv")}
     for r in tab:
-        assert np.allclose([float(r["sE"]), float(r["sN"]), float(r["sU"])], np.array(sig[r["photo"]])[[0, 0, 1]])
+        assert np.allclose([float(r["sE_m"]), float(r["sN_m"]), float(r["sU_m"])], np.array(sig[r["photo"]])[[0, 0, 1]])
     report = (run / "report.md").read_text()
     assert "### GNSS antennas" in report and "24 antenna positions observed" in report
     # the antennas' share of vᵀPv over their redundancy is near 1 (simulated with the σ they carry)

@@ -39,6 +39,19 @@ def test_external_reliability_against_dense_reference(im_run):
     assert big["in_sigma"] == pytest.approx(ratio.max(), rel=1e-6)
     assert big["parameter"] == np.array(model.names)[pt][np.argmax(ratio[i])]
     assert "### External reliability" in res.report
+    # one unit per column: model rows' MDB in model units, control rows' in the object unit (m here)
+    from baarda.pipeline.units import unit_mismatches
+    assert not unit_mismatches(res.tables["external"])
+    control = np.char.startswith(np.asarray(t["row"]).astype(str), "control")
+    mu, mo = np.asarray(t["mdb_mu"], float), np.asarray(t["mdb_m"], float)
+    assert np.isnan(mu[control]).all() and np.isnan(mo[~control]).all()
+    assert np.allclose(np.where(control, mo, mu)[act], mdb, rtol=1e-6)
+    # a model parameter's effect in the column of its unit: ω φ κ in deg, tx ty tz in m, the scale × 1
+    kind = np.array([str(n).rsplit(" ", 1)[-1] for n in t["ext_model"]])
+    for col, names in (("ext_model_effect_deg", ("omega", "phi", "kappa")), ("ext_model_effect_m", ("tx", "ty", "tz")),
+                       ("ext_model_effect_scale", ("scale",))):
+        v = np.asarray(t[col], float)
+        assert (np.isfinite(v) == (np.isin(kind, names) & act)).all(), col
 
 
 def test_point_ellipsoids_match_the_sigmas(im_run):

@@ -135,6 +135,7 @@ def tables_made(monkeypatch):
     init = TableData.__post_init__
 
     def record(self):
+        self.declared_units = dict(self.units)         # what the stage said, before the suffixes fill in
         init(self)
         made.append(self)
 
@@ -147,11 +148,48 @@ BARE_LENGTHS = {"x", "y", "vx", "vy", "X", "Y", "Z", "sX", "sY", "sZ", "dX", "dY
                 "nabla_x", "nabla_y", "dX_check", "dY_check", "dZ_check"}
 
 
+#: numeric columns without a unit suffix that are lengths all the same — still to be named with their unit
+#: (their owners are changing those tables: the error ellipses of pipeline/stats/ellipses.py's
+#: ``ellipse_columns`` in the bundle, independent-models and datum-transform point tables; the bundle's
+#: external reliability per observation)
+NOT_YET_SUFFIXED = {"ellipsoid_a1", "ellipsoid_a2", "ellipsoid_a3", "plan_a", "plan_b", "height_half",
+                    "ext_eo_x", "ext_eo_y", "ext_point_x", "ext_point_y"}
+
+
+def undeclared_numeric(table) -> list[str]:
+    """Numeric columns of ``table`` with no unit in their name that nothing declares unitless: not the
+    table (``units={"col": ""}`` given by the stage), not the conventional unitless names
+    (``baarda.pipeline.units.known_unitless``: w, r, counts, ratios …), not a per-row ``unit`` column
+    of the table (camera parameters, blunder-rejection rows: one unit per row)."""
+    import numpy as np
+
+    from baarda.pipeline.units import column_unit, known_unitless
+
+    declared = getattr(table, "declared_units", {})
+    if "unit" in table.columns:
+        return []
+    out = []
+    for name, values in table.columns.items():
+        if column_unit(name) or name in declared or known_unitless(name):
+            continue
+        try:
+            a = np.asarray(values)
+        except (TypeError, ValueError):
+            continue
+        if a.size and a.dtype.kind in "iuf":          # an empty column says nothing of its kind
+            out.append(name)
+    return out
+
+
 def check_table_units(tables) -> None:
     """Column names and ``units`` agree in every table (docs/conventions.md, *Column names carry their
-    unit*); the bundle's observation and point tables name no length without its unit."""
+    unit*); a numeric column without a unit suffix is declared unitless (:func:`undeclared_numeric`);
+    the bundle's observation and point tables name no length without its unit."""
     bad = {t.description[:60]: unit_mismatches(t) for t in tables if unit_mismatches(t)}
     assert not bad, bad
+    bare = {t.description[:60]: sorted(set(undeclared_numeric(t)) - NOT_YET_SUFFIXED) for t in tables}
+    bare = {k: v for k, v in bare.items() if v}
+    assert not bare, f"numeric columns with no unit in their name and not declared unitless: {bare}"
     bundle = [t for t in tables if t.description.startswith(("every image observation", "adjusted object points"))]
     bare = {t.description[:40]: sorted(BARE_LENGTHS & set(t.columns)) for t in bundle if BARE_LENGTHS & set(t.columns)}
     assert not bare, bare
@@ -162,6 +200,16 @@ def test_table_unit_check_finds_a_disagreement():
     assert unit_mismatches(TableData({"v_px": [1.0]}, units={"v_px": "mm"}))
     assert unit_mismatches(TableData({"v": [1.0]}, units={"v": "px"}))
     assert unit_mismatches(TableData({"v_um": [1.0]}, units={"x_um": "µm"}))
+
+
+def test_numeric_columns_without_a_unit_must_be_declared_unitless(tables_made):
+    TableData({"v_px": [1.0], "w": [0.5], "n_flagged": [3], "rho": [0.1], "point": ["a"]})
+    TableData({"gain": [2.0]}, units={"gain": ""})                                   # declared by its table
+    TableData({"parameter": ["c", "K1"], "value": [24.0, 1e-4], "unit": ["mm", "mm⁻²"]})   # one unit per row
+    assert [undeclared_numeric(t) for t in tables_made] == [[], [], []]
+    assert undeclared_numeric(TableData({"sigma": [0.1], "flag": [True], "id": ["p"]})) == ["sigma"]
+    with pytest.raises(AssertionError, match="not declared unitless"):
+        check_table_units([TableData({"mdb": [0.3]})])
 
 
 @pytest.mark.parametrize("rel", _runs())
@@ -191,6 +239,42 @@ def test_bundled_project_runs(rel, tmp_path, tables_made):
             assert (tmp_path / "run" / t["csv"]).exists() and (tmp_path / "run" / t["parquet"]).exists(), t
     # one truth per number: the protocol summary is results.json's, its counts and RMS the tables'
     check_run(tmp_path / "run")
+    REPORTS.append((rel, tmp_path / "run" / "report.html"))
+
+
+REPORTS: list[tuple[str, Path]] = []
+"""(project, report.html) of every bundled project run by :func:`test_bundled_project_runs` in this
+session, for :func:`test_bundled_reports_fit_six_screens` (defined after it: pytest runs it later)."""
+
+
+def _screenshots_tool():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("baarda_screenshots_tool", ROOT / "tools" / "screenshots.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.mark.parametrize("session", [pytest.param("quick"), pytest.param("slow", marks=pytest.mark.slow)])
+def test_bundled_reports_fit_six_screens(session):
+    """Every report.html of the bundled projects run in this session is at most six screen heights
+    (1920 × 1080) before its appendix of tables (issue 23), measured as ``make screenshots`` measures
+    it: the page's layout in headless Chromium, after its figures are decoded.  One Chromium run for
+    all reports; skipped without Chromium (``make screenshots`` installs Debian's package)."""
+    import shutil
+
+    if not REPORTS:
+        pytest.skip("no bundled project ran in this session")
+    exe = next((shutil.which(n) for n in ("chromium", "chromium-browser") if shutil.which(n)), None)
+    if exe is None:
+        pytest.skip("no chromium on PATH (make screenshots installs it)")
+    tool = _screenshots_tool()
+    got = tool.measure_many(exe, [page for _, page in REPORTS])
+    screens = {rel: before / tool.VIEW_H for (rel, _), (_, before) in zip(REPORTS, got)}
+    assert all(h > 0.5 for h in screens.values()), screens          # measured: a report is never empty
+    long = {rel: round(h, 2) for rel, h in screens.items() if h > tool.MAX_SCREENS}
+    assert not long, f"reports longer than {tool.MAX_SCREENS} screen heights before the appendix: {long}"
 
 
 MOST_IN_RESULTS = 100

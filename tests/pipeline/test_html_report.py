@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from baarda.pipeline.model import SourceInfo
-from baarda.pipeline.html import fmt
+from baarda.pipeline.html import fmt, object_scale
 from baarda.pipeline.runner import run_project
 
 REPO = Path(__file__).resolve().parents[2]
@@ -121,10 +121,17 @@ def test_bundle_report_html(tmp_path):
     assert {f"fig-bundle-{n}" for n in expected} <= set(page.figures)
     assert len(pngs) >= len(expected)
     p = next(s for s in results["stages"] if s["id"] == "bundle")["summary"]["protocol"]
+    # object lengths below 0.5 m are printed in mm (a precision as a surveyor writes it): the same values × 1000
+    pp, ck, ct = p["point_precision"], p["check"], p["control"]
+    f_pp = object_scale([pp["rms"], pp["max"]], pp["unit"])
+    f_ck = object_scale([ck["Sx"], ck["Sy"], ck["Sz"], ck["Sxy"]], ck["unit"])
+    f_ct = object_scale([ct["rms"], ct["max_abs"]], ct["unit"])
+    f_ef = object_scale([p["reliability"]["effect_max"]], pp["unit"])
+    assert pp["unit"] == "m" and f_pp == {"f": 1000.0, "u": "mm"} and "Point precision (21 points, mm)" in text
     printed = [p["sigma0_hat"], p["global_test"]["T"], p["rms"]["x"], p["rms"]["y"], p["rms"]["all"],
-               *p["point_precision"]["rms"], *p["point_precision"]["max"], p["check"]["Sx"], p["check"]["Sz"],
-               p["reliability"]["r_min"], p["reliability"]["mdb_max"], p["reliability"]["effect_max"],
-               *p["control"]["rms"]]
+               *(v * f_pp["f"] for v in pp["rms"]), *(v * f_pp["f"] for v in pp["max"]), ck["Sx"] * f_ck["f"],
+               ck["Sz"] * f_ck["f"], p["reliability"]["r_min"], p["reliability"]["mdb_max"],
+               p["reliability"]["effect_max"] * f_ef["f"], *(v * f_ct["f"] for v in ct["rms"])]
     for value in printed:
         assert fmt(value) in text or fmt(value, 3) in text, value
     # independent references for the protocol's numbers: the run's own CSV tables

@@ -1,7 +1,9 @@
 """One import namespace: everything installs under ``baarda.``; nothing claims ``pipeline`` or ``plugins``.
 
 The folders ``pipeline/`` and ``plugins/`` are mapped onto ``baarda.pipeline`` / ``baarda.plugins`` by
-``pyproject.toml`` (``package-dir``).  These tests use the installed distribution as it is: they install
+``pyproject.toml`` as a src layout: ``src/baarda/pipeline`` and ``src/baarda/plugins`` are symlinks to
+them and ``package-dir`` is ``{"" = "src"}`` (so that setuptools' editable install is a plain .pth entry
+and prints no warning block).  These tests use the installed distribution as it is: they install
 nothing extra.
 """
 
@@ -24,8 +26,13 @@ def test_every_package_folder_is_listed_in_pyproject():
     on_disk = {"baarda." + ".".join(p.parent.relative_to(ROOT).parts)
                for top in ("pipeline", "plugins") for p in (ROOT / top).rglob("__init__.py")
                if "__pycache__" not in p.parts}
+    on_disk.add("baarda")  # the namespace package, listed so that setuptools sees a simple layout
     assert on_disk == listed, f"missing: {sorted(on_disk - listed)}; stale: {sorted(listed - on_disk)}"
-    assert cfg["package-dir"] == {"baarda.pipeline": "pipeline", "baarda.plugins": "plugins"}
+    assert cfg["package-dir"] == {"": "src"}
+    src = ROOT / "src" / "baarda"
+    assert sorted(p.name for p in src.iterdir()) == ["pipeline", "plugins"], "src/baarda holds only the two links"
+    for top in ("pipeline", "plugins"):
+        assert (src / top).is_symlink() and (src / top).resolve() == (ROOT / top).resolve(), top
 
 
 def test_no_top_level_pipeline_or_plugins_is_installed(tmp_path):

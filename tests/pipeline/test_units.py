@@ -93,3 +93,15 @@ def test_column_unit_and_object_lengths():
     assert fmt_obj(3.98e-5, "m") == "0.03980 mm" and fmt_obj(12.0, MODEL_UNITS) == "12.00 model units"
     from baarda.pipeline.stage import TableData
     assert TableData({"v_px": [1.0]}).units == {"v_px": "px"} and not unit_mismatches(TableData({"v_px": [1.0]}))
+
+
+def test_camera_parameter_units_agree_with_the_bundle():
+    """pipeline/units.py's AP unit powers (design, testfield-render tables) are the bundle's
+    AP_PIXEL_POWER (plugins/bundle/protocol.py): one table of units for camera parameters."""
+    from baarda.pipeline.units import AP_UNIT_POWER, camera_parameter_units
+    from baarda.plugins.bundle.protocol import AP_PIXEL_POWER
+
+    assert AP_UNIT_POWER == AP_PIXEL_POWER
+    assert camera_parameter_units("brown", 7) == ["mm", "mm", "mm", "mm⁻²", "mm⁻⁴", "mm⁻⁶", "mm⁻¹", "mm⁻¹", "1", "1"]
+    assert camera_parameter_units("ebner12", 12, "px")[3:6] == ["1", "1", "px⁻¹"]
+    assert camera_parameter_units("someone-elses", 2) == ["mm"] * 3 + ["model units (mm)"] * 2

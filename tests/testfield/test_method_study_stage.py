@@ -6,6 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from baarda.pipeline.units import unit_mismatches
+
 from baarda.pipeline.errors import InputError
 from baarda.pipeline.recording import read_recording
 from baarda.pipeline.testing import check_stage, log_stage, run_stage
@@ -64,14 +66,26 @@ def test_run_report_tables_and_comparison_convention(tmp_path):
         dz = np.asarray(tab.columns["dZ_m"], float)[m]
         per_rep = [np.sqrt(np.mean(dz[reps == r] ** 2)) for r in (0, 1)]
         assert cp[v]["Sz"] == pytest.approx(np.sqrt(np.mean(np.square(per_rep))), rel=1e-12)
-    # Tables 4 and 5 in the paper's shape, with the paper's numbers beside ours
+    # Tables 4 and 5: one row per method, every column in one unit (cm, %), the paper's numbers beside ours
     t4 = res.tables["table4"].columns
-    assert t4["source"][1] == "paper" and t4["Sxy"][1] == 0.0597 and t4["Sz"][4] == 0.2155
-    assert t4["Sz"][-1] == pytest.approx(-10.13, abs=0.005)                 # paper: block vs single model
-    assert t4["Sz"][-2] == pytest.approx(100 * (cp[BUNDLE_AP]["Sz"] / cp[SINGLE_AP]["Sz"] - 1))
-    assert t4["Sxy"][2] == pytest.approx(100 * (100 * cp[SINGLE_AP]["Sxy"] - 0.0597) / 0.0597)
+    assert t4["method"] == ["single model", "block"] and t4["paper_Sxy_cm"][0] == 0.0597
+    assert t4["Sxy_cm"][0] == pytest.approx(100 * cp[SINGLE_AP]["Sxy"])
+    assert t4["Sxy_vs_paper_pct"][0] == pytest.approx(100 * (100 * cp[SINGLE_AP]["Sxy"] - 0.0597) / 0.0597)
+    assert t4["paper_distance_cm"] == [400.0, 140.0]
     t5 = res.tables["table5"].columns
-    assert t5["Sx"][1] == 0.0432 and t5["Sz"][-2] == pytest.approx(100 * (cp[IM]["Sz"] / cp[BUNDLE_AP]["Sz"] - 1))
+    assert t5["method"] == ["independent models", "bundle"] and t5["paper_Sx_cm"][0] == 0.0432
+    assert t5["paper_Sz_cm"][1] == 0.2155 and t5["Sz_cm"][1] == pytest.approx(100 * cp[BUNDLE_AP]["Sz"])
+    # the comparison of the two methods (the paper's last rows) is the comparisons table's
+    cmp = res.tables["comparisons"].columns
+    row = {(c, k): i for i, (c, k) in enumerate(zip(cmp["comparison"], cmp["key"]))}
+    i = row[("block vs single model", "Sz")]
+    assert cmp["paper_pct"][i] == pytest.approx(-10.13, abs=0.005)
+    assert cmp["change_pct"][i] == pytest.approx(100 * (cp[BUNDLE_AP]["Sz"] / cp[SINGLE_AP]["Sz"] - 1))
+    i = row[("independent models vs bundle", "Sz")]
+    assert cmp["change_pct"][i] == pytest.approx(100 * (cp[IM]["Sz"] / cp[BUNDLE_AP]["Sz"] - 1))
+    for t in ("table4", "table5"):
+        assert not unit_mismatches(res.tables[t]) and all(res.tables[t].units[c] == "" for c in res.tables[t].columns
+                                                          if c.endswith("_pct"))
     for text in ("**Table 4**", "**Table 5**", "**Why**", "B/H", "10.72", "(Sxy, Sz)"):
         assert text in res.report, text
     rec = read_recording(log_stage(MethodStudy, res, tmp_path / "ms.rrd"))
