@@ -73,7 +73,7 @@ def rig_parts(rep, alpha: float = 0.05) -> dict | None:
         cols["s" + n] = []
     extra = {f"baseline{o}": [], f"sbaseline{o}": [], "r_min": [], "w_max": [], "T_stability": [],
              "T_critical": [], "stable": []}
-    ref_cols = {f"d_{n.rsplit('_', 1)[0]}_sigma": [] for n in names}
+    ref_cols = {f"d_{n.rsplit('_', 1)[0]}_in_sigma": [] for n in names}
     cols.update(extra)
     cols.update(ref_cols)
     sensors_json = []
@@ -170,7 +170,8 @@ def rig_parts(rep, alpha: float = 0.05) -> dict | None:
         "rig": TableData(cols, f"each sensor's pose in its rig (centre {ou}, ω φ κ of R_sensor_from_rig in degrees) "
                                "with a-posteriori σ, baseline, smallest redundancy number and largest |w| of a weighted "
                                "pose, the stability test against the rig's calibration, differences to the reference "
-                               f"solution{' (' + rr.reference_name + ')' if rr.reference_name else ''} in σ"),
+                               f"solution{' (' + rr.reference_name + ')' if rr.reference_name else ''} in σ",
+                               units={"r_min": "", "w_max": "", "T_stability": "", "T_critical": ""}),
         "rig_correlations": TableData(corr, "correlations between the parameters of each sensor's pose in its rig"),
     }
     return {"summary": summary, "lines": L, "tables": tables}
