@@ -85,13 +85,15 @@ def height_intervals(cov, confidence: float | None = None) -> np.ndarray:
     return quantile_factor(confidence, 1) * np.sqrt(np.clip(C[:, 2, 2], 0.0, None))
 
 
-def ellipse_columns(cov, confidence: float | None = None) -> dict[str, np.ndarray]:
+def ellipse_columns(cov, confidence: float | None = None, suffix: str = "") -> dict[str, np.ndarray]:
     """Columns for a points table: ``ellipsoid_a1/a2/a3`` (semi-axes, descending),
     ``ellipsoid_axis1_{x,y,z}`` (direction of the largest), ``plan_a``, ``plan_b``,
-    ``plan_bearing_deg``, ``height_half``; the units of the coordinates."""
+    ``plan_bearing_deg``, ``height_half``; the lengths in the units of the coordinates, their names
+    ending in ``suffix`` (the coordinates' unit suffix, e.g. ``"_m"``, ``docs/conventions.md``)."""
     semi, axes = error_ellipsoids(cov, confidence)
     a, b, th = plan_ellipses(cov, confidence)
-    out = {f"ellipsoid_a{j + 1}": semi[:, j] for j in range(3)}
+    out = {f"ellipsoid_a{j + 1}{suffix}": semi[:, j] for j in range(3)}
     out.update({f"ellipsoid_axis1_{c}": axes[:, j, 0] for j, c in enumerate("xyz")})
-    out.update(plan_a=a, plan_b=b, plan_bearing_deg=th, height_half=height_intervals(cov, confidence))
+    out.update({f"plan_a{suffix}": a, f"plan_b{suffix}": b, "plan_bearing_deg": th,
+                f"height_half{suffix}": height_intervals(cov, confidence)})
     return out

@@ -24,24 +24,28 @@ def external_view(rep) -> dict | None:
             "r": np.asarray(rep.result.redundancy)}
 
 
-def observation_columns(ext: dict | None, k: int) -> dict:
+def observation_columns(ext: dict | None, k: int, suffix: str = "") -> dict:
     """Columns of ``bundle_observations.csv``: per coordinate (x, y) of each image point the
-    largest effect of its MDB on its own point (coordinate, object units, in σ) and on its own
-    photo's orientation (component, object units or degrees, in σ), and Baarda's δ̄0."""
+    largest effect of its MDB on its own point (coordinate; ``ext_point_x<suffix>`` in object units
+    whose column suffix is ``suffix``; in σ) and on its own photo's orientation (component; a
+    projection centre's in ``ext_eo_x<suffix>``, an angle's in ``ext_eo_x_deg``, the other one
+    empty; in σ), and Baarda's δ̄0."""
     out = {}
     for c, cn in enumerate("xy"):
         if ext is None:
-            for name in ("ext_point_coord", "ext_point", "ext_point_in_sigma", "ext_eo_param", "ext_eo",
-                         "ext_eo_in_sigma", "bar_delta0"):
-                out[f"{name}_{cn}"] = [""] * k if name.endswith(("coord", "param")) else np.full(k, np.nan)
+            for name in ("ext_point_coord", f"ext_point_{{}}{suffix}", "ext_point_in_sigma", "ext_eo_param",
+                         f"ext_eo_{{}}{suffix}", "ext_eo_{}_deg", "ext_eo_in_sigma", "bar_delta0"):
+                key = name.format(cn) if "{}" in name else f"{name}_{cn}"
+                out[key] = [""] * k if name.endswith(("coord", "param")) else np.full(k, np.nan)
             continue
         jp, vp, sp = (a[:, c] for a in ext["point"])
         je, ve, se = (a[:, c] for a in ext["eo"])
         out[f"ext_point_coord_{cn}"] = ["XYZ"[j] if j >= 0 else "" for j in jp]
-        out[f"ext_point_{cn}"] = np.where(jp >= 0, vp, np.nan)
+        out[f"ext_point_{cn}{suffix}"] = np.where(jp >= 0, vp, np.nan)
         out[f"ext_point_in_sigma_{cn}"] = np.where(jp >= 0, sp, np.nan)
         out[f"ext_eo_param_{cn}"] = [EO_LABELS[j] if j >= 0 else "" for j in je]
-        out[f"ext_eo_{cn}"] = np.where(je >= 0, ve, np.nan)
+        out[f"ext_eo_{cn}{suffix}"] = np.where((je >= 0) & (je < 3), ve, np.nan)
+        out[f"ext_eo_{cn}_deg"] = np.where(je >= 3, ve, np.nan)
         out[f"ext_eo_in_sigma_{cn}"] = np.where(je >= 0, se, np.nan)
         out[f"bar_delta0_{cn}"] = ext["effects"].bar_delta0[:, c]
     return out
@@ -111,10 +115,10 @@ def report_lines(ext: dict | None, block, most: int = 5) -> list[str]:
     return L
 
 
-def point_columns(res, confidence: float) -> dict:
-    """Error ellipsoid, plan ellipse and height interval of every point from its covariance."""
-    cols = ellipse_columns(res.cov_points, confidence or None)
-    return cols
+def point_columns(res, confidence: float, suffix: str = "") -> dict:
+    """Error ellipsoid, plan ellipse and height interval of every point from its covariance (lengths
+    named with the coordinates' unit ``suffix``)."""
+    return ellipse_columns(res.cov_points, confidence or None, suffix)
 
 
 def covariance_parts(cov):

@@ -507,7 +507,8 @@ def tables(rep) -> dict:
     cols = {"photo": ph_ids.tolist(), "point": pt_ids.tolist(), **img,
             "rx": r[:, 0], "ry": r[:, 1], "wx": w[:, 0], "wy": w[:, 1], **img_tests,
             **_joint_columns(rep.joint, len(obs)),
-            **bundle_external.observation_columns(bundle_external.external_view(rep), len(obs)),
+            **bundle_external.observation_columns(bundle_external.external_view(rep), len(obs),
+                                                  length_suffix(object_unit_text(block))),
             **_robust_columns(rep.robust, len(obs)),
             **_eccentricity_columns(rep, iu),
             "decision": decision.tolist()}
@@ -529,7 +530,7 @@ def tables(rep) -> dict:
         "point": pts.ids.tolist(), "role": pts.role.tolist(), f"X{o}": XYZ[:, 0], f"Y{o}": XYZ[:, 1], f"Z{o}": XYZ[:, 2],
         f"sX{o}": sp[:, 0], f"sY{o}": sp[:, 1], f"sZ{o}": sp[:, 2], "rays": rays,
         f"dX_check{o}": dXYZ[:, 0], f"dY_check{o}": dXYZ[:, 1], f"dZ_check{o}": dXYZ[:, 2],
-        **bundle_external.point_columns(res, rep.config.output.confidence), **_crs_columns(res, block)}
+        **bundle_external.point_columns(res, rep.config.output.confidence, o), **_crs_columns(res, block)}
     tables["points"] = TableData(
         pcols,
         f"adjusted object points ({block.object_unit}) with a-posteriori σ; check points: adjusted − surveyed; "

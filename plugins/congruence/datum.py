@@ -97,11 +97,9 @@ class DatumTransform(Stage):
         for j, a in enumerate("XYZ"):
             cols[f"sigma_{a}_{su}"] = s2[:, j]
             units[f"sigma_{a}_{su}"] = u
-        for name, v in ellipse_columns(cov2).items():
-            unit = "deg" if name.endswith("_deg") else ("" if "axis1" in name else u)
-            key = name if unit in ("", "deg") else f"{name}_{su}"
-            cols[key] = v
-            units[key] = unit
+        for name, v in ellipse_columns(cov2, suffix=f"_{su}").items():
+            cols[name] = v
+            units[name] = "deg" if name.endswith("_deg") else ("" if "axis1" in name else u)
         shift = np.linalg.norm(X2 - X, axis=1)
         p1 = np.sqrt((s1 ** 2).sum(axis=1))
         p2 = np.sqrt((s2 ** 2).sum(axis=1))

@@ -118,6 +118,7 @@ def report_lines(ext: dict | None, unit: str) -> list[str]:
     return L
 
 
-def point_columns(cov_XYZ, factor: float, confidence: float | None = None) -> dict:
-    """Ellipsoid / ellipse / height columns from the covariances scaled by ``factor`` (σ̂0²/σ0²)."""
-    return ellipse_columns(np.asarray(cov_XYZ) * factor, confidence)
+def point_columns(cov_XYZ, factor: float, confidence: float | None = None, suffix: str = "") -> dict:
+    """Ellipsoid / ellipse / height columns from the covariances scaled by ``factor`` (σ̂0²/σ0²),
+    lengths named with the coordinates' unit ``suffix``."""
+    return ellipse_columns(np.asarray(cov_XYZ) * factor, confidence, suffix)

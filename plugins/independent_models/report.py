@@ -136,7 +136,7 @@ def tables(result: IndependentModelResult, stats: dict, block) -> dict:
                         "models": blk.n_models, "in_adjustment": blk.in_adjustment,
                         f"X{o}": blk.XYZ[:, 0], f"Y{o}": blk.XYZ[:, 1], f"Z{o}": blk.XYZ[:, 2],
                         f"sX{o}": sx[:, 0], f"sY{o}": sx[:, 1], f"sZ{o}": sx[:, 2],
-                        **im_reliability.point_columns(blk.cov_XYZ, (s0 / result.options.sigma0) ** 2)},
+                        **im_reliability.point_columns(blk.cov_XYZ, (s0 / result.options.sigma0) ** 2, suffix=o)},
                        f"adjusted object points ({unit}); σ a posteriori; projection centres 'pc:<photo>'; "
                        "1-σ error ellipsoid (semi-axes, direction of the largest), plan ellipse, height σ")
     ds = stats["block"]["snooping"]

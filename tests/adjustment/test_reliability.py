@@ -192,7 +192,8 @@ def test_bundle_stage_tables_report_and_summary(tmp_path):
     j = int(np.nanargmax(s))
     assert t["ext_point_coord_x"][k] == "XYZ"[j]
     assert t["ext_point_in_sigma_x"][k] == pytest.approx(s[j], rel=1e-3)
-    assert t["ext_point_x"][k] == pytest.approx(eff.point[k, 0, j], rel=1e-3)
+    ext = next(c for c in t if c.startswith("ext_point_x_"))     # ext_point_x_<object unit>
+    assert t[ext][k] == pytest.approx(eff.point[k, 0, j], rel=1e-3)
     big = res.summary["external_reliability"]["largest_on_point"]
     assert big["in_sigma"] == pytest.approx(np.nanmax(eff.point_in_sigma), rel=1e-3)
     assert "### External reliability" in res.report and big["point"] in res.report
@@ -200,7 +201,8 @@ def test_bundle_stage_tables_report_and_summary(tmp_path):
     semi, _ = error_ellipsoids(b.cov_points, 0.95)
     a, _, _ = plan_ellipses(b.cov_points, 0.95)
     i = 12
-    assert pts["ellipsoid_a1"][i] == pytest.approx(semi[i, 0]) and pts["plan_a"][i] == pytest.approx(a[i])
+    o = ext[len("ext_point_x"):]
+    assert pts[f"ellipsoid_a1{o}"][i] == pytest.approx(semi[i, 0]) and pts[f"plan_a{o}"][i] == pytest.approx(a[i])
     cov = res.tables["covariance"].columns
     names, C = parameter_covariance(b, [f"photo {ph}", f"point {pt}"])
     assert cov["parameter"] == names and len(names) == 9

@@ -69,7 +69,7 @@ def test_external_reliability_in_the_new_datum_equals_adjusting_in_it(runs):
     moved = 0.0
     for c in "xy":
         unit = next(k for k in a[0] if k.startswith(f"ext_point_{c}_"))
-        ea, eb, ef = f(a, unit), f(b, f"ext_point_{c}"), f(free, f"ext_point_{c}")
+        ea, eb, ef = f(a, unit), f(b, unit), f(free, unit)
         sa, sb = f(a, f"ext_point_in_sigma_{c}"), f(b, f"ext_point_in_sigma_{c}")
         ok = np.isfinite(sa) & np.isfinite(sb)
         assert ok.sum() > 100

@@ -59,10 +59,10 @@ def test_point_ellipsoids_match_the_sigmas(im_run):
     _, res = im_run
     p = res.tables["points"].columns
     s2 = np.asarray(p["sX_m"]) ** 2 + np.asarray(p["sY_m"]) ** 2
-    e2 = sum(np.asarray(p[f"ellipsoid_a{j}"]) ** 2 for j in (1, 2, 3))
+    e2 = sum(np.asarray(p[f"ellipsoid_a{j}_m"]) ** 2 for j in (1, 2, 3))
     assert np.allclose(e2, s2 + np.asarray(p["sZ_m"]) ** 2, rtol=1e-9)
-    assert np.allclose(np.asarray(p["plan_a"]) ** 2 + np.asarray(p["plan_b"]) ** 2, s2, rtol=1e-9)
-    assert np.allclose(p["height_half"], p["sZ_m"], rtol=1e-9)
+    assert np.allclose(np.asarray(p["plan_a_m"]) ** 2 + np.asarray(p["plan_b_m"]) ** 2, s2, rtol=1e-9)
+    assert np.allclose(p["height_half_m"], p["sZ_m"], rtol=1e-9)
 
 
 @pytest.mark.slow  # 25-55 s: 500 RRR simulations of the block

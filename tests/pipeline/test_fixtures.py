@@ -152,8 +152,7 @@ BARE_LENGTHS = {"x", "y", "vx", "vy", "X", "Y", "Z", "sX", "sY", "sZ", "dX", "dY
 #: (their owners are changing those tables: the error ellipses of pipeline/stats/ellipses.py's
 #: ``ellipse_columns`` in the bundle, independent-models and datum-transform point tables; the bundle's
 #: external reliability per observation)
-NOT_YET_SUFFIXED = {"ellipsoid_a1", "ellipsoid_a2", "ellipsoid_a3", "plan_a", "plan_b", "height_half",
-                    "ext_eo_x", "ext_eo_y", "ext_point_x", "ext_point_y"}
+NOT_YET_SUFFIXED: set[str] = set()
 
 
 def undeclared_numeric(table) -> list[str]:
