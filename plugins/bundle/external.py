@@ -9,6 +9,7 @@ import numpy as np
 from baarda.pipeline.adjustment import EO_LABELS
 from baarda.pipeline.api import TableData
 from baarda.pipeline.stats.ellipses import ellipse_columns
+from baarda.pipeline.units import object_unit_text
 
 from .protocol import image_units
 
@@ -85,7 +86,7 @@ def report_lines(ext: dict | None, block, most: int = 5) -> list[str]:
     if ext is None:
         return []
     s = summary(ext, block)
-    unit = block.object_unit
+    unit = object_unit_text(block)          # "model units" for a model of arbitrary scale (COLMAP, BAL)
     L = ["", "### External reliability", "",
          f"Effect of each coordinate's minimal detectable bias (δ0 = {ext['delta0']:.2f}) on its own point "
          "and its own photo's orientation (in σ: a-priori σ of that parameter; per coordinate in "
