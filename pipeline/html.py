@@ -103,6 +103,9 @@ class HtmlStage:
     files: list[str] = field(default_factory=list)
     figures: list[HtmlFigure] = field(default_factory=list)
     protocol: dict | None = None
+    conclusion: bool = False
+    """The stage's result is what the project is run for (a congruence test, an acceptance test: its
+    summary says ``"conclusion": true``): shown in full, never shortened as a secondary stage."""
 
 
 @dataclass
@@ -171,12 +174,13 @@ def secondary_stages(stages) -> set[str]:
     """Ids of the stages whose section the page shortens (issue 23: a report fits in six screen heights
     before its appendix).  With an adjustment's protocol on the page, the stages without one (sources,
     comparisons, exports) and every repeat of a stage kind already on the page are secondary; without
-    one, the repeats are (a study run three times shows the first in full)."""
+    one, the repeats are (a study run three times shows the first in full).  A stage whose result is
+    the project's conclusion (``HtmlStage.conclusion``: congruence, acceptance tests) is never secondary."""
     stages = list(stages)
     seen, out = set(), set()
     has_protocol = any(s.protocol for s in stages)
     for s in stages:
-        if s.use in seen or (has_protocol and not s.protocol):
+        if not getattr(s, "conclusion", False) and (s.use in seen or (has_protocol and not s.protocol)):
             out.add(s.id)
         seen.add(s.use)
     return out

@@ -103,17 +103,23 @@ def _key(k: str) -> str:
     return k if re.fullmatch(r"[A-Za-z0-9_-]+", k) else json.dumps(k)
 
 
+def _cell(text: str) -> str:
+    """Text of a Markdown table cell: ``|`` escaped (GFM's ``\\|``), line breaks as spaces."""
+    return text.replace("\\|", "|").replace("|", "\\|").replace("\n", " ")
+
+
 def markdown_table(header: list[str], rows: list[list[Any]], floatfmt: str = ".4f") -> str:
-    """A Markdown table; floats formatted with ``floatfmt``."""
+    """A Markdown table; floats formatted with ``floatfmt``.  A ``|`` inside a header or cell (e.g.
+    ``|d|``) is escaped, so that it cannot split the cell and break the table."""
 
     def fmt(v):
         if isinstance(v, (float, np.floating)):
             return "—" if not np.isfinite(v) else format(float(v), floatfmt)
         if isinstance(v, (bool, np.bool_)):
             return "yes" if v else ""
-        return str(v)
+        return _cell(str(v))
 
-    out = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    out = ["| " + " | ".join(_cell(str(h)) for h in header) + " |", "|" + "|".join("---" for _ in header) + "|"]
     out += ["| " + " | ".join(fmt(v) for v in r) + " |" for r in rows]
     return "\n".join(out)
 

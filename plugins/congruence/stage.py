@@ -160,7 +160,7 @@ class CongruenceStage(Stage):
         comparisons = []
         for ep in epochs[1:]:
             comparisons.append(_compare(ref, ep, options, ctx))
-        summary = {"reference": ref.name, "comparisons": [c["summary"] for c in comparisons],
+        summary = {"conclusion": True, "reference": ref.name, "comparisons": [c["summary"] for c in comparisons],
                    "headline": "; ".join(c["summary"]["headline"] for c in comparisons)}
         report = "\n\n".join(c["report"] for c in comparisons)
         tables = {f"{c['summary']['epoch']}_points" if len(comparisons) > 1 else "points": c["table"]
@@ -286,7 +286,7 @@ def _compare(ref: Epoch, ep: Epoch, o: CongruenceOptions, ctx) -> dict:
     rows = [[common[k], status[k], fmt_q(length[k], u), fmt_q(float(np.linalg.norm(sig[k])), u),
              fmt_num(r.points[k].T), fmt_num(r.points[k].p, 3), fmt_q(r.points[k].mdd, u)] for k in order]
     lines += ["", f"Largest test values (12 of {len(common)}; all in the table `points`):", "",
-              markdown_table(["point", "status", "|d|", "σ|d|", "T", "p", "MDD"], rows)]
+              markdown_table(["point", "status", "‖d‖", "σ‖d‖", "T", "p", "MDD"], rows)]
     return {"summary": summary, "report": "\n".join(lines), "table": table, "result": r, "ref": ref, "epoch": ep,
             "common": common, "d": d, "status": status, "ia": ia, "ib": ib}
 
