@@ -282,10 +282,10 @@ def _compare(ref: Epoch, ep: Epoch, o: CongruenceOptions, ctx) -> dict:
         lines.append("- Localisation (largest point test first, repeated until the rest is congruent): "
                      + "; ".join(f"{common[h['moved']]} (T = {fmt_num(h['T_point'])}, rest T = {fmt_num(h['T_rest'])}, "
                                  f"p = {fmt_num(h['p_rest'], 3)})" for h in r.history) + ".")
-    order = np.argsort(-np.array([p.T for p in r.points]))[:12]
+    order = np.argsort(-np.array([p.T for p in r.points]))[:10]
     rows = [[common[k], status[k], fmt_q(length[k], u), fmt_q(float(np.linalg.norm(sig[k])), u),
              fmt_num(r.points[k].T), fmt_num(r.points[k].p, 3), fmt_q(r.points[k].mdd, u)] for k in order]
-    lines += ["", f"Largest test values (12 of {len(common)}; all in the table `points`):", "",
+    lines += ["", f"Largest test values ({len(order)} of {len(common)}; all in the table `points`):", "",
               markdown_table(["point", "status", "‖d‖", "σ‖d‖", "T", "p", "MDD"], rows)]
     return {"summary": summary, "report": "\n".join(lines), "table": table, "result": r, "ref": ref, "epoch": ep,
             "common": common, "d": d, "status": status, "ia": ia, "ib": ib}
