@@ -84,6 +84,10 @@ class BundleResult:
     # external reliability computation (which takes it and drops it: see reliability._system)
     final_system: tuple | None = field(default=None, repr=False)
 
+    def __getstate__(self):
+        """Pickled (Dask, multiprocessing) without ``final_system``: a cache, rebuilt where needed."""
+        return {**self.__dict__, "final_system": None}
+
     # -- derived -------------------------------------------------------------------------------
     @property
     def sigma0_hat(self) -> float:

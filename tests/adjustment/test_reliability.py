@@ -2,6 +2,8 @@
 covariance of chosen parameters, against a dense reference: finite-difference Jacobians, numpy
 inverse (tests/adjustment/test_precision.py), on both solver routes and in free networks."""
 
+import pickle
+
 import numpy as np
 import pytest
 
@@ -152,6 +154,7 @@ def test_own_effects_take_the_adjustments_system_once(solver):
     blk = blk.replace(points=pts.replace(role=np.array(["tie"] * len(pts)), sigma=np.full((len(pts), 3), FREE)))
     res = adjust(blk, BundleSettings(datum="free", solver=solver))
     assert res.final_system is not None
+    assert pickle.loads(pickle.dumps(res)).final_system is None       # a cache: not shipped to workers
     a = own_effects(res)
     assert res.final_system is None
     b = own_effects(res)
