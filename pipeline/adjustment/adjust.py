@@ -81,6 +81,13 @@ class BundleResult:
     Qx: np.ndarray | None = field(default=None, repr=False)   # cofactors of the global unknowns (dense route)
     cofactors: Cofactors | None = field(default=None, repr=False)   # DenseCofactors / SparseCofactors
     route: Route | None = field(default=None, repr=False)      # the solver route the adjustment used
+    # the precision's (linearisation, factored reduced system) at the solution, kept for the first
+    # external reliability computation (which takes it and drops it: see reliability._system)
+    final_system: tuple | None = field(default=None, repr=False)
+
+    def __getstate__(self):
+        """Pickled (Dask, multiprocessing) without ``final_system``: a cache, rebuilt where needed."""
+        return {**self.__dict__, "final_system": None}
 
     # -- derived -------------------------------------------------------------------------------
     @property
@@ -334,10 +341,12 @@ def adjust(block: Block, settings: BundleSettings | None = None, *, row_active=N
     snapshot = None
     Qx = None
     cofactors = None
+    system = None
     if want_cov:
         route = info.route
         lin, red = final_system(prob, route, st, info.proj)     # the precision's normal equations
         pre = route.precision(prob, lin, red, st)
+        system = (lin, red)
         Qx = pre.Qx
         cofactors = pre.cofactors
         cov_cams = [var * Q for Q in pre.Q_cam]
@@ -376,7 +385,8 @@ def adjust(block: Block, settings: BundleSettings | None = None, *, row_active=N
                         residuals=v_all, obs_active=prob.obs_active.copy(), row_active=prob.row_active.copy(),
                         snapshot=snapshot, cam_param_names=names, cov_cameras=cov_cams, cov_eo=cov_eo,
                         cov_points=cov_pts, redundancy=red_all, PQvvP=PQ_all, check=check, timings=timings,
-                        warnings=list(prob.warnings), Qx=Qx, cofactors=cofactors, route=info.route)
+                        warnings=list(prob.warnings), Qx=Qx, cofactors=cofactors, route=info.route,
+                        final_system=system)
 
 
 def _rig_photo_cofactors(prob, st, cof) -> np.ndarray:

@@ -56,7 +56,11 @@ def _system(res):
     """``(prob, lin, red, Qx)`` at the solution on the result's route, the reduced system factored,
     ``Qx = K⁻¹`` on the dense route (the result's own when it has one; ``None`` sparse)."""
     prob, st = res.problem, res.state
-    lin, red = final_system(prob, res.route, st)
+    if res.final_system is not None:     # the adjustment's own (same state, same route): taken once,
+        lin, red = res.final_system      # so it does not stay in memory through the outputs
+        res.final_system = None
+    else:
+        lin, red = final_system(prob, res.route, st)
     red.solution
     return prob, lin, red, res.route.inverse(red, res.Qx)
 

@@ -2,6 +2,8 @@
 covariance of chosen parameters, against a dense reference: finite-difference Jacobians, numpy
 inverse (tests/adjustment/test_precision.py), on both solver routes and in free networks."""
 
+import pickle
+
 import numpy as np
 import pytest
 
@@ -141,6 +143,24 @@ def test_free_network_effects_on_inner_constraints(solver, on):
         np.testing.assert_array_equal(a.point, b.point)
         np.testing.assert_array_equal(a.eo, b.eo)
 
+
+
+@pytest.mark.parametrize("solver", ["dense", "sparse"])
+def test_own_effects_take_the_adjustments_system_once(solver):
+    """The first external reliability uses the adjustment's own linearisation and factored reduced
+    system (and drops it from the result); a later call rebuilds it at the solution: the same numbers."""
+    blk, _ = make_block(model="none", n_photos=6, n_points=24, noise_mm=0.002, rng=np.random.default_rng(5))
+    pts = blk.points
+    blk = blk.replace(points=pts.replace(role=np.array(["tie"] * len(pts)), sigma=np.full((len(pts), 3), FREE)))
+    res = adjust(blk, BundleSettings(datum="free", solver=solver))
+    assert res.final_system is not None
+    assert pickle.loads(pickle.dumps(res)).final_system is None       # a cache: not shipped to workers
+    a = own_effects(res)
+    assert res.final_system is None
+    b = own_effects(res)
+    np.testing.assert_array_equal(a.point, b.point)
+    np.testing.assert_array_equal(a.eo, b.eo)
+    assert adjust(blk, BundleSettings(datum="free", solver=solver), covariance=False).final_system is None
 
 def test_parameter_covariance_against_dense_inverse():
     blk, _ = make_block(model="brown", n_photos=5, n_points=14, noise_mm=0.002, rng=np.random.default_rng(2),
