@@ -93,6 +93,11 @@ def block_from_reconstruction(rec, *, pixel_mm: float = 0.001, sensor_width_mm: 
         pitch = sensor_width_mm / size[0] if sensor_width_mm > 0 else pixel_mm
         model = cam.model.name
         ray_names = colmap_ray_model_names()
+        prm = np.asarray(cam.params, float)
+        if not np.all(np.isfinite(prm)) or np.any(np.abs(prm) > 1e12) or (prm.size and not prm[0] > 0):
+            raise InputError(f"camera {cid} ({model}): parameters {np.array2string(prm, precision=6)} are not a "
+                             "camera (the focal length must be positive, every parameter finite and below 1e12)",
+                             path=source or None, field="params")
         try:
             if model in ray_names:                  # fisheye, omnidirectional, division: a ray model
                 b = ray_from_colmap(model, np.asarray(cam.params), size, pitch)

@@ -59,9 +59,13 @@ def _number(tok: str, path, line: int, what: str) -> float:
 
 def _int(tok: str, path, line: int, what: str) -> int:
     try:
-        return int(tok)
+        v = int(tok)
     except ValueError:
         raise InputError(f"expected an integer for {what}, got {quote(tok)}", path=path, line=line, field=what) from None
+    if abs(v) >= 2**62:              # an index or count: numpy's int64 cannot hold it (and no block has it)
+        raise InputError(f"{what} = {quote(tok)} is out of range (an index or count below 2^62)", path=path,
+                         line=line, field=what)
+    return v
 
 
 _OBS_DTYPE = np.dtype([("cam", np.int64), ("pt", np.int64), ("x", np.float64), ("y", np.float64)])
