@@ -227,9 +227,8 @@ AP_UNIT_POWER = {
     "ebner12": (0, 0, 1, 1, 1, 1, 2, 2, 2, 2, 3, 3),
 }
 """Per AP model, the power k of each additional parameter's unit (mm⁻ᵏ or px⁻ᵏ): K1 of ``x̄ r²`` k = 2,
-P1 k = 1, B1 dimensionless … — the same table as the bundle's ``AP_PIXEL_POWER``
-(plugins/bundle/protocol.py, which converts the parameters to px; tests/pipeline/test_units.py checks
-they agree)."""
+P1 k = 1, B1 dimensionless … — also the bundle's ``AP_PIXEL_POWER`` (plugins/bundle/protocol.py, which
+converts the parameters to px)."""
 
 _SUPERSCRIPT = str.maketrans("-0123456789", "⁻⁰¹²³⁴⁵⁶⁷⁸⁹")
 

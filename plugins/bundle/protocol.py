@@ -16,7 +16,7 @@ from baarda.pipeline.adjustment import adjust
 from baarda.pipeline.api import AdjustmentError
 from baarda.pipeline.camera.convert import opencv_rms, opencv_style
 from baarda.pipeline.protocol import MOST_LABELS, rms, snapshot_protocol
-from baarda.pipeline.units import ImageUnits, fmt_obj, fmt_q, object_unit_text
+from baarda.pipeline.units import AP_UNIT_POWER, ImageUnits, fmt_obj, fmt_q, object_unit_text
 
 HIGH_CORRELATION = 0.9
 """|ρ| above which a pair of camera parameters is listed."""
@@ -40,18 +40,13 @@ def image_units(block) -> tuple[str, float, str | None]:
     return unit, scale, src
 
 
-AP_PIXEL_POWER = {
-    "none": (),
-    "brown": (2, 4, 6, 1, 1, 0, 0),
-    "aicon": (2, 4, 6, 1, 1, 0, 0),
-    "brown-backward": (2, 4, 6, 1, 1, 0, 0),
-    "ebner12": (0, 0, 1, 1, 1, 1, 2, 2, 2, 2, 3, 3),
-}
-"""Per AP model, the power k of each parameter's unit mm⁻ᵏ: a parameter of a term of degree k + 1 in
-the reduced image coordinates (K1 of ``x̄ r²``: k = 2; P1 of ``r² + 2x̄²``: k = 1; B1 of ``x̄``: k = 0,
-dimensionless).  In pixel coordinates the same term needs ``a_px = a_mm · pᵏ`` (p the pixel pitch in
-mm; ebner12's image base b and AICON's r0 then in px too), so the distortion in px is the model's own
-formula on px.  A model not listed (a third-party one) keeps its parameters in its own units."""
+AP_PIXEL_POWER = AP_UNIT_POWER
+"""Per AP model, the power k of each parameter's unit mm⁻ᵏ (``baarda.pipeline.units.AP_UNIT_POWER``, the
+one table): a parameter of a term of degree k + 1 in the reduced image coordinates (K1 of ``x̄ r²``:
+k = 2; P1 of ``r² + 2x̄²``: k = 1; B1 of ``x̄``: k = 0, dimensionless).  In pixel coordinates the same
+term needs ``a_px = a_mm · pᵏ`` (p the pixel pitch in mm; ebner12's image base b and AICON's r0 then
+in px too), so the distortion in px is the model's own formula on px.  A model not listed (a
+third-party one) keeps its parameters in its own units."""
 
 def _model_power(name) -> tuple | None:
     """A registered model's own ``pixel_power`` (the ray models declare theirs), else None."""
