@@ -85,8 +85,10 @@ class RayModel(APModel):
     # -- to implement: everything at once --------------------------------------------------------
     def _eval(self, d, P, c, meta, jac: bool):  # pragma: no cover - abstract
         """``(xy (n, 2), valid (n,), J_d, J_p (all parameters), J_c)`` (Jacobians None unless ``jac``),
-        for finite rays (invalid ones are replaced by the axis before the call)."""
-        raise NotImplementedError
+        for finite rays (invalid ones are replaced by the axis before the call).  The hook every ray
+        model implements (all built-in ones do, ``tests/camera/test_ray_models.py`` checks it)."""
+        raise NotImplementedError(f"ray model {type(self).__name__} ({self.name!r}) does not implement _eval "
+                                  "(docs/camera-models.md, 'Third-party ray models')")
 
     def _prepare(self, d, params, c):
         d = np.array(d, float).reshape(-1, 3)
@@ -222,8 +224,9 @@ class _CVModel(RayModel):
             cls.pixel_power = (0,) * len(cls.params)
 
     def _normalized(self, a, b, z, E, jac):  # pragma: no cover - abstract
-        """``(ud, vd, valid, Jn (n, 2, 3) w.r.t. (a, b, z), JE (n, 2, e))``."""
-        raise NotImplementedError
+        """``(ud, vd, valid, Jn (n, 2, 3) w.r.t. (a, b, z), JE (n, 2, e))``: the hook of every COLMAP
+        model (each implements it; ``tests/camera/test_ray_models.py`` checks it)."""
+        raise NotImplementedError(f"COLMAP ray model {type(self).__name__} does not implement _normalized")
 
     def _eval(self, d, P, c, meta, jac):
         a, b, z = d[:, 0], -d[:, 1], -d[:, 2]

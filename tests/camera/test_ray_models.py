@@ -279,3 +279,23 @@ def test_fov_small_omega_branch_of_colmap_has_the_undistortion_series():
     assert ours == pytest.approx(1 + w * w / 12 - w * w * r * r / 3, abs=1e-9)          # O(ω⁴) apart
     assert colmap == pytest.approx(1 - w * w / 12 + w * w * r * r / 3, abs=1e-12)
     assert abs(colmap - ours) > 7e-6                                      # ≈ ω² (r²·⅔ − ⅙)
+
+
+def test_every_registered_ray_model_implements_its_hooks():
+    """The base classes' ``_eval`` / ``_normalized`` are abstract hooks: every registered ray model
+    overrides them (a model that did not would stop with a NotImplementedError naming it)."""
+    from baarda.pipeline.camera import ap_model_names, get_ap_model
+    from baarda.pipeline.camera.ray_models import RayModel, _CVModel
+
+    rays = [get_ap_model(n) for n in ap_model_names() if isinstance(get_ap_model(n), RayModel)]
+    assert len(rays) >= 16
+    for m in rays:
+        assert type(m)._eval is not RayModel._eval, m.name
+        if isinstance(m, _CVModel):
+            assert type(m)._normalized is not _CVModel._normalized, m.name
+
+    class Incomplete(RayModel):
+        name = "incomplete"
+
+    with pytest.raises(NotImplementedError, match="Incomplete.*_eval"):
+        Incomplete()._eval(None, None, None, {}, False)
