@@ -28,6 +28,8 @@ from baarda.pipeline.report import markdown_table
 from baarda.pipeline.stats.congruence import s_transform
 from baarda.pipeline.units import ImageUnits, fmt_num, fmt_q
 
+from .stage import check_point_ids
+
 
 @dataclass(frozen=True)
 class DatumTransformOptions:
@@ -61,9 +63,7 @@ class DatumTransform(Stage):
         keep = [k for k in range(len(ids)) if est[k]]
         if not o.points:
             raise ctx.option_error("name the points of the new datum ('points')", "points")
-        unknown = [p for p in o.points if str(p) not in set(ids)]
-        if unknown:
-            raise ctx.option_error(f"unknown point id(s) {', '.join(map(str, unknown[:5]))}", "points")
+        check_point_ids(ctx, o.points, blk)
         not_est = [p for p in o.points if not est[ids.index(str(p))]]
         if not_est:
             raise ctx.option_error(f"point(s) {', '.join(map(str, not_est[:5]))} were not estimated (fixed control or "

@@ -65,6 +65,16 @@ class Epoch:
         return ep
 
 
+def check_point_ids(ctx, wanted, block, field: str = "points") -> None:
+    """An option naming points (``wanted``) must name points of ``block``: else one option error
+    naming the first unknown ids and the block's size (the epoch, datum-transform stages)."""
+    known = {str(i) for i in block.points.ids}
+    unknown = [str(p) for p in wanted if str(p) not in known]
+    if unknown:
+        raise ctx.option_error(f"unknown point id(s) {', '.join(unknown[:5])} (the block has {len(known)} points)",
+                               field)
+
+
 def epoch_of(res, name: str, ids=None, object_unit: str = "m") -> Epoch:
     """The :class:`Epoch` of a bundle result ``res`` (the points ``ids``; default every point the
     adjustment estimated): coordinates and their joint cofactor matrix (``len(ids)`` solves)."""
@@ -95,11 +105,7 @@ class EpochStage(Stage):
 
     def run(self, inputs, options, ctx) -> StageResult:
         res = inputs["bundle"]
-        known = {str(i) for i in res.block.points.ids}
-        unknown = [p for p in options.points if str(p) not in known]
-        if unknown:
-            raise ctx.option_error(f"unknown point id(s) {', '.join(map(str, unknown[:5]))} (the block has "
-                                   f"{len(known)} points)", "points")
+        check_point_ids(ctx, options.points, res.block)
         ctx.progress.message(f"joint covariance of {len(options.points) or 'all'} points")
         ep = epoch_of(res, options.name or ctx.stage_id, [str(p) for p in options.points] or None,
                       ctx.object_unit)
