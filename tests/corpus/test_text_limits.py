@@ -31,17 +31,18 @@ def test_a_fifo_that_never_ends_is_a_size_error(tmp_path):
     stop = threading.Event()
 
     def writer():
-        with open(fifo, "wb") as f:
-            try:
+        try:                                 # the reader closes the pipe: the write or the close fails
+            with open(fifo, "wb") as f:
                 while not stop.is_set():
                     f.write(b"1, 2, 3.0, 4.0, 0.1\n" * 1000)
-            except BrokenPipeError:
-                pass
+        except BrokenPipeError:
+            pass
     t = threading.Thread(target=writer, daemon=True)
     t.start()
     with pytest.raises(InputError, match="does not end"):
         read_limited(fifo, limit=1 << 20)
     stop.set()
+    t.join(5)
 
 
 def test_a_large_file_is_refused_before_it_is_read(tmp_path):
