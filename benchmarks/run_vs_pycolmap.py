@@ -4,7 +4,7 @@ Run as a script (from the repository root; ``make bench-run`` runs the default s
 
     .venv/bin/python benchmarks/run_vs_pycolmap.py [--sizes 2000 10000] [--no-closerange]
                                                    [--dbat-repo DIR | --dbat PROJECT.xml]
-                                                   [--skip-pycolmap | --sparse-only] [--repeat N]
+                                                   [--skip-pycolmap | --sparse-only] [--floor] [--repeat N]
                                                    [--timeout 3600] [--mem-gb 22] [--threads N]
                                                    [--workdir DIR] [--json FILE]
 
@@ -22,7 +22,13 @@ free network on the projection centres, covariance on — the configuration of i
   cross-check machinery in its own process, twice — with ``SPARSE_SCHUR`` forced
   (``max_num_images_direct_sparse_cpu_solver`` raised above the block) and with pycolmap's default
   choice (``ITERATIVE_SCHUR`` beyond 1 000 images; ``--sparse-only`` leaves it out); *solve* =
-  ``adjuster.solve()`` only, with the peak resident set of that child.
+  ``adjuster.solve()`` only, with the peak resident set of that child; and a third time with
+  SPARSE_SCHUR forced and pycolmap's *own* stopping rule (``sparse-own``: its defaults, as COLMAP
+  runs it — the issue's first table measured that);
+* ``--floor``: what any whole run of the aerial project must spend before it writes an output —
+  a fresh interpreter importing the libraries, reading the BAL file, ``adjust_block`` with the
+  project's bundle options (solve, precision, r, w, MDB, external reliability) — against the same
+  SPARSE_SCHUR solve.
 
 The ratios: whole run / pycolmap's SPARSE_SCHUR solve (goal ≤ 1.0 at 2 000 photos), peak memory
 baarda / pycolmap (goal ≤ 2), and the same against the default solver.  The 10 000-photo goal is
@@ -290,7 +296,48 @@ def child_pycolmap(a) -> dict:
             "pycolmap": pycolmap.__version__}
 
 
-CHILDREN = {"prepare": child_prepare, "pycolmap": child_pycolmap}
+FLOOR_IMPORTS = ("import numpy, scipy.sparse, scipy.linalg, scipy.stats, pyarrow, pyarrow.parquet, matplotlib; "
+                 "matplotlib.use('Agg'); import matplotlib.pyplot, rerun, baarda.pipeline.adjustment")
+
+
+def child_floor(a) -> dict:
+    """The floor of any whole run of the project (``--floor``): what it must spend before it writes
+    an output — a fresh interpreter importing the libraries a run needs (best of 3, its own
+    process), reading the BAL file, and ``adjust_block`` with the project's bundle options (the
+    solve, the precision, r, w and MDB of every observation, external reliability): no tables,
+    figures, recording or reports.  Wall and CPU seconds."""
+    import tomllib
+
+    from baarda.pipeline.adjustment.workflow import BundleConfig, adjust_block
+    from baarda.pipeline.options import parse_options
+    from baarda.plugins.bal.bal import block_from_bal, read_bal
+
+    cpu = lambda: sum(os.times()[:2])
+    starts = []
+    for _ in range(3):
+        t0 = time.perf_counter()
+        subprocess.run([sys.executable, "-c", FLOOR_IMPORTS], check=True)
+        starts.append(time.perf_counter() - t0)
+    project = Path(a.folder) / "project.toml"
+    stages = tomllib.loads(project.read_text())["stage"]
+    src = stages[0]["options"]
+    config = parse_options(BundleConfig, stages[1]["options"])
+    t0, c0 = time.perf_counter(), cpu()
+    block = block_from_bal(read_bal(project.parent / src["path"]), pixel_mm=src["pixel_mm"], sigma_px=src["sigma_px"],
+                           intrinsics=src["intrinsics"])
+    t1, c1 = time.perf_counter(), cpu()
+    rep = adjust_block(block, config)
+    t2, c2 = time.perf_counter(), cpu()
+    snap = rep.result.snapshot
+    return {"sum_r": float(snap.r[snap.active].sum()), "dof": int(snap.dof),
+            "external_reliability": rep.external is not None,
+            "imports_seconds": min(starts), "read_seconds": t1 - t0, "read_cpu": c1 - c0,
+            "adjust_seconds": t2 - t1, "adjust_cpu": c2 - c1,
+            "floor_seconds": min(starts) + (t2 - t0), "adjust_timings": {k: getattr(rep.result.timings, k) for k in
+                                                                        ("setup", "linearize", "solve", "covariance", "total")}}
+
+
+CHILDREN = {"prepare": child_prepare, "pycolmap": child_pycolmap, "floor": child_floor}
 
 
 # -- the parent (imports no numpy; the children's machinery is scale.py's) ----------------------------
@@ -387,7 +434,7 @@ def _best(runs: list[dict], key: str) -> dict:
 def run(sizes=(2000, 10000), *, closerange: bool = True, dbat: str | None = None, dbat_repo: str | None = None,
         pycolmap: bool = True, solvers=PYCOLMAP_SOLVERS, repeat: int = 1, timeout: float = 3600.0,
         mem_gb: float = 22.0, threads: int = -1, tol_rel: float = 1e-6, seed: int = 1,
-        workdir: Path | None = None, stream=sys.stdout) -> dict:
+        workdir: Path | None = None, floor: bool = False, stream=sys.stdout) -> dict:
     say = lambda *a: print(*a, file=stream, flush=True)
     tmp = None
     if workdir is None:
@@ -436,6 +483,16 @@ def run(sizes=(2000, 10000), *, closerange: bool = True, dbat: str | None = None
                 if b["status"] != "ok":
                     break
             r["baarda"] = _best(runs, "wall_seconds")
+            if floor and with_pycolmap:
+                f = run_child("floor", workdir, f"{tag}-floor", ["--folder", str(folder)], **kw)
+                r["floor"] = f
+                if f.get("status") == "ok":
+                    say(f"  floor (no output written): interpreter + imports {f['imports_seconds']:.1f} s, reading "
+                        f"{f['read_seconds']:.1f} s, adjust_block {f['adjust_seconds']:.1f} s ({f['adjust_cpu']:.1f} s "
+                        f"CPU; Σr {f['sum_r']:.1f} for {f['dof']} dof, external reliability "
+                        f"{'on' if f['external_reliability'] else 'off'}) = {f['floor_seconds']:.1f} s")
+                else:
+                    say(f"  floor: {f.get('status')}")
             if pycolmap and with_pycolmap:
                 for s in solvers:
                     qs = []
@@ -462,6 +519,15 @@ def run(sizes=(2000, 10000), *, closerange: bool = True, dbat: str | None = None
     say("|" + "---|" * (HEADER.count("|") - 1))
     for name, r in results["cases"].items():
         say(row(name, r))
+    floors = [(name, r["floor"], r.get("sparse")) for name, r in results["cases"].items()
+              if r.get("floor", {}).get("status") == "ok"]
+    if floors:
+        say("\n| case | floor s: imports + reading + adjust_block | of it adjust_block s (CPU) | pycolmap SPARSE_SCHUR "
+            "solve s | floor / SPARSE_SCHUR |\n|---|---|---|---|---|")
+        for name, f, q in floors:
+            ok = q and q.get("status") == "ok"
+            say(f"| {name} | {f['floor_seconds']:.1f} | {f['adjust_seconds']:.1f} ({f['adjust_cpu']:.1f}) | "
+                + (f"{q['solve_seconds']:.1f} | **{f['floor_seconds'] / q['solve_seconds']:.2f}** |" if ok else "– | – |"))
     say("\nwhole run = `baarda run` wall time, every output written; load = the 1-minute load average at the start "
         "and end of the baarda run (2 cores: above 2, the run waited for a core); goals: aerial 2 000 run / "
         "SPARSE_SCHUR ≤ 1.0 and memory ≤ 2; aerial 10 000 ≤ 180 s and ≤ 6 GB; close-range 60 photos ≤ 15 s")
@@ -478,6 +544,8 @@ def main(argv=None) -> int:
                     help="the DBAT repository (work tree or git directory) with data/script/romabundledemo "
                          "(default: $BAARDA_DBAT_REPO, then /work/.mirror/niclasborlin+dbat)")
     ap.add_argument("--skip-pycolmap", action="store_true")
+    ap.add_argument("--floor", action="store_true",
+                    help="also time the floor of the aerial runs: imports, reading and adjust_block, no output")
     ap.add_argument("--sparse-only", action="store_true", help="pycolmap only with SPARSE_SCHUR forced (both stopping rules), not its default linear solver")
     ap.add_argument("--repeat", type=int, default=1, help="baarda runs and pycolmap solves per case; the fastest counts")
     ap.add_argument("--timeout", type=float, default=3600.0, help="seconds per child before it is killed")
@@ -488,7 +556,7 @@ def main(argv=None) -> int:
     ap.add_argument("--workdir", type=Path, default=None, help="keep every file here (default: temporary)")
     ap.add_argument("--json", type=Path, default=None, help="write every number to this file")
     # the child side (internal)
-    ap.add_argument("--child", choices=("prepare", "pycolmap"), help=argparse.SUPPRESS)
+    ap.add_argument("--child", choices=sorted(CHILDREN), help=argparse.SUPPRESS)
     ap.add_argument("--out", help=argparse.SUPPRESS)
     ap.add_argument("--folder", help=argparse.SUPPRESS)
     ap.add_argument("--kind", help=argparse.SUPPRESS)
@@ -502,7 +570,8 @@ def main(argv=None) -> int:
         return child_main(a, CHILDREN)
     res = run(a.sizes, closerange=a.closerange, dbat=a.dbat, dbat_repo=a.dbat_repo, pycolmap=not a.skip_pycolmap,
               solvers=("sparse", "sparse-own") if a.sparse_only else PYCOLMAP_SOLVERS, repeat=a.repeat, timeout=a.timeout,
-              mem_gb=a.mem_gb, threads=a.threads, tol_rel=a.tol_rel, seed=a.seed, workdir=a.workdir)
+              mem_gb=a.mem_gb, threads=a.threads, tol_rel=a.tol_rel, seed=a.seed, workdir=a.workdir,
+              floor=a.floor)
     if a.json:
         a.json.write_text(json.dumps(res, indent=1, default=str))
     return 0

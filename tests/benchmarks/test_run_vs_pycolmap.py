@@ -34,7 +34,8 @@ def _module(repo_root):
 def test_whole_run_200_photos(repo_root, tmp_path):
     bench = _module(repo_root)
     buf = io.StringIO()
-    out = bench.run([200], closerange=False, timeout=900, mem_gb=8, workdir=tmp_path, stream=buf)
+    out = bench.run([200], closerange=False, timeout=900, mem_gb=8, workdir=tmp_path, floor=True,
+                    stream=buf)
     print(buf.getvalue())
     r = out["cases"]["aerial 200"]
     assert r["prepare"]["status"] == r["baarda"]["status"] == "ok", r
@@ -47,6 +48,10 @@ def test_whole_run_200_photos(repo_root, tmp_path):
     assert r["sparse-own"]["iterations"] >= r["sparse"]["iterations"]
     assert r["sparse-own"]["final_cost"] <= r["sparse"]["final_cost"] * (1 + 1e-6)
     assert (tmp_path / "aerial-200-0-run" / "results.json").exists()
+    f = r["floor"]                  # the floor: the same adjustment without outputs, every r computed
+    assert f["status"] == "ok" and f["external_reliability"]
+    assert abs(f["sum_r"] - f["dof"]) < 1e-6 * f["dof"]
+    assert 0 < f["adjust_seconds"] < f["floor_seconds"] and "floor / SPARSE_SCHUR" in buf.getvalue()
     assert len(r["baarda"]["load"]) == 2
 
 
