@@ -66,8 +66,8 @@ clean:
 # blocks written as BAL projects (every output written) against pycolmap's SPARSE_SCHUR and default
 # solves, and DBAT's 60-photo Roma project (from a DBAT repository, see the script); not part of
 # `make test`.  The 10 000-photo block takes ≈ 15–25 minutes with pycolmap's two solves:
-# RUN_ARGS="--sizes 2000" for the short set.
-RUN_ARGS ?= --sizes 2000 10000
+# RUN_ARGS="--sizes 2000 --floor" for the short set.
+RUN_ARGS ?= --sizes 2000 10000 --floor
 .PHONY: bench-run
 bench-run: $(STAMP)
 	$(TESTENV) $(PY) benchmarks/run_vs_pycolmap.py $(RUN_ARGS)
