@@ -122,8 +122,9 @@ class Cameras(Table):
             raise ValueError("Cameras.sigma_ap must have the shape of Cameras.ap")
 
     def take(self, index):
-        out = super().take(index)
-        return dataclasses.replace(out, ap=self.ap[index], sigma_ap=self.sigma_ap[index])
+        # every column in one replace: the table is validated once, with ap and sigma_ap cut too
+        cols = {k: getattr(self, k)[index] for k in self._columns}
+        return dataclasses.replace(self, **cols, ap=self.ap[index], sigma_ap=self.sigma_ap[index])
 
     @classmethod
     def make(cls, ids, c, xp=None, yp=None, *, ap_model=None, ap=None, sigma_iop=None,
