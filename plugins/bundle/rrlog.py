@@ -249,7 +249,8 @@ def log_bundle(rec, rep, report: str, max_photos: int | None = None) -> None:
 def _log_rig_frames(rec, res, photos, K, wh, plane) -> None:
     """The rigs' frames (``world/rigs/<rig>/frames/<frame>``: the frame's pose as ``world_from_rig``)
     with each photo of the frame as its sensor's camera below it (``…/<camera>``: ``rig_from_sensor``
-    = centre ``c_s`` and ``R_sᵀ`` in the rig frame, then the photo's Pinhole ``K``, ``wh``, ``plane``)
+    = centre ``c_s`` and ``R_sᵀ`` in the rig frame, then the photo's Pinhole ``K``, ``wh``, ``plane``
+    at most half the longest baseline)
     — the viewer composes them to the photo's pose ``X0 = X0_f + R_fᵀ c_s``, ``R = R_s R_f`` — and a
     line from the reference camera to each other sensor (``…/baselines``, in the rig frame)."""
     import pyarrow as pa
@@ -263,6 +264,7 @@ def _log_rig_frames(rec, res, photos, K, wh, plane) -> None:
     fpath = {int(fr): f"world/rigs/{_safe(rs.rig[rig.photo_sensor[rig.frame_ref_photo[fr]]])}/frames/{_safe(rig.frame_ids[fr])}"
              for fr in frames}
     size = float(np.max(np.linalg.norm(st.sensor[:, :3], axis=1), initial=0.0)) or float(np.median(plane))
+    plane = np.minimum(plane, 0.5 * size)      # the cameras of a frame drawn apart (frusta at most half a baseline)
     log_per_entity(rec, [fpath[int(fr)] for fr in frames], np.ones(frames.size, int),
                    rr.Transform3D.columns(translation=st.frame[frames, :3], mat3x3=Rf.transpose(0, 2, 1)),
                    rr.TransformAxes3D.columns(axis_length=np.full(frames.size, 0.5 * size)))
@@ -309,25 +311,23 @@ def _log_rig_sensors(rec, res, alpha: float) -> None:
     for s in rr_.sensors:
         by_rig.setdefault(s.rig, []).append(s)
     for rig, sensors in by_rig.items():
-        L = [f"**Rig {rig}**: {rr_.n_frames} frames in the block; each camera's pose in the rig (centre in the "
-             f"reference camera's image frame, x right, y up, z back; {ou}; ω, φ, κ of R_sensor_from_rig) with its "
-             "a-posteriori σ", "", "| camera | status | X | Y | Z | ω | φ | κ | baseline | stability |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+        L = [f"**Rig {rig}**, {rr_.n_frames} frames: each camera's pose in the rig (centre in the reference camera's "
+             f"image frame, x right, y up, z back, {ou}; ω, φ, κ of R_sensor_from_rig) with its a-posteriori σ", ""]
         for s in sensors:
             path = f"rigs/{_safe(rig)}/sensors/{_safe(s.camera)}"
             if s.reference_sensor:
-                L.append(f"| {s.camera} | reference | 0 | 0 | 0 | 0 | 0 | 0 | 0 | |")
+                L.append(f"- **{s.camera}**: the reference camera (the rig frame)")
                 rec.log(path, rr.AnyValues(reference=True), static=True)
                 continue
             status = "fixed" if all(t == "fixed" for t in s.status) else (
                 "weighted" if "weighted" in s.status else "estimated")
             t = s.stability
-            test = "" if t is None else (f"T = {t['T']:.3g} vs {t['critical']:.3g}: "
-                                         + ("stable" if t["stable"] else "**changed**"))
-            L.append(f"| {s.camera} | {status} | "
-                     + " | ".join(f"{fmt_q(s.value[k], ou)} ± {fmt_q(s.sigma[k], ou, 2)}" for k in range(3)) + " | "
-                     + " | ".join(f"{np.degrees(s.value[k]):.5f}° ± {np.degrees(s.sigma[k]):.2g}°" for k in range(3, 6))
-                     + f" | {fmt_q(s.baseline, ou)} ± {fmt_q(s.sigma_baseline, ou, 2)} | {test} |")
+            L.append(f"- **{s.camera}** ({status}): baseline {fmt_q(s.baseline, ou)} ± {fmt_q(s.sigma_baseline, ou, 2)}; "
+                     + ", ".join(f"{'XYZ'[k]} {fmt_q(s.value[k], ou)} ± {fmt_q(s.sigma[k], ou, 2)}" for k in range(3))
+                     + "; " + ", ".join(f"{'ωφκ'[k - 3]} {np.degrees(s.value[k]):.5f}° ± {np.degrees(s.sigma[k]):.2g}°"
+                                        for k in range(3, 6))
+                     + ("" if t is None else f"; against the calibration T = {t['T']:.3g} vs {t['critical']:.3g}: "
+                        + ("stable" if t["stable"] else "**changed**")))
             vals = {n: float(v) for n, v in zip(names, s.value * scale)}
             vals.update({"s" + n: float(v) for n, v in zip(names, s.sigma * scale)})
             vals.update({f"baseline{suf}": float(s.baseline), f"sbaseline{suf}": float(s.sigma_baseline),

@@ -64,5 +64,5 @@ def test_rig_frames_and_sensors_compose_to_the_photo_poses(tmp_path):
     assert right["sX_m"] > 0 and right["sbaseline_m"] > 0 and right["status"] == "estimated"
     assert abs(right["baseline_m"] - np.linalg.norm(truth["sensor"][1, :3])) < 5 * right["sbaseline_m"] + 1e-4
     text = vals["/bundle/rigs/rig/sensors"]["TextDocument:text"]
-    assert "| S2 | estimated |" in text and "baseline" in text
+    assert "**S2** (estimated): baseline" in text and "± " in text
     assert any(v.kind == "TextDocument" and v.origin == "/bundle/rigs/rig/sensors" for v in rec.views)
