@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from baarda.pipeline.adjustment import rig_structure
 from baarda.pipeline.geometry import rotation_from_opk_many
 
 from baarda.pipeline.camera import get_ap_model
@@ -135,7 +136,7 @@ def log_bundle(rec, rep, report: str, max_photos: int | None = None) -> None:
         log_on_timeline(rec, "images/all/photo", "photo", np.ones(shown.size, int),
                         rr.AnyValues.columns(photo=pa.array(np.asarray(photos.ids)[shown].astype(str))))
     else:
-        rig = getattr(res.problem, "rig", None)
+        rig = rig_structure(block) if block.rigs else None
         alone = np.ones(shown.size, bool) if rig is None else rig.photo_frame[shown] < 0
         if alone.any():
             a = np.flatnonzero(alone)
@@ -144,8 +145,8 @@ def log_bundle(rec, rep, report: str, max_photos: int | None = None) -> None:
                            rr.Pinhole.columns(image_from_camera=K[a], resolution=f[a],
                                               camera_xyz=rr.ViewCoordinates.RUB, image_plane_distance=0.1 * depth[a]))
         if not alone.all():
-            _log_rig_frames(rec, res, shown[~alone], K[~alone], f[~alone], 0.1 * depth[~alone])
-    if getattr(res.problem, "rig", None) is not None:
+            _log_rig_frames(rec, res, rig, shown[~alone], K[~alone], f[~alone], 0.1 * depth[~alone])
+    if block.rigs:
         _log_rig_sensors(rec, res, rep.config.rig.alpha)
     # image points and residual arrows of the photos shown, grouped by photo (in observation order)
     pos = np.full(n_ph, -1)
@@ -246,17 +247,19 @@ def log_bundle(rec, rep, report: str, max_photos: int | None = None) -> None:
                    {"K": [float(ids.critical)] * len(steps)}, timeline="rejection")
 
 
-def _log_rig_frames(rec, res, photos, K, wh, plane) -> None:
+def _log_rig_frames(rec, res, rig, photos, K, wh, plane) -> None:
     """The rigs' frames (``world/rigs/<rig>/frames/<frame>``: the frame's pose as ``world_from_rig``)
     with each photo of the frame as its sensor's camera below it (``…/<camera>``: ``rig_from_sensor``
     = centre ``c_s`` and ``R_sᵀ`` in the rig frame, then the photo's Pinhole ``K``, ``wh``, ``plane``
     at most half the longest baseline)
     — the viewer composes them to the photo's pose ``X0 = X0_f + R_fᵀ c_s``, ``R = R_s R_f`` — and a
-    line from the reference camera to each other sensor (``…/baselines``, in the rig frame)."""
+    line from the reference camera to each other sensor (``…/baselines``, in the rig frame).  ``rig``
+    is the block's :class:`~baarda.pipeline.adjustment.rig.RigStructure` (the frames' order of
+    ``res.state.frame``)."""
     import pyarrow as pa
     import rerun as rr
 
-    rig, st, block = res.problem.rig, res.state, res.block_in
+    st, block = res.state, res.block_in
     rs = block.rigs.sensors
     frame_of, sensor_of = rig.photo_frame[photos], rig.photo_sensor[photos]
     frames = np.unique(frame_of)
@@ -296,8 +299,7 @@ def _log_rig_sensors(rec, res, alpha: float) -> None:
     angles in degrees, as ``bundle_rig.csv``)."""
     import rerun as rr
 
-    from baarda.pipeline.adjustment import rig_result
-    from baarda.pipeline.recording import log_text
+    from baarda.pipeline.api import log_text, rig_result
     from baarda.pipeline.units import fmt_q, length_suffix, object_unit_text
 
     rr_ = rig_result(res, alpha=alpha)
