@@ -178,20 +178,24 @@ def frames_from_names(block: Block, pattern: str, sensors: RigSensors) -> FrameM
 
 def attach_rigs(block: Block, table, *, frames=None, frames_from_name: str = "", field: str = "rig") -> Block:
     """``block`` with the rigs of the rig table ``table`` and the frames of the frame table ``frames``
-    or of ``frames_from_name``; checked (:func:`~baarda.pipeline.adjustment.rig_structure`: a photo
-    in two frames, a frame without the reference sensor, …) with the files' lines."""
+    or of ``frames_from_name`` (neither: the frames the block brings, e.g. a COLMAP model's
+    ``frames.txt``); checked (:func:`~baarda.pipeline.adjustment.rig_structure`: a photo in two
+    frames, a frame without the reference sensor, …) with the files' lines."""
     sensors = read_rig_table(table, block)
     if frames:
         members = read_frame_table(frames, block)
     elif frames_from_name:
         members = frames_from_names(block, frames_from_name, sensors)
+    elif block.rigs and len(block.rigs.frames):
+        members = block.rigs.frames              # the frames the source brings (COLMAP frames.txt)
     else:
         raise InputError("a rig needs its frames: give a frame table ('frames') or 'frames_from_name'",
                          field=f"{field}.frames")
     if not len(members):
         raise InputError("no photo of the rig's cameras is in a frame", path=str(frames) if frames else None,
                          field=f"{field}.frames_from_name" if not frames else "photo")
-    out = block.replace(rigs=Rigs(sensors, members, path=str(table), frames_path=str(frames) if frames else None,
+    frames_path = str(frames) if frames else None if frames_from_name else block.rigs.frames_path or block.rigs.path
+    out = block.replace(rigs=Rigs(sensors, members, path=str(table), frames_path=frames_path,
                                   reference_name=block.rigs.reference_name))
     rig_structure(out)
     return out

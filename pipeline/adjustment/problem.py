@@ -491,7 +491,7 @@ class BundleProblem:
             raise InputError("GNSS antenna observations fix the datum (position, orientation and scale); a free "
                              "network's inner constraints would contradict them: use datum = \"control\"",
                              field="datum")
-        self.scale_free = len(self.dist_l) == 0
+        self.scale_free = len(self.dist_l) == 0 and not self._rig_gives_scale()
         self.n_c = 7 if self.scale_free else 6
         pts = self.block.points
         if st.datum_centres and self.rig is not None:
@@ -516,6 +516,15 @@ class BundleProblem:
                                   "coordinates (option datum_points)")
         self.datum_elim = self.elim_of[sel & (self.elim_of >= 0)]
         self.datum_glob_pts = np.flatnonzero(sel & (self.g_pt >= 0).all(axis=1))
+
+    def _rig_gives_scale(self) -> bool:
+        """A fixed or weighted sensor centre away from its rig's reference (a known baseline) observes
+        the block's scale, as a scale bar does: the free network's inner constraints then leave it."""
+        if self.rig is None:
+            return False
+        rs = self.block.rigs.sensors
+        known = np.isfinite(rs.sigma[:, :3]).any(axis=1) & (np.nan_to_num(rs.centre) != 0).any(axis=1)
+        return bool((known & ~rs.reference).any())
 
     @cached_property
     def normals(self) -> NormalEquations:

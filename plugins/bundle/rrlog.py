@@ -3,7 +3,14 @@
 Entities (under the stage id: the recording roots every path there)
     ``world/points``                object points, coloured by role (labels = ids)
     ``world/points/precision``      their error ellipsoids (1 σ, enlarged: ``precision_scale``)
-    ``world/photos/<id>``           Transform3D (world_from_cam) + Pinhole (c, format in mm, RUB)
+    ``world/photos/<id>``           Transform3D (world_from_cam) + Pinhole (c, format in mm, RUB); a
+                                    photo in a rig's frame is drawn under its rig instead:
+    ``world/rigs/<rig>/frames/<frame>``            Transform3D (world_from_rig: the frame's pose) and
+                                    ``…/baselines`` (lines from the reference camera to each sensor)
+    ``world/rigs/<rig>/frames/<frame>/<camera>``   Transform3D (rig_from_sensor: c_s, R_sᵀ) + Pinhole,
+                                    and the photo's id (``AnyValues``)
+    ``rigs/<rig>/sensors``          each sensor's pose in the rig with σ, baseline, stability test
+                                    (Markdown), ``rigs/<rig>/sensors/<camera>`` the same as values
     ``world/rejected_rays``         rays of rejected / flagged observations (red)
     ``images/<id>/observed``        image points (u = x + w/2, v = h/2 − y: mm, y down as in 2-D views)
     ``images/<id>/residuals``       residual vectors from computed to observed, × arrow scale
@@ -20,6 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from baarda.pipeline.adjustment import rig_structure
 from baarda.pipeline.geometry import rotation_from_opk_many
 
 from baarda.pipeline.camera import get_ap_model
@@ -128,10 +136,18 @@ def log_bundle(rec, rep, report: str, max_photos: int | None = None) -> None:
         log_on_timeline(rec, "images/all/photo", "photo", np.ones(shown.size, int),
                         rr.AnyValues.columns(photo=pa.array(np.asarray(photos.ids)[shown].astype(str))))
     else:
-        log_per_entity(rec, [f"world/photos/{p}" for p in pids], np.ones(shown.size, int),
-                       rr.Transform3D.columns(translation=st.X0[shown], mat3x3=R[shown].transpose(0, 2, 1)),
-                       rr.Pinhole.columns(image_from_camera=K, resolution=f, camera_xyz=rr.ViewCoordinates.RUB,
-                                          image_plane_distance=0.1 * depth))
+        rig = rig_structure(block) if block.rigs else None
+        alone = np.ones(shown.size, bool) if rig is None else rig.photo_frame[shown] < 0
+        if alone.any():
+            a = np.flatnonzero(alone)
+            log_per_entity(rec, [f"world/photos/{pids[k]}" for k in a], np.ones(a.size, int),
+                           rr.Transform3D.columns(translation=st.X0[shown[a]], mat3x3=R[shown[a]].transpose(0, 2, 1)),
+                           rr.Pinhole.columns(image_from_camera=K[a], resolution=f[a],
+                                              camera_xyz=rr.ViewCoordinates.RUB, image_plane_distance=0.1 * depth[a]))
+        if not alone.all():
+            _log_rig_frames(rec, res, rig, shown[~alone], K[~alone], f[~alone], 0.1 * depth[~alone])
+    if block.rigs:
+        _log_rig_sensors(rec, res, rep.config.rig.alpha)
     # image points and residual arrows of the photos shown, grouped by photo (in observation order)
     pos = np.full(n_ph, -1)
     pos[shown] = np.arange(shown.size)
@@ -229,6 +245,104 @@ def log_bundle(rec, rep, report: str, max_photos: int | None = None) -> None:
                    {"F_critical": [float(h.critical) for h in ids.history]}, timeline="rejection")
         log_series(rec, "ids/w", steps, {"w_max": [abs(float(h.w_max)) for h in ids.history]},
                    {"K": [float(ids.critical)] * len(steps)}, timeline="rejection")
+
+
+def _log_rig_frames(rec, res, rig, photos, K, wh, plane) -> None:
+    """The rigs' frames (``world/rigs/<rig>/frames/<frame>``: the frame's pose as ``world_from_rig``)
+    with each photo of the frame as its sensor's camera below it (``…/<camera>``: ``rig_from_sensor``
+    = centre ``c_s`` and ``R_sᵀ`` in the rig frame, then the photo's Pinhole ``K``, ``wh``, ``plane``
+    at most half the longest baseline)
+    — the viewer composes them to the photo's pose ``X0 = X0_f + R_fᵀ c_s``, ``R = R_s R_f`` — and a
+    line from the reference camera to each other sensor (``…/baselines``, in the rig frame).  ``rig``
+    is the block's :class:`~baarda.pipeline.adjustment.rig.RigStructure` (the frames' order of
+    ``res.state.frame``)."""
+    import pyarrow as pa
+    import rerun as rr
+
+    st, block = res.state, res.block_in
+    rs = block.rigs.sensors
+    frame_of, sensor_of = rig.photo_frame[photos], rig.photo_sensor[photos]
+    frames = np.unique(frame_of)
+    Rf = rotation_from_opk_many(np.nan_to_num(st.frame[frames, 3:]))
+    fpath = {int(fr): f"world/rigs/{_safe(rs.rig[rig.photo_sensor[rig.frame_ref_photo[fr]]])}/frames/{_safe(rig.frame_ids[fr])}"
+             for fr in frames}
+    size = float(np.max(np.linalg.norm(st.sensor[:, :3], axis=1), initial=0.0)) or float(np.median(plane))
+    plane = np.minimum(plane, 0.5 * size)      # the cameras of a frame drawn apart (frusta at most half a baseline)
+    log_per_entity(rec, [fpath[int(fr)] for fr in frames], np.ones(frames.size, int),
+                   rr.Transform3D.columns(translation=st.frame[frames, :3], mat3x3=Rf.transpose(0, 2, 1)),
+                   rr.TransformAxes3D.columns(axis_length=np.full(frames.size, 0.5 * size)))
+    Rs = rotation_from_opk_many(np.nan_to_num(st.sensor[sensor_of, 3:]))
+    cams = block.cameras.ids[rs.camera[sensor_of]]
+    paths = [f"{fpath[int(fr)]}/{_safe(c)}" for fr, c in zip(frame_of, cams)]
+    log_per_entity(rec, paths, np.ones(photos.size, int),
+                   rr.Transform3D.columns(translation=st.sensor[sensor_of, :3], mat3x3=Rs.transpose(0, 2, 1)),
+                   rr.Pinhole.columns(image_from_camera=K, resolution=wh, camera_xyz=rr.ViewCoordinates.RUB,
+                                      image_plane_distance=plane),
+                   rr.AnyValues.columns(photo=pa.array(np.asarray(block.photos.ids)[photos].astype(str))))
+    # baselines: reference camera (the rig origin) to each other sensor of the frame, in the rig frame
+    other = ~rs.reference[sensor_of]
+    counts = np.bincount(np.searchsorted(frames, frame_of[other]), minlength=frames.size)
+    has = np.flatnonzero(counts > 0)
+    if has.size:
+        order = np.argsort(frame_of[other], kind="stable")
+        ends = st.sensor[sensor_of[other][order], :3]
+        strips = [np.stack([np.zeros(3), e]) for e in ends]
+        log_per_entity(rec, [f"{fpath[int(frames[k])]}/baselines" for k in has], counts[has],
+                       rr.LineStrips3D.columns(strips=strips, colors=np.tile(np.array([230, 150, 30], np.uint8),
+                                                                             (len(strips), 1))))
+
+
+def _log_rig_sensors(rec, res, alpha: float) -> None:
+    """Each sensor's pose in its rig with its a-posteriori σ, the baseline with σ and the stability
+    test (``rig_result``): a Markdown table per rig (``rigs/<rig>/sensors``, a text view) and the
+    values per sensor (``rigs/<rig>/sensors/<camera>``, ``AnyValues``; lengths in the object unit,
+    angles in degrees, as ``bundle_rig.csv``)."""
+    import rerun as rr
+
+    from baarda.pipeline.api import log_text, rig_result
+    from baarda.pipeline.units import fmt_q, length_suffix, object_unit_text
+
+    rr_ = rig_result(res, alpha=alpha)
+    if rr_ is None:
+        return
+    ou = object_unit_text(res.block_in)
+    suf = length_suffix(ou)
+    names = [f"{n}{suf}" for n in "XYZ"] + [f"{n}_deg" for n in ("omega", "phi", "kappa")]
+    scale = np.r_[1.0, 1.0, 1.0, np.degrees(np.ones(3))]
+    by_rig: dict[str, list] = {}
+    for s in rr_.sensors:
+        by_rig.setdefault(s.rig, []).append(s)
+    for rig, sensors in by_rig.items():
+        L = [f"**Rig {rig}**, {rr_.n_frames} frames: each camera's pose in the rig (centre in the reference camera's "
+             f"image frame, x right, y up, z back, {ou}; ω, φ, κ of R_sensor_from_rig) with its a-posteriori σ", ""]
+        for s in sensors:
+            path = f"rigs/{_safe(rig)}/sensors/{_safe(s.camera)}"
+            if s.reference_sensor:
+                L.append(f"- **{s.camera}**: the reference camera (the rig frame)")
+                rec.log(path, rr.AnyValues(reference=True), static=True)
+                continue
+            status = "fixed" if all(t == "fixed" for t in s.status) else (
+                "weighted" if "weighted" in s.status else "estimated")
+            t = s.stability
+            L.append(f"- **{s.camera}** ({status}): baseline {fmt_q(s.baseline, ou)} ± {fmt_q(s.sigma_baseline, ou, 2)}; "
+                     + ", ".join(f"{'XYZ'[k]} {fmt_q(s.value[k], ou)} ± {fmt_q(s.sigma[k], ou, 2)}" for k in range(3))
+                     + "; " + ", ".join(f"{'ωφκ'[k - 3]} {np.degrees(s.value[k]):.5f}° ± {np.degrees(s.sigma[k]):.2g}°"
+                                        for k in range(3, 6))
+                     + ("" if t is None else f"; against the calibration T = {t['T']:.3g} vs {t['critical']:.3g}: "
+                        + ("stable" if t["stable"] else "**changed**")))
+            vals = {n: float(v) for n, v in zip(names, s.value * scale)}
+            vals.update({"s" + n: float(v) for n, v in zip(names, s.sigma * scale)})
+            vals.update({f"baseline{suf}": float(s.baseline), f"sbaseline{suf}": float(s.sigma_baseline),
+                         "status": status})
+            if t is not None:
+                vals.update({"T_stability": float(t["T"]), "T_critical": float(t["critical"]),
+                             "stable": bool(t["stable"])})
+            rec.log(path, rr.AnyValues(**vals), static=True)
+        if rr_.stability is not None and sum(s.stability is not None for s in sensors) > 1:
+            t = rr_.stability
+            L += ["", f"All sensors with a calibration together: T = {t['T']:.3g} vs {t['critical']:.3g} "
+                      f"({t['distribution']}, α = {t['alpha']:g}): " + ("stable" if t["stable"] else "**changed**")]
+        log_text(rec, f"rigs/{_safe(rig)}/sensors", "\n".join(L))
 
 
 def _log_precision(rec, res, used) -> float:

@@ -40,6 +40,7 @@ SECONDS = {
     "calibration/charuco.toml": 0.5,
     "calibration/chessboard.toml": 8.8,   # a stereo rig since issue 25: IDS rejects 19 coordinates (2 before)
     "colmap/colmap.toml": 0.6,
+    "colmap/rig.toml": 4.6,              # a three-camera COLMAP rig against a prior calibration (issue 25)
     "dbat/camcal-detect.toml": 5.2,
     "dbat/camcal-corrected.toml": 4.0,
     "dbat/camcal.toml": 0.4,
