@@ -205,52 +205,13 @@ def undeclared_outputs(spec, names) -> list[str]:
     return [str(n) for n in names if not any(fnmatch.fnmatchcase(str(n), o) for o in outs)]
 
 
-TABLES_IN_THREAD = True
-"""Write a stage's tables in a worker thread while its figures are drawn and its recording written
-(Arrow encodes Parquet and CSV without the GIL); False writes them first, in this thread."""
-
-
 def _write_outputs(run_dir, spec, stage, result, ctx, rec, recording_id, outputs="full") -> None:
-    """The stage's tables, figures and recording.  The tables are written in a worker thread while
-    the figures are drawn and the recording is written (:data:`TABLES_IN_THREAD`); their progress
-    lines are printed when they are done, so lines of the two never mix; an error writing them is
-    raised here, after the figures and the recording, as it would have been raised writing them
-    first; everything is on disk when this returns."""
-    if not TABLES_IN_THREAD:
-        _add_tables(spec, rec, write_tables(run_dir, spec.id, result.tables, outputs=outputs, progress=ctx.progress), 0)
-        _write_figures_and_recording(run_dir, spec, stage, result, ctx, rec, recording_id)
-        return
-    import io
-    from concurrent.futures import ThreadPoolExecutor, wait
-
-    from .stage import Progress
-
-    lines = io.StringIO()
-    progress = Progress(spec.id, stream=lines, enabled=ctx.progress.enabled, live=False,
-                        interval=ctx.progress.interval)
-    at = len(rec.files)
-    with ThreadPoolExecutor(1, thread_name_prefix=f"baarda-tables-{spec.id}") as pool:
-        tables = pool.submit(write_tables, run_dir, spec.id, result.tables, outputs=outputs, progress=progress)
-        try:
-            _write_figures_and_recording(run_dir, spec, stage, result, ctx, rec, recording_id)
-        finally:
-            wait([tables])                  # on Ctrl-C too: no thread writes into the run after this
-            if lines.getvalue():
-                print(lines.getvalue(), end="", file=ctx.progress.stream, flush=True)
-            if tables.exception() is None:
-                _add_tables(spec, rec, tables.result(), at)
-    tables.result()                         # an error writing them: raised as writing them first raised it
-
-
-def _add_tables(spec, rec, written, at) -> None:
+    written = write_tables(run_dir, spec.id, result.tables, outputs=outputs, progress=ctx.progress)
     rec.tables, rec.skipped = written.tables, written.skipped
-    rec.files[at:at] = written.files                 # the tables' files first, as they were written first
+    rec.files += written.files
     note = skipped_note(spec.id, written.skipped)
     if note:
         rec.report = (rec.report.rstrip() + "\n\n" + note) if rec.report.strip() else note
-
-
-def _write_figures_and_recording(run_dir, spec, stage, result, ctx, rec, recording_id) -> None:
     for name, png in result.figures.items():
         fname = f"{spec.id}_{name}.png"
         (run_dir / fname).write_bytes(png)
