@@ -163,7 +163,8 @@ def run_project(project_path: str | Path, out: str | Path | None = None, *,
             findings.append(Finding.of(spec.id, spec.use, result))
             _write_outputs(run_dir, spec, stage, result, ctx, rec, recording_id, outputs=project.run.outputs)
             rec.seconds = time.perf_counter() - t0      # all of the stage's work: its tables, recording, figures
-            _write_report(run_dir, project, records, recording_id, started, shown=run.target)
+            if k + 1 < n:            # after the last stage _finish writes the report (rendering it twice cost 0.2 s)
+                _write_report(run_dir, project, records, recording_id, started, shown=run.target)
             if verbose:
                 print(f"      done in {rec.seconds:.2f} s", file=stream, flush=True)
     except KeyboardInterrupt:       # between stages, while writing

@@ -18,6 +18,8 @@ so ``R_cam_from_world = R(r)`` and ``X0 = −R(r)ᵀ t``; with pitch ``s`` (mm p
 from __future__ import annotations
 
 import math
+import re
+import warnings
 
 from dataclasses import dataclass
 from pathlib import Path
@@ -69,31 +71,54 @@ def _int(tok: str, path, line: int, what: str) -> int:
 
 
 _OBS_DTYPE = np.dtype([("cam", np.int64), ("pt", np.int64), ("x", np.float64), ("y", np.float64)])
+_PLAIN = b"0123456789.eE+- \t\n"
+"""The bytes of the parameter values the bulk parse reads: plain numbers, blanks and newlines."""
+_NOT_BLANK = re.compile(r"[^ \t\n]")
 
 
-def _parse_body(lines: list[str], ln: int, n_cams: int, n_pts: int, n_obs: int):
-    """The observations and parameters after the header (line index ``ln``) parsed in bulk
-    (numpy's C parser: ``loadtxt`` for the ``cam pt x y`` lines, one conversion of every
-    parameter token), or ``None`` when anything is not exactly as it must be — a line with
-    another number of values, a token that is not a number, a value that is not finite, an index
-    out of range, a repeated observation, a count that does not match the header, f ≤ 0 — so
-    that :func:`read_bal` reads line by line and names the line and field."""
+def _parse_fast(data: bytes, text: str):
+    """The file (``data``, decoded as ``text``) parsed in bulk by numpy's C parsers — ``loadtxt``
+    for the ``cam pt x y`` lines, one ``fromstring`` of every parameter value —, or ``None`` when
+    anything is not exactly as it must be — a line break other than LF (the line-by-line reading
+    splits lines as Python does), a header that is not three plain integers, a line with another
+    number of values, a token that is not a plain number, a value that is not finite, an index out
+    of range, a repeated observation, a count that does not match the header, f ≤ 0 — so that
+    :func:`read_bal` reads line by line and names the line and field.  Every value is the number
+    Python's ``float`` reads from its token, bit for bit (numpy's parsers round correctly)."""
     import io
 
-    if n_obs > len(lines) - ln:
+    if any(c in text for c in "\r\x0b\x0c\x1c\x1d\x1e"):
         return None
+    first = _NOT_BLANK.search(text)            # the header: the first line that is not blank
+    if first is None:
+        return None
+    h0 = text.rfind("\n", 0, first.start()) + 1
+    h1 = text.find("\n", h0)
+    head = text[h0:h1 if h1 >= 0 else len(text)].split()
+    if h1 < 0 or len(head) != 3 or not all(t.isdigit() and len(t) <= 18 for t in head):
+        return None
+    n_cams, n_pts, n_obs = (int(t) for t in head)
+    need = 9 * n_cams + 3 * n_pts
+    # the observation lines: the n_obs lines after the header (text is ASCII: byte offsets are offsets)
+    nl = np.flatnonzero(np.frombuffer(data, np.uint8, offset=h1 + 1) == 10)
+    if n_obs > len(nl) + 1:
+        return None
+    end = h1 + 1 + (int(nl[n_obs - 1]) + 1 if n_obs <= len(nl) else len(data) - h1 - 1) if n_obs else h1 + 1
     try:
         if n_obs:
-            obs = np.loadtxt(io.StringIO("\n".join(lines[ln:ln + n_obs])), dtype=_OBS_DTYPE, comments=None,
-                             ndmin=1)
+            obs = np.loadtxt(io.StringIO(text[h1 + 1:end]), dtype=_OBS_DTYPE, comments=None, ndmin=1)
         else:
             obs = np.zeros(0, _OBS_DTYPE)
-        tokens = "\n".join(lines[ln + n_obs:]).split()
-        need = 9 * n_cams + 3 * n_pts
-        if len(obs) != n_obs or len(tokens) != need:
+        rest = data[end:]
+        if len(obs) != n_obs or rest.translate(None, _PLAIN):
             return None
-        values = np.array(tokens, dtype=np.float64) if need else np.zeros(0)
-    except (ValueError, OverflowError):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")              # a token numpy cannot read to its end
+            values = np.fromstring(rest, dtype=np.float64, sep=" ") if rest.strip() else np.zeros(0)
+    except (ValueError, OverflowError, DeprecationWarning):
+        return None
+    # every token one number: as many numbers as tokens
+    if len(values) != need or len(rest.split()) != need:
         return None
     cam, pt = obs["cam"].copy(), obs["pt"].copy()
     xy = np.column_stack([obs["x"], obs["y"]])
@@ -113,6 +138,10 @@ def read_bal(path: str | Path) -> BalProblem:
     if not path.exists():
         raise InputError("BAL file not found", path=path)
     text = read_text_limited(path, what="a BAL file", encoding="ascii")
+    fast = _parse_fast(text.encode("ascii"), text)
+    if fast is not None:
+        return BalProblem(*fast, path=str(path))
+    # the line-by-line reading below names the line and field of the first mistake
     lines = text.splitlines()
     # skip leading blank lines for the header
     ln = 0
@@ -132,11 +161,6 @@ def read_bal(path: str | Path) -> BalProblem:
     # where the file ends
     n_obs_fit = min(n_obs, max(len(lines) - ln - 1, 0))
     ln += 1
-
-    fast = _parse_body(lines, ln, n_cams, n_pts, n_obs)
-    if fast is not None:
-        return BalProblem(*fast, path=str(path))
-    # the line-by-line reading below names the line and field of the first mistake
     obs_line0 = ln + 1                       # 1-based line of observation 0
     cam = np.empty(n_obs_fit, int)
     pt = np.empty(n_obs_fit, int)
@@ -202,9 +226,9 @@ def behind_camera(problem: BalProblem) -> np.ndarray:
     residual; a collinearity adjustment fits it as measured."""
     from scipy.spatial.transform import Rotation
 
-    P = problem.cameras[problem.cam]
-    depth = np.einsum("kij,kj->ki", Rotation.from_rotvec(P[:, :3]).as_matrix(), problem.points[problem.pt])[:, 2]
-    return depth + P[:, 5] >= 0
+    R = Rotation.from_rotvec(problem.cameras[:, :3]).as_matrix()[problem.cam]      # once per camera
+    depth = np.einsum("kij,kj->ki", R, problem.points[problem.pt])[:, 2]
+    return depth + problem.cameras[problem.cam, 5] >= 0
 
 
 def baarda_from_bal(cameras: np.ndarray, pixel_mm):
