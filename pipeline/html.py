@@ -65,11 +65,17 @@ def png_of(fig: Any) -> bytes:
         return bytes(fig)
     import matplotlib.pyplot as plt
 
+    from .plots import FIXED_LAYOUT
+
     buf = io.BytesIO()
     try:
-        # the figures lay themselves out (tight_layout); the tight bounding box keeps a label that an
-        # equal-aspect panel pushes past the canvas (an axis label, a suptitle) and trims empty margins
-        fig.savefig(buf, format="png", dpi=FIGURE_DPI, bbox_inches="tight", pad_inches=0.08)
+        if getattr(fig, FIXED_LAYOUT, False):
+            # margins fixed by the figure (plots.fixed_layout): saved as it is, no text measured again
+            fig.savefig(buf, format="png", dpi=FIGURE_DPI)
+        else:
+            # a figure that lays itself out (tight_layout): the tight bounding box keeps a label that an
+            # equal-aspect panel pushes past the canvas (an axis label, a suptitle) and trims empty margins
+            fig.savefig(buf, format="png", dpi=FIGURE_DPI, bbox_inches="tight", pad_inches=0.08)
     finally:
         plt.close(fig)
     return buf.getvalue()
