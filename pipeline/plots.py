@@ -67,15 +67,15 @@ def fixed_titles():
 
 def text_inches(text: str, fontsize: float) -> float:
     """Width of one line of ``text`` in inches at ``fontsize`` points, estimated without drawing
-    (DejaVu Sans: about 0.5 em a character of mixed text) — for margins and wrapping fixed before saving."""
-    return len(text) * fontsize * 0.5 / 72.0
+    (DejaVu Sans: about 0.55 em a character of mixed text) — for margins and wrapping fixed before saving."""
+    return len(text) * fontsize * 0.55 / 72.0
 
 
 def wrap_inches(text: str, width: float, fontsize: float) -> str:
     """``text`` broken into lines of at most ``width`` inches at ``fontsize`` (:func:`text_inches`)."""
     import textwrap
 
-    n = max(int(width / (fontsize * 0.5 / 72.0)), 10)
+    n = max(int(width / (fontsize * 0.55 / 72.0)), 10)
     return "\n".join(textwrap.wrap(text, n, break_long_words=False)) if len(text) > n else text
 
 

@@ -113,8 +113,8 @@ def residual_vectors(res, decision=None, images: dict | None = None, *, vectors=
         _few_ticks(ax)
         um = used[obs.photo == p]
         rm = np.sqrt(np.mean(v[obs.photo == p][um] ** 2)) * scale if um.any() else float("nan")
-        ax.set_title(wrap_inches(f"photo {block.photos.ids[p]}: RMS {_img(rm, unit, 3)}"
-                                 + (f" ({len(xy)} of {n_all} arrows)" if len(xy) < n_all else ""), 3.1, 9), fontsize=9)
+        ax.set_title(wrap_inches(f"photo {block.photos.ids[p]}: RMS {_img(rm, unit, 3)}", 3.1, 9)
+                     + (f"\n{len(xy)} of {n_all} arrows drawn" if len(xy) < n_all else ""), fontsize=9)
         ax.tick_params(labelsize=7)
     for ax in axes.ravel()[n:]:
         ax.axis("off")
@@ -481,9 +481,10 @@ def bundle_figures(res, decision=None, eccentricity=None) -> dict:
     cams = res.block_in.cameras
     obs = res.block_in.observations
     n_obs = np.bincount(res.block_in.photos.camera[obs.photo[res.obs_active]], minlength=len(cams))
-    drawn = [j for j in np.argsort(-n_obs, kind="stable")
-             if res.camera_used[j] and str(cams.ap_model[j]) != "none"
-             and (np.any(res.camera_free[j, 3:]) or np.any(res.state.cam_params[j, 3:] != 0))][:MAX_DISTORTION_CAMERAS]
+    with_ap = (np.asarray(res.camera_used, bool) & (np.asarray(cams.ap_model).astype(str) != "none")
+               & (np.any(np.asarray(res.camera_free)[:, 3:], axis=1) | np.any(res.state.cam_params[:, 3:] != 0, axis=1)))
+    order = np.argsort(-n_obs, kind="stable")          # a BAL block has a camera per photo: no loop over them
+    drawn = [int(j) for j in order[with_ap[order]][:MAX_DISTORTION_CAMERAS]]
     for j in drawn:
         fig = distortion(res, j)
         if fig is not None:
