@@ -72,11 +72,16 @@ def text_inches(text: str, fontsize: float) -> float:
 
 
 def wrap_inches(text: str, width: float, fontsize: float) -> str:
-    """``text`` broken into lines of at most ``width`` inches at ``fontsize`` (:func:`text_inches`)."""
+    """``text`` broken into lines of at most ``width`` inches at ``fontsize`` (:func:`text_inches`),
+    never between a number and its unit ("312 mm" stays on one line)."""
+    import re
     import textwrap
 
     n = max(int(width / (fontsize * 0.55 / 72.0)), 10)
-    return "\n".join(textwrap.wrap(text, n, break_long_words=False)) if len(text) > n else text
+    if len(text) <= n:
+        return text
+    glued = re.sub(r"(\d) (?=[^\W\d_]|%|°)", "\\1\u00a0", text)       # a no-break space: textwrap keeps it
+    return "\n".join(textwrap.wrap(glued, n, break_long_words=False)).replace("\u00a0", " ")
 
 
 def role_colour(role: str):

@@ -454,7 +454,7 @@ def reliability_maps(res):
                        f"{_img(mlo, unit, 3)} – {_img(mtop, unit, 3)}", 11.0, 10)
     fig.suptitle(head, fontsize=10)
     lines = [max(axes[i, 0].get_title().count("\n"), axes[i, 1].get_title().count("\n")) for i in (0, 1)]
-    fixed_layout(fig, left=0.9, right=0.8, bottom=0.75, top=0.62 + 0.17 * head.count("\n") + 0.15 * lines[0],
+    fixed_layout(fig, left=0.9, right=0.8, bottom=0.75, top=0.66 + 0.17 * head.count("\n") + 0.17 * lines[0],
                  wspace=1.55, hspace=0.95 + 0.15 * lines[1])
     return fig
 

@@ -75,6 +75,8 @@ def test_wrap_inches():
     wrapped = wrap_inches(text, 3.0, 9)
     assert wrapped.replace("\n", " ") == text and wrapped.count("\n") >= 1
     assert wrap_inches("short", 3.0, 9) == "short"
+    t = "check points: plan error vectors × 451 (adjusted − surveyed; largest 312 mm)"
+    assert "312 mm" in wrap_inches(t, 5.6, 10).split("\n")[-1]        # a number keeps its unit
 
 
 def _inside(fig, renderer) -> list[str]:
