@@ -24,9 +24,12 @@ MAX_DISTORTION_CAMERAS = 2
 MAX_ELLIPSES = 3000
 """Points whose error ellipse is drawn (the first ones; the rest would be ink, not information)."""
 MAX_PHOTOS = 8
+"""Photos drawn in the residual figure (the largest RMS first)."""
+MAX_LABELS = 40
+"""Check points named in the plan of check-point errors at most (the largest plan errors; every id is in
+bundle_points.csv)."""
 MAX_ARROWS = 600
 """Residual arrows drawn per photo at most (evenly spaced in the photo's order, plus every flagged one)."""
-"""Photos drawn in the residual figure (the largest RMS first)."""
 
 
 def _plt():
@@ -239,13 +242,16 @@ def checkpoint_errors(res):
              color="#d35400", width=0.005)
     a.update_datalim(pts.XYZ[chk, :2] + k * d[:, :2])      # the arrow heads inside the axes
     a.autoscale_view()
-    for p, x, y in zip(pts.ids[chk], pts.XYZ[chk, 0], pts.XYZ[chk, 1]):
-        a.annotate(str(p), (x, y), fontsize=7, xytext=(3, 3), textcoords="offset points")
+    named = np.argsort(-np.nan_to_num(np.hypot(d[:, 0], d[:, 1]), nan=-1.0), kind="stable")[:MAX_LABELS]
+    for i in named:          # the ids of the largest errors (a text each: not hundreds)
+        a.annotate(str(pts.ids[chk][i]), (pts.XYZ[chk[i], 0], pts.XYZ[chk[i], 1]), fontsize=7, xytext=(3, 3),
+                   textcoords="offset points")
     a.set_aspect("equal", adjustable="datalim")
     map_ticks(a, res.state.XYZ[res.point_used, 0])
     if dmax > 0:
         a.set_title(f"check points: plan error vectors × {fmt_num(k, 3)} (adjusted − surveyed; largest "
-                    f"{fmt_q(dmax, ou, 3)})", fontsize=10)
+                    f"{fmt_q(dmax, ou, 3)})" + (f"; ids of the {len(named)} largest of {len(chk)}"
+                                                if len(named) < len(chk) else ""), fontsize=10)
     else:
         a.set_title("check points: adjusted − surveyed is 0 in plan at every point (no vectors to draw)", fontsize=10)
     b.bar(np.arange(len(chk)), d[:, 2], color="#5b7fb5")
