@@ -377,7 +377,7 @@ def distortion(res, j: int, n: int = 60):
     frame.finish(b, j if frame.extent(j) is not None else None, pad=0.04)
     b.set_title(f"field over the format; longest arrow {_img(mag.max(), unit, 3)}", fontsize=10)
     a.set_title(wrap_inches(a.get_title(), 4.6, 10), fontsize=10)
-    fixed_layout(fig, left=0.85, right=0.3, bottom=0.55, top=0.3 + 0.17 * a.get_title().count("\n"), wspace=1.5)
+    fixed_layout(fig, left=0.85, right=0.5, bottom=0.55, top=0.3 + 0.17 * a.get_title().count("\n"), wspace=1.5)
     return fig
 
 

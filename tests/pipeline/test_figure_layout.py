@@ -106,20 +106,23 @@ def test_a_cut_label_is_found():
 
 
 def test_bundle_figures_fixed_and_nothing_cut():
-    """A small aerial block with check points, its image points drawn as hexbins: every bundle figure
-    has a fixed layout, no label, tick, title or colour bar beyond the canvas, and saves at its size."""
+    """A small aerial block with check points and a distorting camera, its image points drawn as
+    hexbins: every bundle figure has a fixed layout, no label, tick, title or colour bar beyond the
+    canvas, and saves at its size."""
     from baarda.pipeline.adjustment import adjust_block
     from baarda.pipeline.synthetic.aerial import simulate_aerial
     from baarda.plugins.bundle.figures import bundle_figures
 
-    noisy, _ = simulate_aerial(np.random.default_rng(5), n_strips=2, photos_per_strip=4, points_per_photo=900)
+    noisy, _ = simulate_aerial(np.random.default_rng(5), n_strips=2, photos_per_strip=4, points_per_photo=900,
+                               model="brown")
     assert len(noisy.observations) > 5_000                       # the maps are hexbins (plots.MAP_CELLS)
     role = np.array(noisy.points.role, dtype=object)
     role[np.flatnonzero(role == "full")[:2]] = "check"
     noisy = dataclasses.replace(noisy, points=dataclasses.replace(noisy.points, role=role.astype(str)))
     rep = adjust_block(noisy)
     figs = bundle_figures(rep.result, getattr(rep, "decision", None))
-    assert {"residuals", "network", "reliability", "checkpoints", "w", "redundancy", "convergence"} <= set(figs)
+    assert {"residuals", "network", "distortion_cam", "reliability", "checkpoints", "w", "redundancy",
+            "convergence"} <= set(figs)
     for name, (fig, _) in figs.items():
         assert getattr(fig, FIXED_LAYOUT, False), name
         fig.canvas.draw()
