@@ -73,14 +73,16 @@ def text_inches(text: str, fontsize: float) -> float:
 
 def wrap_inches(text: str, width: float, fontsize: float) -> str:
     """``text`` broken into lines of at most ``width`` inches at ``fontsize`` (:func:`text_inches`),
-    never between a number and its unit ("312 mm" stays on one line)."""
+    never between a number and its unit ("312 mm" stays on one line) nor around an "=" before a number."""
     import re
     import textwrap
 
     n = max(int(width / (fontsize * 0.55 / 72.0)), 10)
     if len(text) <= n:
         return text
-    glued = re.sub(r"(\d) (?=[^\W\d_]|%|°)", "\\1\u00a0", text)       # a no-break space: textwrap keeps it
+    # no-break spaces (textwrap keeps them): "312 mm", "|w| = 3.29"
+    glued = re.sub(r"(\d) (?=[^\W\d_]|%|°)", "\\1\u00a0", text)
+    glued = re.sub(r" = (?=[-−]?\d)", "\u00a0=\u00a0", glued)
     return "\n".join(textwrap.wrap(glued, n, break_long_words=False)).replace("\u00a0", " ")
 
 

@@ -77,6 +77,7 @@ def test_wrap_inches():
     assert wrap_inches("short", 3.0, 9) == "short"
     t = "check points: plan error vectors × 451 (adjusted − surveyed; largest 312 mm)"
     assert "312 mm" in wrap_inches(t, 5.6, 10).split("\n")[-1]        # a number keeps its unit
+    assert wrap_inches("w of helmert-screening: histogram; critical |w| = 3.29", 3.9, 10).endswith("\n|w| = 3.29")
 
 
 def _inside(fig, renderer) -> list[str]:
