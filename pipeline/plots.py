@@ -346,8 +346,9 @@ def hex_reduce(x, y, c, gridsize: int, reduce: str = "mean"):
     from matplotlib import transforms
 
     x, y, c = (np.asarray(a, float).ravel() for a in (x, y, c))
-    xmin, xmax = transforms._nonsingular(float(x.min()), float(x.max()), expander=0.1)
-    ymin, ymax = transforms._nonsingular(float(y.min()), float(y.max()), expander=0.1)
+    nonsingular = getattr(transforms, "_nonsingular", transforms.nonsingular)    # hexbin's own (matplotlib 3.11)
+    xmin, xmax = nonsingular(float(x.min()), float(x.max()), expander=0.1)
+    ymin, ymax = nonsingular(float(y.min()), float(y.max()), expander=0.1)
     extent = (xmin, xmax, ymin, ymax)
     nx = int(gridsize)
     ny = int(nx / np.sqrt(3))
