@@ -27,6 +27,65 @@ ROLE_MARKERS = {"full": ("^", False, "full control XYZ"), "xy": ("^", True, "pla
 ``ROLE_COLORS``, so a role looks the same in report.html and in rerun)."""
 
 
+FIXED_LAYOUT = "_baarda_fixed_layout"
+"""Attribute :func:`fixed_layout` sets on a figure: its margins are final, :func:`~baarda.pipeline.html.png_of`
+saves it as it is (no tight bounding box, no layout engine at save time)."""
+
+
+def fixed_layout(fig, *, left: float = 0.75, right: float = 0.25, bottom: float = 0.6, top: float = 0.45,
+                 wspace: float | None = None, hspace: float | None = None):
+    """Margins of ``fig`` fixed once, in **inches** (the text around the axes has an absolute size, the
+    figure's does not): ``left``/``right``/``bottom``/``top`` from the figure's edges, ``wspace``/``hspace``
+    between the panels of its grid.  Replaces ``tight_layout``, which measured every tick label of every
+    panel — twice, once more for the tight bounding box at saving — and was the largest share of a big
+    run's figures.  Marks the figure (:data:`FIXED_LAYOUT`) so that it is saved without a tight box.
+    Returns the figure."""
+    w, h = fig.get_size_inches()
+    kw = {"left": left / w, "right": 1 - right / w, "bottom": bottom / h, "top": 1 - top / h}
+    axes = [a for a in fig.axes if a.get_subplotspec() is not None]
+    if axes and (wspace is not None or hspace is not None):
+        gs = axes[0].get_subplotspec().get_topmost_subplotspec().get_gridspec()   # not a colour bar's
+        nrow, ncol = gs.get_geometry()
+        if wspace is not None:      # matplotlib's wspace: a fraction of the mean panel width
+            aw = (w - left - right - (ncol - 1) * wspace) / ncol
+            kw["wspace"] = wspace / max(aw, 1e-3)
+        if hspace is not None:
+            ah = (h - top - bottom - (nrow - 1) * hspace) / nrow
+            kw["hspace"] = hspace / max(ah, 1e-3)
+    fig.subplots_adjust(**kw)
+    setattr(fig, FIXED_LAYOUT, True)
+    return fig
+
+
+def fixed_titles():
+    """A context in which new axes place their titles at a fixed height (``axes.titley`` = 1, above
+    the axes by ``axes.titlepad``) instead of moving them above whatever tick labels or offset text
+    reach over the axes — matplotlib's automatic placement measures every tick label of every panel
+    again when it draws.  For figures with :func:`fixed_layout` and no ticks on top."""
+    return _plt().rc_context({"axes.titley": 1.0})
+
+
+def text_inches(text: str, fontsize: float) -> float:
+    """Width of one line of ``text`` in inches at ``fontsize`` points, estimated without drawing
+    (DejaVu Sans: about 0.55 em a character of mixed text) — for margins and wrapping fixed before saving."""
+    return len(text) * fontsize * 0.55 / 72.0
+
+
+def wrap_inches(text: str, width: float, fontsize: float) -> str:
+    """``text`` broken into lines of at most ``width`` inches at ``fontsize`` (:func:`text_inches`),
+    never between a number and its unit ("312 mm" stays on one line) nor around an "=" before a number."""
+    import re
+    import textwrap
+
+    n = max(int(width / (fontsize * 0.55 / 72.0)), 10)
+    if len(text) <= n:
+        return text
+    # no-break spaces (textwrap keeps them): "312 mm", "|w| = 3.29"
+    glued = re.sub(r"(\d) (?=[^\W\d_]|%|°)", "\\1\u00a0", text)
+    glued = re.sub(r" = (?=[-−]?\d)", "\u00a0=\u00a0", glued)
+    return "\n".join(textwrap.wrap(glued, n, break_long_words=False)).replace("\u00a0", " ")
+
+
 def role_colour(role: str):
     """A point role's colour as matplotlib RGB (the recordings' ``ROLE_COLORS``)."""
     from .recording import ROLE_COLORS, UNKNOWN_ROLE_COLOR
@@ -52,10 +111,13 @@ def w_distribution(w, critical: float, title: str = "w-test statistics"):
     plt = _plt()
     w = np.asarray(w, float)
     w = w[np.isfinite(w)]
-    fig, (a, b) = plt.subplots(1, 2, figsize=(9, 3.6))
+    with fixed_titles():
+        fig, (a, b) = plt.subplots(1, 2, figsize=(9, 3.6))
     lim = max(4.5, float(np.max(np.abs(w))) if w.size else 4.5)
     bins = np.linspace(-lim, lim, max(15, min(80, int(np.sqrt(max(w.size, 1))) * 2)))
-    a.hist(w, bins=bins, density=True, color="#8fb3de", ec="#4a6fa0", lw=0.5, label=f"w ({w.size})")
+    # one filled outline, not a rectangle artist per bin (80 of them were half of this figure's drawing)
+    a.hist(w, bins=bins, density=True, histtype="stepfilled", color="#8fb3de", ec="#4a6fa0", lw=0.6,
+           label=f"w ({w.size})")
     x = np.linspace(-lim, lim, 400)
     a.plot(x, sps.norm.pdf(x), color="k", lw=1.2, label="N(0, 1)")
     for s in (-critical, critical):
@@ -73,21 +135,24 @@ def w_distribution(w, critical: float, title: str = "w-test statistics"):
     b.set_xlabel("N(0, 1) quantile")
     b.set_ylabel("sorted w")
     b.set_title("normal QQ plot", fontsize=10)
-    fig.tight_layout()
+    a.set_title(wrap_inches(a.get_title(), 3.9, 10), fontsize=10)
+    fixed_layout(fig, left=0.55, right=0.2, bottom=0.55, top=0.3 + 0.17 * a.get_title().count("\n"), wspace=0.8)
     return fig
 
 
 def redundancy_numbers(r, labels_x=None, title="Redundancy numbers r = (Qvv P)ii"):
     plt = _plt()
     r = np.asarray(r, float)
-    fig, ax = plt.subplots(figsize=(6.5, 3.4))
-    ax.hist(r, bins=np.linspace(0, 1, 41), color="#9bc49b", ec="#3f7a3f", lw=0.5)
+    with fixed_titles():
+        fig, ax = plt.subplots(figsize=(6.5, 3.4))
+    ax.hist(r, bins=np.linspace(0, 1, 41), histtype="stepfilled", color="#9bc49b", ec="#3f7a3f", lw=0.6)
     ax.axvline(np.mean(r) if r.size else 0, color="k", lw=1, label=f"mean {np.mean(r):.3f}" if r.size else "")
     ax.set_xlabel("r")
     ax.set_ylabel("rows")
     ax.set_title(f"{title}; smallest {np.min(r):.3g}" if r.size else title, fontsize=10)
     ax.legend(fontsize=8)
-    fig.tight_layout()
+    ax.set_title(wrap_inches(ax.get_title(), 5.5, 10), fontsize=10)
+    fixed_layout(fig, left=0.85, right=0.2, bottom=0.55, top=0.3 + 0.17 * ax.get_title().count("\n"))
     return fig
 
 
@@ -272,6 +337,49 @@ def plain_ticks(ax, axis: str = "y") -> None:
     a.set_minor_formatter(NullFormatter())
 
 
+def hex_reduce(x, y, c, gridsize: int, reduce: str = "mean"):
+    """The cells of matplotlib's ``hexbin(x, y, gridsize=gridsize)`` (its grid: the data's extent,
+    ``gridsize`` hexagons across, two interleaved lattices) and the ``reduce`` ("mean", "min", "max")
+    of ``c`` in each, in numpy: ``(cx, cy, value, extent)`` of the occupied cells in hexbin's order of
+    cells — ``hexbin(cx, cy, extent=extent, gridsize=gridsize, mincnt=1)`` draws the same cells, one
+    point in each, and ``set_array(value)`` colours them."""
+    from matplotlib import transforms
+
+    x, y, c = (np.asarray(a, float).ravel() for a in (x, y, c))
+    nonsingular = getattr(transforms, "_nonsingular", transforms.nonsingular)    # hexbin's own (matplotlib 3.11)
+    xmin, xmax = nonsingular(float(x.min()), float(x.max()), expander=0.1)
+    ymin, ymax = nonsingular(float(y.min()), float(y.max()), expander=0.1)
+    extent = (xmin, xmax, ymin, ymax)
+    nx = int(gridsize)
+    ny = int(nx / np.sqrt(3))
+    pad = 1e-9 * (xmax - xmin)
+    x0, x1 = xmin - pad, xmax + pad
+    sx, sy = (x1 - x0) / nx, (ymax - ymin) / ny
+    ix, iy = (x - x0) / sx, (y - ymin) / sy
+    ix1, iy1 = np.round(ix), np.round(iy)
+    ix2, iy2 = np.floor(ix), np.floor(iy)
+    first = (ix - ix1) ** 2 + 3.0 * (iy - iy1) ** 2 < (ix - ix2 - 0.5) ** 2 + 3.0 * (iy - iy2 - 0.5) ** 2
+    inside = np.where(first, (ix1 >= 0) & (ix1 <= nx) & (iy1 >= 0) & (iy1 <= ny),
+                      (ix2 >= 0) & (ix2 < nx) & (iy2 >= 0) & (iy2 < ny))
+    # hexbin's cell numbers: lattice 1 (centres on the integers) first, then lattice 2 (half-integers)
+    n1 = (nx + 1) * (ny + 1)
+    key = np.where(first, ix1 * (ny + 1) + iy1, n1 + ix2 * ny + iy2)[inside].astype(np.int64)
+    cv = c[inside]
+    n = n1 + nx * ny
+    cnt = np.bincount(key, minlength=n)
+    cells = np.flatnonzero(cnt)
+    if reduce == "mean":
+        val = np.bincount(key, weights=cv, minlength=n)[cells] / cnt[cells]
+    else:
+        val = np.full(n, np.inf if reduce == "min" else -np.inf)
+        (np.minimum if reduce == "min" else np.maximum).at(val, key, cv)
+        val = val[cells]
+    two = cells >= n1
+    kx = np.where(two, (cells - n1) // max(ny, 1) + 0.5, cells // (ny + 1))
+    ky = np.where(two, (cells - n1) % max(ny, 1) + 0.5, cells % (ny + 1))
+    return x0 + kx * sx, ymin + ky * sy, val, extent
+
+
 def value_map(ax, x, y, c, *, cmap="viridis", vmin=None, vmax=None, gridsize: int = 40, reduce="mean",
               s: float = 6, big: int = MAP_CELLS):
     """Values ``c`` at positions (x, y) as a colour map: one marker per position for a small set
@@ -282,9 +390,20 @@ def value_map(ax, x, y, c, *, cmap="viridis", vmin=None, vmax=None, gridsize: in
     ok = np.isfinite(x) & np.isfinite(y) & np.isfinite(c)
     x, y, c = x[ok], y[ok], c[ok]
     if len(c) > big:
-        fn = {"mean": np.mean, "min": np.min, "max": np.max}[reduce]
-        return ax.hexbin(x, y, C=c, gridsize=gridsize, reduce_C_function=fn, cmap=cmap, vmin=vmin, vmax=vmax,
-                         mincnt=1, linewidths=0.1)
+        cx, cy, cc, extent = hex_reduce(x, y, c, gridsize, reduce)
+        # the cells reduced in numpy, drawn as hexbin's count of one point at each centre on the same grid
+        # (the same extent), coloured by the value: hexbin's own C= gathers the values in a Python list
+        # per point and reduces every cell by a Python call (0.3 s a map of 300 000 image points)
+        h = ax.hexbin(cx, cy, gridsize=gridsize, extent=extent, cmap=cmap, vmin=vmin, vmax=vmax, mincnt=1,
+                      linewidths=0.1, rasterized=True)
+        if len(h.get_array()) != len(cc):       # never: the grid is hexbin's; a safe way all the same
+            h.remove()
+            return ax.hexbin(x, y, C=c, gridsize=gridsize, reduce_C_function={"mean": np.mean, "min": np.min,
+                             "max": np.max}[reduce], cmap=cmap, vmin=vmin, vmax=vmax, mincnt=1, linewidths=0.1)
+        h.set_array(cc)
+        if vmin is None or vmax is None:       # hexbin scaled the colours to its counts (all 1)
+            h.set_clim(float(np.min(cc)) if vmin is None else vmin, float(np.max(cc)) if vmax is None else vmax)
+        return h
     order = np.argsort(-c if reduce == "min" else c, kind="stable")      # the notable values on top
     return ax.scatter(x[order], y[order], c=c[order], s=s, cmap=cmap, vmin=vmin, vmax=vmax, lw=0,
                       rasterized=len(c) > RASTER)

@@ -11,8 +11,9 @@ import numpy as np
 from baarda.pipeline.api import stats
 from baarda.pipeline.camera import get_ap_model
 
-from baarda.pipeline.plots import (BIG, MAP_CELLS, ImageFrame, integer_ticks, map_ticks, mark_outside, plain_ticks, redundancy_numbers,
-                                   robust_limits, role_points, value_map, w_distribution)
+from baarda.pipeline.plots import (BIG, MAP_CELLS, ImageFrame, fixed_layout, integer_ticks, map_ticks, mark_outside, plain_ticks,
+                                   fixed_titles, redundancy_numbers, robust_limits, role_points, text_inches, value_map, w_distribution,
+                                   wrap_inches)
 
 
 from .protocol import image_units
@@ -23,9 +24,12 @@ MAX_DISTORTION_CAMERAS = 2
 MAX_ELLIPSES = 3000
 """Points whose error ellipse is drawn (the first ones; the rest would be ink, not information)."""
 MAX_PHOTOS = 8
+"""Photos drawn in the residual figure (the largest RMS first)."""
+MAX_LABELS = 40
+"""Check points named in the plan of check-point errors at most (the largest plan errors; every id is in
+bundle_points.csv)."""
 MAX_ARROWS = 600
 """Residual arrows drawn per photo at most (evenly spaced in the photo's order, plus every flagged one)."""
-"""Photos drawn in the residual figure (the largest RMS first)."""
 
 
 def _plt():
@@ -80,7 +84,8 @@ def residual_vectors(res, decision=None, images: dict | None = None, *, vectors=
     n = len(photos)
     ncol = min(4, n)
     nrow = int(np.ceil(n / ncol))
-    fig, axes = plt.subplots(nrow, ncol, figsize=(3.3 * ncol, 3.0 * nrow + 0.4), squeeze=False)
+    with fixed_titles():
+        fig, axes = plt.subplots(nrow, ncol, figsize=(3.3 * ncol, 3.0 * nrow + 0.4), squeeze=False)
     vmax = np.nanpercentile(np.hypot(v[act, 0], v[act, 1]), 95) if act.any() else 1.0
     for ax, p in zip(axes.ravel(), photos):
         j = block.photos.camera[p]
@@ -108,18 +113,30 @@ def residual_vectors(res, decision=None, images: dict | None = None, *, vectors=
         if back is not None and ext is not None:
             ax.imshow(back, cmap="gray", extent=ext, origin="upper", alpha=0.45, zorder=0)
         frame.finish(ax, j, ticks=False)
+        _few_ticks(ax)
         um = used[obs.photo == p]
         rm = np.sqrt(np.mean(v[obs.photo == p][um] ** 2)) * scale if um.any() else float("nan")
-        ax.set_title(f"photo {block.photos.ids[p]}: RMS {_img(rm, unit, 3)}"
-                     + (f" ({len(xy)} of {n_all} arrows)" if len(xy) < n_all else ""), fontsize=9)
+        ax.set_title(wrap_inches(f"photo {block.photos.ids[p]}: RMS {_img(rm, unit, 3)}", 3.1, 9)
+                     + (f"\n{len(xy)} of {n_all} arrows drawn" if len(xy) < n_all else ""), fontsize=9)
         ax.tick_params(labelsize=7)
     for ax in axes.ravel()[n:]:
         ax.axis("off")
-    fig.suptitle(f"{what} over the format ({frame.describe()}); an arrow of "
-                 f"{0.08 * 100:.0f} % of the format is {_img(vmax * scale, unit, 3)} (95th percentile); red: flagged/rejected",
-                 fontsize=10)
-    fig.tight_layout()
+    head = wrap_inches(f"{what} over the format ({frame.describe()}); an arrow of {0.08 * 100:.0f} % of the format is "
+                       f"{_img(vmax * scale, unit, 3)} (95th percentile); red: flagged/rejected", 3.3 * ncol - 0.2, 10)
+    fig.suptitle(head, fontsize=10)
+    titles = max(ax.get_title().count("\n") for ax in axes.ravel()[:n]) if n else 0
+    fixed_layout(fig, left=0.5, right=0.12, bottom=0.3, top=0.35 + 0.18 * head.count("\n") + 0.32 + 0.15 * titles,
+                 wspace=0.55, hspace=0.5 + 0.15 * titles)
     return fig
+
+
+def _few_ticks(ax, n: int = 5) -> None:
+    """At most ``n`` + 1 ticks a side of an image panel: a format needs no more to be read, and every
+    tick is a line and a text to lay out and draw (8 panels of 9 × 7 ticks were a third of the figure)."""
+    from matplotlib.ticker import MaxNLocator
+
+    ax.xaxis.set_major_locator(MaxNLocator(n))
+    ax.yaxis.set_major_locator(MaxNLocator(n))
 
 
 def _ellipse(cov2):
@@ -152,14 +169,15 @@ def network(res):
     s95 = float(np.quantile(sig[ok].max(axis=1), 0.95)) if ok.any() else 0.0
     k = 0.03 * span / s95 if s95 > 0 else 0.0
     pts_ok = XYZ[ok & np.isfinite(XYZ).all(axis=1)]
-    if k > 0 and len(pts_ok) > 20:       # a dense cloud: ellipses of the 95th percentile ≈ the typical spacing
+    if k > 0 and len(pts_ok) > 20 and not big:   # a dense cloud: ellipses of the 95th percentile ≈ the typical spacing
         from scipy.spatial import cKDTree
 
         nn = cKDTree(pts_ok).query(pts_ok, k=2)[0][:, 1]
         spacing = float(np.median(nn[nn > 0])) if np.any(nn > 0) else 0.0
         if spacing > 0:
             k = min(k, spacing / s95)
-    fig, axes = plt.subplots(1, 2, figsize=(12, 5))
+    with fixed_titles():
+        fig, axes = plt.subplots(1, 2, figsize=(12, 5))
     for ax, (i, j, name) in zip(axes, [(0, 1, "plan (X, Y)"), (0, 2, "elevation (X, Z)")]):
         if big:          # a big block: the points as a density, rasterised
             ax.hexbin(XYZ[used, i], XYZ[used, j], gridsize=60, bins="log", cmap="Greys", mincnt=1,
@@ -195,8 +213,11 @@ def network(res):
         head = "every point held fixed (σ = 0): no error ellipse to draw"
     else:
         head = "no standard errors of the points (covariance not computed)"
-    fig.suptitle(f"Network; {head}", fontsize=10)
-    fig.tight_layout()
+    head = wrap_inches(f"Network; {head}", 11.6, 10)
+    fig.suptitle(head, fontsize=10)
+    xs = np.abs(np.r_[XYZ[used, 0], X0[:, 0]])
+    long_x = bool(np.max(xs[np.isfinite(xs)], initial=0.0) >= 1e4)       # map_ticks slants the x labels
+    fixed_layout(fig, left=1.05, right=0.2, bottom=0.9 if long_x else 0.7, top=0.62 + 0.17 * head.count("\n"), wspace=1.1)
     return fig
 
 
@@ -207,7 +228,8 @@ def checkpoint_errors(res):
     chk = np.flatnonzero((pts.role == "check") & res.point_used)
     d = res.state.XYZ[chk] - pts.XYZ[chk]
     ou = block.object_unit
-    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.2), gridspec_kw={"width_ratios": [1.3, 1]})
+    with fixed_titles():
+        fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.2), gridspec_kw={"width_ratios": [1.3, 1]})
     # the network's extent from the adjusted points (tie points have no given coordinates: nan)
     xy_used = res.state.XYZ[res.point_used][:, :2]
     xy_used = xy_used[np.isfinite(xy_used).all(axis=1)]
@@ -220,20 +242,26 @@ def checkpoint_errors(res):
              color="#d35400", width=0.005)
     a.update_datalim(pts.XYZ[chk, :2] + k * d[:, :2])      # the arrow heads inside the axes
     a.autoscale_view()
-    for p, x, y in zip(pts.ids[chk], pts.XYZ[chk, 0], pts.XYZ[chk, 1]):
-        a.annotate(str(p), (x, y), fontsize=7, xytext=(3, 3), textcoords="offset points")
+    named = np.argsort(-np.nan_to_num(np.hypot(d[:, 0], d[:, 1]), nan=-1.0), kind="stable")[:MAX_LABELS]
+    for i in named:          # the ids of the largest errors (a text each: not hundreds)
+        a.annotate(str(pts.ids[chk][i]), (pts.XYZ[chk[i], 0], pts.XYZ[chk[i], 1]), fontsize=7, xytext=(3, 3),
+                   textcoords="offset points")
     a.set_aspect("equal", adjustable="datalim")
     map_ticks(a, res.state.XYZ[res.point_used, 0])
     if dmax > 0:
         a.set_title(f"check points: plan error vectors × {fmt_num(k, 3)} (adjusted − surveyed; largest "
-                    f"{fmt_q(dmax, ou, 3)})", fontsize=10)
+                    f"{fmt_q(dmax, ou, 3)})" + (f"; ids of the {len(named)} largest of {len(chk)}"
+                                                if len(named) < len(chk) else ""), fontsize=10)
     else:
         a.set_title("check points: adjusted − surveyed is 0 in plan at every point (no vectors to draw)", fontsize=10)
     b.bar(np.arange(len(chk)), d[:, 2], color="#5b7fb5")
     b.set_xticks(np.arange(len(chk)), [str(x) for x in pts.ids[chk]], fontsize=7, rotation=90)
     b.axhline(0, color="k", lw=0.7)
     b.set_title(f"dZ ({ou})", fontsize=10)
-    fig.tight_layout()
+    a.set_title(wrap_inches(a.get_title(), 5.6, 10), fontsize=10)
+    longest = max((text_inches(str(x), 7) for x in pts.ids[chk]), default=0.2)     # the ids, turned upright
+    fixed_layout(fig, left=1.05, right=0.2, bottom=max(0.7, longest + 0.25), top=0.35 + 0.17 * a.get_title().count("\n"),
+                 wspace=1.0)
     return fig
 
 
@@ -241,7 +269,8 @@ def convergence(history):
     """vᵀPv and the largest correction per iteration of a :class:`~baarda.pipeline.adjustment.Convergence`."""
     plt = _plt()
     it = history.iteration
-    fig, a = plt.subplots(figsize=(6.5, 3.4))
+    with fixed_titles():
+        fig, a = plt.subplots(figsize=(6.5, 3.4))
     vtpv = np.asarray(history.vtpv, float)
     pos = vtpv[np.isfinite(vtpv) & (vtpv > 0)]
     log = pos.size > 1 and pos.max() / pos.min() > 10        # a log axis only where it spans a decade
@@ -258,12 +287,18 @@ def convergence(history):
     a.set_xlabel("iteration")
     a.set_ylabel("vᵀPv")
     integer_ticks(a, "x")
+    from matplotlib.ticker import LogLocator
+
+    # minor ticks of a log axis at 2 and 5 of each decade, not at 2 … 9 (120 ticks over 10 decades of
+    # steps were most of this small figure's drawing)
     if log:
         plain_ticks(a, "y")
+        a.yaxis.set_minor_locator(LogLocator(10.0, subs=(2.0, 5.0)))
     if shown.any():
         plain_ticks(a2, "y")
+        a2.yaxis.set_minor_locator(LogLocator(10.0, subs=(2.0, 5.0)))
     a.set_title("Convergence", fontsize=10)
-    fig.tight_layout()
+    fixed_layout(fig, left=1.0, right=1.0 if shown.any() else 0.2, bottom=0.55, top=0.3)
     return fig
 
 
@@ -296,7 +331,8 @@ def distortion(res, j: int, n: int = 60):
         sy = np.sqrt(np.clip(np.einsum("ni,ij,nj->n", J[:, 1], Cap, J[:, 1]), 0, None))
         return np.asarray(dx) * scale, np.asarray(dy) * scale, sx * scale, sy * scale
 
-    fig, (a, b) = plt.subplots(1, 2, figsize=(10.5, 3.9))
+    with fixed_titles():
+        fig, (a, b) = plt.subplots(1, 2, figsize=(10.5, 3.9))
     t = np.linspace(0, fw / 2, n)
     dx, _, sx, _ = delta(t, np.zeros(n))
     t2 = np.linspace(0, fh / 2, n)
@@ -340,7 +376,8 @@ def distortion(res, j: int, n: int = 60):
     fig.colorbar(cs, ax=b, label=f"σ of the distortion ({unit})")
     frame.finish(b, j if frame.extent(j) is not None else None, pad=0.04)
     b.set_title(f"field over the format; longest arrow {_img(mag.max(), unit, 3)}", fontsize=10)
-    fig.tight_layout()
+    a.set_title(wrap_inches(a.get_title(), 4.6, 10), fontsize=10)
+    fixed_layout(fig, left=0.85, right=0.5, bottom=0.55, top=0.3 + 0.17 * a.get_title().count("\n"), wspace=1.5)
     return fig
 
 
@@ -387,7 +424,8 @@ def reliability_maps(res):
     mtop = float(np.quantile(mfin, 0.98)) if mfin.size else 1.0
     mlo = float(np.quantile(mfin, 0.02)) if mfin.size else 0.0     # similar MDBs: colours over their spread
     mlo = mlo if mlo < mtop else 0.0
-    fig, axes = plt.subplots(2, 2, figsize=(11.5, 7.0))
+    with fixed_titles():
+        fig, axes = plt.subplots(2, 2, figsize=(11.5, 7.0))
     big = act.sum() > MAP_CELLS
     what = "hexbin: mean r / largest MDB of each cell" if big else "one dot per image point"
     panels = [(axes[0, 0], xy[:, 0], xy[:, 1], r, "viridis", 0.0, 1.0, "min", f"redundancy r over the format ({gu})"),
@@ -405,6 +443,7 @@ def reliability_maps(res):
         cb.ax.tick_params(labelsize=7)
         if n < 2:
             frame.finish(ax, np.unique(block.photos.camera))     # every camera's frame
+            _few_ticks(ax)
         else:
             xl = robust_limits(x)
             yl = robust_limits(y)
@@ -415,11 +454,14 @@ def reliability_maps(res):
             map_ticks(ax, x)
             ax.set_xlabel(f"{'XYZ'[ia]} ({object_unit_text(block)})", fontsize=7)
             ax.set_ylabel(f"{'XYZ'[ib]} ({object_unit_text(block)})", fontsize=7)
-        ax.set_title(title, fontsize=9)
+        ax.set_title(wrap_inches(title, 3.6, 9), fontsize=9)
         ax.tick_params(labelsize=7)
-    fig.suptitle(f"Reliability maps ({what}); MDB colours from the 2nd to the 98th percentile, "
-                 f"{_img(mlo, unit, 3)} – {_img(mtop, unit, 3)}", fontsize=10)
-    fig.tight_layout()
+    head = wrap_inches(f"Reliability maps ({what}); MDB colours from the 2nd to the 98th percentile, "
+                       f"{_img(mlo, unit, 3)} – {_img(mtop, unit, 3)}", 11.0, 10)
+    fig.suptitle(head, fontsize=10)
+    lines = [max(axes[i, 0].get_title().count("\n"), axes[i, 1].get_title().count("\n")) for i in (0, 1)]
+    fixed_layout(fig, left=0.9, right=0.8, bottom=0.75, top=0.66 + 0.17 * head.count("\n") + 0.17 * lines[0],
+                 wspace=1.55, hspace=0.95 + 0.15 * lines[1])
     return fig
 
 
@@ -445,9 +487,10 @@ def bundle_figures(res, decision=None, eccentricity=None) -> dict:
     cams = res.block_in.cameras
     obs = res.block_in.observations
     n_obs = np.bincount(res.block_in.photos.camera[obs.photo[res.obs_active]], minlength=len(cams))
-    drawn = [j for j in np.argsort(-n_obs, kind="stable")
-             if res.camera_used[j] and str(cams.ap_model[j]) != "none"
-             and (np.any(res.camera_free[j, 3:]) or np.any(res.state.cam_params[j, 3:] != 0))][:MAX_DISTORTION_CAMERAS]
+    with_ap = (np.asarray(res.camera_used, bool) & (np.asarray(cams.ap_model).astype(str) != "none")
+               & (np.any(np.asarray(res.camera_free)[:, 3:], axis=1) | np.any(res.state.cam_params[:, 3:] != 0, axis=1)))
+    order = np.argsort(-n_obs, kind="stable")          # a BAL block has a camera per photo: no loop over them
+    drawn = [int(j) for j in order[with_ap[order]][:MAX_DISTORTION_CAMERAS]]
     for j in drawn:
         fig = distortion(res, j)
         if fig is not None:

@@ -174,7 +174,10 @@ def rays_and_angles(q: dict):
     kinds = (("control", (role != "tie") & (role != "check"), "#c0392b"), ("check", role == "check", "#1f4e9c"),
              ("tie", role == "tie", "#7f8c8d"))
     used = rays > 0
-    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 3.6))
+    from baarda.pipeline.plots import fixed_layout, fixed_titles
+
+    with fixed_titles():
+        fig, (a, b) = plt.subplots(1, 2, figsize=(11, 3.6))
     fin = ang[used & np.isfinite(ang)]
     top = min(90.0, float(fin.max()) * 1.1 + 1.0) if fin.size else 90.0
     bins = np.linspace(0, top, 46)
@@ -195,7 +198,7 @@ def rays_and_angles(q: dict):
     b.set_ylabel("points")
     b.set_title("rays", fontsize=10)
     b.legend(fontsize=8)
-    fig.tight_layout()
+    fixed_layout(fig, left=0.8, right=0.2, bottom=0.55, top=0.3, wspace=0.9)     # counts, one-line titles
     return fig
 
 
