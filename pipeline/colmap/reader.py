@@ -141,7 +141,12 @@ def block_from_reconstruction(rec, *, pixel_mm: float = 0.001, sensor_width_mm: 
         im = rec.images[iid]
         cfw = im.cam_from_world()
         X0[k], opk[k] = pose_from_cv(cfw.rotation.matrix(), cfw.translation)
-        names.append(im.name or str(iid))
+        try:
+            name = im.name
+        except UnicodeDecodeError as e:                       # pycolmap decodes the stored bytes as UTF-8
+            raise InputError(f"image {iid}: its name is not UTF-8 text ({e.reason} at byte {e.start})",
+                             path=source or None, field="name") from None
+        names.append(name or str(iid))
         pts2 = im.points2D
         keypoints.append(np.array([p.xy for p in pts2], float).reshape(-1, 2))
         kp_point3D.append(np.array([p.point3D_id for p in pts2], np.uint64))

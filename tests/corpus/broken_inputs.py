@@ -319,6 +319,9 @@ def colmap_cases() -> list[Case]:
     missing = dict(bins)
     del missing["model/images.bin"]
     c.append(Case("colmap/missing-images", missing, source_project("colmap", "model"), names="model"))
+    # the first image's name starts at byte 72 (count, id, qvec, tvec, camera id): not UTF-8 there
+    c.append(Case("colmap/non-utf8-name", with_file("images.bin", images[:72] + b"\x80" + images[73:]),
+                  source_project("colmap", "model"), names="name"))
     c.append(Case("colmap/text-nan-focal", {"m": lambda d: text_model(d, lambda f: edit_cameras_txt(f, 4, "nan"))},
                   source_project("colmap", "model"), names="cameras"))
     c.append(Case("colmap/text-zero-width",
