@@ -192,7 +192,8 @@ class OwnEffects:
     ``point`` (k_all, 2, 3): shift of the observed point's X, Y, Z (object units) for the bias
     ``bias`` (k_all, 2) (mm) in the row; ``eo`` (k_all, 2, 6): shift of the photo's
     X0, Y0, Z0 (object units), ω, φ, κ (rad).  ``point_sigma`` (k_all, 2, 3), ``eo_sigma``
-    (k_all, 2, 6): a-priori σ of those parameters (σ0 √Q; 0 fixed).  Inactive rows: nan.
+    (k_all, 2, 6): a-priori σ of those parameters (σ0 √Q; 0 fixed; read-only views, the same for a
+    row's x and y).  Inactive rows: nan.
     ``point_in_sigma`` / ``eo_in_sigma``: |effect| / σ (nan for fixed parameters)."""
 
     bias: np.ndarray
@@ -308,20 +309,27 @@ def own_effects(res, delta0: float = 4.13, bias=None, chunk_bytes: float = 3.2e7
     if datum is not None:
         _s_transform_effects(prob, datum, G_all, Ap_all, eo_eff, pt_eff, chunk_bytes, rigT, rig_cols)
     # to block order, scaled by the biases
-    point = np.full((k_all, 2, 3), np.nan)
-    eo = np.full((k_all, 2, 6), np.nan)
+    # (scaled in place and freed one by one: no second copy of the effects at the peak)
     b = bias[prob.oi]
     bf = np.where(np.isfinite(b), b, np.nan)
-    point[prob.oi] = pt_eff * bf[:, :, None]
-    eo[prob.oi] = eo_eff * bf[:, :, None]
+    point = np.full((k_all, 2, 3), np.nan)
+    np.multiply(pt_eff, bf[:, :, None], out=pt_eff)
+    point[prob.oi] = pt_eff
+    del pt_eff
+    eo = np.full((k_all, 2, 6), np.nan)
+    np.multiply(eo_eff, bf[:, :, None], out=eo_eff)
+    eo[prob.oi] = eo_eff
+    del eo_eff
     point[~res.row_active] = np.nan
     eo[~res.row_active] = np.nan
     var0 = res.sigma0 ** 2 / res.variance_factor
     obs = res.block_in.observations
     psig = np.sqrt(np.clip(np.einsum("nii->ni", np.nan_to_num(res.cov_points)), 0, None) * var0)[obs.point]
     esig = np.sqrt(np.clip(np.einsum("mii->mi", res.cov_eo), 0, None) * var0)[obs.photo]
-    return OwnEffects(bias=bias, point=point, eo=eo, point_sigma=np.repeat(psig[:, None], 2, axis=1),
-                      eo_sigma=np.repeat(esig[:, None], 2, axis=1), bar_delta0=bar_delta0(res, bias))
+    # the σ of a row's parameters is the same for its x and y: one (k_all, 3/6) array seen twice
+    # (a read-only broadcast view) instead of a repeated copy
+    return OwnEffects(bias=bias, point=point, eo=eo, point_sigma=np.broadcast_to(psig[:, None], (k_all, 2, 3)),
+                      eo_sigma=np.broadcast_to(esig[:, None], (k_all, 2, 6)), bar_delta0=bar_delta0(res, bias))
 
 
 def _s_transform_effects(prob, datum, G_all, Ap_all, eo_eff, pt_eff, chunk_bytes, rigT=None, rig_cols=None):
