@@ -49,6 +49,8 @@ def column_array(values: Any, name: str = "") -> pa.Array:
     and NaN become null; ints and floats mixed become float64).  Only a column Arrow cannot type
     (strings mixed with numbers, nested lists) falls back to the text of each value (``str``), as
     the CSV always showed it."""
+    if isinstance(values, pa.Array):                       # converted already (a slice of a chunked table)
+        return values
     arr = values if isinstance(values, np.ndarray) else None
     if arr is not None and arr.ndim != 1:
         raise ValueError(f"column {name!r}: expected one dimension, got shape {arr.shape}")
@@ -57,7 +59,7 @@ def column_array(values: Any, name: str = "") -> pa.Array:
     if arr is not None and arr.dtype.kind in "biu":
         return pa.array(arr)
     if arr is not None and arr.dtype.kind in "US":
-        return pa.array(arr.astype(str), type=pa.string())
+        return pa.array(arr.astype(str, copy=False), type=pa.string())
     try:
         out = pa.array(values, from_pandas=True)
     except (pa.ArrowInvalid, pa.ArrowTypeError, TypeError, ValueError):
@@ -115,8 +117,10 @@ def write_csv(path: str | Path, table: TableData | pa.Table) -> None:
             pa_csv.write_csv(t, fh, write_options=pa_csv.WriteOptions(include_header=False, quoting_style=style))
 
 
-def _needs_quotes(t: pa.Table) -> bool:
+def _needs_quotes(t: pa.Table | None) -> bool:
     """Whether a string cell of ``t`` holds a comma, a quote or a line break (vectorised)."""
+    if t is None:
+        return False
     for col in t.columns:
         if pa.types.is_string(col.type) or pa.types.is_large_string(col.type):
             if pa_compute.any(pa_compute.match_substring_regex(col, _STRUCTURAL)).as_py():
@@ -135,17 +139,74 @@ def write_parquet(path: str | Path, table: TableData | pa.Table) -> None:
     pq.write_table(t, str(path), compression="zstd", use_dictionary=text)
 
 
+CHUNK_ROWS = 1 << 16
+"""Rows of a table converted to Arrow and written at a time (:func:`write_table`): a numeric column
+that is a strided view (``r[:, 0]``) is copied by Arrow, so a whole per-observation table would be
+copied at once (70 MB at 2 000 photos) while the stage's arrays are still held."""
+
+
+def _chunks(table: TableData, stage: str, name: str):
+    """``(schema, iterator of Arrow tables of at most CHUNK_ROWS rows)``: numeric and boolean numpy
+    columns converted slice by slice, every other column (text, lists) converted once and sliced
+    (so each column has one type in every chunk)."""
+    n = table_rows(table)
+    whole = {}
+    for col, values in table.columns.items():
+        if not (isinstance(values, np.ndarray) and values.ndim == 1 and values.dtype.kind in "fbiu"):
+            whole[col] = column_array(values, col)
+    first = _arrow_rows(table, whole, 0, min(n, CHUNK_ROWS), stage, name)
+
+    def gen():
+        yield first
+        for s in range(CHUNK_ROWS, n, CHUNK_ROWS):
+            yield _arrow_rows(table, whole, s, min(n, s + CHUNK_ROWS), stage, name).cast(first.schema)
+    return first.schema, whole, gen()
+
+
+def _arrow_rows(table, whole, s, e, stage, name) -> pa.Table:
+    cols = {c: (whole[c].slice(s, e - s) if c in whole else v[s:e]) for c, v in table.columns.items()}
+    units = dict(table.units or {})
+    return to_arrow(TableData(cols, table.description, units={c: units.get(c, "") for c in cols}), stage=stage,
+                    name=name)
+
+
 def write_table(directory: str | Path, stem: str, table: TableData, *, stage: str = "",
                 name: str = "") -> dict:
     """Write ``<stem>.csv`` and ``<stem>.parquet`` into ``directory``; returns the pointer entry
-    of ``results.json``: ``{"csv", "parquet", "rows", "columns": {column: unit}}``."""
+    of ``results.json``: ``{"csv", "parquet", "rows", "columns": {column: unit}}``.  A table of more
+    than :data:`CHUNK_ROWS` rows is converted and written that many rows at a time (the Parquet
+    file then has one row group per chunk; the values and the CSV text are the same)."""
     directory = Path(directory)
-    t = to_arrow(table, stage=stage, name=name or stem)
-    write_csv(directory / f"{stem}.csv", t)
-    write_parquet(directory / f"{stem}.parquet", t)
     units = dict(table.units or {})
-    return {"csv": f"{stem}.csv", "parquet": f"{stem}.parquet", "rows": t.num_rows,
+    n = table_rows(table)
+    if n <= CHUNK_ROWS:
+        t = to_arrow(table, stage=stage, name=name or stem)
+        write_csv(directory / f"{stem}.csv", t)
+        write_parquet(directory / f"{stem}.parquet", t)
+        rows = t.num_rows
+    else:
+        rows = _write_chunked(directory, stem, table, stage, name or stem)
+    return {"csv": f"{stem}.csv", "parquet": f"{stem}.parquet", "rows": rows,
             "columns": {c: str(units.get(c, "")) for c in table.columns}}
+
+
+def _write_chunked(directory: Path, stem: str, table: TableData, stage: str, name: str) -> int:
+    schema, whole, chunks = _chunks(table, stage, name)
+    style = "needed" if _needs_quotes(pa.table(list(whole.values()), names=list(whole)) if whole else None) else "none"
+    head = io.StringIO()
+    csv.writer(head, lineterminator="\n").writerow(schema.names)
+    text = [f.name for f in schema if pa.types.is_string(f.type) or pa.types.is_large_string(f.type)
+            or pa.types.is_dictionary(f.type)]
+    rows = 0
+    with open(directory / f"{stem}.csv", "wb") as fh, \
+            pq.ParquetWriter(str(directory / f"{stem}.parquet"), schema, compression="zstd", use_dictionary=text) as pw:
+        fh.write(head.getvalue().encode("utf-8"))
+        for t in chunks:
+            if t.num_rows:
+                pa_csv.write_csv(t, fh, write_options=pa_csv.WriteOptions(include_header=False, quoting_style=style))
+            pw.write_table(t)
+            rows += t.num_rows
+    return rows
 
 
 @dataclass
