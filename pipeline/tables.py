@@ -40,6 +40,12 @@ OUTPUTS = ("full", "summary")
 _STRUCTURAL = r'[,"\r\n]'
 """Characters that make a CSV cell need quotes."""
 
+POOL = pa.system_memory_pool()
+"""The memory pool of every Arrow allocation here: the C library's ``malloc``, as numpy's.  Tables
+are written while the stage's arrays are alive; Arrow's default pool (mimalloc) keeps the pages
+its chunks freed to itself, beside the memory numpy had freed — 77 MB more at the peak of the
+2 000-photo run (docs/benchmarks.md, "Whole runs")."""
+
 
 def column_array(values: Any, name: str = "") -> pa.Array:
     """One column as an Arrow array, without a Python loop over its cells where the values allow.
@@ -55,23 +61,23 @@ def column_array(values: Any, name: str = "") -> pa.Array:
     if arr is not None and arr.ndim != 1:
         raise ValueError(f"column {name!r}: expected one dimension, got shape {arr.shape}")
     if arr is not None and arr.dtype.kind == "f":             # float16/32 as the float64 they are exactly
-        return pa.array(arr.astype(np.float64, copy=False), from_pandas=True)
+        return pa.array(arr.astype(np.float64, copy=False), from_pandas=True, memory_pool=POOL)
     if arr is not None and arr.dtype.kind in "biu":
-        return pa.array(arr)
+        return pa.array(arr, memory_pool=POOL)
     if arr is not None and arr.dtype.kind in "US":
-        return pa.array(arr.astype(str, copy=False), type=pa.string())
+        return pa.array(arr.astype(str, copy=False), type=pa.string(), memory_pool=POOL)
     try:
-        out = pa.array(values, from_pandas=True)
+        out = pa.array(values, from_pandas=True, memory_pool=POOL)
     except (pa.ArrowInvalid, pa.ArrowTypeError, TypeError, ValueError):
         out = None
     if out is not None and not _nested(out.type):
         if pa.types.is_null(out.type):             # only None: a text column without values
-            return pa.nulls(len(out), pa.string())
+            return pa.nulls(len(out), pa.string(), memory_pool=POOL)
         if pa.types.is_floating(out.type) and out.type != pa.float64():
-            return out.cast(pa.float64())
+            return out.cast(pa.float64(), memory_pool=POOL)
         return out
     cells = values.tolist() if arr is not None else list(values)
-    return pa.array([None if _missing(v) else str(v) for v in cells], type=pa.string())
+    return pa.array([None if _missing(v) else str(v) for v in cells], type=pa.string(), memory_pool=POOL)
 
 
 def _nested(tp: pa.DataType) -> bool:
@@ -114,7 +120,8 @@ def write_csv(path: str | Path, table: TableData | pa.Table) -> None:
         fh.write(head.getvalue().encode("utf-8"))
         if t.num_rows:
             style = "needed" if _needs_quotes(t) else "none"
-            pa_csv.write_csv(t, fh, write_options=pa_csv.WriteOptions(include_header=False, quoting_style=style))
+            pa_csv.write_csv(t, fh, write_options=pa_csv.WriteOptions(include_header=False, quoting_style=style),
+                             memory_pool=POOL)
 
 
 def _needs_quotes(t: pa.Table | None) -> bool:
@@ -123,7 +130,7 @@ def _needs_quotes(t: pa.Table | None) -> bool:
         return False
     for col in t.columns:
         if pa.types.is_string(col.type) or pa.types.is_large_string(col.type):
-            if pa_compute.any(pa_compute.match_substring_regex(col, _STRUCTURAL)).as_py():
+            if pa_compute.any(pa_compute.match_substring_regex(col, _STRUCTURAL, memory_pool=POOL)).as_py():
                 return True
     return False
 
@@ -136,7 +143,7 @@ def write_parquet(path: str | Path, table: TableData | pa.Table) -> None:
     # (2 000-photo observations: 0.51 → 0.23 s, 63 → 56 MB; the values are the same)
     text = [f.name for f in t.schema if pa.types.is_string(f.type) or pa.types.is_large_string(f.type)
             or pa.types.is_dictionary(f.type)]
-    pq.write_table(t, str(path), compression="zstd", use_dictionary=text)
+    pq.write_table(t, str(path), compression="zstd", use_dictionary=text, memory_pool=POOL)
 
 
 CHUNK_ROWS = 1 << 16
@@ -199,11 +206,13 @@ def _write_chunked(directory: Path, stem: str, table: TableData, stage: str, nam
             or pa.types.is_dictionary(f.type)]
     rows = 0
     with open(directory / f"{stem}.csv", "wb") as fh, \
-            pq.ParquetWriter(str(directory / f"{stem}.parquet"), schema, compression="zstd", use_dictionary=text) as pw:
+            pq.ParquetWriter(str(directory / f"{stem}.parquet"), schema, compression="zstd", use_dictionary=text,
+                             memory_pool=POOL) as pw:
         fh.write(head.getvalue().encode("utf-8"))
         for t in chunks:
             if t.num_rows:
-                pa_csv.write_csv(t, fh, write_options=pa_csv.WriteOptions(include_header=False, quoting_style=style))
+                pa_csv.write_csv(t, fh, write_options=pa_csv.WriteOptions(include_header=False, quoting_style=style),
+                             memory_pool=POOL)
             pw.write_table(t)
             rows += t.num_rows
     return rows

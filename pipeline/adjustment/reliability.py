@@ -253,6 +253,9 @@ def own_effects(res, delta0: float = 4.13, bias=None, chunk_bytes: float = 3.2e7
         rig_cols, rigT = photo_columns(prob, st, np.arange(prob.m))
     G_all = np.einsum("kiq,kic->kqc", Jc, L)                 # a_g of row c: J̃cᵀ L e_c   (k, q, 2)
     Ap_all = np.einsum("kia,kic->kac", Jp, L)                # a_p                       (k, 3, 2)
+    # nothing below needs the linearisation (Jacobians, residuals, projection): freed before the walk
+    red = red.without_linearisation()
+    del lin, Jc, Jp
     cons = red.route.constraint_cofactors(red, Qx)
     datum = red.route.datum_transform(red)
 
