@@ -220,11 +220,18 @@ class OwnEffects:
         effect, in σ)`` of the largest effect measured in σ (arrays (k_all, 2); −1 / nan when none:
         inactive rows, fixed points such as control)."""
         out = []
-        for eff, s in ((self.point, self.point_in_sigma), (self.eo, self.eo_in_sigma)):
-            sn = np.nan_to_num(s, nan=-1.0)
-            j = np.argmax(sn, axis=2)
-            val = np.take_along_axis(eff, j[..., None], axis=2)[..., 0]
-            sv = np.take_along_axis(s, j[..., None], axis=2)[..., 0]
+        n = self.point.shape[0]
+        step = 1 << 16                  # rows at a time: the (k, 2, 6) temporaries of a whole block are 30 MB each
+        for eff, sig in ((self.point, self.point_sigma), (self.eo, self.eo_sigma)):
+            j = np.empty(eff.shape[:2], np.intp)
+            val, sv = np.empty(eff.shape[:2]), np.empty(eff.shape[:2])
+            for a in range(0, n, step):
+                e = eff[a:a + step]
+                s = self._in_sigma(e, sig[a:a + step])
+                jj = np.argmax(np.nan_to_num(s, nan=-1.0), axis=2)
+                val[a:a + step] = np.take_along_axis(e, jj[..., None], axis=2)[..., 0]
+                sv[a:a + step] = np.take_along_axis(s, jj[..., None], axis=2)[..., 0]
+                j[a:a + step] = jj
             j = np.where(np.isfinite(sv), j, -1)
             out += [j, val, sv]
         return tuple(out)

@@ -95,6 +95,7 @@ class BundleAdjustment:
     def log(self, result: StageResult, rec, ctx: Context) -> None:
         from .rrlog import log_bundle
 
+        release_freed()              # the figures' freed pages back before the recording's buffers
         log_bundle(rec, result.data["report"], result.report)
 
 
