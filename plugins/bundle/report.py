@@ -453,7 +453,7 @@ def _joint_columns(jt, k: int) -> dict:
         T[g] = jt.T
         flag[g] = jt.flagged
         crit[g] = jt.critical
-    return {"T2d": T, "T2d_critical": crit, "T2d_flagged": flag.tolist()}
+    return {"T2d": T, "T2d_critical": crit, "T2d_flagged": flag}
 
 
 def _image_columns(block, iu, v, nab, mdbs) -> tuple[dict, dict]:
