@@ -44,6 +44,7 @@ from baarda.pipeline.stats.snapshot import Snapshot
 from .collinearity import EO_NAMES
 from .phases import phase_step
 from .lm import final_system
+from .memory import release_freed
 from .rig import photo_columns, rig_parameter_names
 
 __all__ = ["OwnEffects", "own_effects", "own_point_effects_in_datum", "effect_vectors", "ParameterVectors", "parameter_covariance", "parameter_names_of",
@@ -260,9 +261,11 @@ def own_effects(res, delta0: float = 4.13, bias=None, chunk_bytes: float = 3.2e7
         rig_cols, rigT = photo_columns(prob, st, np.arange(prob.m))
     G_all = np.einsum("kiq,kic->kqc", Jc, L)                 # a_g of row c: J̃cᵀ L e_c   (k, q, 2)
     Ap_all = np.einsum("kia,kic->kac", Jp, L)                # a_p                       (k, 3, 2)
-    # nothing below needs the linearisation (Jacobians, residuals, projection): freed before the walk
-    red = red.without_linearisation()
+    # nothing below needs the linearisation (Jacobians, residuals, projection) or K (its factor is
+    # kept): freed, and their pages handed back, before the walk over the factor
+    red = red.lean()
     del lin, Jc, Jp
+    release_freed()
     cons = red.route.constraint_cofactors(red, Qx)
     datum = red.route.datum_transform(red)
 

@@ -77,11 +77,12 @@ class ReducedSystem:
         """``(Gg, Gp, T)`` of :func:`.factor.datum_basis` (a free network)."""
         return datum_basis(self.prob, self.Cg, self.Cp, self.st)
 
-    def without_linearisation(self) -> "ReducedSystem":
-        """This system with ``lin = None``: the same arrays, solution, factor and datum basis, for work
-        after the solve that needs neither the Jacobians nor the residuals and projection (external
-        reliability), so that they can be freed (about 100 MB at 2 000 photos)."""
-        new = dataclasses.replace(self, lin=None)
+    def lean(self) -> "ReducedSystem":
+        """This system without its linearisation and its matrix (``lin = K = None``): the same
+        right-hand side, blocks, solution, factor and datum basis, for work after the solve that
+        needs neither the Jacobians, residuals and projection nor ``K`` itself, only its factor
+        (external reliability) — so that they can be freed (about 110 MB at 2 000 photos)."""
+        new = dataclasses.replace(self, lin=None, K=None)
         for name in ("solution", "datum_basis"):          # computed once: taken over, not computed again
             if name in self.__dict__:
                 new.__dict__[name] = self.__dict__[name]
