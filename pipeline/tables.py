@@ -40,6 +40,12 @@ OUTPUTS = ("full", "summary")
 _STRUCTURAL = r'[,"\r\n]'
 """Characters that make a CSV cell need quotes."""
 
+POOL = pa.system_memory_pool()
+"""The memory pool of every Arrow allocation here: the C library's ``malloc``, as numpy's.  Tables
+are written while the stage's arrays are alive; Arrow's default pool (mimalloc) keeps the pages
+its chunks freed to itself, beside the memory numpy had freed — 77 MB more at the peak of the
+2 000-photo run (docs/benchmarks.md, "Whole runs")."""
+
 
 def column_array(values: Any, name: str = "") -> pa.Array:
     """One column as an Arrow array, without a Python loop over its cells where the values allow.
@@ -49,27 +55,29 @@ def column_array(values: Any, name: str = "") -> pa.Array:
     and NaN become null; ints and floats mixed become float64).  Only a column Arrow cannot type
     (strings mixed with numbers, nested lists) falls back to the text of each value (``str``), as
     the CSV always showed it."""
+    if isinstance(values, pa.Array):                       # converted already (a slice of a chunked table)
+        return values
     arr = values if isinstance(values, np.ndarray) else None
     if arr is not None and arr.ndim != 1:
         raise ValueError(f"column {name!r}: expected one dimension, got shape {arr.shape}")
     if arr is not None and arr.dtype.kind == "f":             # float16/32 as the float64 they are exactly
-        return pa.array(arr.astype(np.float64, copy=False), from_pandas=True)
+        return pa.array(arr.astype(np.float64, copy=False), from_pandas=True, memory_pool=POOL)
     if arr is not None and arr.dtype.kind in "biu":
-        return pa.array(arr)
+        return pa.array(arr, memory_pool=POOL)
     if arr is not None and arr.dtype.kind in "US":
-        return pa.array(arr.astype(str), type=pa.string())
+        return pa.array(arr.astype(str, copy=False), type=pa.string(), memory_pool=POOL)
     try:
-        out = pa.array(values, from_pandas=True)
+        out = pa.array(values, from_pandas=True, memory_pool=POOL)
     except (pa.ArrowInvalid, pa.ArrowTypeError, TypeError, ValueError):
         out = None
     if out is not None and not _nested(out.type):
         if pa.types.is_null(out.type):             # only None: a text column without values
-            return pa.nulls(len(out), pa.string())
+            return pa.nulls(len(out), pa.string(), memory_pool=POOL)
         if pa.types.is_floating(out.type) and out.type != pa.float64():
-            return out.cast(pa.float64())
+            return out.cast(pa.float64(), memory_pool=POOL)
         return out
     cells = values.tolist() if arr is not None else list(values)
-    return pa.array([None if _missing(v) else str(v) for v in cells], type=pa.string())
+    return pa.array([None if _missing(v) else str(v) for v in cells], type=pa.string(), memory_pool=POOL)
 
 
 def _nested(tp: pa.DataType) -> bool:
@@ -112,14 +120,17 @@ def write_csv(path: str | Path, table: TableData | pa.Table) -> None:
         fh.write(head.getvalue().encode("utf-8"))
         if t.num_rows:
             style = "needed" if _needs_quotes(t) else "none"
-            pa_csv.write_csv(t, fh, write_options=pa_csv.WriteOptions(include_header=False, quoting_style=style))
+            pa_csv.write_csv(t, fh, write_options=pa_csv.WriteOptions(include_header=False, quoting_style=style),
+                             memory_pool=POOL)
 
 
-def _needs_quotes(t: pa.Table) -> bool:
+def _needs_quotes(t: pa.Table | None) -> bool:
     """Whether a string cell of ``t`` holds a comma, a quote or a line break (vectorised)."""
+    if t is None:
+        return False
     for col in t.columns:
         if pa.types.is_string(col.type) or pa.types.is_large_string(col.type):
-            if pa_compute.any(pa_compute.match_substring_regex(col, _STRUCTURAL)).as_py():
+            if pa_compute.any(pa_compute.match_substring_regex(col, _STRUCTURAL, memory_pool=POOL)).as_py():
                 return True
     return False
 
@@ -132,20 +143,79 @@ def write_parquet(path: str | Path, table: TableData | pa.Table) -> None:
     # (2 000-photo observations: 0.51 → 0.23 s, 63 → 56 MB; the values are the same)
     text = [f.name for f in t.schema if pa.types.is_string(f.type) or pa.types.is_large_string(f.type)
             or pa.types.is_dictionary(f.type)]
-    pq.write_table(t, str(path), compression="zstd", use_dictionary=text)
+    pq.write_table(t, str(path), compression="zstd", use_dictionary=text, memory_pool=POOL)
+
+
+CHUNK_ROWS = 1 << 16
+"""Rows of a table converted to Arrow and written at a time (:func:`write_table`): a numeric column
+that is a strided view (``r[:, 0]``) is copied by Arrow, so a whole per-observation table would be
+copied at once (70 MB at 2 000 photos) while the stage's arrays are still held."""
+
+
+def _chunks(table: TableData, stage: str, name: str):
+    """``(schema, iterator of Arrow tables of at most CHUNK_ROWS rows)``: numeric and boolean numpy
+    columns converted slice by slice, every other column (text, lists) converted once and sliced
+    (so each column has one type in every chunk)."""
+    n = table_rows(table)
+    whole = {}
+    for col, values in table.columns.items():
+        if not (isinstance(values, np.ndarray) and values.ndim == 1 and values.dtype.kind in "fbiu"):
+            whole[col] = column_array(values, col)
+    first = _arrow_rows(table, whole, 0, min(n, CHUNK_ROWS), stage, name)
+
+    def gen():
+        yield first
+        for s in range(CHUNK_ROWS, n, CHUNK_ROWS):
+            yield _arrow_rows(table, whole, s, min(n, s + CHUNK_ROWS), stage, name).cast(first.schema)
+    return first.schema, whole, gen()
+
+
+def _arrow_rows(table, whole, s, e, stage, name) -> pa.Table:
+    cols = {c: (whole[c].slice(s, e - s) if c in whole else v[s:e]) for c, v in table.columns.items()}
+    units = dict(table.units or {})
+    return to_arrow(TableData(cols, table.description, units={c: units.get(c, "") for c in cols}), stage=stage,
+                    name=name)
 
 
 def write_table(directory: str | Path, stem: str, table: TableData, *, stage: str = "",
                 name: str = "") -> dict:
     """Write ``<stem>.csv`` and ``<stem>.parquet`` into ``directory``; returns the pointer entry
-    of ``results.json``: ``{"csv", "parquet", "rows", "columns": {column: unit}}``."""
+    of ``results.json``: ``{"csv", "parquet", "rows", "columns": {column: unit}}``.  A table of more
+    than :data:`CHUNK_ROWS` rows is converted and written that many rows at a time (the Parquet
+    file then has one row group per chunk; the values and the CSV text are the same)."""
     directory = Path(directory)
-    t = to_arrow(table, stage=stage, name=name or stem)
-    write_csv(directory / f"{stem}.csv", t)
-    write_parquet(directory / f"{stem}.parquet", t)
     units = dict(table.units or {})
-    return {"csv": f"{stem}.csv", "parquet": f"{stem}.parquet", "rows": t.num_rows,
+    n = table_rows(table)
+    if n <= CHUNK_ROWS:
+        t = to_arrow(table, stage=stage, name=name or stem)
+        write_csv(directory / f"{stem}.csv", t)
+        write_parquet(directory / f"{stem}.parquet", t)
+        rows = t.num_rows
+    else:
+        rows = _write_chunked(directory, stem, table, stage, name or stem)
+    return {"csv": f"{stem}.csv", "parquet": f"{stem}.parquet", "rows": rows,
             "columns": {c: str(units.get(c, "")) for c in table.columns}}
+
+
+def _write_chunked(directory: Path, stem: str, table: TableData, stage: str, name: str) -> int:
+    schema, whole, chunks = _chunks(table, stage, name)
+    style = "needed" if _needs_quotes(pa.table(list(whole.values()), names=list(whole)) if whole else None) else "none"
+    head = io.StringIO()
+    csv.writer(head, lineterminator="\n").writerow(schema.names)
+    text = [f.name for f in schema if pa.types.is_string(f.type) or pa.types.is_large_string(f.type)
+            or pa.types.is_dictionary(f.type)]
+    rows = 0
+    with open(directory / f"{stem}.csv", "wb") as fh, \
+            pq.ParquetWriter(str(directory / f"{stem}.parquet"), schema, compression="zstd", use_dictionary=text,
+                             memory_pool=POOL) as pw:
+        fh.write(head.getvalue().encode("utf-8"))
+        for t in chunks:
+            if t.num_rows:
+                pa_csv.write_csv(t, fh, write_options=pa_csv.WriteOptions(include_header=False, quoting_style=style),
+                             memory_pool=POOL)
+            pw.write_table(t)
+            rows += t.num_rows
+    return rows
 
 
 @dataclass

@@ -79,11 +79,14 @@ def solve_bundle(block: Block, settings: BundleSettings | None = None, *, obs_ac
     it = 0
     eps_cost = 1e-12 * max(1, prob.n_obs_rows)
     nu = 2.0
+    lin = red = None
     for it in range(1, settings.max_iter + 1):
+        lin = red = None             # the last iteration's system freed before this one is built (peak memory)
         lin = prob.normals.linearize(st, parts[-1], sparse=route.sparse_normals)   # the accepted step's projection
         t_lin += lin.t
         while True:
             ts = time.perf_counter()
+            red = None               # a rejected step's system freed before the damped one is formed
             red = route.reduced_system(prob, lin, st, lam)
             dx = red.solution[0]
             dp = red.back_substitute(dx)

@@ -500,7 +500,8 @@ class BMatrix:
         self.BkT, self.Bc = BkT, Bc
         self.n_x = prob.n_g + prob.n_c
         self.mode = "pairs" if sparse else normals.gram_mode
-        self._gram = {"dense": self._gram_dense, "pairs": self._gram_pairs, "sparse": self._gram_csr}[self.mode]
+        # (no bound method kept on self: that cycle held every iteration's blocks until the
+        # garbage collector's next full pass — 43 MB each at 2 000 photos)
 
     @property
     def Bk(self):
@@ -511,7 +512,7 @@ class BMatrix:
         """``B Bᵀ`` (n_x, n_x), dense, by the strategy of :attr:`mode`."""
         out = np.zeros((self.n_x, self.n_x))
         if self.prob.n_e:
-            self._gram(out)
+            {"dense": BMatrix._gram_dense, "pairs": BMatrix._gram_pairs, "sparse": BMatrix._gram_csr}[self.mode](self, out)
         return out
 
     def _gram_dense(self, out):

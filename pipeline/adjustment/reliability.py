@@ -44,6 +44,7 @@ from baarda.pipeline.stats.snapshot import Snapshot
 from .collinearity import EO_NAMES
 from .phases import phase_step
 from .lm import final_system
+from .memory import release_freed
 from .rig import photo_columns, rig_parameter_names
 
 __all__ = ["OwnEffects", "own_effects", "own_point_effects_in_datum", "effect_vectors", "ParameterVectors", "parameter_covariance", "parameter_names_of",
@@ -192,7 +193,8 @@ class OwnEffects:
     ``point`` (k_all, 2, 3): shift of the observed point's X, Y, Z (object units) for the bias
     ``bias`` (k_all, 2) (mm) in the row; ``eo`` (k_all, 2, 6): shift of the photo's
     X0, Y0, Z0 (object units), ω, φ, κ (rad).  ``point_sigma`` (k_all, 2, 3), ``eo_sigma``
-    (k_all, 2, 6): a-priori σ of those parameters (σ0 √Q; 0 fixed).  Inactive rows: nan.
+    (k_all, 2, 6): a-priori σ of those parameters (σ0 √Q; 0 fixed; read-only views, the same for a
+    row's x and y).  Inactive rows: nan.
     ``point_in_sigma`` / ``eo_in_sigma``: |effect| / σ (nan for fixed parameters)."""
 
     bias: np.ndarray
@@ -219,11 +221,18 @@ class OwnEffects:
         effect, in σ)`` of the largest effect measured in σ (arrays (k_all, 2); −1 / nan when none:
         inactive rows, fixed points such as control)."""
         out = []
-        for eff, s in ((self.point, self.point_in_sigma), (self.eo, self.eo_in_sigma)):
-            sn = np.nan_to_num(s, nan=-1.0)
-            j = np.argmax(sn, axis=2)
-            val = np.take_along_axis(eff, j[..., None], axis=2)[..., 0]
-            sv = np.take_along_axis(s, j[..., None], axis=2)[..., 0]
+        n = self.point.shape[0]
+        step = 1 << 16                  # rows at a time: the (k, 2, 6) temporaries of a whole block are 30 MB each
+        for eff, sig in ((self.point, self.point_sigma), (self.eo, self.eo_sigma)):
+            j = np.empty(eff.shape[:2], np.intp)
+            val, sv = np.empty(eff.shape[:2]), np.empty(eff.shape[:2])
+            for a in range(0, n, step):
+                e = eff[a:a + step]
+                s = self._in_sigma(e, sig[a:a + step])
+                jj = np.argmax(np.nan_to_num(s, nan=-1.0), axis=2)
+                val[a:a + step] = np.take_along_axis(e, jj[..., None], axis=2)[..., 0]
+                sv[a:a + step] = np.take_along_axis(s, jj[..., None], axis=2)[..., 0]
+                j[a:a + step] = jj
             j = np.where(np.isfinite(sv), j, -1)
             out += [j, val, sv]
         return tuple(out)
@@ -252,6 +261,11 @@ def own_effects(res, delta0: float = 4.13, bias=None, chunk_bytes: float = 3.2e7
         rig_cols, rigT = photo_columns(prob, st, np.arange(prob.m))
     G_all = np.einsum("kiq,kic->kqc", Jc, L)                 # a_g of row c: J̃cᵀ L e_c   (k, q, 2)
     Ap_all = np.einsum("kia,kic->kac", Jp, L)                # a_p                       (k, 3, 2)
+    # nothing below needs the linearisation (Jacobians, residuals, projection) or K (its factor is
+    # kept): freed, and their pages handed back, before the walk over the factor
+    red = red.lean()
+    del lin, Jc, Jp
+    release_freed()
     cons = red.route.constraint_cofactors(red, Qx)
     datum = red.route.datum_transform(red)
 
@@ -308,20 +322,27 @@ def own_effects(res, delta0: float = 4.13, bias=None, chunk_bytes: float = 3.2e7
     if datum is not None:
         _s_transform_effects(prob, datum, G_all, Ap_all, eo_eff, pt_eff, chunk_bytes, rigT, rig_cols)
     # to block order, scaled by the biases
-    point = np.full((k_all, 2, 3), np.nan)
-    eo = np.full((k_all, 2, 6), np.nan)
+    # (scaled in place and freed one by one: no second copy of the effects at the peak)
     b = bias[prob.oi]
     bf = np.where(np.isfinite(b), b, np.nan)
-    point[prob.oi] = pt_eff * bf[:, :, None]
-    eo[prob.oi] = eo_eff * bf[:, :, None]
+    point = np.full((k_all, 2, 3), np.nan)
+    np.multiply(pt_eff, bf[:, :, None], out=pt_eff)
+    point[prob.oi] = pt_eff
+    del pt_eff
+    eo = np.full((k_all, 2, 6), np.nan)
+    np.multiply(eo_eff, bf[:, :, None], out=eo_eff)
+    eo[prob.oi] = eo_eff
+    del eo_eff
     point[~res.row_active] = np.nan
     eo[~res.row_active] = np.nan
     var0 = res.sigma0 ** 2 / res.variance_factor
     obs = res.block_in.observations
     psig = np.sqrt(np.clip(np.einsum("nii->ni", np.nan_to_num(res.cov_points)), 0, None) * var0)[obs.point]
     esig = np.sqrt(np.clip(np.einsum("mii->mi", res.cov_eo), 0, None) * var0)[obs.photo]
-    return OwnEffects(bias=bias, point=point, eo=eo, point_sigma=np.repeat(psig[:, None], 2, axis=1),
-                      eo_sigma=np.repeat(esig[:, None], 2, axis=1), bar_delta0=bar_delta0(res, bias))
+    # the σ of a row's parameters is the same for its x and y: one (k_all, 3/6) array seen twice
+    # (a read-only broadcast view) instead of a repeated copy
+    return OwnEffects(bias=bias, point=point, eo=eo, point_sigma=np.broadcast_to(psig[:, None], (k_all, 2, 3)),
+                      eo_sigma=np.broadcast_to(esig[:, None], (k_all, 2, 6)), bar_delta0=bar_delta0(res, bias))
 
 
 def _s_transform_effects(prob, datum, G_all, Ap_all, eo_eff, pt_eff, chunk_bytes, rigT=None, rig_cols=None):

@@ -40,6 +40,7 @@ from .adjust import BundleResult, adjust, padded_ap, result_of
 from .apselect import APSelection, select_aps
 from .corrected import check_models
 from .eccentricity import Eccentricity, eccentricity_corrections
+from .memory import release_freed
 from .rig import rig_structure
 from .reliability import GlobalRowStats, OwnEffects, global_rows, own_effects, parameter_covariance
 from .settings import BundleSettings, Distance
@@ -582,6 +583,7 @@ def adjust_block(block: Block, config: BundleConfig | None = None, *,
             res = robust.final
     except AdjustmentError as e:
         raise _with_block(e, configured) from e
+    release_freed()                  # the solve's freed pages back to the system before the tests
     warnings += [str(w) for w in res.warnings]
     snap = res.snapshot
     t = o.tests
@@ -617,6 +619,7 @@ def adjust_block(block: Block, config: BundleConfig | None = None, *,
         decision[np.unique(np.flatnonzero(rejected_rows) // 2)] = "rejected"
     d0 = _delta0(t.alpha0, t.beta0)
     external = own_effects(res, d0) if snap is not None and o.output.external_reliability else None
+    release_freed()                  # and external reliability's (the final system, its effects per track)
     covariance = None
     if snap is not None and o.output.covariance_of:
         try:
@@ -636,6 +639,7 @@ def adjust_block(block: Block, config: BundleConfig | None = None, *,
         out_block = out_block.replace(observations=out_block.observations.replace(xy=raw.observations.xy))
         after = eccentricity_corrections(res.block, res.settings, o.eccentricity.distortion)
         ecc = dataclasses.replace(ecc, after=after)
+    res.problem.release_normals()    # nothing below solves again (a later use rebuilds them)
     if rejected_rows.any():
         act = out_block.observations.active.copy()
         act[np.unique(np.flatnonzero(rejected_rows) // 2)] = False

@@ -41,10 +41,11 @@ def observation_columns(ext: dict | None, k: int, suffix: str = "") -> dict:
             continue
         jp, vp, sp = (a[:, c] for a in ext["point"])
         je, ve, se = (a[:, c] for a in ext["eo"])
-        out[f"ext_point_coord_{cn}"] = ["XYZ"[j] if j >= 0 else "" for j in jp]
+        # text columns as numpy string arrays (a list of k str objects is 8 bytes a row more)
+        out[f"ext_point_coord_{cn}"] = np.array(["X", "Y", "Z", ""])[jp]                  # j = −1: ""
         out[f"ext_point_{cn}{suffix}"] = np.where(jp >= 0, vp, np.nan)
         out[f"ext_point_in_sigma_{cn}"] = np.where(jp >= 0, sp, np.nan)
-        out[f"ext_eo_param_{cn}"] = [EO_LABELS[j] if j >= 0 else "" for j in je]
+        out[f"ext_eo_param_{cn}"] = np.array([*EO_LABELS, ""])[je]
         out[f"ext_eo_{cn}{suffix}"] = np.where((je >= 0) & (je < 3), ve, np.nan)
         out[f"ext_eo_{cn}_deg"] = np.where(je >= 3, ve, np.nan)
         out[f"ext_eo_in_sigma_{cn}"] = np.where(je >= 0, se, np.nan)

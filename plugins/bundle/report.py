@@ -453,7 +453,7 @@ def _joint_columns(jt, k: int) -> dict:
         T[g] = jt.T
         flag[g] = jt.flagged
         crit[g] = jt.critical
-    return {"T2d": T, "T2d_critical": crit, "T2d_flagged": flag.tolist()}
+    return {"T2d": T, "T2d_critical": crit, "T2d_flagged": flag}
 
 
 def _image_columns(block, iu, v, nab, mdbs) -> tuple[dict, dict]:
@@ -504,7 +504,7 @@ def tables(rep) -> dict:
     tables = {}
     iu = ImageUnits.of(block)
     img, img_tests = _image_columns(block, iu, v, nab, mdbs)
-    cols = {"photo": ph_ids.tolist(), "point": pt_ids.tolist(), **img,
+    cols = {"photo": ph_ids, "point": pt_ids, **img,             # id arrays, not lists of 2 × k str objects (36 MB)
             "rx": r[:, 0], "ry": r[:, 1], "wx": w[:, 0], "wy": w[:, 1], **img_tests,
             **_joint_columns(rep.joint, len(obs)),
             **bundle_external.observation_columns(bundle_external.external_view(rep), len(obs),
@@ -527,7 +527,7 @@ def tables(rep) -> dict:
     ou = object_unit_text(block)
     o = length_suffix(ou)
     pcols = {
-        "point": pts.ids.tolist(), "role": pts.role.tolist(), f"X{o}": XYZ[:, 0], f"Y{o}": XYZ[:, 1], f"Z{o}": XYZ[:, 2],
+        "point": pts.ids, "role": pts.role, f"X{o}": XYZ[:, 0], f"Y{o}": XYZ[:, 1], f"Z{o}": XYZ[:, 2],
         f"sX{o}": sp[:, 0], f"sY{o}": sp[:, 1], f"sZ{o}": sp[:, 2], "rays": rays,
         f"dX_check{o}": dXYZ[:, 0], f"dY_check{o}": dXYZ[:, 1], f"dZ_check{o}": dXYZ[:, 2],
         **bundle_external.point_columns(res, rep.config.output.confidence, o), **_crs_columns(res, block)}

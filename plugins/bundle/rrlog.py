@@ -163,6 +163,7 @@ def log_bundle(rec, rep, report: str, max_photos: int | None = None) -> None:
         log_on_timeline(rec, "images/all/observed", "photo", counts, observed)
     else:
         log_per_entity(rec, [f"images/{p}/observed" for p in pids], counts, observed)
+    del observed, xy_view                   # handed to rerun: the per-observation columns freed as they go
     ok = rows[fin[rows]]
     okc = np.bincount(pos[obs.photo[ok]], minlength=shown.size)
     with_arrows = np.flatnonzero(okc > 0)
@@ -172,6 +173,7 @@ def log_bundle(rec, rep, report: str, max_photos: int | None = None) -> None:
         log_on_timeline(rec, "images/all/residuals", "photo", okc, arrows)
     else:
         log_per_entity(rec, [f"images/{pids[k]}/residuals" for k in with_arrows], okc[with_arrows], arrows)
+    del arrows, computed, rows, ok
     # rejected / flagged rays
     rb = np.flatnonzero(bad & res.photo_used[obs.photo] & used[obs.point])
     if rb.size:

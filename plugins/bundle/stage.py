@@ -16,6 +16,7 @@ from baarda.pipeline.api import (AdjustmentArtefact, AdjustmentError, Block, Bun
                                  ValidationContext,
                                  StageResult, TableData, adjust, attach_rigs)
 from baarda.pipeline.adjustment import EO_NAMES
+from baarda.pipeline.adjustment.memory import release_freed
 from baarda.pipeline.units import length_suffix, object_unit_text
 from baarda.pipeline.camera import get_ap_model
 from baarda.pipeline.tables import write_table
@@ -80,6 +81,7 @@ class BundleAdjustment:
         if res.snapshot is not None:
             artefacts["adjustment"] = AdjustmentArtefact("bundle", res.snapshot, res, res.obs_rows(),
                                                          linearise=bundle_external.linearisation(res))
+        release_freed()              # the report's and tables' temporaries back to the system before the outputs
         return StageResult(artefacts=artefacts, summary=summary, report=text, tables=tables,
                            data={"report": rep, "result": res, "decision": rep.decision, "options": options})
 
@@ -93,6 +95,7 @@ class BundleAdjustment:
     def log(self, result: StageResult, rec, ctx: Context) -> None:
         from .rrlog import log_bundle
 
+        release_freed()              # the figures' freed pages back before the recording's buffers
         log_bundle(rec, result.data["report"], result.report)
 
 

@@ -249,3 +249,26 @@ def test_cli_set_run_outputs(tmp_path, capsys):
     assert main(["run", str(DATA1), "--out", str(tmp_path / "run"), "--quiet", "--set", "run.outputs=summary"]) == 0
     assert not list((tmp_path / "run").glob("*_observations.*"))      # paper 000's tables are all per observation
     assert (tmp_path / "run" / "results.json").exists() and (tmp_path / "run" / "blunders_w.png").exists()
+
+
+@pytest.mark.parametrize("quoted", [True, False])
+def test_a_table_written_in_chunks_is_the_table_written_at_once(tmp_path, monkeypatch, quoted):
+    """Tables longer than CHUNK_ROWS are converted and written chunk by chunk (peak memory): the CSV
+    text is byte for byte the same and the Parquet file holds the same values, types and metadata."""
+    import baarda.pipeline.tables as tables
+
+    rng = np.random.default_rng(7)
+    t = _table(rng)
+    if not quoted:
+        t.columns["point"] = [f"P{i}" for i in range(50)]
+    pair = rng.normal(size=(50, 2))
+    t.columns["strided_px"] = pair[:, 1]                   # a strided view, as the stage's columns are
+    t.columns["all_none"] = [None] * 50
+    write_table(tmp_path, "whole", t, stage="s", name="t")
+    monkeypatch.setattr(tables, "CHUNK_ROWS", 7)
+    entry = write_table(tmp_path, "parts", t, stage="s", name="t")
+    assert entry["rows"] == 50
+    assert (tmp_path / "parts.csv").read_bytes() == (tmp_path / "whole.csv").read_bytes()
+    a, b = pq.read_table(tmp_path / "whole.parquet"), pq.read_table(tmp_path / "parts.parquet")
+    assert b.equals(a, check_metadata=True)
+    assert pq.ParquetFile(tmp_path / "parts.parquet").num_row_groups == 8
