@@ -333,6 +333,11 @@ def read_aicon(path: str | Path) -> AiconExport:
 # to a block
 
 
+
+def _id_order(point_id: str):
+    """Point ids in number order where they are integers (AICON's), any other text after them."""
+    return (0, int(point_id), "") if point_id.isdigit() else (1, 0, point_id)
+
 def aicon_block(export: AiconExport, *, sigma_image_um: float | None = None, self_calibration: bool = True,
                 keep_unused: bool = False, free_ap: tuple[str, ...] | list[str] | None = VENDOR_FREE_AP) -> Block:
     """The export as a :class:`~baarda.pipeline.model.Block` (object unit mm).
@@ -378,8 +383,8 @@ def aicon_block(export: AiconExport, *, sigma_image_um: float | None = None, sel
     n_active = {}
     for p, a in zip(ms["point"], active):
         n_active[p] = n_active.get(p, 0) + int(a)
-    without_coords = sorted({p for p in ms["point"] if p not in has_coords}, key=int)
-    few_rays = sorted((p for p in pt["id"] if n_active.get(p, 0) < 2), key=int)
+    without_coords = sorted({p for p in ms["point"] if p not in has_coords}, key=_id_order)
+    few_rays = sorted((p for p in pt["id"] if n_active.get(p, 0) < 2), key=_id_order)
     if keep_unused:
         drop = set()
         ids = list(pt["id"]) + without_coords

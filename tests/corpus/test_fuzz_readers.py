@@ -292,6 +292,25 @@ def test_fuzz_reader_large(name):
     _fuzz(name, LARGE)
 
 
+FOUND = {
+    "aicon-obc-id-not-an-integer": ("aicon-obc", lambda seed: _token(seed.split(b"\n"), 0, 0, "1e300")),
+    "colmap-image-name-not-utf8": ("colmap-images-bin", lambda seed: bytes(_flip(seed, [(72, 128)]))),
+}
+"""Inputs the slow fuzzing found to crash a reader (fixed since): replayed in every ``make test``."""
+
+
+@pytest.mark.parametrize("case", sorted(FOUND))
+def test_what_the_fuzzing_found(case):
+    name, mutate = FOUND[case]
+    make, _text = READERS[name]
+    files, target, reader = make()
+    d = _with_file(files, target, mutate(files[target]))
+    try:
+        check(reader(d), d, field=name in NAMES_FIELD)
+    finally:
+        shutil.rmtree(d, ignore_errors=True)
+
+
 def test_the_unbroken_files_read():
     for name, (make, _text) in READERS.items():
         files, target, reader = make()
