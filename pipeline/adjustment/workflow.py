@@ -161,10 +161,11 @@ class EccentricityConfig:
     tol: float = option(0.01, "settled when no correction changes by more than this × the coordinate's a-priori σ",
                         gt=0.0)
     max_rounds: int = option(5, "at most this many re-adjustments with updated corrections", ge=1)
-    distortion: Literal["centre", "rim"] = option(
-        "centre", "the camera's distortion applied to the ellipse centre of the closed form, or to 64 points of "
-                  "the circle's rim whose fitted conic's centre is taken (keeps the distortion's curvature across "
-                  "the target; docs/targets.md)")
+    distortion: Literal["rim", "centre"] = option(
+        "rim", "the camera's distortion applied to 64 points of the circle's rim whose fitted conic's centre is "
+               "taken (as a detector fits the distorted outline; keeps the distortion's curvature across the "
+               "target), or only to the ellipse centre of the closed form (cheaper, exact without distortion; "
+               "docs/targets.md)")
 
     def __post_init__(self):
         check_bounds(self)

@@ -74,7 +74,7 @@ def test_a_plate_alone_hides_the_eccentricity_in_c_and_the_mean_bias_over_noise(
 
 @pytest.mark.slow
 def test_the_closed_form_leaves_the_distortion_curvature_across_large_dots():
-    """The default (`distortion = "centre"`: the camera's distortion applied to the ellipse centre) on
+    """`distortion = "centre"` (the camera's distortion applied to the ellipse centre) on
     the plate and wall: the neglected curvature of the distortion across the 60–90 px dots (≈ 0.03 px
     RMS, ≈ 0.09 px at most) leaves c a few σ off; the rim mode does not (the fast test)."""
     P = _plate()
