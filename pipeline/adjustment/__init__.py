@@ -31,6 +31,7 @@ from .diagnose import parameter_names
 from .eccentricity import Eccentricity, eccentricity_corrections
 from .initial import ResectionResult, initial_values, intersection, resection
 from .lm import ITERATION_CALLBACK, solve_bundle
+from .memory import release_freed
 from .phases import PHASE_CALLBACK, PhaseEvent
 from .problem import BundleProblem
 from .records import Convergence, Iteration, IterationEvent, Timings
@@ -47,6 +48,7 @@ from .workflow import (EO_LABELS, APSelectionConfig, BundleConfig, BundleReport,
                        StatTestsConfig, VarianceComponentsConfig, adjust_block, bundle_settings, configure_block)
 
 __all__ = [
+    "release_freed",
     "adjust", "BundleResult", "result_of", "BundleSettings", "BundleState", "Distance", "padded_ap", "camera_meta",
     "select_aps", "APSelection", "project_observations", "EO_NAMES", "IOP_NAMES", "parameter_names",
     "resection", "ResectionResult", "intersection", "initial_values", "solve_bundle", "ITERATION_CALLBACK", "PHASE_CALLBACK", "PhaseEvent",

@@ -15,8 +15,7 @@ import numpy as np
 from baarda.pipeline.api import (AdjustmentArtefact, AdjustmentError, Block, BundleConfig, Context, InputError,
                                  ValidationContext,
                                  StageResult, TableData, adjust, attach_rigs)
-from baarda.pipeline.adjustment import EO_NAMES
-from baarda.pipeline.adjustment.memory import release_freed
+from baarda.pipeline.adjustment import EO_NAMES, release_freed
 from baarda.pipeline.units import length_suffix, object_unit_text
 from baarda.pipeline.camera import get_ap_model
 from baarda.pipeline.tables import write_table
