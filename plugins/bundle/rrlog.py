@@ -321,7 +321,7 @@ def _log_rig_sensors(rec, res, alpha: float) -> None:
             path = f"rigs/{_safe(rig)}/sensors/{_safe(s.camera)}"
             if s.reference_sensor:
                 L.append(f"- **{s.camera}**: the reference camera (the rig frame)")
-                rec.log(path, rr.AnyValues(reference=True), static=True)
+                rec.log(path, rr.AnyValues(reference_camera=[True]), static=True)   # not "reference": congruence logs that name as text
                 continue
             status = "fixed" if all(t == "fixed" for t in s.status) else (
                 "weighted" if "weighted" in s.status else "estimated")
