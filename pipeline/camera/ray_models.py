@@ -41,6 +41,7 @@ central differences, pycolmap's ``Camera.img_from_cam`` and OpenCV's ``cv2.fishe
 
 from __future__ import annotations
 
+from abc import ABCMeta, abstractmethod
 from typing import Mapping
 
 import numpy as np
@@ -72,7 +73,7 @@ def field_angle(d) -> np.ndarray:
 _SAFE_RAY = np.array([0.0, 0.0, -1.0])
 
 
-class RayModel(APModel):
+class RayModel(APModel, metaclass=ABCMeta):
     """Base class of the ray models (see the module docstring)."""
 
     ray = True
@@ -83,12 +84,12 @@ class RayModel(APModel):
     """What the model can project (the text of :class:`RayOutsideModel`)."""
 
     # -- to implement: everything at once --------------------------------------------------------
-    def _eval(self, d, P, c, meta, jac: bool):  # pragma: no cover - abstract
+    @abstractmethod
+    def _eval(self, d, P, c, meta, jac: bool):
         """``(xy (n, 2), valid (n,), J_d, J_p (all parameters), J_c)`` (Jacobians None unless ``jac``),
         for finite rays (invalid ones are replaced by the axis before the call).  The hook every ray
-        model implements (all built-in ones do, ``tests/camera/test_ray_models.py`` checks it)."""
-        raise NotImplementedError(f"ray model {type(self).__name__} ({self.name!r}) does not implement _eval "
-                                  "(docs/camera-models.md, 'Third-party ray models')")
+        model implements: a class without it cannot be instantiated (``TypeError`` naming it;
+        docs/camera-models.md, the paragraph on models that project from the ray)."""
 
     def _prepare(self, d, params, c):
         d = np.array(d, float).reshape(-1, 3)
@@ -223,10 +224,10 @@ class _CVModel(RayModel):
             cls.default_sigma = (np.inf,) * len(cls.params)
             cls.pixel_power = (0,) * len(cls.params)
 
-    def _normalized(self, a, b, z, E, jac):  # pragma: no cover - abstract
+    @abstractmethod
+    def _normalized(self, a, b, z, E, jac):
         """``(ud, vd, valid, Jn (n, 2, 3) w.r.t. (a, b, z), JE (n, 2, e))``: the hook of every COLMAP
-        model (each implements it; ``tests/camera/test_ray_models.py`` checks it)."""
-        raise NotImplementedError(f"COLMAP ray model {type(self).__name__} does not implement _normalized")
+        model (a class without it cannot be instantiated)."""
 
     def _eval(self, d, P, c, meta, jac):
         a, b, z = d[:, 0], -d[:, 1], -d[:, 2]

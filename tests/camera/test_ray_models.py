@@ -282,8 +282,8 @@ def test_fov_small_omega_branch_of_colmap_has_the_undistortion_series():
 
 
 def test_every_registered_ray_model_implements_its_hooks():
-    """The base classes' ``_eval`` / ``_normalized`` are abstract hooks: every registered ray model
-    overrides them (a model that did not would stop with a NotImplementedError naming it)."""
+    """The base classes' ``_eval`` / ``_normalized`` are abstract methods: every registered ray
+    model overrides them, and a class that does not cannot be instantiated (TypeError naming it)."""
     from baarda.pipeline.camera import ap_model_names, get_ap_model
     from baarda.pipeline.camera.ray_models import RayModel, _CVModel
 
@@ -297,5 +297,11 @@ def test_every_registered_ray_model_implements_its_hooks():
     class Incomplete(RayModel):
         name = "incomplete"
 
-    with pytest.raises(NotImplementedError, match="Incomplete.*_eval"):
-        Incomplete()._eval(None, None, None, {}, False)
+    with pytest.raises(TypeError, match="Incomplete.*_eval"):
+        Incomplete()
+
+    class IncompleteCV(_CVModel):
+        name = "incomplete-cv"
+
+    with pytest.raises(TypeError, match="IncompleteCV.*_normalized"):
+        IncompleteCV()
